@@ -1,0 +1,108 @@
+"""The one exception tree of chaintwin.
+
+Every mistake a user can make (a bad file, a bad profile, an impossible
+option) raises a subclass of :class:`ChaintwinError`. The command line turns
+them into a one-line message and exit code 2; a traceback means a bug.
+
+::
+
+    ChaintwinError
+    ├── DataError               bad input data
+    │   ├── RecordingError      a drive recording cannot be used
+    │   ├── ColumnMapError      a column map file is invalid
+    │   └── ProfileError        a conveyor profile is invalid
+    ├── ModelError              a model cannot be built or simulated
+    ├── EstimationError         an estimator cannot be fitted or used
+    │   └── NotFittedError      an estimator used before ``fit``
+    ├── StoreError              the results store cannot be used
+    └── ConnectorError          a live data source cannot be used
+
+Each message names the file and the place (line, column, field path) and
+says what to do.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "ChaintwinError",
+    "ColumnMapError",
+    "ConnectorError",
+    "DataError",
+    "EstimationError",
+    "ModelError",
+    "NotFittedError",
+    "ProfileError",
+    "RecordingError",
+    "StoreError",
+]
+
+
+class ChaintwinError(Exception):
+    """Base of every error chaintwin raises for a user's mistake."""
+
+
+class DataError(ChaintwinError):
+    """Input data cannot be used."""
+
+
+class RecordingError(DataError):
+    """A drive recording cannot be read or fails validation.
+
+    Parameters
+    ----------
+    source : str
+        The file as given (or ``"<text>"`` for in-memory text).
+    message : str
+        What is wrong and what to do.
+    line : int, optional
+        1-based line number in the file, when the problem sits on a line.
+    column : str, optional
+        The column header (as written), when the problem sits in a column.
+    """
+
+    def __init__(
+        self,
+        source: str,
+        message: str,
+        *,
+        line: int | None = None,
+        column: str | None = None,
+    ) -> None:
+        self.source = source
+        self.line = line
+        self.column = column
+        self.reason = message
+        where = source
+        if line is not None:
+            where += f", line {line}"
+        if column is not None:
+            where += f", column '{column}'"
+        super().__init__(f"{where}: {message}")
+
+
+class ColumnMapError(DataError):
+    """A column map (vendor header → canonical name and unit) is invalid."""
+
+
+class ProfileError(DataError):
+    """A conveyor profile is invalid: the message names the field path."""
+
+
+class ModelError(ChaintwinError):
+    """A physics model cannot be built or simulated with the given inputs."""
+
+
+class EstimationError(ChaintwinError):
+    """An estimator cannot be fitted with the given data."""
+
+
+class NotFittedError(EstimationError):
+    """An estimator was used before it was fitted."""
+
+
+class StoreError(ChaintwinError):
+    """The results store cannot be opened, read or written."""
+
+
+class ConnectorError(ChaintwinError):
+    """A live data source (OPC UA, ...) cannot be used."""

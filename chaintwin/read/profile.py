@@ -1,0 +1,374 @@
+"""Conveyor profiles: what the engineer knows of a conveyor, validated.
+
+A profile is a YAML file per conveyor (data contract, section 2), in SI
+except where a field's name says otherwise (``_deg``, ``_rpm``). Unknown
+fields are refused (a typo must not silently fall back to a default), and
+every error names the field path.
+
+Documented defaults for optional fields
+---------------------------------------
+=====================================  ==========  ==============================
+field                                  default     note
+=====================================  ==========  ==============================
+belt.incline_deg                       0.0         flat conveyor
+belt.youngs_modulus_pa, density,       none        only for belt natural
+cross_section_m2                                   frequencies / stiffness
+sprocket.teeth                         none        unknown: chordal radius = R
+gear.efficiency                        0.95        typical helical gear unit
+gear.inertia_kgm2                      0.0         referred to the motor shaft
+gear.stages                            none        tooth counts per stage
+motor.nominal_torque_nm                none        needed for ``%`` torque
+motor.nominal_speed_rpm                none
+motor.torque_time_constant_s           0.001       typical current loop
+controller.cycle_s                     0.001
+controller.position_gain_1_s           20.0
+controller.speed_gain_nm_s_rad         0.2
+controller.speed_integral_time_s       0.05
+controller.torque_limit_nm             3 × nominal torque when known, else none
+tray_mass_kg                           0.0         no carrier
+model                                  none        simulation only
+=====================================  ==========  ==============================
+
+The optional ``model:`` section describes a plant for simulation; the
+identification, calibration and weighing code never reads it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from pathlib import Path
+from typing import Annotated, Any
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from chaintwin.errors import ProfileError
+
+__all__ = [
+    "BeltSpec",
+    "ControllerSpec",
+    "ConveyorProfile",
+    "GearSpec",
+    "ModelSpec",
+    "MotorSpec",
+    "SprocketSpec",
+    "load_profile",
+    "load_profiles",
+    "parse_profile",
+]
+
+G = 9.81
+"""Gravitational acceleration in m/s², as in DESIGN.md."""
+
+Positive = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
+NonNegative = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+
+
+class _Spec(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class BeltSpec(_Spec):
+    """The chain belt and its conveying path."""
+
+    length_m: Positive
+    """Conveying length between sprocket centres, m."""
+    mass_per_m_kg: Positive
+    """Chain belt mass per metre of belt, kg/m."""
+    incline_deg: Annotated[float, Field(ge=-90.0, le=90.0)] = 0.0
+    """Incline, degrees; positive when conveying uphill."""
+    youngs_modulus_pa: Positive | None = None
+    """Belt material Young's modulus, Pa (optional)."""
+    density_kg_m3: Positive | None = None
+    """Belt material density, kg/m³ (optional)."""
+    cross_section_m2: Positive | None = None
+    """Load-bearing cross-section of the belt, m² (optional)."""
+
+
+class SprocketSpec(_Spec):
+    """The drive sprocket."""
+
+    pitch_diameter_m: Positive
+    """Pitch diameter d, m."""
+    teeth: Annotated[int, Field(ge=3, le=200)] | None = None
+    """Number of teeth z (optional; unknown means no chordal correction)."""
+
+
+class GearSpec(_Spec):
+    """The gear unit between motor and sprocket."""
+
+    ratio: Positive
+    """Gear ratio i = motor speed / output speed."""
+    efficiency: Annotated[float, Field(gt=0.0, le=1.0)] = 0.95
+    """Efficiency η while the motor drives the belt."""
+    inertia_kgm2: NonNegative = 0.0
+    """Gear unit inertia referred to the motor shaft, kg·m²."""
+    stages: list[tuple[Annotated[int, Field(ge=1)], Annotated[int, Field(ge=1)]]] | None = None
+    """Pinion and gear tooth counts per stage, motor side first (optional)."""
+
+    @model_validator(mode="after")
+    def _stages_match_ratio(self) -> GearSpec:
+        if self.stages:
+            product = math.prod(g / p for p, g in self.stages)
+            if abs(product / self.ratio - 1.0) > 0.02:
+                raise ValueError(
+                    f"the stages' tooth ratios multiply to {product:.4g}, not the ratio "
+                    f"{self.ratio:.4g}; correct gear.stages or gear.ratio"
+                )
+        return self
+
+
+class MotorSpec(_Spec):
+    """The motor."""
+
+    inertia_kgm2: Positive
+    """Rotor inertia, kg·m²."""
+    nominal_torque_nm: Positive | None = None
+    """Nominal torque, Nm; needed to read torque in ``%``."""
+    nominal_speed_rpm: Positive | None = None
+    """Nominal speed, rpm."""
+    torque_time_constant_s: NonNegative = 0.001
+    """Time constant τ of the torque lag 1/(1 + sτ), s."""
+
+
+class ControllerSpec(_Spec):
+    """The drive's cascade controller as parametrised."""
+
+    cycle_s: Annotated[float, Field(gt=0.0, le=0.1)] = 0.001
+    """Controller cycle, s."""
+    position_gain_1_s: NonNegative = 20.0
+    """Position controller gain, 1/s."""
+    speed_gain_nm_s_rad: Positive = 0.2
+    """Speed controller proportional gain, Nm·s/rad."""
+    speed_integral_time_s: Positive = 0.05
+    """Speed controller integral time, s."""
+    torque_limit_nm: Positive | None = None
+    """Torque limit, Nm (default: 3 × the motor's nominal torque)."""
+
+
+class ModelSpec(_Spec):
+    """What identification normally finds: for simulation only.
+
+    Defaults are the published reference conveyor's values.
+    """
+
+    friction: Annotated[float, Field(ge=0.0, le=2.0)] = 0.23
+    """Kinetic belt-on-rail friction coefficient μ."""
+    static_friction_ratio: Annotated[float, Field(ge=1.0, le=5.0)] = 1.2
+    """Static over kinetic friction coefficient."""
+    loss_constant_nm: NonNegative = 1.1e-4
+    """BmA: constant (Coulomb) gear/motor loss torque, Nm."""
+    loss_viscous_nm_s_rad: NonNegative = 2.1e-3
+    """BmB: speed-proportional loss, Nm/(rad/s)."""
+    loss_quadratic_nm_s2_rad2: NonNegative = 2.0e-6
+    """BmC: speed-squared loss, Nm/(rad/s)²."""
+    belt_stiffness_n_m: Positive | None = None
+    """Belt stiffness k, N/m (default: E·A/L from the belt data)."""
+    belt_damping_n_s_m: NonNegative = 200.0
+    """Belt damping, N·s/m."""
+
+
+class ConveyorProfile(_Spec):
+    """A conveyor's known data (data contract, section 2), validated.
+
+    Derived quantities are properties in SI units.
+    """
+
+    id: Annotated[str, Field(min_length=1)]
+    belt: BeltSpec
+    sprocket: SprocketSpec
+    gear: GearSpec
+    motor: MotorSpec
+    controller: ControllerSpec = ControllerSpec()
+    tray_mass_kg: NonNegative = 0.0
+    """Carrier mass that is not payload, kg."""
+    model: ModelSpec | None = None
+    """Plant parameters for simulation only; never read by identification."""
+
+    # ---------------------------------------------------------------- derived
+    @property
+    def pitch_radius_m(self) -> float:
+        """Sprocket pitch radius R = d/2, m."""
+        return self.sprocket.pitch_diameter_m / 2.0
+
+    @property
+    def chordal_radius_m(self) -> float:
+        """Chordal mean radius r = R·sin(π/z)/(π/z), m (R when z is unknown).
+
+        A chain advances r per sprocket radian on average.
+        """
+        z = self.sprocket.teeth
+        if z is None:
+            return self.pitch_radius_m
+        x = math.pi / z
+        return self.pitch_radius_m * math.sin(x) / x
+
+    @property
+    def loop_length_m(self) -> float:
+        """Belt loop length 2L + π·d, m."""
+        return 2.0 * self.belt.length_m + math.pi * self.sprocket.pitch_diameter_m
+
+    @property
+    def belt_mass_kg(self) -> float:
+        """Belt mass m_b = q·(2L + π·d), kg."""
+        return self.belt.mass_per_m_kg * self.loop_length_m
+
+    @property
+    def incline_rad(self) -> float:
+        """Incline β, rad."""
+        return math.radians(self.belt.incline_deg)
+
+    @property
+    def belt_speed_per_motor_speed(self) -> float:
+        """Mean belt speed per motor speed, r/i, in (m/s)/(rad/s)."""
+        return self.chordal_radius_m / self.gear.ratio
+
+    @property
+    def nominal_torque_nm(self) -> float | None:
+        """Motor nominal torque, Nm, when known."""
+        return self.motor.nominal_torque_nm
+
+    @property
+    def torque_limit_nm(self) -> float | None:
+        """Drive torque limit, Nm: as parametrised, else 3 × nominal, else None."""
+        if self.controller.torque_limit_nm is not None:
+            return self.controller.torque_limit_nm
+        if self.motor.nominal_torque_nm is not None:
+            return 3.0 * self.motor.nominal_torque_nm
+        return None
+
+    def moving_mass_kg(self, payload_kg: float = 0.0) -> float:
+        """Mass moved by the belt: belt + tray + payload, kg."""
+        return self.belt_mass_kg + self.tray_mass_kg + payload_kg
+
+    def reflected_inertia_kgm2(self, payload_kg: float = 0.0, *, motoring: bool = True) -> float:
+        """Inertia at the motor shaft, kg·m².
+
+        ``J = J_motor + J_gear + (m_b + m_t + m_p)·r²/(i²·η)`` while motoring;
+        with ``·η`` instead of ``/η`` when the belt drives the motor.
+
+        Parameters
+        ----------
+        payload_kg : float
+            Payload on the belt, kg.
+        motoring : bool
+            True while power flows from the motor to the belt.
+        """
+        eta = self.gear.efficiency
+        factor = 1.0 / eta if motoring else eta
+        ratio = self.chordal_radius_m / self.gear.ratio
+        return (
+            self.motor.inertia_kgm2
+            + self.gear.inertia_kgm2
+            + self.moving_mass_kg(payload_kg) * ratio * ratio * factor
+        )
+
+    def belt_stiffness_n_m(self) -> float | None:
+        """Belt stiffness k, N/m: ``model.belt_stiffness_n_m``, else E·A/L, else None."""
+        if self.model is not None and self.model.belt_stiffness_n_m is not None:
+            return self.model.belt_stiffness_n_m
+        b = self.belt
+        if b.youngs_modulus_pa is not None and b.cross_section_m2 is not None:
+            return b.youngs_modulus_pa * b.cross_section_m2 / b.length_m
+        return None
+
+    def content_hash(self) -> str:
+        """SHA-256 of the profile's canonical JSON form (defaults filled in)."""
+        text = json.dumps(self.model_dump(mode="json"), sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _format_validation_error(source: str, exc: ValidationError) -> str:
+    parts = []
+    for err in exc.errors()[:3]:
+        path = ".".join(str(p) for p in err["loc"]) or "(top level)"
+        kind = err["type"]
+        msg = err["msg"]
+        if kind == "missing":
+            hint = "add it"
+        elif kind == "extra_forbidden":
+            msg = "unknown field"
+            hint = "remove it or correct its spelling"
+        else:
+            hint = "correct it"
+        parts.append(f"field '{path}': {msg}; {hint}")
+    more = len(exc.errors()) - 3
+    tail = f" (and {more} more)" if more > 0 else ""
+    return f"{source}: " + "; ".join(parts) + tail
+
+
+def parse_profile(data: Any, source: str = "<profile>") -> ConveyorProfile:
+    """Validate a profile given as parsed YAML (a mapping).
+
+    Parameters
+    ----------
+    data : Any
+        The parsed YAML document.
+    source : str
+        Where it came from, for messages.
+
+    Raises
+    ------
+    ProfileError
+        With the field path and what to do.
+    """
+    if not isinstance(data, dict):
+        raise ProfileError(
+            f"{source}: a profile must be a YAML mapping with id, belt, sprocket, gear "
+            "and motor sections"
+        )
+    try:
+        return ConveyorProfile.model_validate(data)
+    except ValidationError as exc:
+        raise ProfileError(_format_validation_error(source, exc)) from None
+
+
+def load_profile(path: str | Path) -> ConveyorProfile:
+    """Read and validate a conveyor profile YAML file.
+
+    Raises
+    ------
+    ProfileError
+        When the file cannot be read, is not YAML, or fails validation.
+    """
+    source = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ProfileError(f"{source}: cannot read the profile ({exc}); check the path") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f", line {mark.line + 1}" if mark is not None else ""
+        raise ProfileError(f"{source}{where}: not valid YAML; fix the syntax") from None
+    return parse_profile(data, source)
+
+
+def load_profiles(folder: str | Path) -> dict[str, ConveyorProfile]:
+    """Read every ``*.yaml``/``*.yml`` profile in a folder, keyed by ``id``.
+
+    Raises
+    ------
+    ProfileError
+        When a file is invalid, two files share an id, or none is found.
+    """
+    root = Path(folder)
+    if not root.is_dir():
+        raise ProfileError(f"{root}: not a folder of profiles; give the folder that holds them")
+    found: dict[str, ConveyorProfile] = {}
+    where: dict[str, Path] = {}
+    for path in sorted([*root.glob("*.yaml"), *root.glob("*.yml")]):
+        profile = load_profile(path)
+        if profile.id in found:
+            raise ProfileError(
+                f"{path}: id '{profile.id}' is also the id of {where[profile.id]}; "
+                "give each conveyor its own id"
+            )
+        found[profile.id] = profile
+        where[profile.id] = path
+    if not found:
+        raise ProfileError(f"{root}: no *.yaml profile found in this folder")
+    return found

@@ -1,0 +1,399 @@
+"""Read drive recordings ("scopes") exactly as the data contract writes them.
+
+The format (data contract, section 1)::
+
+    # conveyor: white-belt-01
+    # sample_time_s: 0.006
+    time [s],speed_setpoint [rpm],speed [rpm],...,torque [%],digital_inputs [-]
+    0.000,0.0,0.3,...
+
+* optional leading ``# key: value`` metadata lines (numbers with ``.``);
+* one header row of ``name [unit]`` cells (or headers a column map knows);
+* ``,`` separated fields with ``.`` decimals, or ``;`` separated with ``,``
+  decimals, detected from the header row.
+
+Reading is on the hot path of every fleet run. The numeric body is parsed in
+one C call (:func:`numpy.fromstring`) after a vectorised check that every row
+has as many fields as the header; only when that fast path fails does a
+line-by-line parser run, whose only job is to find and name the bad line.
+"""
+
+from __future__ import annotations
+
+import re
+import warnings
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from chaintwin.errors import RecordingError
+from chaintwin.read.columns import ColumnMap
+from chaintwin.read.recording import FloatArray, Metadata, Recording
+from chaintwin.units import CANONICAL_CHANNELS, REQUIRED_CHANNELS, UnitContext, to_si_factor
+
+if TYPE_CHECKING:
+    from chaintwin.read.profile import ConveyorProfile
+
+__all__ = ["MIN_SAMPLES", "parse_recording", "read_recording"]
+
+MIN_SAMPLES = 32
+"""Fewest samples a recording may hold."""
+
+_HEADER_RE = re.compile(r"^\s*(?P<name>[^\[\]]*?)\s*\[(?P<unit>[^\[\]]*)\]\s*$")
+_NUMBER_KEYS = ("sample_time_s", "nominal_torque_nm", "increments_per_rev", "payload_kg", "tray_kg")
+
+
+def read_recording(
+    path: str | Path,
+    *,
+    profile: ConveyorProfile | None = None,
+    column_map: ColumnMap | None = None,
+) -> Recording:
+    """Read one recording file into SI channels.
+
+    Parameters
+    ----------
+    path : str or Path
+        The recording file. Its name as given is kept as ``source``.
+    profile : ConveyorProfile, optional
+        Supplies what the file lacks (``nominal_torque_nm`` for ``%``).
+        Metadata wins where both give a value.
+    column_map : ColumnMap, optional
+        Maps exported headers named otherwise to canonical names and units.
+
+    Returns
+    -------
+    Recording
+        Without warnings; :func:`chaintwin.validate.load_recording` adds them.
+
+    Raises
+    ------
+    RecordingError
+        Naming the file, the line or column, and what to do.
+    """
+    source = str(path)
+    try:
+        raw = Path(path).read_bytes()
+    except IsADirectoryError:
+        raise RecordingError(source, "is a folder, not a recording file") from None
+    except OSError as exc:
+        raise RecordingError(
+            source, f"cannot be read ({exc.strerror or exc}); check the path"
+        ) from None
+    return parse_recording(raw, source, profile=profile, column_map=column_map)
+
+
+def _decode(raw: bytes) -> str:
+    if raw.startswith(b"\xef\xbb\xbf"):
+        raw = raw[3:]
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError:
+        # Inverter tools on Windows export in cp1252; latin-1 never fails.
+        try:
+            return raw.decode("cp1252")
+        except UnicodeDecodeError:
+            return raw.decode("latin-1")
+
+
+def _parse_metadata(source: str, items: list[tuple[int, str, str]]) -> Metadata:
+    values: dict[str, object] = {}
+    extra: dict[str, str] = {}
+    for lineno, key, value in items:
+        if key in values or key in extra:
+            raise RecordingError(
+                source, f"metadata key '{key}' is given twice; keep one", line=lineno
+            )
+        if key in _NUMBER_KEYS:
+            try:
+                number = float(value)
+            except ValueError:
+                hint = " (use '.' as decimal mark)" if "," in value else ""
+                raise RecordingError(
+                    source, f"metadata '{key}' is '{value}', not a number{hint}", line=lineno
+                ) from None
+            if not np.isfinite(number) or number < 0 or (number == 0 and key != "payload_kg"):
+                raise RecordingError(
+                    source,
+                    f"metadata '{key}' is {value}; it must be a positive number",
+                    line=lineno,
+                )
+            values[key] = number
+        elif key == "recorded_at":
+            try:
+                stamp = datetime.fromisoformat(value)
+            except ValueError:
+                raise RecordingError(
+                    source,
+                    f"metadata 'recorded_at' is '{value}', not an ISO 8601 time "
+                    "(e.g. 2026-11-21T10:15:00Z)",
+                    line=lineno,
+                ) from None
+            values[key] = stamp if stamp.tzinfo else stamp.replace(tzinfo=UTC)
+        elif key == "conveyor":
+            if not value:
+                raise RecordingError(source, "metadata 'conveyor' is empty", line=lineno)
+            values[key] = value
+        else:
+            extra[key] = value
+    return Metadata(extra=extra, **values)  # type: ignore[arg-type]
+
+
+def _split_head(source: str, text: str) -> tuple[list[tuple[int, str, str]], int, str, str]:
+    """Return (metadata items, header line number, header line, body text)."""
+    items: list[tuple[int, str, str]] = []
+    pos = 0
+    lineno = 0
+    n = len(text)
+    while pos < n:
+        end = text.find("\n", pos)
+        if end < 0:
+            end = n
+        line = text[pos:end]
+        lineno += 1
+        pos = end + 1
+        stripped = line.strip()
+        if not stripped:
+            continue
+        if stripped.startswith("#"):
+            body = stripped[1:].strip()
+            key, sep, value = body.partition(":")
+            if sep and key.strip() and " " not in key.strip():
+                items.append((lineno, key.strip(), value.strip()))
+            continue  # other comment lines are allowed and ignored
+        return items, lineno, line, text[pos:] if pos <= n else ""
+    raise RecordingError(
+        source,
+        "holds no header row; a recording needs a row like 'time [s],speed [rpm],torque [Nm]'",
+    )
+
+
+def _parse_header(
+    source: str, header: str, sep: str, lineno: int, column_map: ColumnMap | None
+) -> tuple[list[str], list[str], list[str]]:
+    cells = [c.strip().strip('"').strip() for c in header.split(sep)]
+    names: list[str] = []
+    units: list[str] = []
+    for idx, cell in enumerate(cells, start=1):
+        target = column_map.lookup(cell) if column_map is not None else None
+        if target is not None:
+            name, unit = target.name, target.unit
+        else:
+            match = _HEADER_RE.match(cell)
+            if match is None or not match["name"]:
+                raise RecordingError(
+                    source,
+                    f"header of column {idx} is '{cell}', not 'name [unit]'; "
+                    "rename it or map it with a column map (--columns)",
+                    line=lineno,
+                )
+            name, unit = match["name"], match["unit"].strip()
+            spec = CANONICAL_CHANNELS.get(name)
+            if spec is not None and unit not in spec.units:
+                raise RecordingError(
+                    source,
+                    f"unknown unit '{unit}' for {name}; use one of {', '.join(spec.units)}",
+                    line=lineno,
+                    column=cell,
+                )
+        if name in names:
+            raise RecordingError(
+                source,
+                f"channel '{name}' appears twice in the header; keep one column per channel",
+                line=lineno,
+                column=cell,
+            )
+        names.append(name)
+        units.append(unit)
+    missing = [r for r in REQUIRED_CHANNELS if r not in names]
+    if missing:
+        found = ", ".join(cells)
+        raise RecordingError(
+            source,
+            f"missing required column '{missing[0]}' (header has: {found}); "
+            "add it, or map the exported header to it with --columns",
+            line=lineno,
+        )
+    return cells, names, units
+
+
+def _fast_body(body: str, sep: str, ncols: int) -> FloatArray | None:
+    """Parse the numeric body in one C call; None when anything is unusual."""
+    nl = body.count("\n")
+    nrows = nl + 1
+    raw = np.frombuffer(body.encode("utf-8"), dtype=np.uint8)
+    is_line_end = raw == 10
+    seps = np.cumsum(raw == ord(sep))
+    # separators per line must all be ncols-1: check at every line end
+    ends = np.flatnonzero(is_line_end)
+    counts = np.diff(np.concatenate(([0], seps[ends], [seps[-1]])))
+    if counts.shape[0] != nrows or np.any(counts != ncols - 1):
+        return None
+    if sep == ";":
+        body = body.replace(",", ".").replace(";", ",")
+    flat = body.replace("\n", ",")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        try:
+            values = np.fromstring(flat, sep=",")
+        except (ValueError, DeprecationWarning):
+            return None
+    if values.shape[0] != nrows * ncols:
+        return None
+    return values.reshape(nrows, ncols)
+
+
+def _slow_body(
+    source: str, body: str, sep: str, cells: list[str], first_line: int
+) -> tuple[FloatArray, list[int]]:
+    """Parse line by line; raise naming the first bad line and column."""
+    rows: list[list[float]] = []
+    linenos: list[int] = []
+    ncols = len(cells)
+    for offset, line in enumerate(body.split("\n")):
+        lineno = first_line + offset
+        if not line.strip():
+            continue
+        fields = line.split(sep)
+        if len(fields) != ncols:
+            raise RecordingError(
+                source,
+                f"has {len(fields)} fields, the header has {ncols}; "
+                f"every row needs one value per column (separator '{sep}')",
+                line=lineno,
+            )
+        row: list[float] = []
+        for cell, value in zip(cells, fields, strict=True):
+            text = value.strip()
+            if sep == ";":
+                text = text.replace(",", ".")
+            try:
+                if not text or "_" in text:
+                    raise ValueError(text)
+                row.append(float(text))
+            except ValueError:
+                raise RecordingError(
+                    source,
+                    f"value '{value.strip()}' is not a number; "
+                    f"write numbers with '{'.' if sep == ',' else ','}' as decimal mark",
+                    line=lineno,
+                    column=cell,
+                ) from None
+        rows.append(row)
+        linenos.append(lineno)
+    if not rows:
+        return np.empty((0, ncols)), []
+    return np.asarray(rows, dtype=np.float64), linenos
+
+
+def parse_recording(
+    data: bytes | str,
+    source: str = "<text>",
+    *,
+    profile: ConveyorProfile | None = None,
+    column_map: ColumnMap | None = None,
+) -> Recording:
+    """Parse the text of one recording; see :func:`read_recording`.
+
+    Parameters
+    ----------
+    data : bytes or str
+        The file's content.
+    source : str
+        Name used in messages and kept as ``Recording.source``.
+    profile, column_map
+        As for :func:`read_recording`.
+    """
+    text = _decode(data) if isinstance(data, bytes) else data
+    if "\r" in text:
+        text = text.replace("\r\n", "\n").replace("\r", "\n")
+    if "\x00" in text:
+        raise RecordingError(source, "is a binary file, not a text recording")
+    items, header_line, header, body = _split_head(source, text)
+    metadata = _parse_metadata(source, items)
+
+    sep = ";" if ";" in header else ","
+    cells, names, units = _parse_header(source, header, sep, header_line, column_map)
+    ncols = len(cells)
+
+    body = body.rstrip()
+    first_line = header_line + 1
+    # leading blank lines between header and data shift the line numbers
+    lead = len(body) - len(body.lstrip("\n"))
+    body_stripped = body.lstrip("\n")
+    first_line += lead
+    table = _fast_body(body_stripped, sep, ncols) if body_stripped else None
+    if table is not None:
+        linenos: list[int] | None = None
+    else:
+        table, linenos = _slow_body(source, body_stripped, sep, cells, first_line)
+
+    def line_of(row: int) -> int:
+        return linenos[row] if linenos is not None else first_line + row
+
+    nrows = table.shape[0]
+    if nrows < MIN_SAMPLES:
+        raise RecordingError(
+            source,
+            f"holds {nrows} samples; at least {MIN_SAMPLES} are needed "
+            "(record a longer scope)",
+        )
+    finite = np.isfinite(table)
+    if not finite.all():
+        row, col = np.argwhere(~finite)[0]
+        raise RecordingError(
+            source,
+            f"value is {table[row, col]!r}; every sample must be a finite number "
+            "(re-export the scope or cut the recording before it)",
+            line=line_of(int(row)),
+            column=cells[int(col)],
+        )
+
+    time_col = names.index("time")
+    dt = np.diff(table[:, time_col])
+    if np.any(dt <= 0):
+        row = int(np.flatnonzero(dt <= 0)[0]) + 1
+        raise RecordingError(
+            source,
+            f"time {table[row, time_col]:g} does not increase after {table[row - 1, time_col]:g}; "
+            "time must rise strictly from row to row",
+            line=line_of(row),
+            column=cells[time_col],
+        )
+
+    nominal = metadata.nominal_torque_nm
+    if nominal is None and profile is not None:
+        nominal = profile.nominal_torque_nm
+    context = UnitContext(increments_per_rev=metadata.increments_per_rev, nominal_torque_nm=nominal)
+
+    channels: dict[str, FloatArray] = {}
+    unit_of: dict[str, str] = {}
+    header_of: dict[str, str] = {}
+    for j, (cell, name, unit) in enumerate(zip(cells, names, units, strict=True)):
+        column = np.ascontiguousarray(table[:, j])
+        if name in CANONICAL_CHANNELS:
+            try:
+                factor = to_si_factor(name, unit, context)
+            except ValueError as exc:
+                missing = str(exc)
+                where = (
+                    "add '# nominal_torque_nm: <Nm>' to the metadata or give a profile "
+                    "with motor.nominal_torque_nm"
+                    if missing == "nominal_torque_nm"
+                    else "add '# increments_per_rev: <count>' to the metadata"
+                )
+                raise RecordingError(
+                    source,
+                    f"unit '{unit}' needs {missing}, which is not known; {where}",
+                    column=cell,
+                ) from None
+            if factor != 1.0:
+                column = column * factor
+        channels[name] = column
+        unit_of[name] = unit
+        header_of[name] = cell
+    return Recording(
+        source=source, channels=channels, units=unit_of, headers=header_of, metadata=metadata
+    )

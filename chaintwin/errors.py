@@ -96,8 +96,8 @@ class EstimationError(ChaintwinError):
     """An estimator cannot be fitted with the given data."""
 
 
-class NotFittedError(EstimationError):
-    """An estimator was used before it was fitted."""
+class NotFittedError(EstimationError, AttributeError):
+    """An estimator was used before it was fitted (also an AttributeError, as in scikit-learn)."""
 
 
 class StoreError(ChaintwinError):

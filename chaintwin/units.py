@@ -15,8 +15,8 @@ from typing import Final
 
 __all__ = [
     "CANONICAL_CHANNELS",
-    "RPM_TO_RAD_S",
     "REQUIRED_CHANNELS",
+    "RPM_TO_RAD_S",
     "SI_UNITS",
     "ChannelSpec",
     "UnitContext",

@@ -84,8 +84,7 @@ def load_column_map(path: str | Path) -> ColumnMap:
         raise ColumnMapError(f"{source}: not valid YAML; fix the syntax") from None
     if not isinstance(data, dict):
         raise ColumnMapError(
-            f"{source}: a column map is a mapping with one key 'columns' "
-            "(header → {name, unit})"
+            f"{source}: a column map is a mapping with one key 'columns' (header → {{name, unit}})"
         )
     try:
         return ColumnMap.model_validate(data)

@@ -13,15 +13,15 @@ The format (data contract, section 1)::
   decimals, detected from the header row.
 
 Reading is on the hot path of every fleet run. The numeric body is parsed in
-one C call (:func:`numpy.fromstring`) after a vectorised check that every row
-has as many fields as the header; only when that fast path fails does a
-line-by-line parser run, whose only job is to find and name the bad line.
+one compiled pass (:mod:`chaintwin.read.fastparse`) that also checks every
+row's field count; only when that fast path fails does a line-by-line parser
+run, which handles the unusual (blank lines, long mantissas) or names the bad
+line.
 """
 
 from __future__ import annotations
 
 import re
-import warnings
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -30,6 +30,7 @@ import numpy as np
 
 from chaintwin.errors import RecordingError
 from chaintwin.read.columns import ColumnMap
+from chaintwin.read.fastparse import parse_grid
 from chaintwin.read.recording import FloatArray, Metadata, Recording
 from chaintwin.units import CANONICAL_CHANNELS, REQUIRED_CHANNELS, UnitContext, to_si_factor
 
@@ -220,29 +221,9 @@ def _parse_header(
 
 
 def _fast_body(body: str, sep: str, ncols: int) -> FloatArray | None:
-    """Parse the numeric body in one C call; None when anything is unusual."""
-    nl = body.count("\n")
-    nrows = nl + 1
-    raw = np.frombuffer(body.encode("utf-8"), dtype=np.uint8)
-    is_line_end = raw == 10
-    seps = np.cumsum(raw == ord(sep))
-    # separators per line must all be ncols-1: check at every line end
-    ends = np.flatnonzero(is_line_end)
-    counts = np.diff(np.concatenate(([0], seps[ends], [seps[-1]])))
-    if counts.shape[0] != nrows or np.any(counts != ncols - 1):
-        return None
-    if sep == ";":
-        body = body.replace(",", ".").replace(";", ",")
-    flat = body.replace("\n", ",")
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        try:
-            values = np.fromstring(flat, sep=",")
-        except (ValueError, DeprecationWarning):
-            return None
-    if values.shape[0] != nrows * ncols:
-        return None
-    return values.reshape(nrows, ncols)
+    """Parse the numeric body in one compiled pass; None when anything is unusual."""
+    nrows = body.count("\n") + 1
+    return parse_grid(body.encode("utf-8"), sep, "." if sep == "," else ",", nrows, ncols)
 
 
 def _slow_body(
@@ -337,15 +318,14 @@ def parse_recording(
     if nrows < MIN_SAMPLES:
         raise RecordingError(
             source,
-            f"holds {nrows} samples; at least {MIN_SAMPLES} are needed "
-            "(record a longer scope)",
+            f"holds {nrows} samples; at least {MIN_SAMPLES} are needed (record a longer scope)",
         )
     finite = np.isfinite(table)
     if not finite.all():
         row, col = np.argwhere(~finite)[0]
         raise RecordingError(
             source,
-            f"value is {table[row, col]!r}; every sample must be a finite number "
+            f"value is {float(table[row, col])!r}; every sample must be a finite number "
             "(re-export the scope or cut the recording before it)",
             line=line_of(int(row)),
             column=cells[int(col)],
@@ -390,7 +370,17 @@ def parse_recording(
                     column=cell,
                 ) from None
             if factor != 1.0:
-                column = column * factor
+                with np.errstate(over="ignore"):
+                    column = column * factor
+                if not np.isfinite(column).all():
+                    row = int(np.flatnonzero(~np.isfinite(column))[0])
+                    raise RecordingError(
+                        source,
+                        f"value {table[row, j]:g} {unit} is too large to convert to SI; "
+                        "correct the value or its unit",
+                        line=line_of(row),
+                        column=cell,
+                    )
         channels[name] = column
         unit_of[name] = unit
         header_of[name] = cell

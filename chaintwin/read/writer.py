@@ -44,7 +44,13 @@ def _metadata_lines(meta: Metadata) -> list[str]:
     if meta.recorded_at is not None:
         stamp = meta.recorded_at.astimezone(UTC).isoformat().replace("+00:00", "Z")
         lines.append(f"# recorded_at: {stamp}")
-    for key in ("sample_time_s", "nominal_torque_nm", "increments_per_rev", "payload_kg", "tray_kg"):
+    for key in (
+        "sample_time_s",
+        "nominal_torque_nm",
+        "increments_per_rev",
+        "payload_kg",
+        "tray_kg",
+    ):
         value = getattr(meta, key)
         if value is not None:
             lines.append(f"# {key}: {value:.12g}")

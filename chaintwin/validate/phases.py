@@ -72,7 +72,7 @@ def _noise_sigma(x: FloatArray) -> float:
     """Robust white-noise standard deviation from first differences."""
     d = np.diff(x)
     mad = float(np.median(np.abs(d - np.median(d))))
-    return 1.4826 * mad / np.sqrt(2.0)
+    return float(1.4826 * mad / np.sqrt(2.0))
 
 
 def _runs(labels: np.ndarray) -> list[tuple[int, int, int]]:
@@ -154,8 +154,10 @@ def segment_speed(time: FloatArray, speed: FloatArray, *, clean: bool) -> list[P
                 rate = np.gradient(mag, time)
             else:
                 win = min(n if n % 2 else n - 1, 15)
-                rate = savgol_filter(mag, win, 2, deriv=1, delta=dt) if win >= 5 else np.gradient(
-                    mag, time
+                rate = (
+                    savgol_filter(mag, win, 2, deriv=1, delta=dt)
+                    if win >= 5
+                    else np.gradient(mag, time)
                 )
             moving_rate = np.abs(rate[moving])
             top = float(np.percentile(moving_rate, 98)) if moving_rate.size else 0.0
@@ -169,7 +171,7 @@ def segment_speed(time: FloatArray, speed: FloatArray, *, clean: bool) -> list[P
             labels[rate > a0] = 1
             labels[rate < -a0] = 3
             labels[~moving] = 0
-        min_len = max(2, int(round(0.015 / dt))) if clean else max(3, int(round(0.03 / dt)))
+        min_len = max(2, round(0.015 / dt)) if clean else max(3, round(0.03 / dt))
         labels = _merge_short(labels, min_len)
 
     phases: list[Phase] = []

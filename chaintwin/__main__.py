@@ -1,0 +1,7 @@
+"""``python -m chaintwin``: the same as the ``chaintwin`` command."""
+
+import sys
+
+from chaintwin.cli.app import main
+
+sys.exit(main())

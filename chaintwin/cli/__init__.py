@@ -1,0 +1,1 @@
+"""The ``chaintwin`` command line: thin wrappers over the library's stages."""

@@ -1,0 +1,69 @@
+"""The ``chaintwin`` Typer application and its entry point.
+
+Every user mistake surfaces as a :class:`~chaintwin.errors.ChaintwinError`;
+:func:`main` prints it on one line to standard error and exits with 2, so a
+user never sees a traceback for bad input.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+
+from chaintwin.errors import ChaintwinError
+
+__all__ = ["EXIT_ALARM", "EXIT_USAGE", "app", "main"]
+
+EXIT_USAGE = 2
+"""Exit code for bad input or usage."""
+EXIT_ALARM = 3
+"""Exit code for ``--fail-on-alarm`` when an alarm is open."""
+
+app = typer.Typer(
+    name="chaintwin",
+    help="Digital twin for condition monitoring of chain belt conveyors, "
+    "from frequency-inverter scope recordings.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+
+
+def _register() -> None:
+    # imported here so that `chaintwin --help` stays fast and modules stay small
+    from chaintwin.cli import demo_cmd, inspect_cmd
+
+    inspect_cmd.register(app)
+    demo_cmd.register(app)
+
+
+_register()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line; return the exit code.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Arguments without the program name; default ``sys.argv[1:]``.
+    """
+    try:
+        app(args=argv, prog_name="chaintwin")  # standalone: always ends in SystemExit
+    except SystemExit as exc:
+        code = exc.code
+        if code is None:
+            return 0
+        return code if isinstance(code, int) else EXIT_USAGE
+    except ChaintwinError as exc:
+        print(f"chaintwin: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("chaintwin: interrupted", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,188 @@
+"""Every contract violation is refused with the file, the place and what to do."""
+
+from __future__ import annotations
+
+import pytest
+from conftest import make_text
+
+from chaintwin import RecordingError, parse_recording, read_recording
+
+N = 40
+OK_HEAD = "time [s],speed [rpm],torque [Nm]"
+
+
+def rows(n: int = N) -> list[str]:
+    return [f"{k * 0.006:.3f},{k}.0,0.5" for k in range(n)]
+
+
+def text_of(header: str, body: list[str], meta: str = "") -> str:
+    return meta + header + "\n" + "\n".join(body) + "\n"
+
+
+def refuse(text: str | bytes, source: str = "bad.csv") -> RecordingError:
+    with pytest.raises(RecordingError) as info:
+        parse_recording(text, source)
+    err = info.value
+    msg = str(err)
+    assert msg.startswith(source), msg
+    assert "\n" not in msg, msg
+    return err
+
+
+def test_missing_required_column() -> None:
+    err = refuse(text_of("time [s],speed [rpm]", [f"{k * 0.006:.3f},1" for k in range(N)]))
+    assert "missing required column 'torque'" in str(err)
+    assert err.line == 1
+    assert "--columns" in str(err)
+
+
+def test_unknown_unit_names_column() -> None:
+    err = refuse(text_of("time [s],speed [rps],torque [Nm]", rows()))
+    assert err.column == "speed [rps]"
+    assert "unknown unit 'rps'" in str(err)
+    assert "rad/s, rpm, 1/min" in str(err)
+
+
+def test_header_without_unit() -> None:
+    err = refuse(text_of("time [s],speed,torque [Nm]", rows()))
+    assert "column 2" in str(err)
+    assert "'speed'" in str(err)
+    assert err.line == 1
+
+
+def test_duplicate_column() -> None:
+    err = refuse(
+        text_of(
+            "time [s],speed [rpm],speed [rad/s],torque [Nm]",
+            [f"{k * 0.006:.3f},1,1,1" for k in range(N)],
+        )
+    )
+    assert "appears twice" in str(err)
+
+
+def test_non_monotonic_time_names_line() -> None:
+    body = rows()
+    body[20] = "0.110,20.0,0.5"  # 0.110 < 0.114 before it
+    err = refuse(text_of(OK_HEAD, body, "# conveyor: c\n"))
+    assert err.line == 3 + 20  # metadata line, header, then row 0 on line 3
+    assert err.column == "time [s]"
+    assert "does not increase" in str(err)
+
+
+def test_repeated_time_is_refused() -> None:
+    body = rows()
+    body[5] = body[4]
+    err = refuse(text_of(OK_HEAD, body))
+    assert err.line == 1 + 5 + 1
+
+
+def test_nan_names_line_and_column() -> None:
+    body = rows()
+    body[7] = "0.042,nan,0.5"
+    err = refuse(text_of(OK_HEAD, body))
+    assert err.line == 9
+    assert err.column == "speed [rpm]"
+    assert "finite number" in str(err)
+
+
+def test_empty_field_is_not_a_number() -> None:
+    body = rows()
+    body[3] = "0.018,,0.5"
+    err = refuse(text_of(OK_HEAD, body))
+    assert err.line == 5
+    assert err.column == "speed [rpm]"
+    assert "not a number" in str(err)
+
+
+def test_text_value_names_line_and_column() -> None:
+    body = rows()
+    body[30] = "0.180,fast,0.5"
+    err = refuse(text_of(OK_HEAD, body))
+    assert (err.line, err.column) == (32, "speed [rpm]")
+    assert "'fast'" in str(err)
+
+
+def test_wrong_field_count() -> None:
+    body = rows()
+    body[12] = "0.072,12.0"
+    err = refuse(text_of(OK_HEAD, body))
+    assert err.line == 14
+    assert "has 2 fields, the header has 3" in str(err)
+
+
+def test_too_few_samples() -> None:
+    err = refuse(text_of(OK_HEAD, rows(31)))
+    assert "holds 31 samples; at least 32" in str(err)
+
+
+def test_percent_without_nominal_torque() -> None:
+    err = refuse(text_of("time [s],speed [rpm],torque [%]", rows()))
+    assert err.column == "torque [%]"
+    assert "nominal_torque_nm" in str(err)
+    assert "add '# nominal_torque_nm" in str(err)
+
+
+def test_inc_without_increments_per_rev() -> None:
+    err = refuse(
+        text_of(
+            "time [s],speed [rpm],position [inc],torque [Nm]",
+            [f"{k * 0.006:.3f},1,{k},1" for k in range(N)],
+        )
+    )
+    assert err.column == "position [inc]"
+    assert "increments_per_rev" in str(err)
+
+
+@pytest.mark.parametrize(
+    ("line", "expect"),
+    [
+        ("# sample_time_s: 0,006", "use '.' as decimal mark"),
+        ("# payload_kg: heavy", "not a number"),
+        ("# nominal_torque_nm: -2.5", "positive number"),
+        ("# recorded_at: yesterday", "ISO 8601"),
+        ("# recorded_at: 2026-13-01T00:00:00Z", "ISO 8601"),
+    ],
+)
+def test_bad_metadata_names_line(line: str, expect: str) -> None:
+    err = refuse(text_of(OK_HEAD, rows(), "# conveyor: c1\n" + line + "\n"))
+    assert expect in str(err)
+    assert err.line == 2
+
+
+def test_duplicate_metadata_key() -> None:
+    err = refuse(text_of(OK_HEAD, rows(), "# payload_kg: 1\n# payload_kg: 2\n"))
+    assert err.line == 2
+    assert "given twice" in str(err)
+
+
+def test_empty_and_header_only_files() -> None:
+    assert "no header row" in str(refuse(""))
+    assert "no header row" in str(refuse("# conveyor: x\n\n"))
+    assert "holds 0 samples" in str(refuse(OK_HEAD + "\n"))
+
+
+def test_binary_file() -> None:
+    assert "binary" in str(refuse(b"\x00\x01\x02PK\x03\x04"))
+
+
+def test_out_of_range_value_after_conversion() -> None:
+    # 1e308 revolutions is a finite number; in radians it is not
+    body = [f"{k * 0.006:.3f},0,1e308,0.5" for k in range(N)]
+    err = refuse(text_of("time [s],speed [rpm],position [rev],torque [Nm]", body))
+    assert err.column == "position [rev]"
+    assert "too large" in str(err)
+
+
+def test_missing_file_and_folder(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    with pytest.raises(RecordingError, match="cannot be read"):
+        read_recording(tmp_path / "nope.csv")
+    with pytest.raises(RecordingError, match="is a folder"):
+        read_recording(tmp_path)
+
+
+def test_error_in_semicolon_dialect_names_line() -> None:
+    text = make_text().replace(",", ";")
+    lines = text.split("\n")
+    lines[20] = lines[20].split(";")[0] + ";x" * 7
+    err = refuse("\n".join(lines))
+    assert err.line == 21

@@ -1,0 +1,350 @@
+"""Characteristic frequencies and orders of a conveyor, and where a scope sees them.
+
+A table of the lines a spectrum of the motor torque (or speed) may hold,
+computed from the profile alone (DESIGN.md, section 3, "Spectra"):
+
+==========================  ===========  =========================================
+name                        kind         order (per motor revolution)
+==========================  ===========  =========================================
+``rotor``                   shaft        1 (also stage 1's input shaft)
+``stage<s>_mesh``           mesh         pinion teeth × order of stage s's input
+``stage<s>_shaft``          shaft        order of stage s's input shaft, s ≥ 2
+``output_shaft``            shaft        1/i
+``sprocket_tooth_pass``     tooth_pass   z/i
+``belt_revolution``         belt         (2π·r/i)/(2L + π·d)
+``belt_mode_<n>``           structural   None: does not scale with speed
+``two_mass_mode``           structural   None
+==========================  ===========  =========================================
+
+Kinematics
+----------
+* The gear stages' tooth counts (``gear.stages``, motor side first, each
+  ``(pinion, gear)``) give every shaft's and mesh's order exactly. When they
+  are given, the kinematic ratio i is their product ``Π(gear/pinion)``: the
+  teeth are exact integers while ``gear.ratio`` is a rounded nameplate value
+  (the profile accepts up to 2 % between them). Without stages, i is
+  ``gear.ratio`` and only the output shaft is listed.
+* The belt moves on average by the chordal mean radius r = R·sin(π/z)/(π/z)
+  per sprocket radian (R when z is unknown), so the belt speed is
+  v = ω·r/i and one belt revolution takes ``loop_length / v``.
+
+Natural frequencies (structural lines)
+--------------------------------------
+Both use the belt stiffness k (N/m) of
+:meth:`~chaintwin.read.profile.ConveyorProfile.belt_stiffness_n_m`:
+``model.belt_stiffness_n_m`` when given, else E·A/L with L the conveying
+length. This table may read the profile's ``model:`` section for that, unlike
+identification: it only places bands, it fits nothing.
+
+* ``belt_mode_<n>``: longitudinal modes of the carrying strand as a uniform
+  bar of length L, held at both sprockets, with axial stiffness E·A = k·L and
+  the strand's mass ``m_c = q·L + m_t + m_p`` (the tray and the payload
+  smeared along the strand). The wave speed is c = √(E·A/(m_c/L)), so
+  ``f_n = n·c/(2L) = (n/2)·√(k/m_c)``. A point load lowers the modes
+  differently from a smeared one: take these as the places of bands, a few
+  percent to some ten percent off, not as exact lines.
+* ``two_mass_mode``: the elastic two-mass model of DESIGN.md, section 2,
+  ``f = √(k·(1/m₁ + 1/m₂))/(2π)`` with the drive side seen as a mass at the
+  belt, ``m₁ = (J_motor + J_gear)·i²/r²``, and the belt side
+  ``m₂ = m_b + m_t + m_p``.
+
+Lines that cannot be computed are left out: the stage lines when
+``gear.stages`` is not given, the tooth-pass line when ``sprocket.teeth`` is
+not given, and the structural lines when the belt stiffness is unknown (no
+``model.belt_stiffness_n_m`` and no ``youngs_modulus_pa`` with
+``cross_section_m2``). Transverse (string) modes of the strands are not
+listed: they need the belt tension, which the profile does not hold.
+
+Aliasing
+--------
+Drive scopes sample without an anti-alias filter, so a line at f appears at
+``fold_frequency(f, Ts)``: f folded about the Nyquist frequency fs/2
+(fs = 1/Ts) repeatedly into [0, fs/2].
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+from chaintwin.errors import ModelError
+from chaintwin.read.profile import ConveyorProfile
+
+__all__ = [
+    "CharacteristicLine",
+    "LineKind",
+    "characteristic_lines",
+    "characteristic_orders",
+    "characteristic_table",
+    "fold_frequency",
+]
+
+LineKind = Literal["shaft", "mesh", "tooth_pass", "belt", "structural"]
+
+_RPM_TO_HZ = 1.0 / 60.0
+
+
+def _check_sample_time(sample_time_s: float) -> float:
+    ts = float(sample_time_s)
+    if not math.isfinite(ts) or ts <= 0.0:
+        raise ModelError(
+            f"sample time {sample_time_s!r} s is not a positive number; give the scope's "
+            "sample time in seconds (e.g. 0.006)"
+        )
+    return ts
+
+
+def fold_frequency(f_hz: float, sample_time_s: float) -> float:
+    """Where a line shows up when sampled every ``sample_time_s`` without anti-alias filter.
+
+    The frequency is folded about the Nyquist frequency ``fs/2`` (``fs = 1/Ts``)
+    as often as needed to land in ``[0, fs/2]``: ``|f|`` modulo fs, mirrored
+    about fs/2 when above it. A frequency at or below the Nyquist frequency is
+    returned unchanged.
+
+    Parameters
+    ----------
+    f_hz : float
+        The line's true frequency, Hz (the sign is ignored).
+    sample_time_s : float
+        The scope's sample time Ts, s.
+
+    Returns
+    -------
+    float
+        The apparent frequency, Hz, in ``[0, 0.5/Ts]``.
+
+    Raises
+    ------
+    ModelError
+        When the frequency is not finite or the sample time is not positive.
+
+    Examples
+    --------
+    >>> round(fold_frequency(100.0, 0.006), 3)
+    66.667
+    >>> round(fold_frequency(100.0, 0.012), 3)
+    16.667
+    """
+    ts = _check_sample_time(sample_time_s)
+    f = abs(float(f_hz))
+    if not math.isfinite(f):
+        raise ModelError(f"frequency {f_hz!r} Hz is not finite; cannot fold it")
+    if f <= 0.5 / ts:
+        return f
+    # Work in cycles per sample so that the result is exactly within [0, 0.5]/Ts.
+    cycles = math.fmod(f * ts, 1.0)
+    if cycles > 0.5:
+        cycles = 1.0 - cycles
+    return cycles / ts
+
+
+@dataclass(frozen=True, slots=True)
+class CharacteristicLine:
+    """One characteristic line of a conveyor at a given motor speed.
+
+    Parameters
+    ----------
+    name : str
+        ``rotor``, ``stage<s>_mesh``, ``stage<s>_shaft``, ``output_shaft``,
+        ``sprocket_tooth_pass``, ``belt_revolution``, ``belt_mode_<n>`` or
+        ``two_mass_mode``.
+    kind : {"shaft", "mesh", "tooth_pass", "belt", "structural"}
+        What produces the line.
+    order : float or None
+        Line frequency per motor revolution (dimensionless); None for the
+        structural modes, which do not scale with speed.
+    frequency_hz : float
+        The line's frequency at the given motor speed, Hz.
+    """
+
+    name: str
+    kind: LineKind
+    order: float | None
+    frequency_hz: float
+
+    def apparent_hz(self, sample_time_s: float) -> float:
+        """Where the line appears in a scope sampled every ``sample_time_s``, Hz.
+
+        See :func:`fold_frequency`: no anti-alias filter, folded into ``[0, fs/2]``.
+        """
+        return fold_frequency(self.frequency_hz, sample_time_s)
+
+    def aliased(self, sample_time_s: float) -> bool:
+        """True when the line lies above the Nyquist frequency ``0.5/sample_time_s``."""
+        return self.frequency_hz > 0.5 / _check_sample_time(sample_time_s)
+
+
+def _kinematic_ratio(profile: ConveyorProfile) -> float:
+    """Motor over output-shaft speed: the tooth-count product when stages are given."""
+    stages = profile.gear.stages
+    if stages:
+        return math.prod(g / p for p, g in stages)
+    return profile.gear.ratio
+
+
+def characteristic_orders(profile: ConveyorProfile) -> dict[str, float]:
+    """Orders of the speed-locked lines, per motor revolution.
+
+    For order analysis (torque resampled to equal steps of motor angle): the
+    rotor, each gear stage's mesh and shaft, the output shaft, the sprocket
+    tooth pass and the belt revolution, in that order (see the module
+    docstring for the formulas and which lines are left out).
+
+    Parameters
+    ----------
+    profile : ConveyorProfile
+        The conveyor.
+
+    Returns
+    -------
+    dict of str to float
+        Line name to order (dimensionless: events per motor revolution).
+    """
+    orders: dict[str, float] = {"rotor": 1.0}
+    stages = profile.gear.stages
+    if stages:
+        shaft = 1.0
+        for s, (pinion, gear) in enumerate(stages, start=1):
+            if s > 1:
+                orders[f"stage{s}_shaft"] = shaft
+            orders[f"stage{s}_mesh"] = pinion * shaft
+            shaft *= pinion / gear
+    ratio = _kinematic_ratio(profile)
+    out = 1.0 / ratio
+    orders["output_shaft"] = out
+    if profile.sprocket.teeth is not None:
+        orders["sprocket_tooth_pass"] = profile.sprocket.teeth * out
+    orders["belt_revolution"] = (
+        out * 2.0 * math.pi * profile.chordal_radius_m / (profile.loop_length_m)
+    )
+    return orders
+
+
+_KINDS: dict[str, LineKind] = {
+    "rotor": "shaft",
+    "output_shaft": "shaft",
+    "sprocket_tooth_pass": "tooth_pass",
+    "belt_revolution": "belt",
+}
+
+
+def _kind_of(name: str) -> LineKind:
+    if name in _KINDS:
+        return _KINDS[name]
+    return "mesh" if name.endswith("_mesh") else "shaft"
+
+
+def characteristic_lines(
+    profile: ConveyorProfile,
+    motor_speed_rpm: float,
+    *,
+    payload_kg: float = 0.0,
+    belt_modes: int = 3,
+) -> list[CharacteristicLine]:
+    """Characteristic lines of a conveyor at a motor speed.
+
+    Speed-locked lines first (motor to belt, as :func:`characteristic_orders`),
+    then the structural modes; see the module docstring for every formula and
+    for which lines are left out when the profile lacks the data.
+
+    Parameters
+    ----------
+    profile : ConveyorProfile
+        The conveyor.
+    motor_speed_rpm : float
+        Motor speed, rpm (the sign is ignored).
+    payload_kg : float
+        Payload on the belt, kg; moves the structural modes only.
+    belt_modes : int
+        How many longitudinal belt modes to list (0 for none).
+
+    Returns
+    -------
+    list of CharacteristicLine
+
+    Raises
+    ------
+    ModelError
+        When the speed is not finite, or the payload or ``belt_modes`` is negative.
+    """
+    speed = float(motor_speed_rpm)
+    if not math.isfinite(speed):
+        raise ModelError(f"motor speed {motor_speed_rpm!r} rpm is not finite; give a speed")
+    if not math.isfinite(payload_kg) or payload_kg < 0.0:
+        raise ModelError(f"payload {payload_kg!r} kg must be a finite number ≥ 0")
+    if belt_modes < 0:
+        raise ModelError(f"belt_modes={belt_modes} must be ≥ 0")
+    rotor_hz = abs(speed) * _RPM_TO_HZ
+
+    lines = [
+        CharacteristicLine(name, _kind_of(name), order, order * rotor_hz)
+        for name, order in characteristic_orders(profile).items()
+    ]
+
+    k = profile.belt_stiffness_n_m()
+    if k is None:
+        return lines
+    strand_mass = (
+        profile.belt.mass_per_m_kg * profile.belt.length_m + profile.tray_mass_kg + payload_kg
+    )
+    for n in range(1, belt_modes + 1):
+        lines.append(
+            CharacteristicLine(
+                f"belt_mode_{n}", "structural", None, 0.5 * n * math.sqrt(k / strand_mass)
+            )
+        )
+    ratio = _kinematic_ratio(profile)
+    r = profile.chordal_radius_m
+    drive_mass = (profile.motor.inertia_kgm2 + profile.gear.inertia_kgm2) * ratio**2 / r**2
+    belt_side_mass = profile.moving_mass_kg(payload_kg)
+    two_mass_hz = math.sqrt(k * (1.0 / drive_mass + 1.0 / belt_side_mass)) / (2.0 * math.pi)
+    lines.append(CharacteristicLine("two_mass_mode", "structural", None, two_mass_hz))
+    return lines
+
+
+def characteristic_table(
+    profile: ConveyorProfile,
+    motor_speed_rpm: float,
+    sample_time_s: float,
+    *,
+    payload_kg: float = 0.0,
+    belt_modes: int = 3,
+) -> list[dict[str, object]]:
+    """The characteristic lines as JSON-ready rows, with where a scope shows them.
+
+    Parameters
+    ----------
+    profile : ConveyorProfile
+        The conveyor.
+    motor_speed_rpm : float
+        Motor speed, rpm.
+    sample_time_s : float
+        The scope's sample time, s (no anti-alias filter assumed).
+    payload_kg : float
+        Payload on the belt, kg.
+    belt_modes : int
+        How many longitudinal belt modes to list.
+
+    Returns
+    -------
+    list of dict
+        One row per line with ``name``, ``kind``, ``order`` (None for
+        structural modes), ``frequency_hz``, ``apparent_hz`` and ``aliased``
+        (True when the line lies above the Nyquist frequency).
+    """
+    ts = _check_sample_time(sample_time_s)
+    return [
+        {
+            "name": line.name,
+            "kind": line.kind,
+            "order": line.order,
+            "frequency_hz": line.frequency_hz,
+            "apparent_hz": line.apparent_hz(ts),
+            "aliased": line.aliased(ts),
+        }
+        for line in characteristic_lines(
+            profile, motor_speed_rpm, payload_kg=payload_kg, belt_modes=belt_modes
+        )
+    ]

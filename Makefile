@@ -4,7 +4,7 @@
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
-SOURCES := chaintwin tests benchmarks
+SOURCES := chaintwin tests benchmarks scripts
 
 .PHONY: demo test check format bench clean
 

@@ -20,9 +20,9 @@ import numpy as np
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from conftest import make_text, to_semicolon  # noqa: E402
+from conftest import make_text, to_semicolon
 
-from chaintwin import inspect_recording, parse_recording  # noqa: E402
+from chaintwin import inspect_recording, parse_recording
 
 
 def best_of(fn: Callable[[], object], repeat: int = 7, number: int = 50) -> float:

@@ -8,10 +8,16 @@ a subpackage with plain typed inputs and outputs.
 from chaintwin.errors import (
     ChaintwinError,
     ColumnMapError,
+    ConnectorError,
     DataError,
+    EstimationError,
+    ModelError,
+    NotFittedError,
     ProfileError,
     RecordingError,
+    StoreError,
 )
+from chaintwin.model import characteristic_table
 from chaintwin.read import (
     ColumnMap,
     ConveyorProfile,
@@ -26,6 +32,7 @@ from chaintwin.read import (
     read_recording,
     write_recording,
 )
+from chaintwin.simulate import Fault, PlantParameters, Realism, run_virtual, simulate
 from chaintwin.validate import Inspection, Phase, inspect_recording, load_recording, segment
 
 __version__ = "0.1.0"
@@ -34,16 +41,25 @@ __all__ = [
     "ChaintwinError",
     "ColumnMap",
     "ColumnMapError",
+    "ConnectorError",
     "ConveyorProfile",
     "DataError",
+    "EstimationError",
+    "Fault",
     "Inspection",
     "Metadata",
+    "ModelError",
+    "NotFittedError",
     "Phase",
+    "PlantParameters",
     "ProfileError",
+    "Realism",
     "Recording",
     "RecordingError",
     "RecordingWarning",
+    "StoreError",
     "__version__",
+    "characteristic_table",
     "format_recording",
     "inspect_recording",
     "load_column_map",
@@ -52,6 +68,8 @@ __all__ = [
     "load_recording",
     "parse_recording",
     "read_recording",
+    "run_virtual",
     "segment",
+    "simulate",
     "write_recording",
 ]

@@ -12,8 +12,17 @@ def test_all_is_sorted_and_complete() -> None:
     for name in names:
         assert hasattr(chaintwin, name), name
     public = {n for n in dir(chaintwin) if not n.startswith("_")}
-    submodules = {"cli", "errors", "read", "units", "validate", "model", "simulate", "identify",
-                  "examples"}
+    submodules = {
+        "cli",
+        "errors",
+        "read",
+        "units",
+        "validate",
+        "model",
+        "simulate",
+        "identify",
+        "examples",
+    }
     assert public - submodules - {"__version__"} <= set(names)
 
 

@@ -12,6 +12,7 @@ from rich.console import Console
 
 from chaintwin.cli.inspect_cmd import _print_table, inspection_to_dict
 from chaintwin.errors import RecordingError
+from chaintwin.read.columns import ColumnMap, load_column_map
 from chaintwin.read.profile import load_profiles
 from chaintwin.read.reader import read_recording
 from chaintwin.validate.checks import inspect_recording
@@ -37,21 +38,29 @@ def register(app: typer.Typer) -> None:
         """
         root = examples_dir()
         profiles = load_profiles(root / "profiles")
+        vendor_map = load_column_map(root / "columns" / "vendor-de.yaml")
+        files: list[tuple[Path, ColumnMap | None]] = [
+            (f, None) for f in sorted((root / "recordings").glob("*.csv"))
+        ]
+        files += [(f, vendor_map) for f in sorted((root / "vendor").glob("*.csv"))]
         results = []
-        for f in sorted((root / "recordings").glob("*.csv")):
-            shown = f"examples/recordings/{f.name}"
+        for f, cmap in files:
+            shown = f"examples/{f.parent.name}/{f.name}"
             try:
-                rec = read_recording(f)
+                rec = read_recording(f, column_map=cmap)
                 profile = profiles.get(rec.metadata.conveyor or "")
                 if profile is not None:  # re-read: the profile may supply % nominal torque
-                    rec = read_recording(f, profile=profile)
+                    rec = read_recording(f, profile=profile, column_map=cmap)
                 results.append(inspection_to_dict(shown, inspect_recording(rec, profile), profile))
             except RecordingError as exc:
                 results.append({"file": shown, "error": str(exc)})
         _print_table(results)
         Console().print(
             f"\n{len(results)} example recordings of {len(profiles)} conveyors "
-            f"({', '.join(sorted(profiles))}). Copy them with `chaintwin examples --out DIR`."
+            f"({', '.join(sorted(profiles))}); the vendor export is read with "
+            "columns/vendor-de.yaml. Copy them with `chaintwin examples --out DIR`.",
+            highlight=False,
+            soft_wrap=True,
         )
 
     @app.command("examples")
@@ -60,7 +69,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Copy the bundled example profiles, recordings and column maps to a folder."""
         root = examples_dir()
-        for sub in ("profiles", "recordings", "columns"):
+        for sub in ("profiles", "recordings", "columns", "vendor"):
             target = out / sub
             target.mkdir(parents=True, exist_ok=True)
             for f in sorted((root / sub).iterdir()):

@@ -1,0 +1,126 @@
+"""Faults of the virtual conveyor, each on a documented dimensionless scale.
+
+A fault is given as ``NAME:SEVERITY`` (``--fault friction:0.2``). Severity 0
+is healthy; the scales are chosen so that 1.0 is a clearly developed fault
+that a maintenance engineer would act on.
+
+==============  ==============================================================
+name            what severity s does to the plant
+==============  ==============================================================
+friction        rail friction coefficient × (1 + s): friction:0.2 = +20 %
+lubrication     gear-unit lubrication loss: speed-dependent losses BmB and BmC
+                × (1 + s), constant loss BmA × (1 + s/2)
+bearing         rotor bearing defect: torque ripple at the non-integer order
+                3.57 of motor speed (outer-race pass of a 9-ball bearing) with
+                amplitude s × 4 % of nominal torque, plus its second harmonic
+                at half that, plus broadband torque noise × (1 + s)
+gear_tooth      a damaged tooth on the second gear stage's pinion: one impulse
+                per revolution of that shaft, s × 20 % of nominal torque, one
+                tooth mesh wide
+obstruction     a local obstruction on the rail at one place of the belt loop:
+                a resisting force of s × the whole belt's rail friction
+                (μ·g·(m_b + m_t)) over 50 mm of belt travel, once per belt
+                revolution
+elongation      chain elongation (wear of pins and bushes): pitch longer by
+                s × 3 % (3 % is a usual replacement limit); the chain rides
+                higher on the sprocket (radius × (1 + ε)), the polygon effect
+                is on, and articulation friction rises: μ × (1 + 2ε)
+payload_step    a tray of s × 20 kg is placed on the moving belt at the middle
+                of the constant-speed run
+==============  ==============================================================
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+from chaintwin.errors import ModelError
+
+__all__ = [
+    "BEARING_ORDER",
+    "FAULT_NAMES",
+    "Fault",
+    "parse_fault",
+    "parse_faults",
+]
+
+FAULT_NAMES = (
+    "friction",
+    "lubrication",
+    "bearing",
+    "gear_tooth",
+    "obstruction",
+    "elongation",
+    "payload_step",
+)
+"""Every fault the virtual conveyor can inject."""
+
+BEARING_ORDER = 3.57
+"""Order (per motor revolution) of the simulated bearing defect line."""
+
+BEARING_AMPLITUDE = 0.04
+"""Bearing ripple amplitude per unit severity, share of nominal torque."""
+
+GEAR_TOOTH_AMPLITUDE = 0.20
+"""Gear tooth impulse per unit severity, share of nominal torque."""
+
+OBSTRUCTION_WIDTH_M = 0.05
+"""Belt travel over which an obstruction acts, m."""
+
+ELONGATION_PER_SEVERITY = 0.03
+"""Chain pitch elongation per unit severity (3 % at severity 1)."""
+
+PAYLOAD_STEP_KG = 20.0
+"""Mass placed on the moving belt per unit severity, kg."""
+
+
+@dataclass(frozen=True, slots=True)
+class Fault:
+    """A fault and its severity (dimensionless, see the module table)."""
+
+    name: str
+    severity: float
+
+    def __post_init__(self) -> None:
+        if self.name not in FAULT_NAMES:
+            raise ModelError(f"unknown fault '{self.name}'; use one of {', '.join(FAULT_NAMES)}")
+        if not math.isfinite(self.severity) or self.severity < 0.0 or self.severity > 10.0:
+            raise ModelError(
+                f"fault '{self.name}' severity {self.severity!r} must be a number from 0 to 10"
+            )
+
+    def __str__(self) -> str:
+        return f"{self.name}:{self.severity:g}"
+
+
+def parse_fault(text: str) -> Fault:
+    """Parse ``NAME:SEVERITY`` (e.g. ``bearing:0.5``).
+
+    Raises
+    ------
+    ModelError
+        Naming the text and the accepted names.
+    """
+    name, sep, value = text.partition(":")
+    name = name.strip()
+    if not sep:
+        raise ModelError(f"fault '{text}' must be NAME:SEVERITY, e.g. friction:0.2")
+    try:
+        severity = float(value)
+    except ValueError:
+        raise ModelError(
+            f"fault '{text}': severity '{value}' is not a number (e.g. friction:0.2)"
+        ) from None
+    return Fault(name, severity)
+
+
+def parse_faults(texts: Iterable[str]) -> tuple[Fault, ...]:
+    """Parse several ``NAME:SEVERITY`` texts; a name given twice is refused."""
+    faults = tuple(parse_fault(t) for t in texts)
+    names = [f.name for f in faults]
+    for n in names:
+        if names.count(n) > 1:
+            raise ModelError(f"fault '{n}' is given twice; give each fault once")
+    return faults

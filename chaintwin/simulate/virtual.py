@@ -1,0 +1,479 @@
+"""The virtual conveyor: the simulator plus what a real drive scope adds.
+
+The identification model is rigid, noise-free and continuous. A real
+recording is not, and tests that only fit the model to itself prove little.
+The virtual conveyor therefore adds, each switchable in :class:`Realism`:
+
+* an elastic belt (two-mass), stick-slip (static friction above kinetic),
+  the polygon effect (chordal action) and gear-mesh torque ripple, inside
+  the plant simulation;
+* torque and speed measurement noise (the inverter's torque is a model
+  estimate from the currents; the speed comes from an encoder);
+* quantisation of the exported channels (0.1 rpm, 0.1 % torque, whole
+  encoder increments);
+* sampling without an anti-alias filter: the scope keeps every k-th
+  controller cycle, so lines above the Nyquist frequency fold;
+* scope limits: 2048 samples at the sample time, triggered a little before
+  the move, so that a 1 ms scope holds only part of a 10 s cycle;
+* exported units: rpm, % of nominal torque, encoder increments.
+
+Simplification: measurement noise is added to the exported channels, not fed
+back through the simulated speed controller.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, fields
+from datetime import datetime
+from typing import Any
+
+import numpy as np
+
+from chaintwin.errors import ModelError
+from chaintwin.read.profile import ConveyorProfile, ModelSpec
+from chaintwin.read.recording import FloatArray, Metadata, Recording
+from chaintwin.simulate.engine import SimulationResult, simulate
+from chaintwin.simulate.faults import (
+    BEARING_AMPLITUDE,
+    BEARING_ORDER,
+    ELONGATION_PER_SEVERITY,
+    GEAR_TOOTH_AMPLITUDE,
+    OBSTRUCTION_WIDTH_M,
+    PAYLOAD_STEP_KG,
+    Fault,
+)
+from chaintwin.simulate.plant import PlantParameters
+from chaintwin.simulate.setpoints import Setpoints, from_arrays, trapezoid
+from chaintwin.units import RPM_TO_RAD_S
+
+__all__ = [
+    "INCREMENTS_PER_REV",
+    "Realism",
+    "VirtualRun",
+    "default_setpoints",
+    "faulty_plant",
+    "run_virtual",
+]
+
+INCREMENTS_PER_REV = 4096
+"""Encoder increments per motor revolution of the virtual drive."""
+
+GEAR_MESH_RIPPLE = 0.003
+"""Healthy gear-mesh ripple amplitude, share of nominal torque."""
+
+OBSTRUCTION_PLACE = 0.37
+"""Where on the belt loop the obstruction sits, share of the loop length."""
+
+
+@dataclass(frozen=True, slots=True)
+class Realism:
+    """What the virtual conveyor adds to the rigid model; all on by default.
+
+    Parameters
+    ----------
+    noise : bool
+        Torque and speed measurement noise.
+    quantisation : bool
+        Export resolution: 0.1 rpm, 0.1 % torque (whole increments always).
+    elastic : bool
+        Two-mass elastic belt.
+    stick_slip : bool
+        Static friction above kinetic.
+    polygon : bool
+        Chordal action of the sprocket.
+    gear_mesh : bool
+        Torque ripple at the first stage's mesh order (needs ``gear.stages``).
+    scope_limits : bool
+        At most ``max_samples`` samples, trigger ``pretrigger_s`` before the move.
+    torque_noise : float
+        Torque noise standard deviation, share of nominal torque.
+    speed_noise_rpm : float
+        Speed noise standard deviation, rpm.
+    max_samples : int
+        Scope depth.
+    pretrigger_s : float
+        Time recorded before the move starts, s.
+    """
+
+    noise: bool = True
+    quantisation: bool = True
+    elastic: bool = True
+    stick_slip: bool = True
+    polygon: bool = True
+    gear_mesh: bool = True
+    scope_limits: bool = True
+    torque_noise: float = 0.004
+    speed_noise_rpm: float = 0.8
+    max_samples: int = 2048
+    pretrigger_s: float = 0.2
+
+    @classmethod
+    def off(cls) -> Realism:
+        """The rigid identification model, exported exactly (scope limits kept)."""
+        return cls(
+            noise=False,
+            quantisation=False,
+            elastic=False,
+            stick_slip=False,
+            polygon=False,
+            gear_mesh=False,
+        )
+
+    def switches(self) -> dict[str, bool]:
+        """The on/off switches by name."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.type in ("bool", bool)}
+
+
+@dataclass(frozen=True, slots=True)
+class VirtualRun:
+    """A virtual recording and the truth behind it.
+
+    Parameters
+    ----------
+    recording : Recording
+        What the drive's scope would have exported (SI inside; export units
+        in ``recording.units``).
+    simulation : SimulationResult
+        The simulation at every controller cycle (ground truth).
+    plant : PlantParameters
+        The plant simulated, faults applied.
+    truth : dict
+        JSON-ready ground truth: payload, faults, realism switches.
+    """
+
+    recording: Recording
+    simulation: SimulationResult
+    plant: PlantParameters
+    truth: dict[str, Any] = field(default_factory=dict)
+
+
+def _nominal_torque(profile: ConveyorProfile) -> float:
+    if profile.motor.nominal_torque_nm is not None:
+        return profile.motor.nominal_torque_nm
+    limit = profile.torque_limit_nm
+    if limit is None:
+        raise ModelError(
+            f"profile '{profile.id}': give motor.nominal_torque_nm or controller.torque_limit_nm "
+            "to simulate it"
+        )
+    return limit / 3.0
+
+
+def faulty_plant(
+    profile: ConveyorProfile,
+    *,
+    payload_kg: float,
+    faults: Sequence[Fault] = (),
+    realism: Realism | None = None,
+    model: ModelSpec | None = None,
+    payload_step_time_s: float = -1.0,
+    loss_scale: float = 1.0,
+) -> PlantParameters:
+    """Plant parameters of a profile with faults and realism applied.
+
+    Parameters
+    ----------
+    profile : ConveyorProfile
+        The conveyor.
+    payload_kg : float
+        Payload on the belt, kg.
+    faults : sequence of Fault
+        Faults with their severities (see :mod:`chaintwin.simulate.faults`).
+    realism : Realism, optional
+        Which plant-side realism to switch on (default: all).
+    model : ModelSpec, optional
+        Plant parameters (default: the profile's ``model:``, else typical values).
+    payload_step_time_s : float
+        When a ``payload_step`` fault places its tray, s.
+    loss_scale : float
+        Multiplies the gear losses BmA, BmB, BmC (temperature drift).
+    """
+    realism = realism or Realism()
+    plant = PlantParameters.from_profile(profile, payload_kg=payload_kg, model=model)
+    tn = _nominal_torque(profile)
+    changes: dict[str, Any] = {
+        "elastic": realism.elastic,
+        "stick_slip": realism.stick_slip,
+        "polygon": realism.polygon and plant.teeth > 0,
+        "loss_constant_nm": plant.loss_constant_nm * loss_scale,
+        "loss_viscous_nm_s_rad": plant.loss_viscous_nm_s_rad * loss_scale,
+        "loss_quadratic_nm_s2_rad2": plant.loss_quadratic_nm_s2_rad2 * loss_scale,
+    }
+    orders: list[float] = []
+    amps: list[float] = []
+    stages = profile.gear.stages
+    if realism.gear_mesh and stages:
+        orders.append(float(stages[0][0]))  # first-stage mesh: pinion teeth per motor revolution
+        amps.append(GEAR_MESH_RIPPLE * tn)
+    friction = plant.friction
+    for fault in faults:
+        s = fault.severity
+        if fault.name == "friction":
+            friction *= 1.0 + s
+        elif fault.name == "lubrication":
+            changes["loss_constant_nm"] *= 1.0 + 0.5 * s
+            changes["loss_viscous_nm_s_rad"] *= 1.0 + s
+            changes["loss_quadratic_nm_s2_rad2"] *= 1.0 + s
+        elif fault.name == "bearing":
+            orders += [BEARING_ORDER, 2.0 * BEARING_ORDER]
+            amps += [s * BEARING_AMPLITUDE * tn, 0.5 * s * BEARING_AMPLITUDE * tn]
+        elif fault.name == "gear_tooth":
+            if stages and len(stages) >= 2:
+                shaft_order = stages[0][0] / stages[0][1]
+                teeth = stages[1][0]
+            else:
+                shaft_order = 1.0 / plant.ratio
+                teeth = 20
+            period = 2.0 * math.pi / shaft_order
+            changes["impulse_period_rad"] = period
+            changes["impulse_width_rad"] = period / teeth
+            changes["impulse_amplitude_nm"] = s * GEAR_TOOTH_AMPLITUDE * tn
+        elif fault.name == "obstruction":
+            rail = plant.friction * 9.81 * (plant.belt_mass_kg + plant.tray_mass_kg)
+            changes["obstruction_position_m"] = OBSTRUCTION_PLACE * plant.loop_length_m
+            changes["obstruction_width_m"] = OBSTRUCTION_WIDTH_M
+            changes["obstruction_force_n"] = s * rail
+        elif fault.name == "elongation":
+            eps = s * ELONGATION_PER_SEVERITY
+            changes["pitch_radius_m"] = plant.pitch_radius_m * (1.0 + eps)
+            changes["loop_length_m"] = plant.loop_length_m * (1.0 + eps)
+            changes["polygon"] = plant.teeth > 0
+            friction *= 1.0 + 2.0 * eps
+        elif fault.name == "payload_step":
+            changes["payload_step_time_s"] = payload_step_time_s
+            changes["payload_step_kg"] = s * PAYLOAD_STEP_KG
+    changes["friction"] = friction
+    changes["ripple_orders"] = tuple(orders)
+    changes["ripple_amplitudes_nm"] = tuple(amps)
+    return plant.replace(**changes)
+
+
+def default_setpoints(
+    profile: ConveyorProfile,
+    *,
+    duration_s: float,
+    speed_rpm: float | None = None,
+    ramp_s: float = 0.5,
+    hold_s: float = 8.0,
+    lead_s: float = 0.2,
+    direction: int = 1,
+) -> Setpoints:
+    """A trapezoid move to nominal speed, padded with standstill to ``duration_s``.
+
+    Parameters
+    ----------
+    profile : ConveyorProfile
+        Supplies the nominal speed (1400 rpm when unknown) and controller cycle.
+    duration_s : float
+        Total time to cover, s.
+    speed_rpm : float, optional
+        Plateau speed, rpm.
+    ramp_s, hold_s, lead_s : float
+        Ramp time, time at constant speed and time before the move, s.
+    direction : int
+        +1 forward, -1 backward.
+    """
+    rpm = speed_rpm if speed_rpm is not None else (profile.motor.nominal_speed_rpm or 1400.0)
+    w = rpm * RPM_TO_RAD_S
+    tail = max(0.3, duration_s - lead_s - 2.0 * ramp_s - hold_s + 2.0 * profile.controller.cycle_s)
+    return trapezoid(
+        speed_rad_s=w,
+        accel_rad_s2=w / ramp_s,
+        hold_s=hold_s,
+        direction=direction,
+        lead_s=lead_s,
+        tail_s=tail,
+        cycle_s=profile.controller.cycle_s,
+    )
+
+
+def _quantise(x: FloatArray, step: float) -> FloatArray:
+    return np.round(x / step) * step
+
+
+def run_virtual(
+    profile: ConveyorProfile,
+    *,
+    payload_kg: float = 0.0,
+    sample_time_s: float = 0.006,
+    faults: Sequence[Fault] = (),
+    realism: Realism | None = None,
+    seed: int | None = None,
+    setpoints: Setpoints | None = None,
+    speed_rpm: float | None = None,
+    model: ModelSpec | None = None,
+    recorded_at: datetime | None = None,
+    calibration: bool = False,
+    loss_scale: float = 1.0,
+    initial_motor_angle: float | None = None,
+    source: str = "<virtual>",
+) -> VirtualRun:
+    """Simulate one scope recording of the virtual conveyor.
+
+    Parameters
+    ----------
+    profile : ConveyorProfile
+        The conveyor.
+    payload_kg : float
+        Payload on the belt, kg.
+    sample_time_s : float
+        Scope sample time, s: a whole multiple of the controller cycle.
+    faults : sequence of Fault
+        Faults with severities.
+    realism : Realism, optional
+        What to add to the rigid model (default: everything).
+    seed : int, optional
+        Random seed (noise, sampling phase, belt position).
+    setpoints : Setpoints, optional
+        Speed/position set points at the controller cycle (default: a
+        trapezoid to nominal speed, see :func:`default_setpoints`).
+    speed_rpm : float, optional
+        Plateau speed of the default trapezoid, rpm.
+    model : ModelSpec, optional
+        Plant parameters (default: the profile's ``model:``, else typical values).
+    recorded_at : datetime, optional
+        Written to the metadata.
+    calibration : bool
+        Write ``payload_kg`` to the metadata (a known reference load).
+    loss_scale : float
+        Multiplies the gear losses (temperature drift).
+    initial_motor_angle : float, optional
+        Absolute motor angle at the start, rad (default: random multi-turn).
+    source : str
+        Name given to the recording.
+
+    Returns
+    -------
+    VirtualRun
+    """
+    realism = realism or Realism()
+    if payload_kg < 0 or not math.isfinite(payload_kg):
+        raise ModelError(f"payload {payload_kg!r} kg must be a number >= 0")
+    cycle = profile.controller.cycle_s
+    k = round(sample_time_s / cycle)
+    if k < 1 or abs(k * cycle - sample_time_s) > 1e-9 * max(1.0, sample_time_s):
+        raise ModelError(
+            f"sample time {sample_time_s:g} s must be a whole multiple of the controller "
+            f"cycle {cycle:g} s"
+        )
+    rng = np.random.default_rng(seed)
+    scope_s = realism.max_samples * sample_time_s
+    if setpoints is None:
+        setpoints = default_setpoints(
+            profile,
+            duration_s=scope_s if realism.scope_limits else 10.0,
+            speed_rpm=speed_rpm,
+            lead_s=realism.pretrigger_s,
+        )
+    if realism.scope_limits:
+        # the scope holds max_samples samples: simulate that long, padded with standstill
+        need = realism.max_samples * k
+        if setpoints.speed.shape[0] < need:
+            pad = need - setpoints.speed.shape[0]
+            speed = np.concatenate((setpoints.speed, np.zeros(pad)))
+            setpoints = from_arrays(
+                np.arange(need) * cycle,
+                speed,
+                np.concatenate((setpoints.position, np.full(pad, setpoints.position[-1]))),
+                cycle_s=cycle,
+            )
+    # the step tray lands in the middle of the constant part of the move
+    moving = np.flatnonzero(np.abs(setpoints.speed) > 0.99 * np.max(np.abs(setpoints.speed)))
+    step_time = float(setpoints.time[moving[len(moving) // 2]]) if moving.size else -1.0
+    plant = faulty_plant(
+        profile,
+        payload_kg=payload_kg,
+        faults=faults,
+        realism=realism,
+        model=model,
+        payload_step_time_s=step_time,
+        loss_scale=loss_scale,
+    )
+    theta0 = (
+        initial_motor_angle
+        if initial_motor_angle is not None
+        else float(rng.uniform(0.0, 2000.0 * 2.0 * math.pi))
+    )
+    belt0 = (theta0 * plant.belt_speed_per_motor_speed) % plant.loop_length_m
+    sim = simulate(plant, setpoints, initial_motor_angle=theta0, initial_belt_position_m=belt0)
+    if not sim.success:
+        raise ModelError(f"simulation failed: {sim.message}")
+
+    # the scope keeps every k-th controller cycle: no anti-alias filter
+    phase = int(rng.integers(0, k)) if realism.noise else 0
+    idx = np.arange(phase, sim.time.shape[0], k)
+    if realism.scope_limits:
+        idx = idx[: realism.max_samples]
+    tn = _nominal_torque(profile)
+    t: FloatArray = np.arange(idx.shape[0], dtype=np.float64) * sample_time_s
+    w_sp = sim.speed_setpoint[idx]
+    w = sim.speed[idx].copy()
+    th_sp = sim.position_setpoint[idx].copy()
+    th = sim.position[idx].copy()
+    t_sp = sim.torque_setpoint[idx].copy()
+    tq = sim.torque[idx].copy()
+    if realism.noise:
+        noise_scale = 1.0 + sum(f.severity for f in faults if f.name == "bearing")
+        tq = tq + rng.normal(0.0, realism.torque_noise * tn * noise_scale, tq.shape)
+        w = w + rng.normal(0.0, realism.speed_noise_rpm * RPM_TO_RAD_S, w.shape)
+    inc = 2.0 * math.pi / INCREMENTS_PER_REV
+    th = np.floor(th / inc) * inc  # encoders count whole increments
+    th_sp = np.round(th_sp / inc) * inc
+    pct = tn / 100.0
+    if realism.quantisation:
+        w_sp = _quantise(w_sp, 0.1 * RPM_TO_RAD_S)
+        w = _quantise(w, 0.1 * RPM_TO_RAD_S)
+        t_sp = _quantise(t_sp, 0.1 * pct)
+        tq = _quantise(tq, 0.1 * pct)
+    di = (np.abs(sim.speed_setpoint[idx]) > 0).astype(np.float64)
+    channels: dict[str, FloatArray] = {
+        "time": t,
+        "speed_setpoint": w_sp,
+        "speed": w,
+        "position_setpoint": th_sp,
+        "position": th,
+        "torque_setpoint": t_sp,
+        "torque": tq,
+        "digital_inputs": di,
+    }
+    units = {
+        "time": "s",
+        "speed_setpoint": "rpm",
+        "speed": "rpm",
+        "position_setpoint": "inc",
+        "position": "inc",
+        "torque_setpoint": "%",
+        "torque": "%",
+        "digital_inputs": "-",
+    }
+    meta = Metadata(
+        conveyor=profile.id,
+        recorded_at=recorded_at,
+        sample_time_s=sample_time_s,
+        nominal_torque_nm=tn,
+        increments_per_rev=float(INCREMENTS_PER_REV),
+        payload_kg=payload_kg if calibration else None,
+    )
+    recording = Recording(
+        source=source,
+        channels=channels,
+        units=units,
+        headers={n: f"{n} [{u}]" for n, u in units.items()},
+        metadata=meta,
+    )
+    truth: dict[str, Any] = {
+        "conveyor": profile.id,
+        "recorded_at": recorded_at.isoformat() if recorded_at else None,
+        "payload_kg": payload_kg,
+        "faults": {f.name: f.severity for f in faults},
+        "loss_scale": loss_scale,
+        "sample_time_s": sample_time_s,
+        "realism": realism.switches(),
+        "calibration": calibration,
+        "friction": plant.friction,
+        "payload_step_kg": plant.payload_step_kg,
+        "payload_step_time_s": plant.payload_step_time_s if plant.payload_step_kg else None,
+    }
+    return VirtualRun(recording, sim, plant, truth)

@@ -1,0 +1,309 @@
+"""The simulator as a tool: set points, control, symmetry, batches, errors.
+
+Run with ``-s`` to see the measured numbers.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import chaintwin.examples
+from chaintwin.errors import ModelError
+from chaintwin.read.profile import ConveyorProfile, ModelSpec, load_profile
+from chaintwin.simulate import (
+    BatchResult,
+    PlantParameters,
+    Setpoints,
+    elastic_substeps,
+    from_arrays,
+    ramp,
+    simulate,
+    simulate_batch,
+    stairs,
+    trapezoid,
+    trapezoid2,
+)
+
+PROFILES = Path(chaintwin.examples.__file__).parent / "profiles"
+NOMINAL = 1415.0 * 2.0 * math.pi / 60.0
+
+
+@pytest.fixture(scope="module")
+def profile() -> ConveyorProfile:
+    return load_profile(PROFILES / "white-belt-01.yaml")
+
+
+@pytest.fixture(scope="module")
+def plant(profile: ConveyorProfile) -> PlantParameters:
+    return PlantParameters.from_profile(profile, payload_kg=40.0)
+
+
+# ---------------------------------------------------------------- set points
+def test_trapezoid_shape_and_position() -> None:
+    sp = trapezoid(speed_rad_s=100.0, accel_rad_s2=200.0, hold_s=1.0, decel_rad_s2=100.0)
+    dt = sp.cycle_s
+    # 0.1 lead + 0.5 up + 1.0 hold + 1.0 down + 0.4 tail
+    assert sp.duration_s == pytest.approx(3.0)
+    assert len(sp) == 3001
+    np.testing.assert_allclose(sp.time[:3], [0.0, dt, 2 * dt])
+    assert sp.speed.max() == pytest.approx(100.0)
+    assert sp.speed[0] == 0.0
+    assert sp.speed[-1] == 0.0
+    k = round(0.35 / dt)
+    assert sp.speed[k] == pytest.approx(50.0)
+    # exact area: 0.5·100·0.5 + 100·1 + 0.5·100·1 = 175 rad
+    assert sp.position[-1] == pytest.approx(175.0, rel=1e-9)
+    assert sp.position[0] == 0.0
+    back = trapezoid(
+        speed_rad_s=100.0, accel_rad_s2=200.0, hold_s=1.0, decel_rad_s2=100.0, direction=-1
+    )
+    np.testing.assert_array_equal(back.speed, -sp.speed)
+    np.testing.assert_array_equal(back.position, -sp.position)
+    assert not sp.speed.flags.writeable
+
+
+def test_trapezoid2_ramp_stairs_shapes() -> None:
+    two = trapezoid2(
+        speed_rad_s=100.0, accel1_rad_s2=100.0, accel2_rad_s2=400.0, switch_fraction=0.4, hold_s=0.5
+    )
+    # up: 0.4 s to 40 rad/s, 0.15 s to 100; mirrored on the way down
+    dt = two.cycle_s
+    acc = np.diff(two.speed) / dt
+    assert acc.max() == pytest.approx(400.0, rel=1e-6)
+    assert acc[round(0.3 / dt)] == pytest.approx(100.0, rel=1e-6)
+    assert two.speed[round((0.1 + 0.2) / dt)] == pytest.approx(20.0)
+    assert two.duration_s == pytest.approx(0.1 + 0.55 + 0.5 + 0.55 + 0.4)
+    r = ramp(speed_rad_s=50.0, ramp_s=0.25, hold_s=1.0)
+    assert np.abs(np.diff(r.speed)).max() / r.cycle_s == pytest.approx(200.0, rel=1e-6)
+    assert r.duration_s == pytest.approx(0.1 + 0.25 + 1.0 + 0.25 + 0.4)
+    s = stairs(speeds_rad_s=[50.0, 100.0, -20.0], step_s=0.5, accel_rad_s2=500.0)
+    levels = [50.0, 100.0, -20.0]
+    for level in levels:
+        assert np.sum(np.isclose(s.speed, level)) >= 0.5 / s.cycle_s
+    # 0.1 + 0.1 + 0.5 + 0.1 + 0.5 + 0.24 + 0.5 + 0.04 + 0.4
+    assert s.duration_s == pytest.approx(2.48)
+    assert s.speed[-1] == 0.0
+
+
+def test_from_arrays_resamples_to_the_cycle() -> None:
+    t = np.arange(0.0, 2.0 + 1e-9, 0.006) + 17.3  # a 6 ms scope with an offset clock
+    w = np.interp(t, [17.3, 17.5, 18.5, 19.0, 19.3], [0.0, 0.0, 100.0, 100.0, 0.0])
+    sp = from_arrays(t, w, cycle_s=0.001)
+    assert sp.cycle_s == 0.001
+    assert sp.duration_s == pytest.approx(t[-1] - t[0], abs=1e-3)
+    np.testing.assert_allclose(np.interp(sp.time + t[0], t, w), sp.speed, atol=1e-12)
+    # position integrated from the speed
+    assert sp.position[-1] == pytest.approx(np.trapezoid(sp.speed, dx=0.001))
+    pos = 5000.0 + np.concatenate(([0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * 0.006)))
+    given = from_arrays(t, w, pos)
+    assert given.position[0] == 0.0
+    assert given.position[-1] == pytest.approx(pos[-1] - pos[0])
+    with pytest.raises(ModelError, match="strictly increasing"):
+        from_arrays(t[::-1], w)
+    with pytest.raises(ModelError, match="same length"):
+        from_arrays(t, w[:-1])
+    with pytest.raises(ModelError, match="NaN"):
+        from_arrays(t, np.where(t > 18.0, np.nan, w))
+
+
+def test_setpoint_errors() -> None:
+    with pytest.raises(ModelError, match="accel_rad_s2"):
+        trapezoid(speed_rad_s=10.0, accel_rad_s2=0.0, hold_s=1.0)
+    with pytest.raises(ModelError, match="direction"):
+        ramp(speed_rad_s=10.0, ramp_s=1.0, hold_s=1.0, direction=2)
+    with pytest.raises(ModelError, match="switch_fraction"):
+        trapezoid2(
+            speed_rad_s=1.0, accel1_rad_s2=1.0, accel2_rad_s2=1.0, switch_fraction=2.0, hold_s=1.0
+        )
+    with pytest.raises(ModelError, match="speeds_rad_s"):
+        stairs(speeds_rad_s=[], step_s=1.0, accel_rad_s2=1.0)
+    with pytest.raises(ModelError, match="5 values but position 4"):
+        Setpoints(0.001, np.zeros(5), np.zeros(4))
+
+
+# ------------------------------------------------------------------ control
+@pytest.mark.parametrize(
+    "kind",
+    ["trapezoid", "trapezoid2", "ramp", "stairs"],
+)
+def test_controller_follows_setpoints(plant: PlantParameters, kind: str) -> None:
+    sp = {
+        "trapezoid": lambda: trapezoid(speed_rad_s=NOMINAL, accel_rad_s2=NOMINAL / 0.5, hold_s=3.0),
+        "trapezoid2": lambda: trapezoid2(
+            speed_rad_s=NOMINAL, accel1_rad_s2=150.0, accel2_rad_s2=400.0, hold_s=3.0
+        ),
+        "ramp": lambda: ramp(speed_rad_s=0.5 * NOMINAL, ramp_s=1.0, hold_s=2.0),
+        "stairs": lambda: stairs(
+            speeds_rad_s=[0.3 * NOMINAL, 0.7 * NOMINAL, NOMINAL, 0.5 * NOMINAL],
+            step_s=1.0,
+            accel_rad_s2=300.0,
+        ),
+    }[kind]()
+    res = simulate(plant, sp)
+    assert res.success
+    assert res.saturated_cycles == 0
+    peak = np.abs(sp.speed).max()
+    err = res.speed - res.speed_setpoint
+    constant = np.abs(np.gradient(sp.speed)) < 1e-9
+    constant &= np.abs(sp.speed) > 0.0
+    rms_const = float(np.sqrt(np.mean(err[constant] ** 2)) / peak)
+    rms_all = float(np.sqrt(np.mean(err**2)) / peak)
+    pos_err = float(np.abs(res.position - res.position_setpoint).max())
+    print(
+        f"\n{kind}: speed error RMS {rms_const:.2e} of peak at constant set point, "
+        f"{rms_all:.2e} overall; max position error {pos_err:.3f} rad"
+    )
+    assert rms_const < 0.02
+    assert rms_all < 0.02
+    assert abs(res.position[-1] - res.position_setpoint[-1]) < 0.05
+
+
+def test_forward_and_backward_runs_mirror(plant: PlantParameters) -> None:
+    fwd_sp = trapezoid(speed_rad_s=NOMINAL, accel_rad_s2=NOMINAL / 0.5, hold_s=1.0)
+    back_sp = trapezoid(speed_rad_s=NOMINAL, accel_rad_s2=NOMINAL / 0.5, hold_s=1.0, direction=-1)
+    for p in (plant, plant.replace(stick_slip=True, elastic=True)):
+        fwd = simulate(p, fwd_sp)
+        back = simulate(p, back_sp)
+        for name in ("torque", "torque_setpoint", "speed", "position", "belt_speed_m_s"):
+            np.testing.assert_allclose(
+                getattr(back, name), -getattr(fwd, name), rtol=0.0, atol=1e-12, err_msg=name
+            )
+        np.testing.assert_allclose(back.sprocket_force_n, -fwd.sprocket_force_n, atol=1e-9)
+
+
+def test_initial_angle_and_belt_position(plant: PlantParameters) -> None:
+    sp = trapezoid(speed_rad_s=NOMINAL, accel_rad_s2=NOMINAL / 0.5, hold_s=0.5)
+    base = simulate(plant, sp)
+    moved = simulate(plant, sp, initial_motor_angle=1234.5, initial_belt_position_m=3.0)
+    np.testing.assert_allclose(moved.position - 1234.5, base.position, atol=1e-9)
+    np.testing.assert_allclose(moved.position_setpoint - 1234.5, base.position_setpoint)
+    np.testing.assert_allclose(moved.belt_position_m - 3.0, base.belt_position_m, atol=1e-9)
+    np.testing.assert_allclose(moved.torque, base.torque, atol=1e-9)
+
+
+def test_standstill_holds_without_chattering(plant: PlantParameters) -> None:
+    sp = trapezoid(speed_rad_s=NOMINAL, accel_rad_s2=NOMINAL / 0.5, hold_s=0.5, tail_s=1.5)
+    res = simulate(plant.replace(stick_slip=True), sp)
+    tail = res.time > sp.duration_s - 0.5
+    assert np.all(res.speed[tail] == 0.0)
+    assert np.all(res.loss_torque_nm[tail] == 0.0)
+    # stuck: the integrator moves the torque smoothly (no sign flipping cycle to cycle)
+    slope = np.diff(res.torque[tail])
+    assert np.count_nonzero(np.diff(np.sign(slope))) <= 1
+    assert (
+        np.abs(res.torque[tail]).max() < plant.steady_torque_nm(1e-9) * plant.static_friction_ratio
+    )
+
+
+# -------------------------------------------------------------------- batch
+def test_batch_equals_single_runs(profile: ConveyorProfile, plant: PlantParameters) -> None:
+    members = [
+        plant,
+        plant.replace(payload_kg=0.0, friction=0.3),
+        PlantParameters.from_profile(profile, payload_kg=75.0, stick_slip=True),
+        plant.replace(payload_step_time_s=0.8, payload_step_kg=20.0),
+        plant.replace(polygon=True, ripple_orders=(3.3,), ripple_amplitudes_nm=(0.02,)),
+        plant.replace(elastic=True, obstruction_width_m=0.2, obstruction_force_n=80.0),
+        plant.replace(impulse_period_rad=2.0, impulse_width_rad=0.3, impulse_amplitude_nm=0.1),
+    ]
+    sp = trapezoid(speed_rad_s=NOMINAL, accel_rad_s2=NOMINAL / 0.5, hold_s=1.0)
+    batch = simulate_batch(members, sp, full_output=True)
+    assert isinstance(batch, BatchResult)
+    assert len(batch) == len(members)
+    assert batch.torque.shape == (len(members), len(sp))
+    assert batch.time.shape == (len(members), len(sp))
+    assert bool(np.all(batch.success))
+    for i, p in enumerate(members):
+        single = simulate(p, sp)
+        member = batch.member(i)
+        for name in (
+            "torque_setpoint",
+            "torque",
+            "speed",
+            "position",
+            "belt_speed_m_s",
+            "belt_position_m",
+            "sprocket_force_n",
+            "load_torque_nm",
+            "loss_torque_nm",
+        ):
+            np.testing.assert_array_equal(
+                getattr(member, name), getattr(single, name), err_msg=f"member {i}: {name}"
+            )
+        assert member.message == single.message
+    lean = simulate_batch(members[:3], sp)
+    assert lean.belt_position_m is None
+    np.testing.assert_array_equal(lean.torque, batch.torque[:3])
+    with pytest.raises(ModelError, match="full_output"):
+        lean.member(0)
+
+
+def test_batch_across_many_plain_members(plant: PlantParameters) -> None:
+    """More members than one vector chunk, odd count: every column is right."""
+    payloads = np.linspace(0.0, 80.0, 37)
+    members = [plant.replace(payload_kg=float(m)) for m in payloads]
+    sp = trapezoid(speed_rad_s=NOMINAL, accel_rad_s2=NOMINAL / 0.5, hold_s=0.3)
+    batch = simulate_batch(members, sp)
+    for i in (0, 8, 17, 36):
+        single = simulate(members[i], sp)
+        np.testing.assert_array_equal(batch.torque[i], single.torque)
+        np.testing.assert_array_equal(batch.position[i], single.position)
+    # heavier belt, more torque at constant speed
+    hold = round(0.8 / sp.cycle_s)
+    assert np.all(np.diff(batch.torque[:, hold]) > 0.0)
+
+
+# ------------------------------------------------------------------- errors
+def test_cycle_mismatch_and_bad_parameters(plant: PlantParameters) -> None:
+    sp = trapezoid(speed_rad_s=10.0, accel_rad_s2=100.0, hold_s=0.1, cycle_s=0.002)
+    with pytest.raises(ModelError, match="cycle"):
+        simulate(plant, sp)
+    with pytest.raises(ModelError, match="member 0"):
+        simulate_batch([plant], sp)
+    with pytest.raises(ModelError, match="at least one"):
+        simulate_batch([], sp)
+    with pytest.raises(ModelError, match="efficiency"):
+        plant.replace(efficiency=1.5)
+    with pytest.raises(ModelError, match="unknown field"):
+        plant.replace(frction=0.2)
+    with pytest.raises(ModelError, match="ripple_amplitudes_nm"):
+        plant.replace(ripple_orders=(1.0, 2.0), ripple_amplitudes_nm=(0.1,))
+    with pytest.raises(ModelError, match="too stiff"):
+        elastic_substeps(plant.replace(elastic=True, belt_stiffness_n_m=1e15))
+
+
+def test_from_profile_defaults_and_overrides(profile: ConveyorProfile) -> None:
+    p = PlantParameters.from_profile(profile, payload_kg=12.0, elastic=True)
+    assert p.elastic
+    assert p.payload_kg == 12.0
+    assert p.belt_stiffness_n_m == 1e6  # the profile's model section
+    assert p.torque_limit_nm == 7.5
+    assert p.teeth == 10
+    assert p.moving_mass_kg == pytest.approx(profile.moving_mass_kg(12.0))
+    assert p.belt_speed_per_motor_speed == pytest.approx(profile.belt_speed_per_motor_speed)
+    # stiffness from E·A/L when the model gives none
+    q = PlantParameters.from_profile(profile, model=ModelSpec(friction=0.3))
+    assert q.friction == 0.3
+    b = profile.belt
+    assert b.youngs_modulus_pa is not None
+    assert b.cross_section_m2 is not None
+    assert q.belt_stiffness_n_m == pytest.approx(
+        b.youngs_modulus_pa * b.cross_section_m2 / b.length_m
+    )
+    # no torque limit known
+    bare = profile.model_copy(
+        update={
+            "motor": profile.motor.model_copy(update={"nominal_torque_nm": None}),
+            "controller": profile.controller.model_copy(update={"torque_limit_nm": None}),
+            "model": None,
+        }
+    )
+    with pytest.raises(ModelError, match="torque limit"):
+        PlantParameters.from_profile(bare)
+    default = PlantParameters.from_profile(bare, torque_limit_nm=5.0)
+    assert default.friction == ModelSpec().friction
+    assert default.torque_limit_nm == 5.0

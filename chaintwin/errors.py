@@ -10,7 +10,8 @@ them into a one-line message and exit code 2; a traceback means a bug.
     ├── DataError               bad input data
     │   ├── RecordingError      a drive recording cannot be used
     │   ├── ColumnMapError      a column map file is invalid
-    │   └── ProfileError        a conveyor profile is invalid
+    │   ├── ProfileError        a conveyor profile is invalid
+    │   └── CalibrationError    a calibration file is invalid
     ├── ModelError              a model cannot be built or simulated
     ├── EstimationError         an estimator cannot be fitted or used
     │   └── NotFittedError      an estimator used before ``fit``
@@ -24,6 +25,7 @@ says what to do.
 from __future__ import annotations
 
 __all__ = [
+    "CalibrationError",
     "ChaintwinError",
     "ColumnMapError",
     "ConnectorError",
@@ -86,6 +88,10 @@ class ColumnMapError(DataError):
 
 class ProfileError(DataError):
     """A conveyor profile is invalid: the message names the field path."""
+
+
+class CalibrationError(DataError):
+    """A calibration file cannot be read, or does not belong to the data."""
 
 
 class ModelError(ChaintwinError):

@@ -32,10 +32,11 @@ app = typer.Typer(
 
 def _register() -> None:
     # imported here so that `chaintwin --help` stays fast and modules stay small
-    from chaintwin.cli import demo_cmd, inspect_cmd, simulate_cmd
+    from chaintwin.cli import demo_cmd, identify_cmd, inspect_cmd, simulate_cmd
 
     inspect_cmd.register(app)
     simulate_cmd.register(app)
+    identify_cmd.register(app)
     demo_cmd.register(app)
 
 

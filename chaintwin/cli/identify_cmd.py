@@ -1,0 +1,226 @@
+"""``chaintwin identify``, ``calibrate`` and ``weigh``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from chaintwin import __version__
+from chaintwin.cli.common import expand_recordings, print_json
+from chaintwin.errors import ChaintwinError, EstimationError
+from chaintwin.identify.calibration import Calibration, calibrate, load_calibration
+from chaintwin.read.profile import ConveyorProfile, load_profile
+from chaintwin.read.recording import Recording
+from chaintwin.validate.checks import load_recording
+from chaintwin.weigh.weigh import weigh
+
+__all__ = ["identify_dict", "register"]
+
+
+def _read_all(
+    files: list[str], profile: ConveyorProfile
+) -> tuple[list[Recording], list[dict[str, str]]]:
+    """Read and validate; refused files are collected, not fatal."""
+    recs: list[Recording] = []
+    refused: list[dict[str, str]] = []
+    for f in files:
+        try:
+            recs.append(load_recording(f, profile=profile).recording)
+        except ChaintwinError as exc:
+            refused.append({"file": f, "error": str(exc)})
+    return recs, refused
+
+
+def identify_dict(cal: Calibration) -> dict[str, Any]:
+    """The ``identify --json`` object of a calibration's parameters."""
+    p = cal.parameters
+
+    def pair(name: str, key: str) -> tuple[float | None, float | None]:
+        if key in p.fixed:
+            return p[key], None
+        return p[key], p.stderr(key)
+
+    out: dict[str, Any] = {}
+    for name, key in (("mu", "mu"), ("BmA", "BmA"), ("BmB", "BmB"), ("BmC", "BmC")):
+        value, err = pair(name, key)
+        out[name] = value
+        out[f"{name}_stderr"] = err
+    out["inertia_kgm2"] = cal.inertia_kgm2
+    out["inertia_kgm2_stderr"] = p.stderr("J_d")
+    out["torque_lag_s"] = cal.torque_lag_s
+    out["torque_lag_s_stderr"] = cal.torque_lag_stderr_s
+    out["warnings"] = [w.to_dict() for w in cal.warnings]
+    out["drive_inertia_kgm2"] = p["J_d"]
+    out["drive_inertia_kgm2_stderr"] = p.stderr("J_d")
+    out["fixed"] = list(p.fixed)
+    out["case"] = cal.case
+    out["payload_sensitivity_nm_per_kg"] = cal.sensitivity_nm_per_kg
+    out["payload_sensitivity_rel_uncertainty"] = cal.sensitivity_rel_uncertainty
+    out["residual_rms_nm"] = cal.residual_rms_nm
+    out["recordings"] = [
+        {
+            "file": r["file"],
+            "payload_kg": r["payload_kg"],
+            "plateau_speed_rpm": r["plateau_speed_rpm"],
+        }
+        for r in cal.recordings
+    ]
+    return out
+
+
+def _print_refused(console: Console, refused: list[dict[str, str]]) -> None:
+    for r in refused:
+        console.print(f"[red]refused[/red] {escape(r['error'])}", highlight=False, soft_wrap=True)
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``identify``, ``calibrate`` and ``weigh`` to the application."""
+
+    @app.command("identify")
+    def identify_cmd(
+        files: Annotated[list[Path], typer.Argument(help="Recordings with payload_kg metadata.")],
+        profile: Annotated[Path, typer.Option("--profile", help="Conveyor profile YAML.")],
+        as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    ) -> None:
+        """Identify friction, gear losses, inertia and torque lag from known-load recordings.
+
+        The profile's model: section is never read. With one load only,
+        friction and the constant loss BmA cannot be separated (a warning says
+        what was assumed). Exit code 2 when a file was refused.
+        """
+        prof = load_profile(profile)
+        recs, refused = _read_all(expand_recordings(files), prof)
+        if not recs:
+            raise EstimationError("no usable recording to identify from")
+        cal = calibrate(recs, prof, version=__version__)
+        out = identify_dict(cal)
+        out["refused"] = refused
+        if as_json:
+            print_json(out)
+        else:
+            console = Console()
+            table = Table(title=f"chaintwin identify: {escape(prof.id)}")
+            for col in ("parameter", "value", "std. error", "unit"):
+                table.add_column(col)
+            units = {"mu": "-", "BmA": "Nm", "BmB": "Nm·s/rad", "BmC": "Nm·s²/rad²"}
+            for key, unit in [*units.items(), ("inertia_kgm2", "kg·m²"), ("torque_lag_s", "s")]:
+                value, err = out[key], out[f"{key}_stderr"]
+                table.add_row(
+                    key,
+                    "-" if value is None else f"{value:.5g}",
+                    "fixed" if key in out["fixed"] else ("-" if err is None else f"{err:.2g}"),
+                    unit,
+                )
+            console.print(table)
+            for w in out["warnings"]:
+                console.print(
+                    f"[yellow]warning[/yellow] {w['code']}: {escape(w['message'])}",
+                    highlight=False,
+                    soft_wrap=True,
+                )
+            _print_refused(console, refused)
+        if refused:
+            raise typer.Exit(2)
+
+    @app.command("calibrate")
+    def calibrate_cmd(
+        files: Annotated[list[Path], typer.Argument(help="Recordings with payload_kg metadata.")],
+        profile: Annotated[Path, typer.Option("--profile", help="Conveyor profile YAML.")],
+        out: Annotated[Path, typer.Option("--out", help="Calibration file to write (JSON).")],
+        as_json: Annotated[
+            bool, typer.Option("--json", help="Print the calibration file's content.")
+        ] = False,
+    ) -> None:
+        """Calibrate a conveyor for weighing and write a versioned calibration file.
+
+        Accepts any mix of empty-tray runs, reference-load runs and runs at
+        several speeds, and says how well the payload sensitivity is known and
+        which run would improve it.
+        """
+        prof = load_profile(profile)
+        recs, refused = _read_all(expand_recordings(files), prof)
+        if not recs:
+            raise EstimationError("no usable recording to calibrate from")
+        cal = calibrate(recs, prof, version=__version__)
+        cal.save(out)
+        if as_json:
+            print_json(cal.to_dict())
+        else:
+            console = Console()
+            console.print(
+                f"wrote {escape(str(out))}: {len(recs)} recordings, case "
+                f"[bold]{cal.case}[/bold], mu = {cal.parameters['mu']:.4f}, payload "
+                f"sensitivity {cal.sensitivity_nm_per_kg * 1e3:.3f} mNm/kg "
+                f"± {cal.sensitivity_rel_uncertainty:.2%}",
+                highlight=False,
+                soft_wrap=True,
+            )
+            for w in cal.warnings:
+                console.print(
+                    f"[yellow]{w.code}[/yellow]: {escape(w.message)}",
+                    highlight=False,
+                    soft_wrap=True,
+                )
+            _print_refused(console, refused)
+        if refused:
+            raise typer.Exit(2)
+
+    @app.command("weigh")
+    def weigh_cmd(
+        files: Annotated[list[Path], typer.Argument(help="Recordings to weigh.")],
+        calibration: Annotated[
+            Path, typer.Option("--calibration", help="Calibration file from `calibrate`.")
+        ],
+        as_json: Annotated[bool, typer.Option("--json", help="Print one JSON list.")] = False,
+    ) -> None:
+        """Weigh the payload of each recording from torque alone, with an uncertainty.
+
+        Exit code 2 after the others are done when a file was refused.
+        """
+        cal = load_calibration(calibration)
+        results: list[dict[str, Any]] = []
+        for f in expand_recordings(files):
+            try:
+                ins = load_recording(f, profile=cal.profile)
+                results.append(weigh(ins.recording, cal, source=f).to_dict())
+            except ChaintwinError as exc:
+                results.append({"file": f, "error": str(exc)})
+        if as_json:
+            print_json(results)
+        else:
+            console = Console()
+            table = Table(title=f"chaintwin weigh: {escape(cal.profile.id)}")
+            for col in ("file", "payload [kg]", "± [kg]", "friction", "inertia", "ok", "TLF"):
+                table.add_column(col)
+            for r in results:
+                if "error" in r:
+                    table.add_row(escape(r["file"]), "[red]refused[/red]", "", "", "", "", "")
+                    continue
+                inertia = r["payload_inertia_kg"]
+                table.add_row(
+                    escape(r["file"]),
+                    f"{r['payload_kg']:.2f}",
+                    f"{r['uncertainty_kg']:.2f}",
+                    f"{r['payload_friction_kg']:.2f}",
+                    "-" if inertia is None else f"{inertia:.2f}",
+                    "yes" if r["consistent"] else "[red]NO[/red]",
+                    "-" if r["tlf"] is None else f"{r['tlf']:.3f}",
+                )
+            console.print(table)
+            for r in results:
+                if "error" in r:
+                    _print_refused(console, [r])
+                for w in r.get("warnings", []):
+                    console.print(
+                        f"[yellow]warning[/yellow] {escape(r['file'])}: {w['code']}: "
+                        f"{escape(w['message'])}",
+                        highlight=False,
+                        soft_wrap=True,
+                    )
+        if any("error" in r for r in results):
+            raise typer.Exit(2)

@@ -1,0 +1,516 @@
+"""Calibration: learn a conveyor's parameters from known-load runs, keep them in a file.
+
+:func:`calibrate` fits :class:`~chaintwin.identify.regression.RigidModelRegression`
+to recordings whose metadata holds ``payload_kg`` (an empty tray at least),
+identifies the torque lag where a recording at the controller cycle allows,
+and judges its own data: how well the payload sensitivity (torque per kg,
+``g·(μ·cosβ + sinβ)·r/(i·η)``) is determined, and which run would improve it.
+
+Which case the data is in
+-------------------------
+``several_loads``
+    Known loads that differ: the slope of torque in load is μ itself. The
+    sensitivity is measured, not inferred; this is the belt-scale protocol.
+``one_load_several_speeds``
+    One load at two or more plateau speeds: the speed-dependent gear losses
+    are separated from friction by the plateaus. μ still includes BmA
+    (fixed to 0), which is typically well under 1 % of the friction torque.
+``one_load_one_speed``
+    One load at one speed (the published method): μ is separated from the
+    speed-dependent losses only by the ramps, the least clean part of the
+    recording; the sensitivity's uncertainty says how much that costs.
+
+The calibration file is JSON (``format: chaintwin.calibration``, versioned),
+self-contained: it embeds the profile and its hash so that weighing needs
+nothing else, the recordings used (with content hashes), the parameters with
+their covariance, the method and the chaintwin version.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from chaintwin.errors import CalibrationError, EstimationError
+from chaintwin.identify.regression import PARAMETER_NAMES, RigidModelRegression, RigidParameters
+from chaintwin.identify.torque_lag import identify_torque_lag
+from chaintwin.identify.windows import incline_terms, window_integrals
+from chaintwin.read.profile import ConveyorProfile, parse_profile
+from chaintwin.read.recording import Recording, RecordingWarning
+from chaintwin.units import RPM_TO_RAD_S
+
+__all__ = [
+    "CALIBRATION_FORMAT",
+    "CALIBRATION_VERSION",
+    "Calibration",
+    "calibrate",
+    "identification_profile",
+    "load_calibration",
+    "sensitivity_nm_per_kg",
+]
+
+CALIBRATION_FORMAT = "chaintwin.calibration"
+CALIBRATION_VERSION = 1
+SPEED_CLUSTER = 0.05
+"""Plateau speeds within 5 % count as one speed."""
+
+INERTIA_GAIN_PRIOR_SIGMA = 0.08
+"""Prior uncertainty of the inertia signature's gain (1 by physics). The rigid
+model misreads an elastic belt's start and stop as less inertia: on the
+virtual conveyor up to 6 % of the payload at 100 kg. Known loads that differ
+measure the gain; the estimate is combined with this prior."""
+
+INERTIA_MODEL_REL = 0.02
+"""Relative model error of the inertia signature left after gain calibration."""
+
+
+def identification_profile(profile: ConveyorProfile) -> ConveyorProfile:
+    """The profile without its ``model:`` section: what identification may read."""
+    return profile.model_copy(update={"model": None})
+
+
+def sensitivity_nm_per_kg(profile: ConveyorProfile, mu: float) -> float:
+    """Payload sensitivity while motoring: ``g·(μ·cosβ + sinβ)·r/(i·η)``, Nm/kg."""
+    g_cos, g_sin = incline_terms(profile)
+    gf = profile.chordal_radius_m / (profile.gear.ratio * profile.gear.efficiency)
+    return (g_cos * mu + g_sin) * gf
+
+
+def _speed_clusters(speeds: Sequence[float]) -> list[float]:
+    clusters: list[float] = []
+    for s in sorted(abs(v) for v in speeds):
+        if not clusters or s > clusters[-1] * (1.0 + SPEED_CLUSTER):
+            clusters.append(s)
+    return clusters
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """A conveyor's calibrated parameters, self-contained.
+
+    Parameters
+    ----------
+    profile : ConveyorProfile
+        The profile calibrated (as given; identification used it without
+        its ``model:`` section).
+    parameters : RigidParameters
+        J_d (kg·m²), μ, BmA (Nm), BmB (Nm·s/rad), BmC (Nm·s²/rad²), covariance.
+    case : str
+        ``several_loads``, ``one_load_several_speeds`` or ``one_load_one_speed``.
+    recordings : list of dict
+        ``file``, ``sha256``, ``payload_kg``, ``tray_kg``, ``sample_time_s``,
+        ``recorded_at``, ``plateau_speed_rpm`` of each recording used.
+    torque_lag_s, torque_lag_stderr_s : float or None
+        Motor torque lag, when a recording at the controller cycle allowed it.
+    residual_rms_nm : float
+        Model residual, Nm.
+    inertia_gain, inertia_gain_sigma : float
+        How the raw inertia-signature payload reads a known payload p on this
+        conveyor, ``raw = offset + gain·p``: the gain (physics says 1, with a
+        prior uncertainty :data:`INERTIA_GAIN_PRIOR_SIGMA`; known loads that
+        differ refine it) and its standard uncertainty.
+    inertia_offset_kg, inertia_offset_sigma_kg : float
+        The offset (raw reading of an empty tray) and its uncertainty, kg.
+    warnings : tuple of RecordingWarning
+        What the calibration found questionable.
+    method : str
+        How the parameters were obtained.
+    created_at : str
+        ISO 8601 UTC.
+    chaintwin_version : str
+        Version that wrote it.
+    """
+
+    profile: ConveyorProfile
+    parameters: RigidParameters
+    case: str
+    recordings: list[dict[str, Any]]
+    torque_lag_s: float | None = None
+    torque_lag_stderr_s: float | None = None
+    residual_rms_nm: float = float("nan")
+    inertia_gain: float = 1.0
+    inertia_gain_sigma: float = INERTIA_GAIN_PRIOR_SIGMA
+    inertia_offset_kg: float = 0.0
+    inertia_offset_sigma_kg: float = 0.0
+    warnings: tuple[RecordingWarning, ...] = ()
+    method: str = "windowed least squares of the rigid model (integral form)"
+    created_at: str = field(default_factory=lambda: datetime.now(UTC).isoformat())
+    chaintwin_version: str = ""
+
+    # ------------------------------------------------------------ derived
+    @property
+    def id_profile(self) -> ConveyorProfile:
+        """The profile as identification and weighing read it (no ``model:``)."""
+        return identification_profile(self.profile)
+
+    @property
+    def profile_hash(self) -> str:
+        """SHA-256 of the embedded profile."""
+        return self.profile.content_hash()
+
+    @property
+    def sensitivity_nm_per_kg(self) -> float:
+        """Torque per kg of payload at constant speed while motoring, Nm/kg."""
+        return sensitivity_nm_per_kg(self.profile, self.parameters["mu"])
+
+    @property
+    def sensitivity_rel_uncertainty(self) -> float:
+        """Relative standard uncertainty of the sensitivity (from μ's)."""
+        g_cos, g_sin = incline_terms(self.profile)
+        mu = self.parameters["mu"]
+        return float(g_cos * self.parameters.stderr("mu") / abs(g_cos * mu + g_sin))
+
+    @property
+    def inertia_kgm2(self) -> float:
+        """Reflected inertia at zero payload, tray included (motoring), kg·m²."""
+        p = self.profile
+        ratio = p.chordal_radius_m / p.gear.ratio
+        return float(
+            self.parameters["J_d"]
+            + (p.belt_mass_kg + p.tray_mass_kg) * ratio * ratio / p.gear.efficiency
+        )
+
+    @property
+    def plateau_speeds_rpm(self) -> list[float]:
+        """Distinct plateau speeds of the calibration recordings, rpm."""
+        speeds = [r["plateau_speed_rpm"] for r in self.recordings if r["plateau_speed_rpm"]]
+        return _speed_clusters(speeds)
+
+    def recommendation(self) -> str | None:
+        """The run that would improve this calibration, or None."""
+        if self.case == "several_loads":
+            return None
+        rel = self.sensitivity_rel_uncertainty
+        text = (
+            f"the payload sensitivity is known to ±{rel:.1%} (1 sigma), i.e. about "
+            f"±{rel * 100:.1f} kg at 100 kg from friction alone"
+        )
+        if self.case == "one_load_one_speed":
+            return (
+                text + "; empty-tray runs at one speed cannot separate rail friction from the "
+                "speed-dependent gear losses except through the ramps. Record one run with "
+                "a known reference load (50-100 % of the usual payload), or empty runs at "
+                "two or three speeds (e.g. 50 % and 75 % of nominal)"
+            )
+        return (
+            text + "; friction is separated from the speed-dependent losses, but with one "
+            "load it still includes the constant gear loss BmA. One run with a known "
+            "reference load measures the sensitivity directly"
+        )
+
+    # ------------------------------------------------------------ file
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready form (see the module docstring)."""
+        p = self.parameters
+        return {
+            "format": CALIBRATION_FORMAT,
+            "format_version": CALIBRATION_VERSION,
+            "chaintwin_version": self.chaintwin_version,
+            "created_at": self.created_at,
+            "method": self.method,
+            "conveyor": self.profile.id,
+            "profile_sha256": self.profile_hash,
+            "profile": self.profile.model_dump(mode="json"),
+            "case": self.case,
+            "recommendation": self.recommendation(),
+            "recordings": self.recordings,
+            "parameters": {
+                "names": list(PARAMETER_NAMES),
+                "values": [float(v) for v in p.values],
+                "covariance": [[float(c) for c in row] for row in p.covariance],
+                "fixed": list(p.fixed),
+            },
+            "inertia_kgm2": self.inertia_kgm2,
+            "payload_sensitivity_nm_per_kg": self.sensitivity_nm_per_kg,
+            "payload_sensitivity_rel_uncertainty": self.sensitivity_rel_uncertainty,
+            "torque_lag_s": self.torque_lag_s,
+            "torque_lag_stderr_s": self.torque_lag_stderr_s,
+            "residual_rms_nm": self.residual_rms_nm,
+            "inertia_signature": {
+                "gain": self.inertia_gain,
+                "gain_sigma": self.inertia_gain_sigma,
+                "offset_kg": self.inertia_offset_kg,
+                "offset_sigma_kg": self.inertia_offset_sigma_kg,
+            },
+            "warnings": [w.to_dict() for w in self.warnings],
+        }
+
+    def save(self, path: str | Path) -> Path:
+        """Write the calibration file atomically (temporary file, then rename)."""
+        target = Path(path)
+        tmp = target.with_name(target.name + ".tmp")
+        tmp.write_text(json.dumps(self.to_dict(), indent=2) + "\n", encoding="utf-8")
+        tmp.replace(target)
+        return target
+
+    @classmethod
+    def from_dict(cls, data: Any, source: str = "<calibration>") -> Calibration:
+        """Rebuild from :meth:`to_dict` output, checking format and profile hash.
+
+        Raises
+        ------
+        CalibrationError
+            When the content is not a chaintwin calibration or was altered.
+        """
+        if not isinstance(data, dict) or data.get("format") != CALIBRATION_FORMAT:
+            raise CalibrationError(
+                f"{source}: not a chaintwin calibration file (no 'format: "
+                f"{CALIBRATION_FORMAT}'); make one with `chaintwin calibrate`"
+            )
+        version = data.get("format_version")
+        if version != CALIBRATION_VERSION:
+            raise CalibrationError(
+                f"{source}: calibration format version {version!r} is not supported "
+                f"(this chaintwin reads version {CALIBRATION_VERSION}); calibrate again"
+            )
+        try:
+            profile = parse_profile(data["profile"], f"{source}: embedded profile")
+            params = data["parameters"]
+            if list(params["names"]) != list(PARAMETER_NAMES):
+                raise ValueError("parameter names")
+            values = np.asarray(params["values"], dtype=np.float64)
+            cov = np.asarray(params["covariance"], dtype=np.float64)
+            if values.shape != (5,) or cov.shape != (5, 5):
+                raise ValueError("parameter shapes")
+            if not (np.isfinite(values).all() and np.isfinite(cov).all()):
+                raise ValueError("non-finite parameters")
+            cal = cls(
+                profile=profile,
+                parameters=RigidParameters(values, cov, tuple(params.get("fixed", ()))),
+                case=str(data["case"]),
+                recordings=list(data["recordings"]),
+                torque_lag_s=data.get("torque_lag_s"),
+                torque_lag_stderr_s=data.get("torque_lag_stderr_s"),
+                residual_rms_nm=float(data.get("residual_rms_nm", float("nan"))),
+                inertia_gain=float(data["inertia_signature"]["gain"]),
+                inertia_gain_sigma=float(data["inertia_signature"]["gain_sigma"]),
+                inertia_offset_kg=float(data["inertia_signature"]["offset_kg"]),
+                inertia_offset_sigma_kg=float(data["inertia_signature"]["offset_sigma_kg"]),
+                warnings=tuple(
+                    RecordingWarning(str(w["code"]), str(w["message"]))
+                    for w in data.get("warnings", [])
+                ),
+                method=str(data.get("method", "")),
+                created_at=str(data.get("created_at", "")),
+                chaintwin_version=str(data.get("chaintwin_version", "")),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise CalibrationError(
+                f"{source}: calibration file is incomplete or damaged ({exc}); calibrate again"
+            ) from None
+        if data.get("profile_sha256") != cal.profile_hash:
+            raise CalibrationError(
+                f"{source}: the embedded profile does not match its hash; the file was "
+                "edited by hand. Calibrate again from the recordings"
+            )
+        return cal
+
+
+def load_calibration(path: str | Path) -> Calibration:
+    """Read a calibration file.
+
+    Raises
+    ------
+    CalibrationError
+        When it cannot be read or is not a valid calibration.
+    """
+    source = str(path)
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CalibrationError(f"{source}: cannot read the calibration ({exc})") from None
+    except json.JSONDecodeError as exc:
+        raise CalibrationError(f"{source}, line {exc.lineno}: not valid JSON") from None
+    return Calibration.from_dict(data, source)
+
+
+def _sha256(recording: Recording) -> str | None:
+    try:
+        return hashlib.sha256(Path(recording.source).read_bytes()).hexdigest()
+    except OSError:
+        return None
+
+
+def _torque_lag(
+    recordings: Sequence[Recording], profile: ConveyorProfile
+) -> tuple[float | None, float | None, list[RecordingWarning]]:
+    """Torque lag from recordings sampled at the controller cycle, inverse-variance pooled."""
+    taus: list[float] = []
+    errs: list[float] = []
+    cycle = profile.controller.cycle_s
+    for rec in recordings:
+        tsp = rec.torque_setpoint
+        if tsp is None or abs(rec.sample_time_s - cycle) > 0.05 * cycle:
+            continue
+        try:
+            res = identify_torque_lag(rec.time, tsp, rec.torque, cycle_s=cycle)
+        except EstimationError:
+            continue
+        if res.tau_stderr_s > 0 and math.isfinite(res.tau_stderr_s):
+            taus.append(res.tau_s)
+            errs.append(res.tau_stderr_s)
+    if not taus:
+        return (
+            None,
+            None,
+            [
+                RecordingWarning(
+                    "torque_lag_unknown",
+                    "the torque lag needs a recording at the controller cycle "
+                    f"({cycle * 1e3:g} ms) with the torque set point; none was given",
+                )
+            ],
+        )
+    w = 1.0 / np.square(errs)
+    tau = float(np.sum(w * np.asarray(taus)) / np.sum(w))
+    return tau, float(1.0 / np.sqrt(np.sum(w))), []
+
+
+def _calibrate_inertia_signature(
+    cal: Calibration,
+    recordings: Sequence[Recording],
+    loads: Sequence[float],
+    trays: Sequence[float],
+) -> Calibration:
+    """Learn how the raw inertia signature reads the known loads (gain, offset, scatter)."""
+    from chaintwin.identify.signatures import fit_signatures
+
+    known: list[float] = []
+    raw: list[float] = []
+    var: list[float] = []
+    for rec, load, tray in zip(recordings, loads, trays, strict=True):
+        try:
+            fit, cov = fit_signatures(rec, cal.id_profile, cal.parameters, tray)
+        except EstimationError:
+            continue
+        if fit.has_inertia:
+            known.append(load)
+            raw.append(float(fit.estimate[1]))
+            var.append(float(cov[1, 1]))
+    if not raw:
+        return cal
+    p = np.asarray(known)
+    y = np.asarray(raw)
+    w = 1.0 / np.maximum(np.asarray(var), 1e-12)
+    if float(np.ptp(p)) >= 5.0:
+        x = np.column_stack((np.ones_like(p), p))
+        xtw = x.T * w
+        cov = np.linalg.inv(xtw @ x)
+        offset, gain = cov @ (xtw @ y)
+        res = y - (offset + gain * p)
+        if len(p) > 2:  # scatter beyond the stated uncertainties widens the estimate
+            cov = cov * max(1.0, float(np.sum(w * res * res)) / (len(p) - 2))
+        # combine with the physics prior gain = 1 ± INERTIA_GAIN_PRIOR_SIGMA
+        prior_w = 1.0 / INERTIA_GAIN_PRIOR_SIGMA**2
+        data_w = 1.0 / cov[1, 1]
+        gain_post = (prior_w * 1.0 + data_w * gain) / (prior_w + data_w)
+        return replace(
+            cal,
+            inertia_gain=float(gain_post),
+            inertia_gain_sigma=float(np.sqrt(1.0 / (prior_w + data_w))),
+            inertia_offset_kg=float(offset),
+            inertia_offset_sigma_kg=float(np.sqrt(cov[0, 0])),
+        )
+    offset = float(np.sum(w * (y - p)) / np.sum(w))
+    return replace(
+        cal,
+        inertia_offset_kg=offset,
+        inertia_offset_sigma_kg=float(np.sqrt(1.0 / np.sum(w))),
+    )
+
+
+def calibrate(
+    recordings: Sequence[Recording],
+    profile: ConveyorProfile,
+    *,
+    estimator: RigidModelRegression | None = None,
+    version: str = "",
+) -> Calibration:
+    """Calibrate a conveyor from recordings with a known ``payload_kg``.
+
+    Parameters
+    ----------
+    recordings : sequence of Recording
+        Calibration recordings of one conveyor; each needs ``payload_kg``.
+    profile : ConveyorProfile
+        The conveyor's profile (its ``model:`` section is not read).
+    estimator : RigidModelRegression, optional
+        Settings of the regression (default settings otherwise).
+    version : str
+        chaintwin version to record.
+
+    Returns
+    -------
+    Calibration
+
+    Raises
+    ------
+    EstimationError
+        When a recording lacks ``payload_kg`` or the data cannot determine the model.
+    """
+    id_prof = identification_profile(profile)
+    missing = [r.source for r in recordings if r.metadata.payload_kg is None]
+    if missing:
+        raise EstimationError(
+            f"{missing[0]}: no payload_kg in its metadata; calibration needs recordings "
+            "with a known load (an empty tray is '# payload_kg: 0')"
+        )
+    est = (estimator or RigidModelRegression()).fit(recordings, id_prof)
+    loads = [t + p for t, p in zip(est.trays_kg_, est.loads_kg_, strict=True)]
+    speeds = _speed_clusters(est.plateau_speeds_)
+    if max(loads) - min(loads) >= est.min_load_spread_kg:
+        case = "several_loads"
+    elif len(speeds) >= 2:
+        case = "one_load_several_speeds"
+    else:
+        case = "one_load_one_speed"
+    tau, tau_err, lag_warn = _torque_lag(recordings, id_prof)
+    rec_info: list[dict[str, Any]] = []
+    for k, rec in enumerate(recordings):
+        wi = window_integrals(rec, id_prof)
+        plateau = (
+            float(np.median(wi.mean_speed[wi.constant])) / RPM_TO_RAD_S
+            if wi.constant.any()
+            else None
+        )
+        rec_info.append(
+            {
+                "file": rec.source,
+                "sha256": _sha256(rec),
+                "payload_kg": est.loads_kg_[k],
+                "tray_kg": est.trays_kg_[k],
+                "sample_time_s": rec.sample_time_s,
+                "recorded_at": rec.metadata.recorded_at.isoformat()
+                if rec.metadata.recorded_at
+                else None,
+                "plateau_speed_rpm": plateau,
+            }
+        )
+    warnings = list(est.warnings_) + lag_warn
+    for rec in recordings:
+        for w in rec.warnings:
+            warnings.append(RecordingWarning(w.code, f"{rec.source}: {w.message}"))
+    cal = Calibration(
+        profile=profile,
+        parameters=est.parameters_,
+        case=case,
+        recordings=rec_info,
+        torque_lag_s=tau,
+        torque_lag_stderr_s=tau_err,
+        residual_rms_nm=est.residual_rms_nm_,
+        warnings=tuple(warnings),
+        chaintwin_version=version,
+    )
+    cal = _calibrate_inertia_signature(cal, recordings, est.loads_kg_, est.trays_kg_)
+    note = cal.recommendation()
+    if note is not None:
+        cal = replace(cal, warnings=(*cal.warnings, RecordingWarning("calibration_weak", note)))
+    return cal

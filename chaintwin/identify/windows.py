@@ -1,0 +1,380 @@
+"""Window integrals of a recording: the regressors of the rigid model.
+
+The rigid model on the motor shaft (DESIGN.md, section 2) is linear in the
+unknowns::
+
+    T_m = J_d·α + M·(r/i)·g_f·α                    drive and belt inertia
+        + g·cosβ·μ·M·g_f·sign(ω) + g·sinβ·(m_t+m_p)·g_f     belt resistance
+        + BmA·sign(ω) + BmB·ω + BmC·ω·|ω|          gear and motor losses
+
+with ``g_f = r/(i·η)`` while power flows motor → belt and ``r·η/i`` while the
+belt drives the motor, M = m_b + m_t + m_p. Rather than differentiate a noisy
+speed, each term is integrated over short windows (the integral form
+``J·(ω(t₂) − ω(t₁)) = ∫(T_m − ...)dt``): the inertia regressor becomes a
+speed difference, everything else a time integral of measured quantities.
+
+Which side the power flows from is decided per sample from the torque that
+reaches the gear input, ``Q = T_m − J_d·α − T_loss``: motoring while
+``Q·ω ≥ 0`` (:func:`motoring_mask`). The motor torque alone would not do: in
+a deceleration it is negative (the drive brakes its own rotor) while the
+gear still pushes the belt against its friction. Q needs J_d and the losses,
+so estimators start from the profile's motor + gear inertia with zero losses
+and repeat with their own estimates.
+
+Windows lie inside the moving part of the recording, away from standstill
+(the Coulomb sign terms and stiction make standstill samples useless), and
+hold ``window`` samples each (non-overlapping, so that their noise is
+nearly independent).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from chaintwin.errors import EstimationError
+from chaintwin.model.physics import G
+from chaintwin.read.profile import ConveyorProfile
+from chaintwin.read.recording import FloatArray, Recording
+
+__all__ = [
+    "DEFAULT_WINDOW_S",
+    "WindowIntegrals",
+    "acceleration",
+    "incline_terms",
+    "motoring_mask",
+    "window_integrals",
+]
+
+DEFAULT_WINDOW_S = 0.05
+"""Default window length, s (at least 4 samples)."""
+
+MIN_SPEED_SHARE = 0.08
+"""Samples below this share of the peak speed are left out (stiction, sign)."""
+
+
+@dataclass(frozen=True, slots=True)
+class WindowIntegrals:
+    """Per-window integrals of one recording (arrays of length n_windows).
+
+    All integrals are over the window's time span, SI units.
+
+    Attributes
+    ----------
+    t0, t1 : FloatArray
+        Window start and end, s.
+    torque : FloatArray
+        ∫T_m dt, N·m·s.
+    d_speed : FloatArray
+        ω(t₁) − ω(t₀), rad/s (inertia regressor of the drive side).
+    sign : FloatArray
+        ∫sign(ω) dt, s (BmA).
+    speed : FloatArray
+        ∫ω dt, rad (BmB).
+    speed_sq : FloatArray
+        ∫ω·|ω| dt, rad²/s (BmC).
+    gf_sign : FloatArray
+        ∫g_f·sign(ω) dt, m·s (friction: × μ·g·cosβ·M; payload: × g·cosβ·μ).
+    gf : FloatArray
+        ∫g_f dt, m·s (incline: × g·sinβ·mass).
+    gf_accel : FloatArray
+        Σ g_f·Δω over the window, m/s (belt inertia: × M·r/i).
+    constant : np.ndarray
+        True for windows at (nearly) constant set point speed.
+    mean_speed : FloatArray
+        Mean |ω| in the window, rad/s.
+    duration : FloatArray
+        t₁ − t₀, s.
+    kind : np.ndarray
+        0 for a short window, 1 for a whole-ramp window.
+    ripple : FloatArray
+        n × 4: ∫ω²·cos(k·z·ψ) dt and ∫ω²·sin(k·z·ψ) dt for k = 1, 2, with ψ
+        the sprocket angle from the position channel (tooth-pass ripple of
+        the polygon effect); n × 0 when position or tooth count is unknown.
+    """
+
+    t0: FloatArray
+    t1: FloatArray
+    torque: FloatArray
+    d_speed: FloatArray
+    sign: FloatArray
+    speed: FloatArray
+    speed_sq: FloatArray
+    gf_sign: FloatArray
+    gf: FloatArray
+    gf_accel: FloatArray
+    constant: np.ndarray
+    mean_speed: FloatArray
+    duration: FloatArray
+    kind: np.ndarray
+    ripple: FloatArray
+
+    @property
+    def count(self) -> int:
+        """Number of windows."""
+        return int(self.t0.shape[0])
+
+    def select(self, mask: np.ndarray) -> WindowIntegrals:
+        """Return the windows where ``mask`` is True."""
+        return WindowIntegrals(**{name: getattr(self, name)[mask] for name in self.__slots__})
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    padded = np.concatenate(([False], mask, [False])).astype(np.int8)
+    edges = np.flatnonzero(np.diff(padded))
+    return [(int(a), int(b)) for a, b in zip(edges[0::2], edges[1::2], strict=True)]
+
+
+def acceleration(recording: Recording) -> FloatArray:
+    """Motor acceleration, rad/s²: Savitzky-Golay derivative of the speed (9 points)."""
+    from scipy.signal import savgol_filter
+
+    w = recording.speed
+    n = w.shape[0]
+    dt = float(np.median(np.diff(recording.time)))
+    win = min(n if n % 2 else n - 1, 9)
+    out: FloatArray = savgol_filter(w, win, 2, deriv=1, delta=dt)
+    return out
+
+
+def motoring_mask(
+    recording: Recording,
+    *,
+    drive_inertia_kgm2: float,
+    losses: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    torque_channel: str = "torque",
+) -> np.ndarray:
+    """True where power flows motor → belt: ``(T_m − J_d·α − T_loss)·ω ≥ 0``.
+
+    Parameters
+    ----------
+    recording : Recording
+        The recording.
+    drive_inertia_kgm2 : float
+        Motor + gear inertia J_d, kg·m².
+    losses : (float, float, float)
+        BmA (Nm), BmB (Nm·s/rad), BmC (Nm·s²/rad²).
+    torque_channel : str
+        Torque used.
+    """
+    w = recording.speed
+    torque = recording.channels[torque_channel]
+    bma, bmb, bmc = losses
+    q = (
+        torque
+        - drive_inertia_kgm2 * acceleration(recording)
+        - (bma * np.sign(w) + bmb * w + bmc * w * np.abs(w))
+    )
+    mask: np.ndarray = q * w >= 0.0
+    return mask
+
+
+def _window_bounds(
+    recording: Recording,
+    moving: np.ndarray,
+    n_win: int,
+    corner_s: float,
+    settle_s: float,
+) -> tuple[list[int], list[int], list[int]]:
+    """Start/end sample indices and kinds (0 short, 1 phase) of the windows."""
+    from chaintwin.validate.phases import segment
+
+    t = recording.time
+    n = t.shape[0]
+    dt = float(np.median(np.diff(t)))
+    corner = max(1, round(corner_s / dt))
+    settle = max(1, round(settle_s / dt))
+    phases = segment(recording)
+    starts: list[int] = []
+    ends: list[int] = []
+    kinds: list[int] = []
+    for k, ph in enumerate(phases):
+        if not ph.moving:
+            continue
+        prev = phases[k - 1] if k > 0 else None
+        nxt = phases[k + 1] if k + 1 < len(phases) else None
+        # short windows, away from the phase's corners (belt ringing, breakaway)
+        a = ph.start + (settle if ph.kind == "constant" else corner)
+        b = ph.stop - corner
+        j = a
+        while j + n_win <= b:
+            if moving[j : j + n_win + 1].all():
+                starts.append(j)
+                ends.append(j + n_win)
+                kinds.append(0)
+            j += n_win
+        # one window over the whole ramp, from a steady point to a steady point,
+        # so that the belt's momentum is the same as the rigid model's at both
+        # ends whatever the belt's elasticity did in between
+        if ph.kind in ("accelerate", "decelerate") and prev is not None and nxt is not None:
+            if prev.kind == "standstill":
+                a = ph.start - 1
+            elif prev.kind == "constant":
+                a = max(prev.start, ph.start - corner)
+            else:
+                continue
+            if nxt.kind == "standstill":
+                b = nxt.start + 1
+            elif nxt.kind == "constant":
+                b = min(nxt.stop - 1, ph.stop + settle)
+            else:
+                continue
+            if 0 <= a < b < n:
+                starts.append(a)
+                ends.append(b)
+                kinds.append(1)
+    return starts, ends, kinds
+
+
+def window_integrals(
+    recording: Recording,
+    profile: ConveyorProfile,
+    *,
+    motoring: np.ndarray | None = None,
+    window_s: float = DEFAULT_WINDOW_S,
+    torque_channel: str = "torque",
+    min_speed_share: float = MIN_SPEED_SHARE,
+    corner_s: float = 0.1,
+    settle_s: float = 0.4,
+    span: tuple[float, float] | None = None,
+) -> WindowIntegrals:
+    """Integrate the rigid model's regressors over windows of a recording.
+
+    Two kinds of window: short ones (``window_s``) inside each moving phase,
+    ``corner_s`` away from the ramp corners and ``settle_s`` into a constant
+    phase (the belt rings after a corner), which resolve how the torque
+    depends on speed; and one per ramp from a steady point before it to a
+    steady point after it (``settle_s`` into the plateau, or the first
+    standstill sample), over which the integral form holds exactly for an
+    elastic belt too.
+
+    Parameters
+    ----------
+    recording : Recording
+        The recording (SI).
+    profile : ConveyorProfile
+        Supplies r, i, η (its ``model:`` section is not read).
+    motoring : np.ndarray of bool, optional
+        Power-flow direction per sample (:func:`motoring_mask`); default from
+        the profile's motor + gear inertia and zero losses.
+    window_s : float
+        Short window length, s (at least 4 samples).
+    torque_channel : {"torque", "torque_setpoint"}
+        Which torque to explain: the actual torque (default) or the speed
+        controller's set point (free of measurement noise, one lag earlier).
+    min_speed_share : float
+        Short windows leave out samples below this share of the peak speed.
+    corner_s, settle_s : float
+        Margins after ramp corners and into plateaus, s.
+    span : (float, float), optional
+        Only windows inside this time span, s.
+
+    Returns
+    -------
+    WindowIntegrals
+
+    Raises
+    ------
+    EstimationError
+        When the recording holds no moving part long enough for one window.
+    """
+    t = recording.time
+    w = recording.speed
+    torque = recording.channels.get(torque_channel)
+    if torque is None:
+        raise EstimationError(f"{recording.source}: has no {torque_channel} channel")
+    if motoring is None:
+        motoring = motoring_mask(
+            recording,
+            drive_inertia_kgm2=profile.motor.inertia_kgm2 + profile.gear.inertia_kgm2,
+            torque_channel=torque_channel,
+        )
+    r = profile.chordal_radius_m
+    i = profile.gear.ratio
+    eta = profile.gear.efficiency
+    gf = np.where(motoring, r / (i * eta), r * eta / i)
+    sgn = np.sign(w)
+
+    wsp = recording.speed_setpoint
+    basis = wsp if wsp is not None and np.any(wsp != 0.0) else w
+    peak = float(np.max(np.abs(basis)))
+    if peak <= 0.0:
+        raise EstimationError(f"{recording.source}: the conveyor does not move")
+    moving = (np.abs(w) >= min_speed_share * peak) & (np.abs(basis) >= min_speed_share * peak)
+    # constant set point: |dω_sp/dt| small against the peak acceleration
+    dbasis = np.abs(np.gradient(basis, t))
+    steady = dbasis <= 0.02 * max(float(np.max(dbasis)), 1e-12)
+
+    dt = float(np.median(np.diff(t)))
+    n_win = max(4, round(window_s / dt))
+
+    # per-step trapezoid integrals (length n-1)
+    h = np.diff(t)
+
+    def trap(f: FloatArray) -> FloatArray:
+        return 0.5 * (f[1:] + f[:-1]) * h
+
+    c_torque = trap(torque)
+    c_sign = trap(sgn)
+    c_speed = trap(w)
+    c_speed_sq = trap(w * np.abs(w))
+    c_gf_sign = trap(gf * sgn)
+    c_gf = trap(gf)
+    c_gf_accel = 0.5 * (gf[1:] + gf[:-1]) * np.diff(w)
+
+    starts, ends, kinds = _window_bounds(recording, moving, n_win, corner_s, settle_s)
+    s = np.asarray(starts, dtype=np.int64)
+    e = np.asarray(ends, dtype=np.int64)
+    kind = np.asarray(kinds, dtype=np.int64)
+    if span is not None:
+        keep = (t[s] >= span[0]) & (t[e] <= span[1])
+        s, e, kind = s[keep], e[keep], kind[keep]
+    if s.shape[0] == 0:
+        raise EstimationError(
+            f"{recording.source}: no moving part of {n_win} samples above "
+            f"{min_speed_share:.0%} of peak speed; nothing to identify"
+        )
+
+    def win(c: FloatArray) -> FloatArray:
+        cs = np.concatenate(([0.0], np.cumsum(c)))
+        return cs[e] - cs[s]
+
+    steady_win = np.array(
+        [bool(np.all(steady[a : b + 1])) and k == 0 for a, b, k in zip(s, e, kind, strict=True)]
+    )
+    mean_speed = win(np.abs(0.5 * (w[1:] + w[:-1])) * h) / (t[e] - t[s])
+    teeth = profile.sprocket.teeth
+    theta = recording.position
+    ripple_cols: list[FloatArray] = []
+    if teeth and theta is not None:
+        psi = theta * (teeth / i)  # tooth-pass phase from the motor angle
+        w2 = w * w
+        for harmonic in (1.0, 2.0):
+            ripple_cols.append(win(trap(w2 * np.cos(harmonic * psi))))
+            ripple_cols.append(win(trap(w2 * np.sin(harmonic * psi))))
+    ripple = np.column_stack(ripple_cols) if ripple_cols else np.empty((s.shape[0], 0))
+    return WindowIntegrals(
+        t0=t[s],
+        t1=t[e],
+        torque=win(c_torque),
+        d_speed=w[e] - w[s],
+        sign=win(c_sign),
+        speed=win(c_speed),
+        speed_sq=win(c_speed_sq),
+        gf_sign=win(c_gf_sign),
+        gf=win(c_gf),
+        gf_accel=win(c_gf_accel),
+        constant=steady_win,
+        mean_speed=mean_speed,
+        duration=t[e] - t[s],
+        kind=kind,
+        ripple=ripple,
+    )
+
+
+def incline_terms(profile: ConveyorProfile) -> tuple[float, float]:
+    """Return (g·cosβ, g·sinβ) for the profile's incline, m/s²."""
+    beta = math.radians(profile.belt.incline_deg)
+    return G * math.cos(beta), G * math.sin(beta)

@@ -1,0 +1,299 @@
+"""Dynamic weighing: the payload from torque alone, with an uncertainty.
+
+The payload shows up twice in a recording (DESIGN.md, identifiability):
+
+* **friction**: ``p·g·(μ·cosβ + sinβ)·r/(i·η)`` more torque at any speed,
+  strong at constant speed. It confuses "heavier" with "rails got stickier".
+* **inertia**: ``p·r²/(i²·η)`` more inertia, visible only in the ramps.
+  It does not depend on μ or the losses.
+
+:func:`weigh` subtracts the calibrated empty-conveyor model from the
+measured torque (window integrals, see :mod:`chaintwin.identify.windows`)
+and fits what is left with the two signatures as separate unknowns, plus
+the polygon effect's tooth-pass ripple as nuisance terms. The two estimates
+are reported separately; when they disagree beyond their combined
+uncertainty (3 sigma) the recording is flagged inconsistent and the payload
+is the inertia estimate, which a friction change cannot move. Otherwise
+the payload is their covariance-weighted combination (in practice the
+friction one, the more precise).
+
+Uncertainties are standard (1 sigma): the fit's, inflated for serial
+correlation of the residuals, plus the calibration's parameter covariance
+propagated through the estimate (numerical Jacobian). Incomplete cycles
+are weighed from what they hold and their uncertainty doubled.
+
+A load that changes during the movement (a tray placed on the moving belt)
+is found as a step in the friction payload of successive constant-speed
+windows; each segment is weighed on its own and the payload reported is the
+last segment's (what the belt carries at the end of the movement).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from chaintwin.errors import EstimationError
+from chaintwin.identify.calibration import INERTIA_MODEL_REL, Calibration
+from chaintwin.identify.signatures import SignatureFit, fit_signatures
+from chaintwin.identify.windows import motoring_mask
+from chaintwin.read.recording import Recording, RecordingWarning
+from chaintwin.units import RPM_TO_RAD_S
+from chaintwin.weigh.tlf import transport_loss_factor
+
+__all__ = ["CONSISTENCY_SIGMA", "Segment", "WeighResult", "weigh"]
+
+CONSISTENCY_SIGMA = 3.0
+"""Friction and inertia estimates disagree beyond this many combined sigmas."""
+
+STEP_MIN_KG = 2.0
+"""Smallest load change reported as a segment, kg."""
+
+STEP_SIGMA = 6.0
+"""A load change must stand this many sigmas above the windows' scatter."""
+
+
+@dataclass(frozen=True, slots=True)
+class Segment:
+    """A part of the movement with one load."""
+
+    start_s: float
+    end_s: float
+    payload_kg: float
+
+    def to_dict(self) -> dict[str, float]:
+        """``{start_s, end_s, payload_kg}``."""
+        return {"start_s": self.start_s, "end_s": self.end_s, "payload_kg": self.payload_kg}
+
+
+@dataclass(frozen=True)
+class WeighResult:
+    """The weight on the belt in one recording.
+
+    Attributes
+    ----------
+    file : str
+        The recording as given.
+    payload_kg, uncertainty_kg : float
+        Payload and its standard uncertainty (1 sigma), kg.
+    payload_friction_kg, friction_uncertainty_kg : float
+        Friction-signature estimate, kg.
+    payload_inertia_kg, inertia_uncertainty_kg : float or None
+        Inertia-signature estimate (None without a ramp), kg.
+    consistent : bool
+        False when the two signatures disagree beyond 3 sigma.
+    segments : tuple of Segment
+        Loads of the movement's parts when the load changed; else empty.
+    tlf : float or None
+        Transport loss factor (None under 1 kg).
+    warnings : tuple of RecordingWarning
+        The recording's and the weighing's warnings.
+    """
+
+    file: str
+    payload_kg: float
+    uncertainty_kg: float
+    payload_friction_kg: float
+    friction_uncertainty_kg: float
+    payload_inertia_kg: float | None
+    inertia_uncertainty_kg: float | None
+    consistent: bool
+    segments: tuple[Segment, ...] = ()
+    tlf: float | None = None
+    warnings: tuple[RecordingWarning, ...] = field(default_factory=tuple)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The ``weigh --json`` object."""
+        return {
+            "file": self.file,
+            "payload_kg": self.payload_kg,
+            "uncertainty_kg": self.uncertainty_kg,
+            "payload_friction_kg": self.payload_friction_kg,
+            "payload_inertia_kg": self.payload_inertia_kg,
+            "consistent": self.consistent,
+            "segments": [s.to_dict() for s in self.segments],
+            "tlf": self.tlf,
+            "warnings": [w.to_dict() for w in self.warnings],
+            "friction_uncertainty_kg": self.friction_uncertainty_kg,
+            "inertia_uncertainty_kg": self.inertia_uncertainty_kg,
+        }
+
+
+def _step(fit: SignatureFit) -> tuple[float, float, float] | None:
+    """Find one load step among constant-speed windows: (time, before, after) or None."""
+    wi = fit.windows
+    sel = np.flatnonzero(wi.constant & (wi.kind == 0) & np.isfinite(fit.residual_per_kg))
+    n = sel.shape[0]
+    if n < 8:
+        return None
+    q = fit.residual_per_kg[sel]
+    d = np.diff(q)
+    sigma = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / np.sqrt(2.0)
+    if sigma <= 0.0:
+        sigma = float(np.std(q)) or 1e-12
+    csum = np.cumsum(q)
+    total = csum[-1]
+    best_z, best_j = 0.0, -1
+    for j in range(3, n - 2):
+        left = csum[j - 1] / j
+        right = (total - csum[j - 1]) / (n - j)
+        zval = abs(right - left) / (sigma * np.sqrt(1.0 / j + 1.0 / (n - j)))
+        if zval > best_z:
+            best_z, best_j = zval, j
+    if best_j < 0:
+        return None
+    before = float(np.mean(q[:best_j]))
+    after = float(np.mean(q[best_j:]))
+    if best_z < STEP_SIGMA or abs(after - before) < STEP_MIN_KG:
+        return None
+    return float(wi.t0[sel[best_j]]), before, after
+
+
+def weigh(
+    recording: Recording,
+    calibration: Calibration,
+    *,
+    source: str | None = None,
+) -> WeighResult:
+    """Weigh the payload of one recording.
+
+    Parameters
+    ----------
+    recording : Recording
+        A validated recording of the calibrated conveyor (its warnings are
+        carried into the result).
+    calibration : Calibration
+        The conveyor's calibration.
+    source : str, optional
+        File name to report (default ``recording.source``).
+
+    Returns
+    -------
+    WeighResult
+
+    Raises
+    ------
+    EstimationError
+        When the recording cannot be weighed (no motion, no usable window).
+    """
+    name = source if source is not None else recording.source
+    prof = calibration.id_profile
+    params = calibration.parameters
+    if recording.has_warning("no_motion"):
+        raise EstimationError(f"{name}: the conveyor does not move; nothing to weigh")
+    tray = recording.metadata.tray_kg
+    tray = prof.tray_mass_kg if tray is None else tray
+    warnings: list[RecordingWarning] = list(recording.warnings)
+    mot = motoring_mask(
+        recording,
+        drive_inertia_kgm2=params["J_d"],
+        losses=(params["BmA"], params["BmB"], params["BmC"]),
+    )
+    fit, cov = fit_signatures(recording, prof, params, tray, motoring=mot)
+
+    segments: tuple[Segment, ...] = ()
+    step = _step(fit)
+    if step is not None:
+        t_step, _before, _after = step
+        t = recording.time
+        first, _cov_first = fit_signatures(
+            recording, prof, params, tray, (float(t[0]), t_step), mot
+        )
+        last, cov_last = fit_signatures(recording, prof, params, tray, (t_step, float(t[-1])), mot)
+        segments = (
+            Segment(float(fit.windows.t0[0]), t_step, float(first.estimate[0])),
+            Segment(t_step, float(fit.windows.t1[-1]), float(last.estimate[0])),
+        )
+        warnings.append(
+            RecordingWarning(
+                "payload_changed",
+                f"the load changed at t = {t_step:.3f} s from {first.estimate[0]:.1f} kg to "
+                f"{last.estimate[0]:.1f} kg (friction signature); each part is weighed on "
+                "its own and the payload is the last part's",
+            )
+        )
+        fit, cov = last, cov_last
+
+    p_f = float(fit.estimate[0])
+    s_f = float(np.sqrt(cov[0, 0]))
+    widen = 1.0
+    if recording.has_warning("incomplete_cycle"):
+        widen = 2.0
+        warnings.append(
+            RecordingWarning(
+                "weighed_incomplete_cycle",
+                "weighed from an incomplete cycle; the uncertainty is doubled",
+            )
+        )
+    if fit.has_inertia:
+        # the inertia signature as this conveyor's calibration reads it
+        g = calibration.inertia_gain
+        p_i = (float(fit.estimate[1]) - calibration.inertia_offset_kg) / g
+        c = cov.copy()
+        c[0, 1] = c[1, 0] = cov[0, 1] / g
+        c[1, 1] = (
+            cov[1, 1] / g**2
+            + (p_i * calibration.inertia_gain_sigma / g) ** 2
+            + (calibration.inertia_offset_sigma_kg / g) ** 2
+            + (INERTIA_MODEL_REL * p_i) ** 2
+        )
+        est = np.array([p_f, p_i])
+        s_i: float | None = float(np.sqrt(c[1, 1]))
+        diff_var = c[0, 0] + c[1, 1] - 2.0 * c[0, 1]
+        consistent = abs(p_f - p_i) <= CONSISTENCY_SIGMA * float(np.sqrt(diff_var))
+        if consistent:
+            inv = np.linalg.inv(c)
+            ones = np.ones(2)
+            var = 1.0 / float(ones @ inv @ ones)
+            payload = float(var * (ones @ inv @ est))
+            unc = float(np.sqrt(var))
+        else:
+            payload, unc = p_i, float(np.sqrt(c[1, 1]))
+            warnings.append(
+                RecordingWarning(
+                    "signatures_disagree",
+                    f"friction says {p_f:.1f} kg, inertia {p_i:.1f} kg (±{np.sqrt(diff_var):.1f}"
+                    " kg on the difference): the rail friction or the losses have changed "
+                    "since calibration, not the load; the payload is the inertia estimate",
+                )
+            )
+        inertia: float | None = p_i
+    else:
+        inertia = s_i = None
+        consistent = True
+        payload, unc = p_f, s_f
+        warnings.append(
+            RecordingWarning(
+                "no_inertia_signature",
+                "no complete ramp in the recording: weighed from friction alone, which "
+                "cannot tell a heavier load from higher friction",
+            )
+        )
+    cal_speeds = calibration.plateau_speeds_rpm
+    wi = fit.windows
+    if cal_speeds and wi.constant.any():
+        plateau = float(np.median(wi.mean_speed[wi.constant])) / RPM_TO_RAD_S
+        if plateau < 0.95 * min(cal_speeds) or plateau > 1.05 * max(cal_speeds):
+            warnings.append(
+                RecordingWarning(
+                    "speed_outside_calibration",
+                    f"plateau speed {plateau:.0f} rpm is outside the calibrated "
+                    f"{min(cal_speeds):.0f}-{max(cal_speeds):.0f} rpm; the losses are extrapolated",
+                )
+            )
+    tlf = transport_loss_factor(recording, prof, params, payload)
+    return WeighResult(
+        file=name,
+        payload_kg=payload,
+        uncertainty_kg=unc * widen,
+        payload_friction_kg=p_f,
+        friction_uncertainty_kg=s_f * widen,
+        payload_inertia_kg=inertia,
+        inertia_uncertainty_kg=None if s_i is None else s_i * widen,
+        consistent=consistent,
+        segments=segments,
+        tlf=tlf,
+        warnings=tuple(warnings),
+    )

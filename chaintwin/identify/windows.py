@@ -177,8 +177,15 @@ def _window_bounds(
     n_win: int,
     corner_s: float,
     settle_s: float,
-) -> tuple[list[int], list[int], list[int]]:
-    """Start/end sample indices and kinds (0 short, 1 phase) of the windows."""
+    average_s: float,
+) -> list[tuple[int, int, int, int, int]]:
+    """Windows as (start_lo, start_hi, end_lo, end_hi, kind) sample indices.
+
+    Kind 0: a short window (single start and end). Kind 1: a whole ramp; an
+    end that lies in a plateau is averaged over ``average_s`` of end points,
+    which averages out the belt's ringing (a lightly damped belt still swings
+    there, so its momentum differs from the rigid model's at any one instant).
+    """
     from chaintwin.validate.phases import segment
 
     t = recording.time
@@ -186,10 +193,9 @@ def _window_bounds(
     dt = float(np.median(np.diff(t)))
     corner = max(1, round(corner_s / dt))
     settle = max(1, round(settle_s / dt))
+    spread = max(0, round(average_s / dt))
     phases = segment(recording)
-    starts: list[int] = []
-    ends: list[int] = []
-    kinds: list[int] = []
+    out: list[tuple[int, int, int, int, int]] = []
     for k, ph in enumerate(phases):
         if not ph.moving:
             continue
@@ -201,31 +207,30 @@ def _window_bounds(
         j = a
         while j + n_win <= b:
             if moving[j : j + n_win + 1].all():
-                starts.append(j)
-                ends.append(j + n_win)
-                kinds.append(0)
+                out.append((j, j, j + n_win, j + n_win, 0))
             j += n_win
         # one window over the whole ramp, from a steady point to a steady point,
         # so that the belt's momentum is the same as the rigid model's at both
         # ends whatever the belt's elasticity did in between
         if ph.kind in ("accelerate", "decelerate") and prev is not None and nxt is not None:
             if prev.kind == "standstill":
-                a = ph.start - 1
+                a_lo = a_hi = ph.start - 1
             elif prev.kind == "constant":
-                a = max(prev.start, ph.start - corner)
+                a_hi = max(prev.start, ph.start - corner)
+                a_lo = max(prev.start + settle, a_hi - spread)
+                a_lo = min(a_lo, a_hi)
             else:
                 continue
             if nxt.kind == "standstill":
-                b = nxt.start + 1
+                b_lo = b_hi = nxt.start + 1
             elif nxt.kind == "constant":
-                b = min(nxt.stop - 1, ph.stop + settle)
+                b_lo = min(nxt.stop - 1, ph.stop + settle)
+                b_hi = min(nxt.stop - 1, b_lo + spread)
             else:
                 continue
-            if 0 <= a < b < n:
-                starts.append(a)
-                ends.append(b)
-                kinds.append(1)
-    return starts, ends, kinds
+            if 0 <= a_lo <= a_hi < b_lo <= b_hi < n:
+                out.append((a_lo, a_hi, b_lo, b_hi, 1))
+    return out
 
 
 def window_integrals(
@@ -238,6 +243,7 @@ def window_integrals(
     min_speed_share: float = MIN_SPEED_SHARE,
     corner_s: float = 0.1,
     settle_s: float = 0.4,
+    average_s: float = 0.6,
     span: tuple[float, float] | None = None,
 ) -> WindowIntegrals:
     """Integrate the rigid model's regressors over windows of a recording.
@@ -268,6 +274,8 @@ def window_integrals(
         Short windows leave out samples below this share of the peak speed.
     corner_s, settle_s : float
         Margins after ramp corners and into plateaus, s.
+    average_s : float
+        A whole-ramp window's end in a plateau is averaged over this span, s.
     span : (float, float), optional
         Only windows inside this time span, s.
 
@@ -324,27 +332,39 @@ def window_integrals(
     c_gf = trap(gf)
     c_gf_accel = 0.5 * (gf[1:] + gf[:-1]) * np.diff(w)
 
-    starts, ends, kinds = _window_bounds(recording, moving, n_win, corner_s, settle_s)
-    s = np.asarray(starts, dtype=np.int64)
-    e = np.asarray(ends, dtype=np.int64)
-    kind = np.asarray(kinds, dtype=np.int64)
+    bounds = np.asarray(
+        _window_bounds(recording, moving, n_win, corner_s, settle_s, average_s), dtype=np.int64
+    ).reshape(-1, 5)
     if span is not None:
-        keep = (t[s] >= span[0]) & (t[e] <= span[1])
-        s, e, kind = s[keep], e[keep], kind[keep]
-    if s.shape[0] == 0:
+        keep = (t[bounds[:, 0]] >= span[0]) & (t[bounds[:, 3]] <= span[1])
+        bounds = bounds[keep]
+    if bounds.shape[0] == 0:
         raise EstimationError(
             f"{recording.source}: no moving part of {n_win} samples above "
             f"{min_speed_share:.0%} of peak speed; nothing to identify"
         )
+    s_lo, s_hi, e_lo, e_hi, kind = bounds.T
+
+    def avg(x: FloatArray, lo: np.ndarray, hi: np.ndarray) -> FloatArray:
+        """Mean of a sample-indexed array over [lo, hi] (inclusive), per window."""
+        cx = np.concatenate(([0.0], np.cumsum(x)))
+        out: FloatArray = (cx[hi + 1] - cx[lo]) / (hi - lo + 1)
+        return out
 
     def win(c: FloatArray) -> FloatArray:
-        cs = np.concatenate(([0.0], np.cumsum(c)))
-        return cs[e] - cs[s]
+        """Integral of per-step values from the (averaged) start to the (averaged) end."""
+        cum = np.concatenate(([0.0], np.cumsum(c)))
+        return avg(cum, e_lo, e_hi) - avg(cum, s_lo, s_hi)
 
+    t0 = avg(t, s_lo, s_hi)
+    t1 = avg(t, e_lo, e_hi)
     steady_win = np.array(
-        [bool(np.all(steady[a : b + 1])) and k == 0 for a, b, k in zip(s, e, kind, strict=True)]
+        [
+            bool(np.all(steady[a : b + 1])) and k == 0
+            for a, b, k in zip(s_lo, e_hi, kind, strict=True)
+        ]
     )
-    mean_speed = win(np.abs(0.5 * (w[1:] + w[:-1])) * h) / (t[e] - t[s])
+    mean_speed = win(np.abs(0.5 * (w[1:] + w[:-1])) * h) / (t1 - t0)
     teeth = profile.sprocket.teeth
     theta = recording.position
     ripple_cols: list[FloatArray] = []
@@ -354,12 +374,12 @@ def window_integrals(
         for harmonic in (1.0, 2.0):
             ripple_cols.append(win(trap(w2 * np.cos(harmonic * psi))))
             ripple_cols.append(win(trap(w2 * np.sin(harmonic * psi))))
-    ripple = np.column_stack(ripple_cols) if ripple_cols else np.empty((s.shape[0], 0))
+    ripple = np.column_stack(ripple_cols) if ripple_cols else np.empty((kind.shape[0], 0))
     return WindowIntegrals(
-        t0=t[s],
-        t1=t[e],
+        t0=t0,
+        t1=t1,
         torque=win(c_torque),
-        d_speed=w[e] - w[s],
+        d_speed=avg(w, e_lo, e_hi) - avg(w, s_lo, s_hi),
         sign=win(c_sign),
         speed=win(c_speed),
         speed_sq=win(c_speed_sq),
@@ -368,7 +388,7 @@ def window_integrals(
         gf_accel=win(c_gf_accel),
         constant=steady_win,
         mean_speed=mean_speed,
-        duration=t[e] - t[s],
+        duration=t1 - t0,
         kind=kind,
         ripple=ripple,
     )

@@ -20,6 +20,9 @@ them into a one-line message and exit code 2; a traceback means a bug.
 
 Each message names the file and the place (line, column, field path) and
 says what to do.
+
+Beside the tree, :class:`ConvergenceWarning` (a ``UserWarning``) tells that an
+estimator's result is usable but poorly determined, as in scikit-learn.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ __all__ = [
     "ChaintwinError",
     "ColumnMapError",
     "ConnectorError",
+    "ConvergenceWarning",
     "DataError",
     "EstimationError",
     "ModelError",
@@ -112,3 +116,7 @@ class StoreError(ChaintwinError):
 
 class ConnectorError(ChaintwinError):
     """A live data source (OPC UA, ...) cannot be used."""
+
+
+class ConvergenceWarning(UserWarning):
+    """An estimator did not converge, ended at a bound, or its starts disagree."""

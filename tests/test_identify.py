@@ -13,7 +13,7 @@ from chaintwin.cli.app import main
 from chaintwin.errors import CalibrationError, EstimationError, NotFittedError
 from chaintwin.identify.calibration import Calibration, calibrate, load_calibration
 from chaintwin.identify.regression import RigidModelRegression
-from chaintwin.read.profile import ConveyorProfile, ModelSpec, load_profile
+from chaintwin.read.profile import ModelSpec, load_profile
 from chaintwin.read.recording import Recording
 from chaintwin.read.writer import write_recording
 from chaintwin.simulate.faults import Fault

@@ -1,8 +1,26 @@
-"""Identification: conveyor and drive parameters from recordings.
+"""Stage 3, identify: conveyor and drive parameters from recordings.
 
-Identification never reads a profile's ``model:`` section.
+Estimators follow the scikit-learn contract (settings in ``__init__``,
+``fit`` returns ``self``, fitted values end in ``_``). Identification never
+reads a profile's ``model:`` section.
 """
 
+from chaintwin.identify.calibration import (
+    Calibration,
+    calibrate,
+    identification_profile,
+    load_calibration,
+    sensitivity_nm_per_kg,
+)
+from chaintwin.identify.output_error import OutputErrorFit
+from chaintwin.identify.regression import (
+    PARAMETER_NAMES,
+    RigidModelRegression,
+    RigidParameters,
+    model_torque,
+)
+from chaintwin.identify.rls import RecursiveLeastSquares
+from chaintwin.identify.signatures import SignatureFit, fit_signatures
 from chaintwin.identify.torque_lag import (
     MAX_DELAY_CYCLES,
     TorqueLagEstimator,
@@ -11,12 +29,29 @@ from chaintwin.identify.torque_lag import (
     lag_gain,
     simulate_torque_lag,
 )
+from chaintwin.identify.windows import WindowIntegrals, motoring_mask, window_integrals
 
 __all__ = [
     "MAX_DELAY_CYCLES",
+    "PARAMETER_NAMES",
+    "Calibration",
+    "OutputErrorFit",
+    "RecursiveLeastSquares",
+    "RigidModelRegression",
+    "RigidParameters",
+    "SignatureFit",
     "TorqueLagEstimator",
     "TorqueLagResult",
+    "WindowIntegrals",
+    "calibrate",
+    "fit_signatures",
+    "identification_profile",
     "identify_torque_lag",
     "lag_gain",
+    "load_calibration",
+    "model_torque",
+    "motoring_mask",
+    "sensitivity_nm_per_kg",
     "simulate_torque_lag",
+    "window_integrals",
 ]

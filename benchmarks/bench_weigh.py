@@ -119,9 +119,10 @@ def main() -> None:
         )
     print("targets: mu within 3 %, BmB within 10 %")
 
-    print("\nFriction +10 % at unchanged payload (P2 calibration, 6 ms)")
+    print("\nFriction rise at unchanged payload (P2 calibration, 6 ms)")
     print(
-        f"{'profile':16s} {'payload':>7s} {'friction':>9s} {'inertia':>8s} {'reported':>9s} flagged"
+        f"{'profile':16s} {'rise':>5s} {'payload':>7s} {'friction':>9s} {'inertia':>8s} "
+        f"{'reported':>9s} flagged"
     )
     for name in NAMES:
         prof = load_profile(PROFILES / f"{name}.yaml")
@@ -132,13 +133,15 @@ def main() -> None:
             ],
             prof,
         )
-        for payload in (20.0, 60.0):
-            res = weigh(record(prof, payload, 400, 0.006, faults=[Fault("friction", 0.1)]), cal)
-            print(
-                f"{name:16s} {payload:7.0f} {res.payload_friction_kg:9.2f} "
-                f"{res.payload_inertia_kg or float('nan'):8.2f} {res.payload_kg:9.2f} "
-                f"{'yes' if not res.consistent else 'NO'}"
-            )
+        for rise in (0.1, 0.3):
+            for payload in (20.0, 60.0):
+                rec = record(prof, payload, 400, 0.006, faults=[Fault("friction", rise)])
+                res = weigh(rec, cal)
+                inertia = res.payload_inertia_kg if res.payload_inertia_kg is not None else np.nan
+                print(
+                    f"{name:16s} {rise:5.0%} {payload:7.0f} {res.payload_friction_kg:9.2f} "
+                    f"{inertia:8.2f} {res.payload_kg:9.2f} {'yes' if not res.consistent else 'NO'}"
+                )
 
     print("\nTime per recording (median)")
     print(f"identify/calibrate: {np.median(timings_cal) * 1e3:.1f} ms")

@@ -40,7 +40,12 @@ from typing import Any
 import numpy as np
 
 from chaintwin.errors import CalibrationError, EstimationError
-from chaintwin.identify.regression import PARAMETER_NAMES, RigidModelRegression, RigidParameters
+from chaintwin.identify.regression import (
+    PARAMETER_NAMES,
+    RigidModelRegression,
+    RigidParameters,
+    speed_clusters,
+)
 from chaintwin.identify.torque_lag import identify_torque_lag
 from chaintwin.identify.windows import incline_terms, window_integrals
 from chaintwin.read.profile import ConveyorProfile, parse_profile
@@ -59,8 +64,6 @@ __all__ = [
 
 CALIBRATION_FORMAT = "chaintwin.calibration"
 CALIBRATION_VERSION = 1
-SPEED_CLUSTER = 0.05
-"""Plateau speeds within 5 % count as one speed."""
 
 INERTIA_GAIN_PRIOR_SIGMA = 0.08
 """Prior uncertainty of the inertia signature's gain (1 by physics). The rigid
@@ -86,14 +89,6 @@ def sensitivity_nm_per_kg(profile: ConveyorProfile, mu: float) -> float:
     g_cos, g_sin = incline_terms(profile)
     gf = profile.chordal_radius_m / (profile.gear.ratio * profile.gear.efficiency)
     return (g_cos * mu + g_sin) * gf
-
-
-def _speed_clusters(speeds: Sequence[float]) -> list[float]:
-    clusters: list[float] = []
-    for s in sorted(abs(v) for v in speeds):
-        if not clusters or s > clusters[-1] * (1.0 + SPEED_CLUSTER):
-            clusters.append(s)
-    return clusters
 
 
 @dataclass(frozen=True)
@@ -186,7 +181,7 @@ class Calibration:
     def plateau_speeds_rpm(self) -> list[float]:
         """Distinct plateau speeds of the calibration recordings, rpm."""
         speeds = [r["plateau_speed_rpm"] for r in self.recordings if r["plateau_speed_rpm"]]
-        return _speed_clusters(speeds)
+        return speed_clusters(speeds)
 
     def recommendation(self) -> str | None:
         """The run that would improve this calibration, or None."""
@@ -469,7 +464,7 @@ def calibrate(
         )
     est = (estimator or RigidModelRegression()).fit(recordings, id_prof)
     loads = [t + p for t, p in zip(est.trays_kg_, est.loads_kg_, strict=True)]
-    speeds = _speed_clusters(est.plateau_speeds_)
+    speeds = speed_clusters(est.plateau_speeds_)
     if max(loads) - min(loads) >= est.min_load_spread_kg:
         case = "several_loads"
     elif len(speeds) >= 2:

@@ -44,6 +44,7 @@ __all__ = [
     "RigidParameters",
     "design_matrix",
     "serial_correlation_factor",
+    "speed_clusters",
 ]
 
 PARAMETER_NAMES = ("J_d", "mu", "BmA", "BmB", "BmC")
@@ -93,6 +94,19 @@ class _Solution:
     fixed: list[str]
 
 
+SPEED_CLUSTER = 0.05
+"""Plateau speeds within 5 % count as one speed."""
+
+
+def speed_clusters(speeds: Sequence[float]) -> list[float]:
+    """Distinct plateau speeds (within :data:`SPEED_CLUSTER`), ascending."""
+    clusters: list[float] = []
+    for s in sorted(abs(v) for v in speeds):
+        if not clusters or s > clusters[-1] * (1.0 + SPEED_CLUSTER):
+            clusters.append(s)
+    return clusters
+
+
 def serial_correlation_factor(residuals: FloatArray) -> float:
     """Variance inflation (1+ρ)/(1−ρ) for lag-1 autocorrelation ρ (clipped to [0, 0.9])."""
     if residuals.shape[0] < 3:
@@ -140,6 +154,11 @@ class RigidModelRegression:
         Loads must differ by this much to separate μ from BmA, kg.
     fit_bmc : bool
         Fit the speed-squared loss BmC; False fixes it to 0.
+    ramp_windows : bool or None
+        Use the short windows inside ramps. They resolve the speed dependence
+        of the losses when all plateaus are at one speed, but a lightly damped
+        elastic belt rings against them. None (default): use them only when
+        the plateaus are at one speed.
     """
 
     def __init__(
@@ -150,7 +169,9 @@ class RigidModelRegression:
         bma_prior: float = 0.0,
         min_load_spread_kg: float = 5.0,
         fit_bmc: bool = True,
+        ramp_windows: bool | None = None,
     ) -> None:
+        self.ramp_windows = ramp_windows
         self.window_s = window_s
         self.torque_channel = torque_channel
         self.bma_prior = bma_prior
@@ -211,10 +232,18 @@ class RigidModelRegression:
                 trays.append(tray if tray is not None else profile.tray_mass_kg)
 
         jd0 = profile.motor.inertia_kgm2 + profile.gear.inertia_kgm2
-        first = self._solve(recordings, profile, loads, trays, jd0, (0.0, 0.0, 0.0))
+        first = self._solve(recordings, profile, loads, trays, jd0, (0.0, 0.0, 0.0), True)
+        use_ramps = (
+            self.ramp_windows
+            if self.ramp_windows is not None
+            else len(speed_clusters(first.plateau_speeds)) < 2
+        )
         # second pass: the power-flow direction from the first pass's estimates
         v = first.values
-        sol = self._solve(recordings, profile, loads, trays, float(v[0]), (v[2], v[3], v[4]))
+        sol = self._solve(
+            recordings, profile, loads, trays, float(v[0]), (v[2], v[3], v[4]), use_ramps
+        )
+        self.ramp_windows_used_ = use_ramps
         sv = sol.singular_values
         self.parameters_ = RigidParameters(sol.values, sol.covariance, tuple(sol.fixed))
         self.theta_ = sol.values
@@ -238,6 +267,7 @@ class RigidModelRegression:
         trays: list[float],
         jd: float,
         losses: tuple[float, ...],
+        use_ramps: bool,
     ) -> _Solution:
         xs: list[FloatArray] = []
         ys: list[FloatArray] = []
@@ -259,13 +289,16 @@ class RigidModelRegression:
                 window_s=self.window_s,
                 torque_channel=self.torque_channel,
             )
+            if wi.constant.any():
+                speeds.append(float(np.median(wi.mean_speed[wi.constant])))
+            if not use_ramps:
+                keep = (wi.kind == 1) | wi.constant
+                wi = wi.select(keep) if keep.any() else wi
             x, y = design_matrix(wi, profile, payload_kg=loads[k], tray_kg=trays[k])
             xs.append(x)
             ys.append(y)
             ripples.append(wi.ripple)
             groups.extend([k] * wi.count)
-            if wi.constant.any():
-                speeds.append(float(np.median(wi.mean_speed[wi.constant])))
             weights.append(1.0 / np.sqrt(wi.duration))
         # integral noise grows with the square root of the window's duration
         wt = np.concatenate(weights)

@@ -7,7 +7,7 @@ how the inertia signature behaves on this conveyor) and weighing. See
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -35,6 +35,10 @@ class SignatureFit:
     windows: WindowIntegrals
     residual_per_kg: FloatArray  # per-window friction payload for step detection
     weights: FloatArray
+    inertia_alternative: float | None = None
+    """Raw inertia payload from every window (ramp interiors too), kg: a second
+    estimator whose disagreement with the primary one measures the inertia
+    signature's model error on this recording."""
 
 
 def _columns(
@@ -124,8 +128,20 @@ def fit_signatures(
             drive_inertia_kgm2=params["J_d"],
             losses=(params["BmA"], params["BmB"], params["BmC"]),
         )
-    wi = window_integrals(rec, prof, motoring=motoring, span=span)
+    every = window_integrals(rec, prof, motoring=motoring, span=span)
+    # primary: plateau windows and whole-ramp windows; the short windows inside
+    # ramps see the belt's ringing against the motor's acceleration and bias the
+    # inertia signature of a lightly damped belt
+    keep = (every.kind == 1) | every.constant
+    wi = every.select(keep) if keep.any() else every
     base = _fit(wi, prof, params.values, tray)
+    alternative: float | None = None
+    if base.has_inertia and not keep.all():
+        try:
+            alternative = float(_fit(every, prof, params.values, tray).estimate[1])
+        except EstimationError:
+            alternative = None
+    base = replace(base, inertia_alternative=alternative)
     k = base.estimate.shape[0]
     jac = np.zeros((k, 5))
     for j in range(5):

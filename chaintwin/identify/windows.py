@@ -181,15 +181,16 @@ def _window_bounds(
 ) -> list[tuple[int, int, int, int, int]]:
     """Windows as (start_lo, start_hi, end_lo, end_hi, kind) sample indices.
 
-    Kind 0: a short window (single start and end). Kind 1: a whole ramp; an
-    end that lies in a plateau is averaged over ``average_s`` of end points,
-    which averages out the belt's ringing (a lightly damped belt still swings
-    there, so its momentum differs from the rigid model's at any one instant).
+    Kind 0: a short window (single start and end). Kind 1: a ramp window
+    between the ramp's middle half and the plateau; its ends are averaged over
+    spans of samples (``average_s`` in the plateau), which averages out the
+    belt's ringing (a lightly damped belt still swings after a corner, so its
+    momentum differs from the rigid model's at any one instant).
     """
     from chaintwin.validate.phases import segment
 
     t = recording.time
-    n = t.shape[0]
+    t.shape[0]
     dt = float(np.median(np.diff(t)))
     corner = max(1, round(corner_s / dt))
     settle = max(1, round(settle_s / dt))
@@ -209,27 +210,25 @@ def _window_bounds(
             if moving[j : j + n_win + 1].all():
                 out.append((j, j, j + n_win, j + n_win, 0))
             j += n_win
-        # one window over the whole ramp, from a steady point to a steady point,
-        # so that the belt's momentum is the same as the rigid model's at both
-        # ends whatever the belt's elasticity did in between
-        if ph.kind in ("accelerate", "decelerate") and prev is not None and nxt is not None:
-            if prev.kind == "standstill":
-                a_lo = a_hi = ph.start - 1
-            elif prev.kind == "constant":
-                a_hi = max(prev.start, ph.start - corner)
-                a_lo = max(prev.start + settle, a_hi - spread)
-                a_lo = min(a_lo, a_hi)
-            else:
-                continue
-            if nxt.kind == "standstill":
-                b_lo = b_hi = nxt.start + 1
-            elif nxt.kind == "constant":
-                b_lo = min(nxt.stop - 1, ph.stop + settle)
-                b_hi = min(nxt.stop - 1, b_lo + spread)
-            else:
-                continue
-            if 0 <= a_lo <= a_hi < b_lo <= b_hi < n:
-                out.append((a_lo, a_hi, b_lo, b_hi, 1))
+        # one window per ramp between steady states: from the middle of the ramp
+        # (belt and motor accelerate alike there; the start's breakaway and the
+        # stop's wind-up of an elastic belt are left out) to the plateau, or from
+        # the plateau into the ramp. Ends are averaged over a span, which also
+        # averages out the ringing of a lightly damped belt.
+        if ph.kind not in ("accelerate", "decelerate"):
+            continue
+        lo, hi = ph.start + corner, ph.stop - corner
+        (ph.start + ph.stop) // 2
+        if hi <= lo or not moving[lo : hi + 1].all():
+            continue
+        if nxt is not None and nxt.kind == "constant" and ph.kind == "accelerate":
+            e_lo = min(nxt.stop - 1, nxt.start + settle)
+            e_hi = min(nxt.stop - 1, e_lo + spread)
+            out.append((lo, max(lo, hi - corner), e_lo, e_hi, 1))
+        elif prev is not None and prev.kind == "constant" and ph.kind == "decelerate":
+            s_hi = max(prev.start, ph.start - corner)
+            s_lo = min(s_hi, max(prev.start + settle, s_hi - spread))
+            out.append((s_lo, s_hi, min(lo + corner, hi), hi, 1))
     return out
 
 
@@ -251,10 +250,12 @@ def window_integrals(
     Two kinds of window: short ones (``window_s``) inside each moving phase,
     ``corner_s`` away from the ramp corners and ``settle_s`` into a constant
     phase (the belt rings after a corner), which resolve how the torque
-    depends on speed; and one per ramp from a steady point before it to a
-    steady point after it (``settle_s`` into the plateau, or the first
-    standstill sample), over which the integral form holds exactly for an
-    elastic belt too.
+    depends on speed; and one per ramp between two steady states, from the
+    ramp's middle to the plateau (``settle_s`` in, averaged over
+    ``average_s``) or back, over which the integral form holds for an elastic
+    belt too: belt and motor move alike at both ends. The start of motion
+    (breakaway, the belt winding up) and the stop (the belt overshooting and
+    staying wound up against the holding drive) are left out of them.
 
     Parameters
     ----------
@@ -346,9 +347,15 @@ def window_integrals(
     s_lo, s_hi, e_lo, e_hi, kind = bounds.T
 
     def avg(x: FloatArray, lo: np.ndarray, hi: np.ndarray) -> FloatArray:
-        """Mean of a sample-indexed array over [lo, hi] (inclusive), per window."""
-        cx = np.concatenate(([0.0], np.cumsum(x)))
-        out: FloatArray = (cx[hi + 1] - cx[lo]) / (hi - lo + 1)
+        """Hann-weighted mean of a sample-indexed array over [lo, hi], per window.
+
+        A taper rather than a plain mean: a sinusoid (the belt's ringing) leaks
+        into a plain mean as 1/(f·L), into a Hann-weighted one as 1/(f·L)³.
+        """
+        out: FloatArray = x[lo].astype(np.float64)
+        for j in np.flatnonzero(hi > lo):
+            weights = np.hanning(int(hi[j] - lo[j]) + 3)[1:-1]
+            out[j] = float(weights @ x[lo[j] : hi[j] + 1]) / float(weights.sum())
         return out
 
     def win(c: FloatArray) -> FloatArray:

@@ -233,11 +233,16 @@ def weigh(
         p_i = (float(fit.estimate[1]) - calibration.inertia_offset_kg) / g
         c = cov.copy()
         c[0, 1] = c[1, 0] = cov[0, 1] / g
+        # the inertia signature's model error: a fixed share, or half the
+        # disagreement of the two inertia estimators if that is larger
+        model_err = INERTIA_MODEL_REL * abs(p_i)
+        if fit.inertia_alternative is not None:
+            model_err = max(model_err, 0.5 * abs(fit.inertia_alternative - fit.estimate[1]) / g)
         c[1, 1] = (
             cov[1, 1] / g**2
             + (p_i * calibration.inertia_gain_sigma / g) ** 2
             + (calibration.inertia_offset_sigma_kg / g) ** 2
-            + (INERTIA_MODEL_REL * p_i) ** 2
+            + model_err**2
         )
         est = np.array([p_f, p_i])
         s_i: float | None = float(np.sqrt(c[1, 1]))

@@ -118,6 +118,9 @@ class Calibration:
         differ refine it) and its standard uncertainty.
     inertia_offset_kg, inertia_offset_sigma_kg : float
         The offset (raw reading of an empty tray) and its uncertainty, kg.
+    ramp_noise_rate : float
+        How well whole-ramp windows fit on this conveyor: residual variance
+        per second of window, (N·m·s)²/s; weighing weights them with it.
     warnings : tuple of RecordingWarning
         What the calibration found questionable.
     method : str
@@ -139,6 +142,7 @@ class Calibration:
     inertia_gain_sigma: float = INERTIA_GAIN_PRIOR_SIGMA
     inertia_offset_kg: float = 0.0
     inertia_offset_sigma_kg: float = 0.0
+    ramp_noise_rate: float = float("nan")
     warnings: tuple[RecordingWarning, ...] = ()
     method: str = "windowed least squares of the rigid model (integral form)"
     created_at: str = field(default_factory=lambda: datetime.now(UTC).isoformat())
@@ -238,6 +242,7 @@ class Calibration:
                 "gain_sigma": self.inertia_gain_sigma,
                 "offset_kg": self.inertia_offset_kg,
                 "offset_sigma_kg": self.inertia_offset_sigma_kg,
+                "ramp_noise_rate": self.ramp_noise_rate,
             },
             "warnings": [w.to_dict() for w in self.warnings],
         }
@@ -293,6 +298,7 @@ class Calibration:
                 inertia_gain_sigma=float(data["inertia_signature"]["gain_sigma"]),
                 inertia_offset_kg=float(data["inertia_signature"]["offset_kg"]),
                 inertia_offset_sigma_kg=float(data["inertia_signature"]["offset_sigma_kg"]),
+                ramp_noise_rate=float(data["inertia_signature"]["ramp_noise_rate"]),
                 warnings=tuple(
                     RecordingWarning(str(w["code"]), str(w["message"]))
                     for w in data.get("warnings", [])
@@ -387,7 +393,9 @@ def _calibrate_inertia_signature(
     var: list[float] = []
     for rec, load, tray in zip(recordings, loads, trays, strict=True):
         try:
-            fit, cov = fit_signatures(rec, cal.id_profile, cal.parameters, tray)
+            fit, cov = fit_signatures(
+                rec, cal.id_profile, cal.parameters, tray, ramp_rate=cal.ramp_noise_rate
+            )
         except EstimationError:
             continue
         if fit.has_inertia:
@@ -505,6 +513,7 @@ def calibrate(
         torque_lag_s=tau,
         torque_lag_stderr_s=tau_err,
         residual_rms_nm=est.residual_rms_nm_,
+        ramp_noise_rate=float(est.noise_rates_[1]),
         warnings=tuple(warnings),
         chaintwin_version=version,
     )

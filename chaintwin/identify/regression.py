@@ -92,6 +92,7 @@ class _Solution:
     plateau_speeds: list[float]
     warnings: list[RecordingWarning]
     fixed: list[str]
+    noise_rates: FloatArray
 
 
 SPEED_CLUSTER = 0.05
@@ -159,6 +160,10 @@ class RigidModelRegression:
         of the losses when all plateaus are at one speed, but a lightly damped
         elastic belt rings against them. None (default): use them only when
         the plateaus are at one speed.
+    variance_components : bool
+        Weight short and whole-ramp windows by their own residual noise rates
+        (estimated from a first fit). The rates are estimated either way
+        (``noise_rates_``) and serve weighing.
     """
 
     def __init__(
@@ -170,7 +175,9 @@ class RigidModelRegression:
         min_load_spread_kg: float = 5.0,
         fit_bmc: bool = True,
         ramp_windows: bool | None = None,
+        variance_components: bool = False,
     ) -> None:
+        self.variance_components = variance_components
         self.ramp_windows = ramp_windows
         self.window_s = window_s
         self.torque_channel = torque_channel
@@ -256,6 +263,7 @@ class RigidModelRegression:
         self.trays_kg_ = tuple(trays)
         self.plateau_speeds_ = tuple(sol.plateau_speeds)
         self.warnings_ = tuple(sol.warnings)
+        self.noise_rates_ = sol.noise_rates
         self.profile_ = profile
         return self
 
@@ -275,6 +283,7 @@ class RigidModelRegression:
         speeds: list[float] = []
         weights: list[FloatArray] = []
         ripples: list[FloatArray] = []
+        kinds: list[np.ndarray] = []
         for k, rec in enumerate(recordings):
             mot = motoring_mask(
                 rec,
@@ -299,6 +308,7 @@ class RigidModelRegression:
             ys.append(y)
             ripples.append(wi.ripple)
             groups.extend([k] * wi.count)
+            kinds.append(wi.kind)
             weights.append(1.0 / np.sqrt(wi.duration))
         # integral noise grows with the square root of the window's duration
         wt = np.concatenate(weights)
@@ -349,8 +359,25 @@ class RigidModelRegression:
                 f"{rank} of {xf.shape[1]}); record complete moves with ramps"
             )
         coef = sol / scale
-        values[cols] = coef[: cols.shape[0]]
         resid = y_fit - xf @ coef
+        # variance components: short and whole-ramp windows misfit differently
+        # (ripple and ringing average out over a whole ramp), so each kind gets
+        # its own noise rate and the fit is repeated with those weights
+        kind = np.concatenate(kinds)
+        rates = np.ones(2)
+        for kk in (0, 1):
+            sel = kind == kk
+            if sel.sum() >= 3:
+                rates[kk] = float(np.mean(resid[sel] ** 2))
+        if (kind == 1).sum() < 3 or (kind == 0).sum() < 3:
+            rates[:] = float(np.mean(resid**2))
+        rw = 1.0 / np.sqrt(rates[kind]) if self.variance_components else np.ones_like(resid)
+        xs_ = xs_ * rw[:, None]
+        y_fit = y_fit * rw
+        sol, _res, rank, _sv = np.linalg.lstsq(xs_, y_fit, rcond=None)
+        coef = sol / scale
+        values[cols] = coef[: cols.shape[0]]
+        resid = y_fit - xs_ @ sol
         dof = max(resid.shape[0] - xf.shape[1], 1)
         s2 = float(resid @ resid) / dof
         inflate = float(
@@ -368,9 +395,11 @@ class RigidModelRegression:
         cov[np.ix_(cols, cols)] = cov_s[:m, :m]
         # residual torque per window: the integral residual over the window's duration
         # (resid = integral residual / sqrt(duration), so resid·wt is the torque residual)
-        rms = float(np.sqrt(np.mean((resid * wt) ** 2)))
+        rms = float(np.sqrt(np.mean((resid / rw * wt) ** 2)))
         sv_main = np.linalg.svd(xs_[:, :m], compute_uv=False)
-        return _Solution(values, cov, rms, sv_main, int(y_all.shape[0]), speeds, warnings, fixed)
+        return _Solution(
+            values, cov, rms, sv_main, int(y_all.shape[0]), speeds, warnings, fixed, rates
+        )
 
     def _check(self) -> None:
         if not hasattr(self, "parameters_"):

@@ -64,31 +64,52 @@ def _columns(
 
 
 def _fit(
-    wi: WindowIntegrals, profile: ConveyorProfile, values: FloatArray, tray_kg: float
+    wi: WindowIntegrals,
+    profile: ConveyorProfile,
+    values: FloatArray,
+    tray_kg: float,
+    ramp_rate: float | None = None,
 ) -> SignatureFit:
+    """Weighted least squares of the residual on the signatures and ripple terms.
+
+    Short and whole-ramp windows get their own noise rates (variance per
+    second of window): the short windows' from this recording's residuals,
+    the ramp windows' from the calibration (``ramp_rate``; a recording holds
+    too few of them to tell), since a whole ramp averages out ripple and
+    ringing that a short window does not.
+    """
     z, xf, xi = _columns(wi, profile, values, tray_kg)
-    wt = 1.0 / np.sqrt(wi.duration)
     has_inertia = bool(np.any(wi.kind == 1))
     cols = [xf, xi] if has_inertia else [xf]
-    x = np.column_stack([*cols, wi.ripple]) * wt[:, None]
-    y = z * wt
-    scale = np.sqrt(np.mean(x * x, axis=0))
+    x0 = np.column_stack([*cols, wi.ripple])
+    scale = np.sqrt(np.mean(x0 * x0, axis=0))
     scale[scale == 0.0] = 1.0
-    sol, _r, rank, _sv = np.linalg.lstsq(x / scale, y, rcond=None)
-    if rank < x.shape[1]:
+
+    def solve(weights: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, int]:
+        xw = x0 / scale * weights[:, None]
+        sol, _r, rank, _sv = np.linalg.lstsq(xw, z * weights, rcond=None)
+        return sol, xw, z * weights - xw @ sol, int(rank)
+
+    wt = 1.0 / np.sqrt(wi.duration)
+    _sol, _xw, resid, _rank = solve(wt)
+    short = wi.kind == 0
+    rate_short = float(np.mean(resid[short] ** 2)) if short.sum() >= 3 else float(np.mean(resid**2))
+    rate_ramp = ramp_rate if ramp_rate is not None and np.isfinite(ramp_rate) else rate_short
+    rates = np.where(short, rate_short, max(rate_ramp, 1e-30))
+    weights = wt / np.sqrt(rates)
+    sol, xw, resid, rank = solve(weights)
+    if rank < x0.shape[1]:
         raise EstimationError("the recording does not determine the payload")
     coef = sol / scale
-    resid = y - x @ coef
-    dof = max(y.shape[0] - x.shape[1], 1)
-    s2 = float(resid @ resid) / dof * serial_correlation_factor(resid)
-    xs = x / scale
-    cov = s2 * np.linalg.inv(xs.T @ xs) / np.outer(scale, scale)
+    dof = max(z.shape[0] - x0.shape[1], 1)
+    s2 = max(1.0, float(resid @ resid) / dof) * serial_correlation_factor(resid[short])
+    cov = s2 * np.linalg.inv(xw.T @ xw) / np.outer(scale, scale)
     k = len(cols)
     # friction payload of each window, other terms removed, for step detection
     rest = z - (xi * coef[1] if has_inertia else 0.0) - wi.ripple @ coef[k:]
     with np.errstate(divide="ignore", invalid="ignore"):
         per_kg = np.where(np.abs(xf) > 0, rest / xf, np.nan)
-    return SignatureFit(coef[:k], cov[:k, :k], has_inertia, wi, per_kg, wt)
+    return SignatureFit(coef[:k], cov[:k, :k], has_inertia, wi, per_kg, weights)
 
 
 def fit_signatures(
@@ -98,6 +119,7 @@ def fit_signatures(
     tray: float,
     span: tuple[float, float] | None = None,
     motoring: np.ndarray | None = None,
+    ramp_rate: float | None = None,
 ) -> tuple[SignatureFit, FloatArray]:
     """Fit the payload signatures against a calibrated empty-conveyor model.
 
@@ -115,6 +137,9 @@ def fit_signatures(
         Only windows inside this time span, s.
     motoring : np.ndarray of bool, optional
         Power-flow direction per sample (default from ``params``).
+    ramp_rate : float, optional
+        Noise rate of whole-ramp windows learned by the calibration,
+        (N·m·s)²/s (default: that of the short windows).
 
     Returns
     -------
@@ -134,11 +159,11 @@ def fit_signatures(
     # inertia signature of a lightly damped belt
     keep = (every.kind == 1) | every.constant
     wi = every.select(keep) if keep.any() else every
-    base = _fit(wi, prof, params.values, tray)
+    base = _fit(wi, prof, params.values, tray, ramp_rate)
     alternative: float | None = None
     if base.has_inertia and not keep.all():
         try:
-            alternative = float(_fit(every, prof, params.values, tray).estimate[1])
+            alternative = float(_fit(every, prof, params.values, tray, ramp_rate).estimate[1])
         except EstimationError:
             alternative = None
     base = replace(base, inertia_alternative=alternative)
@@ -153,7 +178,7 @@ def fit_signatures(
         up[j] += step
         dn = params.values.copy()
         dn[j] -= step
-        jac[:, j] = (_fit(wi, prof, up, tray).estimate - _fit(wi, prof, dn, tray).estimate) / (
-            2 * step
-        )
+        hi_ = _fit(wi, prof, up, tray, ramp_rate).estimate
+        lo_ = _fit(wi, prof, dn, tray, ramp_rate).estimate
+        jac[:, j] = (hi_ - lo_) / (2 * step)
     return base, base.covariance + jac @ params.covariance @ jac.T

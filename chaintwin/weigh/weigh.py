@@ -191,7 +191,8 @@ def weigh(
         drive_inertia_kgm2=params["J_d"],
         losses=(params["BmA"], params["BmB"], params["BmC"]),
     )
-    fit, cov = fit_signatures(recording, prof, params, tray, motoring=mot)
+    rate = calibration.ramp_noise_rate
+    fit, cov = fit_signatures(recording, prof, params, tray, motoring=mot, ramp_rate=rate)
 
     segments: tuple[Segment, ...] = ()
     step = _step(fit)
@@ -199,9 +200,11 @@ def weigh(
         t_step, _before, _after = step
         t = recording.time
         first, _cov_first = fit_signatures(
-            recording, prof, params, tray, (float(t[0]), t_step), mot
+            recording, prof, params, tray, (float(t[0]), t_step), mot, rate
         )
-        last, cov_last = fit_signatures(recording, prof, params, tray, (t_step, float(t[-1])), mot)
+        last, cov_last = fit_signatures(
+            recording, prof, params, tray, (t_step, float(t[-1])), mot, rate
+        )
         segments = (
             Segment(float(fit.windows.t0[0]), t_step, float(first.estimate[0])),
             Segment(t_step, float(fit.windows.t1[-1]), float(last.estimate[0])),

@@ -39,6 +39,8 @@ format: $(VENV)/.installed-dev
 ## bench: the benchmark scripts (not part of the tests)
 bench: $(VENV)/.installed-dev
 	$(BIN)/python benchmarks/bench_read.py
+	$(BIN)/python benchmarks/bench_simulate.py
+	$(BIN)/python benchmarks/bench_weigh.py
 
 clean:
 	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache .hypothesis

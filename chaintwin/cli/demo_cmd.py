@@ -9,13 +9,14 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.table import Table
 
 from chaintwin.cli.inspect_cmd import _print_table, inspection_to_dict
 from chaintwin.errors import RecordingError
 from chaintwin.read.columns import ColumnMap, load_column_map
-from chaintwin.read.profile import load_profiles
+from chaintwin.read.profile import ConveyorProfile, load_profiles
 from chaintwin.read.reader import read_recording
-from chaintwin.validate.checks import inspect_recording
+from chaintwin.validate.checks import inspect_recording, load_recording
 
 __all__ = ["examples_dir", "register"]
 
@@ -26,6 +27,49 @@ def examples_dir() -> Path:
         return Path(path)
 
 
+def _demo_weighing(
+    root: Path, profile: ConveyorProfile, vendor_map: ColumnMap, console: Console
+) -> None:
+    """Calibrate the reference conveyor and weigh its example recordings."""
+    from chaintwin.identify.calibration import calibrate
+    from chaintwin.weigh.weigh import weigh
+
+    rec_dir = root / "recordings"
+    cal_recs = [
+        load_recording(rec_dir / name, profile=profile).recording
+        for name in ("white-belt-01-cal-empty.csv", "white-belt-01-cal-50kg.csv")
+    ]
+    cal = calibrate(cal_recs, profile)
+    console.print(
+        f"calibrated {profile.id} ({cal.case}): mu = {cal.parameters['mu']:.4f} "
+        f"± {cal.parameters.stderr('mu'):.4f}, payload sensitivity "
+        f"{cal.sensitivity_nm_per_kg * 1e3:.3f} mNm/kg ± {cal.sensitivity_rel_uncertainty:.2%}",
+        highlight=False,
+        soft_wrap=True,
+    )
+    table = Table(title=f"weighing {profile.id} (true payloads: 40, 20 and 30 kg)")
+    for col in ("recording", "payload [kg]", "± [kg]", "friction", "inertia", "ok", "TLF"):
+        table.add_column(col)
+    for path, cmap in (
+        (rec_dir / "white-belt-01-40kg.csv", None),
+        (rec_dir / "white-belt-01-1ms.csv", None),
+        (root / "vendor" / "white-belt-01-vendor-export.csv", vendor_map),
+    ):
+        rec = load_recording(path, profile=profile, column_map=cmap).recording
+        res = weigh(rec, cal, source=path.name)
+        inertia = res.payload_inertia_kg
+        table.add_row(
+            path.name,
+            f"{res.payload_kg:.2f}",
+            f"{res.uncertainty_kg:.2f}",
+            f"{res.payload_friction_kg:.2f}",
+            "-" if inertia is None else f"{inertia:.2f}",
+            "yes" if res.consistent else "NO",
+            "-" if res.tlf is None else f"{res.tlf:.3f}",
+        )
+    console.print(table)
+
+
 def register(app: typer.Typer) -> None:
     """Add the ``demo`` and ``examples`` commands to the application."""
 
@@ -33,8 +77,10 @@ def register(app: typer.Typer) -> None:
     def demo() -> None:
         """Run the main job on the bundled virtual conveyor's example recordings.
 
-        For now: inspect every bundled recording against its conveyor's
-        profile (matched by id) and show phases and warnings.
+        Inspects every bundled recording against its conveyor's profile
+        (matched by id), calibrates the reference conveyor from its two
+        calibration recordings (empty tray and a 50 kg reference load) and
+        weighs its other recordings, the vendor export included.
         """
         root = examples_dir()
         profiles = load_profiles(root / "profiles")
@@ -55,13 +101,15 @@ def register(app: typer.Typer) -> None:
             except RecordingError as exc:
                 results.append({"file": shown, "error": str(exc)})
         _print_table(results)
-        Console().print(
+        console = Console()
+        console.print(
             f"\n{len(results)} example recordings of {len(profiles)} conveyors "
             f"({', '.join(sorted(profiles))}); the vendor export is read with "
-            "columns/vendor-de.yaml. Copy them with `chaintwin examples --out DIR`.",
+            "columns/vendor-de.yaml. Copy them with `chaintwin examples --out DIR`.\n",
             highlight=False,
             soft_wrap=True,
         )
+        _demo_weighing(root, profiles["white-belt-01"], vendor_map, console)
 
     @app.command("examples")
     def examples(

@@ -38,15 +38,31 @@ torque must exceed the breakaway level (static friction, with the efficiency
 of the power flow that motion would have) in one direction to move;
 otherwise the speed stays at zero. This holds the belt without chattering
 while the drive holds position.
+
+Same bits in the scalar and the batch kernel
+--------------------------------------------
+The plain rigid model (the identification model) runs one member at a
+time in :func:`plain_kernel` and many side by side in
+:func:`batch_plain_kernel`; both must give the same numbers. Both run the
+operations of :func:`plain_step`, take their belt terms precomputed from
+the coefficients (``C_M_RED0`` …, computed in Python), and are compiled
+without floating-point contraction (``_EXACT``): fused multiply-adds are
+written out (:func:`fma`) where wanted, so that LLVM cannot fuse
+differently in a scalar loop and its vectorised twin. Where the two differ
+(:func:`rigid_core` with ``lanes``), they choose between identical values.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any, cast
 
 import numpy as np
 import numpy.typing as npt
-from numba import njit, prange
+from llvmlite import ir as llvm_ir  # type: ignore[import-untyped]
+from numba import njit, prange, types
+from numba.extending import intrinsic
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -58,7 +74,9 @@ __all__ = [
     "batch_general_kernel",
     "batch_plain_kernel",
     "elastic_kernel",
+    "plain_extra",
     "plain_kernel",
+    "plain_step",
     "rigid_kernel",
 ]
 
@@ -102,7 +120,25 @@ C_X0 = 35  # initial belt position, m
 C_NSUB = 36  # elastic sub-steps per cycle
 C_NRIP = 37  # number of ripple orders
 C_TAU = 38  # torque time constant, s
-N_COEF = 39
+# plain rigid model (plain_kernel, batch_plain_kernel): belt terms at the
+# motor before (…0) and after (…1) the payload step, computed once in
+# Python so that the scalar and the batch kernel start from the same bits
+C_M_RED0 = 39  # reflected mass m·(r/i)², kg·m²
+C_FC0 = 40  # kinetic friction torque, Nm
+C_FG0 = 41  # incline torque, Nm
+C_HJM0 = 42  # dt/(J_d + M/η), s/(kg·m²)
+C_HJG0 = 43  # dt/(J_d + M·η), s/(kg·m²)
+C_BRKP0 = 44  # breakaway level forward, Nm
+C_BRKN0 = 45  # breakaway level backward, Nm
+C_M_RED1 = 46
+C_FC1 = 47
+C_FG1 = 48
+C_HJM1 = 49
+C_HJG1 = 50
+C_BRKP1 = 51
+C_BRKN1 = 52
+C_STEP_SCALE = 53  # speed factor at the payload step (momentum kept)
+N_COEF = 54
 
 # ----------------------------------------------------------- output layout
 O_TORQUE_SP = 0
@@ -115,16 +151,46 @@ O_FORCE = 6
 O_LOAD = 7
 O_LOSS = 8
 N_OUT = 9
-N_MAIN = 5  # rows 0..4 are what a batch always keeps
+N_MAIN = 5  # rows 0..4: the channels a batch keeps by default
 
 # fastmath without nnan/ninf: NaN/inf checks must keep working
 _FASTMATH = {"nsz", "contract"}
+# the plain rigid model (scalar and batch kernel, and the pieces they share)
+# runs without contraction: LLVM fuses a multiply into an add only where the
+# product has no other use, which differs between a scalar loop and its
+# vectorised twin (and between kernels that keep different outputs), so
+# results could differ in the last bit. Fused multiply-adds are written out
+# (:func:`fma`) instead, the same in every kernel.
+_EXACT = {"nsz"}
 _HUGE = 1e300
 _STOP_RAD_S = 1e-6  # motor speeds decaying below this snap to standstill, rad/s
 _STOP_M_S = 1e-8  # same for the belt mass of the elastic model, m/s
 
 
 # ------------------------------------------------------------------ pieces
+@intrinsic
+def _fma(typingctx: Any, a: Any, b: Any, c: Any) -> Any:
+    del typingctx
+    if not all(isinstance(t, types.Float) for t in (a, b, c)):
+        return None
+    f8 = types.float64
+
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+        values = [
+            context.cast(builder, v, t, f8) for v, t in zip(args, signature.args, strict=True)
+        ]
+        dbl = llvm_ir.DoubleType()
+        fnty = llvm_ir.FunctionType(dbl, [dbl, dbl, dbl])
+        return builder.call(builder.module.declare_intrinsic("llvm.fma", [dbl], fnty), values)
+
+    return f8(a, b, c), codegen
+
+
+fma = cast(Callable[[float, float, float], float], _fma)
+"""``fma(a, b, c)``: ``a·b + c`` rounded once (``llvm.fma``; one
+instruction, vectorises). Only inside compiled functions."""
+
+
 @njit(inline="always", fastmath=_FASTMATH, error_model="numpy", cache=True)
 def mass_terms(
     mass: float, carried: float, mu_g_cos: float, static: float, g_sin: float, k: float
@@ -165,7 +231,7 @@ def breakaway_levels(
     )
 
 
-@njit(inline="always", fastmath=_FASTMATH, error_model="numpy", cache=True)
+@njit(inline="always", fastmath=_EXACT, error_model="numpy", cache=True)
 def controller(
     w_sp: float,
     p_sp: float,
@@ -185,18 +251,22 @@ def controller(
     while the output is clamped and the error would push it further into
     the limit.
     """
-    e = w_sp + kv * (p_sp - theta) - omega
+    e = fma(kv, p_sp - theta, w_sp) - omega
     kp_e = kp * e
-    trial = integ + e * dt
-    u = kp_e + kp_ti * trial
-    freeze = ((u > tlim) & (e > 0.0)) | ((u < -tlim) & (e < 0.0))
+    trial = fma(e, dt, integ)
+    u = fma(kp_ti, trial, kp_e)
+    # pushed further into the limit: u > tlim with e > 0 or u < -tlim with
+    # e < 0, i.e. sign(e)·u > tlim (with e = ±0 either choice gives the same)
+    freeze = math.copysign(1.0, e) * u > tlim
     new = integ if freeze else trial
-    u = kp_e + kp_ti * new
+    # u of the frozen integral computed beside the trial one (same bits as
+    # recomputing from ``new``, shorter dependency chain)
+    u = fma(kp_ti, integ, kp_e) if freeze else u
     u = tlim if u > tlim else (-tlim if u < -tlim else u)
     return u, new
 
 
-@njit(inline="always", fastmath=_FASTMATH, error_model="numpy", cache=True)
+@njit(inline="always", fastmath=_EXACT, error_model="numpy", cache=True)
 def settle(new: float, old: float, direction: float, eps: float) -> float:
     """Coulomb friction stop: a speed never crosses zero within a step.
 
@@ -211,7 +281,20 @@ def settle(new: float, old: float, direction: float, eps: float) -> float:
     return new if keep else 0.0
 
 
-@njit(inline="always", fastmath=_FASTMATH, error_model="numpy", cache=True)
+@njit(inline="always", fastmath=_EXACT, error_model="numpy", cache=True)
+def settle_lanes(new: float, old: float, direction: float, eps: float) -> float:
+    """:func:`settle` in fewer operations (for lanes; one more on the chain).
+
+    ``direction`` is exactly -1, 0 or 1, so ``direction·new`` is exact and
+    one comparison covers both directions (with 0, ``0 > thr ≥ 0`` fails);
+    the same decision, so the same result, as :func:`settle`.
+    """
+    mag = abs(old)
+    thr = mag if mag < eps else eps
+    return new if direction * new > thr else 0.0
+
+
+@njit(inline="always", fastmath=_EXACT, error_model="numpy", cache=True)
 def rigid_core(
     t_drive: float,
     omega: float,
@@ -229,6 +312,7 @@ def rigid_core(
     bmc: float,
     hjm: float,
     hjg: float,
+    lanes: bool,
 ) -> tuple[float, float, float, bool]:
     """One rigid-plant step; returns ``(ω_new, direction, f, motoring)``.
 
@@ -236,23 +320,41 @@ def rigid_core(
     the belt terms at the motor (ideal gear), ``cen`` the polygon term
     ``m·k·(dk/dθ)·ω²``, ``brk_*`` from :func:`breakaway_levels`,
     ``hjm``/``hjg`` from :func:`step_gains`.
+
+    ``lanes`` (a constant at each call site) picks the arrangement: False
+    keeps the dependency chain through ω short (one member at a time, bound
+    by latency), True uses fewer operations (many members side by side,
+    bound by throughput). Both give the same bits: they differ only in
+    choosing the power-flow case before or after the update, and in how the
+    (identical) decisions are computed. ``motoring`` may differ while the
+    step ends stuck (direction 0), where it means nothing.
     """
-    s = 1.0 if omega > 0.0 else (-1.0 if omega < 0.0 else 0.0)
-    # breakaway from standstill: static friction, efficiency of the would-be flow
+    # direction of motion; from standstill the breakaway decides (static
+    # friction, efficiency of the would-be flow)
     d = 1.0 if t_drive > brk_pos else (-1.0 if t_drive < brk_neg else 0.0)
-    se = s if s != 0.0 else d
+    se = 1.0 if omega > 0.0 else (-1.0 if omega < 0.0 else d)
     # net torque A = a0 - wc with the speed-dependent losses wc kept apart
     # (arranged so that the dependency chain through ω stays short)
-    a0 = t_drive - bma * se
-    f = fc * se + fg + cen
-    wc = omega * (bmb + bmc * abs(omega))
-    w_mot = (omega + (a0 - f * inv_eta) * hjm) - hjm * wc
-    w_gen = (omega + (a0 - f * eta) * hjg) - hjg * wc
+    a0 = fma(-bma, se, t_drive)
+    f = fma(fc, se, fg) + cen
+    wc = omega * fma(bmc, abs(omega), bmb)
     # motoring iff Q·ω > 0 with Q ∝ f·J_d + M·A (see the module notes)
-    nn = (f * jd + m_red * a0) - m_red * wc
-    mot = (nn >= 0.0) if se > 0.0 else (nn <= 0.0)
-    w = w_mot if mot else w_gen
-    w = settle(w, omega, se, _STOP_RAD_S)
+    nn = fma(-m_red, wc, fma(m_red, a0, f * jd))
+    if lanes:
+        # se is ±1 (or 0: the step ends stuck whatever the case), so se·nn
+        # is exact; pick the case's efficiency and gain, then one update
+        mot = se * nn >= 0.0
+        ke = inv_eta if mot else eta
+        hj = hjm if mot else hjg
+        w = fma(-hj, wc, fma(fma(-f, ke, a0), hj, omega))
+        w = settle_lanes(w, omega, se, _STOP_RAD_S)
+    else:
+        # both cases in parallel, the choice last
+        w_mot = fma(-hjm, wc, fma(fma(-f, inv_eta, a0), hjm, omega))
+        w_gen = fma(-hjg, wc, fma(fma(-f, eta, a0), hjg, omega))
+        mot = (nn >= 0.0) if se > 0.0 else (nn <= 0.0)
+        w = w_mot if mot else w_gen
+        w = settle(w, omega, se, _STOP_RAD_S)
     return w, se, f, mot
 
 
@@ -463,6 +565,7 @@ def rigid_kernel(
             bmc,
             hjm_k,
             hjg_k,
+            False,
         )
         moving = se != 0.0
         q = f + mk * ((w - omega) * inv_dt) if moving else t_drive
@@ -491,7 +594,96 @@ def rigid_kernel(
     return 0, -1, n_sat
 
 
-@njit(fastmath=_FASTMATH, error_model="numpy", cache=True, nogil=True)
+@njit(inline="always", fastmath=_EXACT, error_model="numpy", cache=True)
+def plain_step(
+    ws: float,
+    ps: float,
+    theta: float,
+    omega: float,
+    torque: float,
+    u_prev: float,
+    integ: float,
+    kv: float,
+    kp: float,
+    kp_ti: float,
+    dt: float,
+    tlim: float,
+    a_lag: float,
+    b_lag: float,
+    jd: float,
+    eta: float,
+    inv_eta: float,
+    bma: float,
+    bmb: float,
+    bmc: float,
+    m_red: float,
+    fc: float,
+    fg: float,
+    brk_pos: float,
+    brk_neg: float,
+    hjm: float,
+    hjg: float,
+    lanes: bool,
+) -> tuple[float, float, bool, float, float, float, float, float, bool]:
+    """One controller cycle of the plain rigid model (no realism, no fault).
+
+    Shared by :func:`plain_kernel` (``lanes`` False) and
+    :func:`batch_plain_kernel` (True) so that both run the same operations
+    (see :func:`rigid_core` for ``lanes``). Returns ``(u, integral,
+    saturated, t_avg, t_next, ω_new, direction, f, motoring)``.
+    """
+    u, integ = controller(ws, ps, theta, omega, integ, kv, kp, kp_ti, dt, tlim)
+    sat = abs(u) >= tlim
+    t_avg = fma(torque - u_prev, b_lag, u_prev)
+    t_next = fma(-a_lag, torque - u_prev, torque)
+    w, se, f, mot = rigid_core(
+        t_avg,
+        omega,
+        m_red,
+        fc,
+        fg,
+        0.0,
+        brk_pos,
+        brk_neg,
+        jd,
+        eta,
+        inv_eta,
+        bma,
+        bmb,
+        bmc,
+        hjm,
+        hjg,
+        lanes,
+    )
+    return u, integ, sat, t_avg, t_next, w, se, f, mot
+
+
+@njit(inline="always", fastmath=_EXACT, error_model="numpy", cache=True)
+def plain_extra(
+    t_avg: float,
+    omega: float,
+    w: float,
+    se: float,
+    f: float,
+    mot: bool,
+    m_red: float,
+    inv_dt: float,
+    inv_krv: float,
+    eta: float,
+    inv_eta: float,
+    bma: float,
+    bmb: float,
+    bmc: float,
+) -> tuple[float, float, float]:
+    """Sprocket force (N), load and loss torque (Nm) of a plain rigid step."""
+    moving = se != 0.0
+    q = fma(m_red, (w - omega) * inv_dt, f) if moving else t_avg
+    load = (f * (inv_eta if mot else eta)) if moving else t_avg
+    loss = fma(bma, se, omega * fma(bmc, abs(omega), bmb))
+    return q * inv_krv, load, loss
+
+
+@njit(fastmath=_EXACT, error_model="numpy", cache=True, nogil=True)
 def plain_kernel(
     coef: FloatArray,
     w_sp: FloatArray,
@@ -500,9 +692,10 @@ def plain_kernel(
 ) -> tuple[int, int, int]:
     """Rigid model without faults (the identification model), lean and fast.
 
-    Same arithmetic as :func:`batch_plain_kernel` per member and as
-    :func:`rigid_kernel` with every feature off. Returns as
-    :func:`rigid_kernel`.
+    The same operations per member as :func:`batch_plain_kernel`
+    (:func:`plain_step`); the model of :func:`rigid_kernel` with every
+    feature off, with the belt terms taken from the coefficients
+    (``C_M_RED0`` …). Returns as :func:`rigid_kernel`.
     """
     n = w_sp.size
     dt = coef[C_DT]
@@ -518,18 +711,20 @@ def plain_kernel(
     bma = coef[C_BMA]
     bmb = coef[C_BMB]
     bmc = coef[C_BMC]
-    mass = coef[C_MASS]
     krv = coef[C_KRV]
     inv_krv = 1.0 / krv
     inv_dt = 1.0 / dt
+    half_dt = 0.5 * dt
     k_step = int(coef[C_STEP_K])
     theta0 = coef[C_THETA0]
     x0 = coef[C_X0]
-    m_red, fc, fs, fg = mass_terms(
-        mass, coef[C_CARRIED], coef[C_MU_G_COS], coef[C_STATIC], coef[C_G_SIN], krv
-    )
-    hjm, hjg = step_gains(dt, jd, m_red, eta, inv_eta)
-    brk_pos, brk_neg = breakaway_levels(fs, fg, bma, eta, inv_eta)
+    m_red = coef[C_M_RED0]
+    fc = coef[C_FC0]
+    fg = coef[C_FG0]
+    hjm = coef[C_HJM0]
+    hjg = coef[C_HJG0]
+    brk_pos = coef[C_BRKP0]
+    brk_neg = coef[C_BRKN0]
     theta = theta0
     omega = 0.0
     torque = 0.0
@@ -547,54 +742,59 @@ def plain_kernel(
     o_loss = out[O_LOSS]
     for k in range(n):
         if k == k_step:
-            step_kg = coef[C_STEP_KG]
-            new_mass = mass + step_kg
-            j_old = jd + mass * krv * krv
-            m_red, fc, fs, fg = mass_terms(
-                new_mass,
-                coef[C_CARRIED] + step_kg,
-                coef[C_MU_G_COS],
-                coef[C_STATIC],
-                coef[C_G_SIN],
-                krv,
-            )
-            hjm, hjg = step_gains(dt, jd, m_red, eta, inv_eta)
-            brk_pos, brk_neg = breakaway_levels(fs, fg, bma, eta, inv_eta)
-            omega = omega * (j_old / (jd + new_mass * krv * krv))
-        u, integ = controller(w_sp[k], p_sp[k], theta, omega, integ, kv, kp, kp_ti, dt, tlim)
-        n_sat += 1 if (u >= tlim) | (u <= -tlim) else 0
-        t_avg = u_prev + (torque - u_prev) * b_lag
-        t_next = torque + a_lag * (u_prev - torque)
-        w, se, f, mot = rigid_core(
-            t_avg,
+            # tray placed on the moving belt: momentum of the moving parts kept
+            m_red = coef[C_M_RED1]
+            fc = coef[C_FC1]
+            fg = coef[C_FG1]
+            hjm = coef[C_HJM1]
+            hjg = coef[C_HJG1]
+            brk_pos = coef[C_BRKP1]
+            brk_neg = coef[C_BRKN1]
+            omega = omega * coef[C_STEP_SCALE]
+        u, integ, sat, t_avg, t_next, w, se, f, mot = plain_step(
+            w_sp[k],
+            p_sp[k],
+            theta,
             omega,
-            m_red,
-            fc,
-            fg,
-            0.0,
-            brk_pos,
-            brk_neg,
+            torque,
+            u_prev,
+            integ,
+            kv,
+            kp,
+            kp_ti,
+            dt,
+            tlim,
+            a_lag,
+            b_lag,
             jd,
             eta,
             inv_eta,
             bma,
             bmb,
             bmc,
+            m_red,
+            fc,
+            fg,
+            brk_pos,
+            brk_neg,
             hjm,
             hjg,
+            False,
         )
-        moving = se != 0.0
-        q = f + m_red * ((w - omega) * inv_dt) if moving else t_avg
+        n_sat += 1 if sat else 0
+        force, load, loss = plain_extra(
+            t_avg, omega, w, se, f, mot, m_red, inv_dt, inv_krv, eta, inv_eta, bma, bmb, bmc
+        )
         o_usp[k] = u
         o_tq[k] = torque
         o_w[k] = omega
         o_th[k] = theta
         o_v[k] = krv * omega
-        o_x[k] = x0 + krv * (theta - theta0)
-        o_f[k] = q * inv_krv
-        o_load[k] = (f * (inv_eta if mot else eta) + 0.0) if moving else t_avg
-        o_loss[k] = bma * se + omega * (bmb + bmc * abs(omega))
-        theta = theta + 0.5 * dt * (omega + w)
+        o_x[k] = fma(krv, theta - theta0, x0)
+        o_f[k] = force
+        o_load[k] = load
+        o_loss[k] = loss
+        theta = fma(half_dt, omega + w, theta)
         omega = w
         torque = t_next
         u_prev = u
@@ -791,30 +991,200 @@ _B_OUT = 29
 _B_ROWS = _B_OUT + N_OUT
 
 
-@njit(parallel=True, fastmath=_FASTMATH, error_model="numpy", cache=True)
+@njit(inline="always", fastmath=_EXACT, error_model="numpy", cache=True)
+def _lane_step(
+    buf: FloatArray,
+    j: int,
+    ws: float,
+    ps: float,
+    dt: float,
+    half_dt: float,
+    inv_dt: float,
+    record: bool,
+) -> None:
+    """One cycle of lane ``j`` of a work buffer (state rows updated in place).
+
+    With ``record`` the nine output rows receive the cycle's channels; the
+    state update is the same operations either way (:func:`plain_step`).
+    """
+    theta = buf[_B_TH * LANES + j]
+    omega = buf[_B_OM * LANES + j]
+    torque = buf[_B_TQ * LANES + j]
+    m_red = buf[_B_M * LANES + j]
+    eta = buf[_B_ETA * LANES + j]
+    inv_eta = buf[_B_INV_ETA * LANES + j]
+    bma = buf[_B_BMA * LANES + j]
+    bmb = buf[_B_BMB * LANES + j]
+    bmc = buf[_B_BMC * LANES + j]
+    u, integ, sat, t_avg, t_next, w, se, f, mot = plain_step(
+        ws,
+        ps,
+        theta,
+        omega,
+        torque,
+        buf[_B_UP * LANES + j],
+        buf[_B_IN * LANES + j],
+        buf[_B_KV * LANES + j],
+        buf[_B_KP * LANES + j],
+        buf[_B_KP_TI * LANES + j],
+        dt,
+        buf[_B_TLIM * LANES + j],
+        buf[_B_A_LAG * LANES + j],
+        buf[_B_B_LAG * LANES + j],
+        buf[_B_JD * LANES + j],
+        eta,
+        inv_eta,
+        bma,
+        bmb,
+        bmc,
+        m_red,
+        buf[_B_FC * LANES + j],
+        buf[_B_FG * LANES + j],
+        buf[_B_BRKP * LANES + j],
+        buf[_B_BRKN * LANES + j],
+        buf[_B_HJM * LANES + j],
+        buf[_B_HJG * LANES + j],
+        True,
+    )
+    if record:
+        krv = buf[_B_KRV * LANES + j]
+        force, load, loss = plain_extra(
+            t_avg,
+            omega,
+            w,
+            se,
+            f,
+            mot,
+            m_red,
+            inv_dt,
+            buf[_B_INV_KRV * LANES + j],
+            eta,
+            inv_eta,
+            bma,
+            bmb,
+            bmc,
+        )
+        buf[(_B_OUT + O_TORQUE_SP) * LANES + j] = u
+        buf[(_B_OUT + O_TORQUE) * LANES + j] = torque
+        buf[(_B_OUT + O_SPEED) * LANES + j] = omega
+        buf[(_B_OUT + O_POSITION) * LANES + j] = theta
+        buf[(_B_OUT + O_BELT_SPEED) * LANES + j] = krv * omega
+        buf[(_B_OUT + O_BELT_POSITION) * LANES + j] = fma(
+            krv, theta - buf[_B_THETA0 * LANES + j], buf[_B_X0 * LANES + j]
+        )
+        buf[(_B_OUT + O_FORCE) * LANES + j] = force
+        buf[(_B_OUT + O_LOAD) * LANES + j] = load
+        buf[(_B_OUT + O_LOSS) * LANES + j] = loss
+    buf[_B_TH * LANES + j] = fma(half_dt, omega + w, theta)
+    buf[_B_OM * LANES + j] = w
+    buf[_B_TQ * LANES + j] = t_next
+    buf[_B_UP * LANES + j] = u
+    buf[_B_IN * LANES + j] = integ
+    buf[_B_SAT * LANES + j] += 1.0 if sat else 0.0
+
+
+@njit(inline="always", fastmath=_EXACT, error_model="numpy", cache=True)
+def _load_terms(buf: FloatArray, j: int, cf: FloatArray, after_step: bool) -> None:
+    """Belt terms of lane ``j`` from the coefficients, before or after the step."""
+    o = C_M_RED1 - C_M_RED0 if after_step else 0
+    buf[_B_M * LANES + j] = cf[C_M_RED0 + o]
+    buf[_B_FC * LANES + j] = cf[C_FC0 + o]
+    buf[_B_FG * LANES + j] = cf[C_FG0 + o]
+    buf[_B_HJM * LANES + j] = cf[C_HJM0 + o]
+    buf[_B_HJG * LANES + j] = cf[C_HJG0 + o]
+    buf[_B_BRKP * LANES + j] = cf[C_BRKP0 + o]
+    buf[_B_BRKN * LANES + j] = cf[C_BRKN0 + o]
+
+
+@njit(inline="always", cache=True)
+def _is_state_channel(q: int) -> bool:
+    """Output rows that are the state at the cycle start (copied from state rows)."""
+    return q in (O_TORQUE, O_SPEED, O_POSITION)
+
+
+@njit(inline="always", fastmath=_EXACT, error_model="numpy", cache=True)
+def _copy_rows(
+    buf: FloatArray,
+    flat: FloatArray,
+    src: npt.NDArray[np.int64],
+    rows: npt.NDArray[np.int64],
+    col: int,
+    n_cols: int,
+    n_members: int,
+    c0: int,
+    m: int,
+) -> None:
+    """Lanes ``0..m`` of buffer rows ``src[r]`` to column ``col`` of output rows ``rows[r]``."""
+    for i in range(rows.size):
+        # unsigned indices: no negative-index wraparound in the copy
+        dst = np.uint64((rows[i] * n_cols + col) * n_members + c0)
+        s0 = np.uint64(src[i] * LANES)
+        for j in range(m):
+            uj = np.uint64(j)
+            flat[dst + uj] = buf[s0 + uj]
+
+
+@njit(parallel=True, fastmath=_EXACT, error_model="numpy", cache=True)
 def batch_plain_kernel(
     coefs: FloatArray,
     w_sp: FloatArray,
     p_sp: FloatArray,
     chunk: int,
+    stride: int,
+    channels: npt.NDArray[np.int64],
     out: FloatArray,
     saturated: FloatArray,
+    diverged: npt.NDArray[np.bool_],
 ) -> None:
-    """Rigid model without faults for many members at once.
+    """Plain rigid model (no realism, no fault) for many members at once.
 
-    ``coefs`` (B, N_COEF); ``out`` (Q, n, B) with Q = N_MAIN or N_OUT rows
-    (the first Q output rows are kept). Members are processed in chunks of
-    ``chunk`` ≤ LANES lanes (one chunk per task, across threads); the inner
-    loop runs over the lanes of a chunk (vectorised) and does exactly the
-    arithmetic of :func:`rigid_kernel`.
+    ``coefs`` (B, N_COEF); ``out`` (Q, n_out, B) receives output rows
+    ``channels`` (Q of the ``O_*`` rows) at cycles ``0, stride, 2·stride…``
+    (``n_out = ceil(n/stride)``), as a scope samples them. ``saturated`` (B)
+    receives the cycles at the torque limit, ``diverged`` (B) whether the
+    final state is non-finite (:func:`plain_kernel` then tells where).
+
+    Members are processed in chunks of ``chunk`` ≤ LANES lanes (one chunk per
+    task, across threads); the inner loop runs over the lanes of a chunk
+    (vectorised) and does exactly the operations of :func:`plain_kernel`
+    (:func:`plain_step`). Cycles that are not kept run a lean loop that only
+    advances the state; kept cycles copy the motor torque, speed and angle
+    straight from the state rows and compute the other channels only when
+    asked for.
     """
     n_members = coefs.shape[0]
     n = w_sp.size
-    n_q = out.shape[0]
+    n_q = channels.size
+    n_cols = out.shape[1]
     dt = coefs[0, C_DT]
     inv_dt = 1.0 / dt
+    half_dt = 0.5 * dt
     n_chunks = (n_members + chunk - 1) // chunk
     flat = out.reshape(-1)
+    # channels copied from the state rows before a kept cycle ("pre") and
+    # from the output rows after it ("post")
+    n_pre = 0
+    for r in range(n_q):
+        q = channels[r]
+        if _is_state_channel(q):
+            n_pre += 1
+    pre_src = np.empty(n_pre, dtype=np.int64)
+    pre_rows = np.empty(n_pre, dtype=np.int64)
+    post_src = np.empty(n_q - n_pre, dtype=np.int64)
+    post_rows = np.empty(n_q - n_pre, dtype=np.int64)
+    i_pre = 0
+    i_post = 0
+    for r in range(n_q):
+        q = channels[r]
+        if _is_state_channel(q):
+            pre_src[i_pre] = _B_TQ if q == O_TORQUE else (_B_OM if q == O_SPEED else _B_TH)
+            pre_rows[i_pre] = r
+            i_pre += 1
+        else:
+            post_src[i_post] = _B_OUT + q
+            post_rows[i_post] = r
+            i_post += 1
+    full = i_post > 0
     for c in prange(n_chunks):
         c0 = c * chunk
         m = min(chunk, n_members - c0)
@@ -837,136 +1207,45 @@ def batch_plain_kernel(
             buf[_B_BMA * LANES + j] = cf[C_BMA]
             buf[_B_BMB * LANES + j] = cf[C_BMB]
             buf[_B_BMC * LANES + j] = cf[C_BMC]
-            m_red, fc, fs, fg = mass_terms(
-                cf[C_MASS], cf[C_CARRIED], cf[C_MU_G_COS], cf[C_STATIC], cf[C_G_SIN], cf[C_KRV]
-            )
-            hjm, hjg = step_gains(dt, cf[C_JD], m_red, cf[C_ETA], cf[C_INV_ETA])
-            buf[_B_M * LANES + j] = m_red
-            buf[_B_FC * LANES + j] = fc
-            brk_pos, brk_neg = breakaway_levels(fs, fg, cf[C_BMA], cf[C_ETA], cf[C_INV_ETA])
-            buf[_B_BRKP * LANES + j] = brk_pos
-            buf[_B_BRKN * LANES + j] = brk_neg
-            buf[_B_FG * LANES + j] = fg
             buf[_B_KRV * LANES + j] = cf[C_KRV]
-            buf[_B_HJM * LANES + j] = hjm
-            buf[_B_HJG * LANES + j] = hjg
             buf[_B_THETA0 * LANES + j] = cf[C_THETA0]
             buf[_B_X0 * LANES + j] = cf[C_X0]
             buf[_B_INV_KRV * LANES + j] = 1.0 / cf[C_KRV]
             buf[_B_TH * LANES + j] = cf[C_THETA0]
+            _load_terms(buf, j, cf, False)
             if j < m and cf[C_STEP_K] >= 0.0:
                 step_k[j] = int(cf[C_STEP_K])
                 any_step = True
+        next_kept = 0
+        col = 0
         for k in range(n):
             if any_step:
                 for j in range(m):
                     if step_k[j] == k:
                         cf = coefs[c0 + j]
-                        kk = cf[C_KRV]
-                        jd = cf[C_JD]
-                        mass = cf[C_MASS] + cf[C_STEP_KG]
-                        j_old = jd + cf[C_MASS] * kk * kk
-                        m_red, fc, fs, fg = mass_terms(
-                            mass,
-                            cf[C_CARRIED] + cf[C_STEP_KG],
-                            cf[C_MU_G_COS],
-                            cf[C_STATIC],
-                            cf[C_G_SIN],
-                            kk,
-                        )
-                        hjm, hjg = step_gains(dt, jd, m_red, cf[C_ETA], cf[C_INV_ETA])
-                        buf[_B_M * LANES + j] = m_red
-                        buf[_B_FC * LANES + j] = fc
-                        brk_pos, brk_neg = breakaway_levels(
-                            fs, fg, cf[C_BMA], cf[C_ETA], cf[C_INV_ETA]
-                        )
-                        buf[_B_BRKP * LANES + j] = brk_pos
-                        buf[_B_BRKN * LANES + j] = brk_neg
-                        buf[_B_FG * LANES + j] = fg
-                        buf[_B_HJM * LANES + j] = hjm
-                        buf[_B_HJG * LANES + j] = hjg
-                        om = buf[_B_OM * LANES + j]
-                        buf[_B_OM * LANES + j] = om * (j_old / (jd + mass * kk * kk))
+                        _load_terms(buf, j, cf, True)
+                        buf[_B_OM * LANES + j] = buf[_B_OM * LANES + j] * cf[C_STEP_SCALE]
             ws = w_sp[k]
             ps = p_sp[k]
-            for j in range(width):
-                kv = buf[_B_KV * LANES + j]
-                kp = buf[_B_KP * LANES + j]
-                kp_ti = buf[_B_KP_TI * LANES + j]
-                tlim = buf[_B_TLIM * LANES + j]
-                a_lag = buf[_B_A_LAG * LANES + j]
-                b_lag = buf[_B_B_LAG * LANES + j]
-                jd = buf[_B_JD * LANES + j]
-                eta = buf[_B_ETA * LANES + j]
-                inv_eta = buf[_B_INV_ETA * LANES + j]
-                bma = buf[_B_BMA * LANES + j]
-                bmb = buf[_B_BMB * LANES + j]
-                bmc = buf[_B_BMC * LANES + j]
-                m_red = buf[_B_M * LANES + j]
-                fc = buf[_B_FC * LANES + j]
-                brk_pos = buf[_B_BRKP * LANES + j]
-                brk_neg = buf[_B_BRKN * LANES + j]
-                fg = buf[_B_FG * LANES + j]
-                krv = buf[_B_KRV * LANES + j]
-                hjm = buf[_B_HJM * LANES + j]
-                hjg = buf[_B_HJG * LANES + j]
-                theta = buf[_B_TH * LANES + j]
-                omega = buf[_B_OM * LANES + j]
-                torque = buf[_B_TQ * LANES + j]
-                u_prev = buf[_B_UP * LANES + j]
-                integ = buf[_B_IN * LANES + j]
-                u, integ = controller(ws, ps, theta, omega, integ, kv, kp, kp_ti, dt, tlim)
-                sat = (u >= tlim) | (u <= -tlim)
-                t_avg = u_prev + (torque - u_prev) * b_lag
-                t_next = torque + a_lag * (u_prev - torque)
-                w, se, f, mot = rigid_core(
-                    t_avg,
-                    omega,
-                    m_red,
-                    fc,
-                    fg,
-                    0.0,
-                    brk_pos,
-                    brk_neg,
-                    jd,
-                    eta,
-                    inv_eta,
-                    bma,
-                    bmb,
-                    bmc,
-                    hjm,
-                    hjg,
-                )
-                moving = se != 0.0
-                q = f + m_red * ((w - omega) * inv_dt) if moving else t_avg
-                buf[(_B_OUT + O_TORQUE_SP) * LANES + j] = u
-                buf[(_B_OUT + O_TORQUE) * LANES + j] = torque
-                buf[(_B_OUT + O_SPEED) * LANES + j] = omega
-                buf[(_B_OUT + O_POSITION) * LANES + j] = theta
-                buf[(_B_OUT + O_BELT_SPEED) * LANES + j] = krv * omega
-                buf[(_B_OUT + O_BELT_POSITION) * LANES + j] = buf[_B_X0 * LANES + j] + krv * (
-                    theta - buf[_B_THETA0 * LANES + j]
-                )
-                buf[(_B_OUT + O_FORCE) * LANES + j] = q * buf[_B_INV_KRV * LANES + j]
-                buf[(_B_OUT + O_LOAD) * LANES + j] = (
-                    (f * (inv_eta if mot else eta) + 0.0) if moving else t_avg
-                )
-                buf[(_B_OUT + O_LOSS) * LANES + j] = bma * se + omega * (bmb + bmc * abs(omega))
-                buf[_B_TH * LANES + j] = theta + 0.5 * dt * (omega + w)
-                buf[_B_OM * LANES + j] = w
-                buf[_B_TQ * LANES + j] = t_next
-                buf[_B_UP * LANES + j] = u
-                buf[_B_IN * LANES + j] = integ
-                buf[_B_SAT * LANES + j] += 1.0 if sat else 0.0
-            for r in range(n_q):
-                # unsigned indices: no negative-index wraparound in the copy
-                dst = np.uint64((r * n + k) * n_members + c0)
-                src = np.uint64((_B_OUT + r) * LANES)
-                for j in range(m):
-                    uj = np.uint64(j)
-                    flat[dst + uj] = buf[src + uj]
+            if k == next_kept:
+                _copy_rows(buf, flat, pre_src, pre_rows, col, n_cols, n_members, c0, m)
+                if full:
+                    for j in range(width):
+                        _lane_step(buf, j, ws, ps, dt, half_dt, inv_dt, True)
+                    _copy_rows(buf, flat, post_src, post_rows, col, n_cols, n_members, c0, m)
+                else:
+                    for j in range(width):
+                        _lane_step(buf, j, ws, ps, dt, half_dt, inv_dt, False)
+                next_kept += stride
+                col += 1
+            else:
+                for j in range(width):
+                    _lane_step(buf, j, ws, ps, dt, half_dt, inv_dt, False)
         for j in range(m):
             saturated[c0 + j] = buf[_B_SAT * LANES + j]
+            theta = buf[_B_TH * LANES + j]
+            torque = buf[_B_TQ * LANES + j]
+            diverged[c0 + j] = not (abs(theta) < _HUGE and abs(torque) < _HUGE)
 
 
 @njit(parallel=True, fastmath=_FASTMATH, error_model="numpy", cache=True)

@@ -247,3 +247,31 @@ def test_cli_simulate_and_generate(tmp_path: Path, capsys: pytest.CaptureFixture
     )
     assert code == 0
     assert len(list((tmp_path / "fleet").glob("*.csv"))) == 2
+
+
+def test_cli_simulate_with_calibration(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """--calibration supplies friction and losses; command-line options still win."""
+    from chaintwin.identify.calibration import calibrate
+    from chaintwin.read.profile import load_profile
+
+    prof = load_profile(REFERENCE_PROFILE)
+    recs = [
+        run_virtual(prof, payload_kg=load, seed=70 + k, calibration=True).recording
+        for k, load in enumerate((0.0, 40.0))
+    ]
+    cal = calibrate(recs, prof)
+    path = cal.save(tmp_path / "cal.json")
+    out = tmp_path / "r.csv"
+    args = ["simulate", "--profile", str(REFERENCE_PROFILE), "--calibration", str(path)]
+    assert main([*args, "--out", str(out), "--json"]) == 0
+    truth = json.loads(capsys.readouterr().out)
+    assert truth["friction"] == pytest.approx(cal.parameters["mu"])
+    assert main([*args, "--friction", "0.3", "--out", str(out), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["friction"] == pytest.approx(0.3)
+    other = tmp_path / "other.yaml"
+    other.write_text(REFERENCE_PROFILE.read_text().replace("id: white-belt-01", "id: other-belt"))
+    code = main(
+        ["simulate", "--profile", str(other), "--calibration", str(path), "--out", str(out)]
+    )
+    assert code == 2
+    assert "not of 'other-belt'" in capsys.readouterr().err

@@ -14,7 +14,7 @@ from rich.console import Console
 from rich.progress import Progress
 
 from chaintwin.cli.common import print_json
-from chaintwin.errors import ModelError
+from chaintwin.errors import CalibrationError, ModelError
 from chaintwin.read.profile import ConveyorProfile, ModelSpec, load_profile
 from chaintwin.read.reader import read_recording
 from chaintwin.read.writer import write_recording
@@ -31,15 +31,42 @@ MOVES = ("trapezoid", "trapezoid2", "ramp", "stairs")
 FAULT_HELP = f"NAME:SEVERITY, repeatable; names: {', '.join(FAULT_NAMES)}."
 
 
-def build_model(profile: ConveyorProfile, overrides: dict[str, float | None]) -> ModelSpec:
-    """The plant parameters: command-line overrides, else the profile's ``model:``, else typical.
+def build_model(
+    profile: ConveyorProfile,
+    overrides: dict[str, float | None],
+    calibration: Path | None = None,
+) -> ModelSpec:
+    """The plant parameters for a simulation.
+
+    Precedence: command-line overrides, then a calibration file's identified
+    friction and losses (``--calibration``), then the profile's ``model:``
+    section, then typical values. Identified losses below zero (a fit's
+    scatter around a small value) are simulated as zero.
 
     Raises
     ------
     ModelError
         When an override is out of range (naming the option).
+    CalibrationError
+        When the calibration file cannot be used, or belongs to another conveyor.
     """
     base = (profile.model or ModelSpec()).model_dump()
+    if calibration is not None:
+        from chaintwin.identify.calibration import load_calibration
+
+        cal = load_calibration(calibration)
+        if cal.profile.id != profile.id:
+            raise CalibrationError(
+                f"{calibration}: calibration of conveyor '{cal.profile.id}', not of "
+                f"'{profile.id}'; give the matching calibration"
+            )
+        p = cal.parameters
+        base.update(
+            friction=p["mu"],
+            loss_constant_nm=max(p["BmA"], 0.0),
+            loss_viscous_nm_s_rad=max(p["BmB"], 0.0),
+            loss_quadratic_nm_s2_rad2=max(p["BmC"], 0.0),
+        )
     base.update({k: v for k, v in overrides.items() if v is not None})
     try:
         return ModelSpec.model_validate(base)
@@ -171,14 +198,21 @@ def register(app: typer.Typer) -> None:
             float | None, typer.Option("--damping", help="Belt damping, N·s/m.")
         ] = None,
         incline_deg: Annotated[float | None, typer.Option("--incline-deg")] = None,
+        calibration: Annotated[
+            Path | None,
+            typer.Option(
+                "--calibration", help="Simulate with the friction and losses of a calibration."
+            ),
+        ] = None,
         as_json: Annotated[
             bool, typer.Option("--json", help="Print the ground truth as JSON.")
         ] = False,
     ) -> None:
         """Simulate one drive recording of the virtual conveyor (what-if runs).
 
-        Plant parameters come from the command line, else the profile's model:
-        section, else typical values (friction 0.23, the reference losses).
+        Plant parameters come from the command line, else --calibration (the
+        identified friction and losses), else the profile's model: section,
+        else typical values (friction 0.23, the reference losses).
         """
         prof = _with_incline(load_profile(profile), incline_deg)
         model = build_model(
@@ -192,6 +226,7 @@ def register(app: typer.Typer) -> None:
                 "belt_stiffness_n_m": stiffness,
                 "belt_damping_n_s_m": damping,
             },
+            calibration,
         )
         realism = build_realism(ideal, without or [])
         faults = parse_faults(fault or [])
@@ -270,6 +305,12 @@ def register(app: typer.Typer) -> None:
             list[str] | None,
             typer.Option("--without", help=f"Switch off: {', '.join(REALISM_SWITCHES)}."),
         ] = None,
+        calibration: Annotated[
+            Path | None,
+            typer.Option(
+                "--calibration", help="Simulate with the friction and losses of a calibration."
+            ),
+        ] = None,
     ) -> None:
         """Write a conveyor's recordings over simulated days, with growing faults.
 
@@ -277,6 +318,7 @@ def register(app: typer.Typer) -> None:
         unless --no-calibration, calibration/ recordings with a known payload_kg.
         """
         prof = load_profile(profile)
+        model = build_model(prof, {}, calibration)
         faults = parse_faults(fault or [])
         realism = build_realism(ideal, without or [])
         with Progress(transient=True) as bar:
@@ -298,6 +340,7 @@ def register(app: typer.Typer) -> None:
                 realism=realism,
                 seed=seed,
                 calibration=not no_calibration,
+                model=model,
                 progress=progress,
             )
         info: dict[str, Any] = {

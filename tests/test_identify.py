@@ -252,3 +252,65 @@ def test_cli_identify_calibrate_weigh(tmp_path: Path, capsys: pytest.CaptureFixt
     assert results[0]["payload_kg"] == pytest.approx(25.0, abs=1.0)
     assert results[1]["file"] == str(bad)
     assert "missing required column 'torque'" in results[1]["error"]
+
+
+def test_cli_refuses_foreign_conveyor_and_takes_column_maps(
+    cal_p2: Calibration, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from conftest import EXAMPLES
+
+    cal = cal_p2.save(tmp_path / "cal.json")
+    other = load_profile(EXAMPLES / "profiles" / "short-fast-03.yaml")
+    foreign = write_recording(
+        run_virtual(other, payload_kg=10.0, seed=700).recording, tmp_path / "foreign.csv"
+    )
+    vendor = EXAMPLES / "vendor" / "white-belt-01-vendor-export.csv"
+    cmap = EXAMPLES / "columns" / "vendor-de.yaml"
+    code = main(["weigh", "--calibration", str(cal), str(foreign), str(vendor),
+                 "--columns", str(cmap), "--json"])  # fmt: skip
+    out = json.loads(capsys.readouterr().out)
+    assert code == 2
+    assert "not of 'white-belt-01'" in out[0]["error"]
+    assert out[1]["payload_kg"] == pytest.approx(30.0, abs=1.0)
+
+
+def test_cli_bad_output_path_is_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    recs = []
+    for k in range(2):
+        run = run_virtual(PROFILE, payload_kg=0.0, seed=710 + k, calibration=True)
+        recs.append(str(write_recording(run.recording, tmp_path / f"c{k}.csv")))
+    code = main(["calibrate", "--profile", str(REFERENCE_PROFILE), *recs,
+                 "--out", str(tmp_path / "missing" / "c.json")])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "cannot write the calibration" in err
+    assert err.count("\n") == 1
+    code = main(["simulate", "--profile", str(REFERENCE_PROFILE), "--out", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "cannot be written" in err
+
+
+def test_weigh_short_slices_are_weighed_or_refused_never_crash(cal_p2: Calibration) -> None:
+    """Slices of a steady run without position channels: a result or EstimationError."""
+    from dataclasses import replace as dc_replace
+
+    rec = virtual(20.0, 720, known=False)
+    outcomes = set()
+    for length in (0.2, 0.5, 0.6, 0.8, 1.5):
+        keep = (rec.time > 4.0) & (rec.time < 4.0 + length)
+        short = dc_replace(
+            rec,
+            channels={k: v[keep] for k, v in rec.channels.items() if "position" not in k},
+            warnings=(),
+        )
+        try:
+            res = weigh(inspect_recording(short, PROFILE).recording, cal_p2)
+        except EstimationError:
+            outcomes.add("refused")
+        else:
+            outcomes.add("weighed")
+            assert res.payload_kg == pytest.approx(20.0, abs=3.0)
+    assert outcomes == {"refused", "weighed"}

@@ -241,3 +241,10 @@ def test_slow_path_values_equal_fast_path() -> None:
     slow = parse_recording(slow_text, "s")
     for name in fast.channels:
         np.testing.assert_array_equal(fast.channels[name], slow.channels[name])
+
+
+def test_zero_tray_and_repeated_unknown_keys_are_kept() -> None:
+    meta = "# tray_kg: 0\n# note: first\n# note: second\n"
+    rec = parse_recording(grid("time [s],speed [rpm],torque [Nm]", const_rows("0,0"), meta), "r")
+    assert rec.metadata.tray_kg == 0.0
+    assert rec.metadata.extra == {"note": "second"}

@@ -12,8 +12,9 @@ from rich.table import Table
 
 from chaintwin import __version__
 from chaintwin.cli.common import expand_recordings, print_json
-from chaintwin.errors import ChaintwinError, EstimationError
+from chaintwin.errors import CalibrationError, ChaintwinError, EstimationError, RecordingError
 from chaintwin.identify.calibration import Calibration, calibrate, load_calibration
+from chaintwin.read.columns import ColumnMap, load_column_map
 from chaintwin.read.profile import ConveyorProfile, load_profile
 from chaintwin.read.recording import Recording
 from chaintwin.validate.checks import load_recording
@@ -22,18 +23,58 @@ from chaintwin.weigh.weigh import weigh
 __all__ = ["identify_dict", "register"]
 
 
+def _load(file: str, profile: ConveyorProfile, column_map: ColumnMap | None) -> Recording:
+    """Read and validate one recording of this conveyor.
+
+    Raises
+    ------
+    RecordingError
+        When it cannot be read, or is a recording of another conveyor (profiles
+        are matched to recordings by id).
+    """
+    rec = load_recording(file, profile=profile, column_map=column_map).recording
+    conveyor = rec.metadata.conveyor
+    if conveyor is not None and conveyor != profile.id:
+        raise RecordingError(
+            file,
+            f"is a recording of conveyor '{conveyor}', not of '{profile.id}'; "
+            "give the matching profile or calibration",
+        )
+    return rec
+
+
 def _read_all(
-    files: list[str], profile: ConveyorProfile
+    files: list[str], profile: ConveyorProfile, column_map: ColumnMap | None, *, known: bool
 ) -> tuple[list[Recording], list[dict[str, str]]]:
-    """Read and validate; refused files are collected, not fatal."""
+    """Read and validate; refused files are collected, not fatal.
+
+    With ``known``, recordings without ``payload_kg`` or without motion are
+    refused here too, so that one bad file does not stop the others.
+    """
     recs: list[Recording] = []
     refused: list[dict[str, str]] = []
     for f in files:
         try:
-            recs.append(load_recording(f, profile=profile).recording)
+            rec = _load(f, profile, column_map)
+            if known and rec.metadata.payload_kg is None:
+                raise RecordingError(
+                    f, "has no payload_kg in its metadata; add '# payload_kg: <kg>' (0 if empty)"
+                )
+            if rec.has_warning("no_motion"):
+                raise RecordingError(f, "the conveyor does not move; nothing to identify")
+            recs.append(rec)
         except ChaintwinError as exc:
             refused.append({"file": f, "error": str(exc)})
     return recs, refused
+
+
+def _save(cal: Calibration, out: Path) -> None:
+    try:
+        cal.save(out)
+    except OSError as exc:
+        raise CalibrationError(
+            f"{out}: cannot write the calibration ({exc.strerror or exc}); check the path"
+        ) from None
 
 
 def identify_dict(cal: Calibration) -> dict[str, Any]:
@@ -86,6 +127,10 @@ def register(app: typer.Typer) -> None:
         files: Annotated[list[Path], typer.Argument(help="Recordings with payload_kg metadata.")],
         profile: Annotated[Path, typer.Option("--profile", help="Conveyor profile YAML.")],
         as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+        columns: Annotated[
+            Path | None,
+            typer.Option("--columns", help="Column map YAML for exports named otherwise."),
+        ] = None,
     ) -> None:
         """Identify friction, gear losses, inertia and torque lag from known-load recordings.
 
@@ -94,7 +139,8 @@ def register(app: typer.Typer) -> None:
         what was assumed). Exit code 2 when a file was refused.
         """
         prof = load_profile(profile)
-        recs, refused = _read_all(expand_recordings(files), prof)
+        cmap = load_column_map(columns) if columns is not None else None
+        recs, refused = _read_all(expand_recordings(files), prof, cmap, known=True)
         if not recs:
             raise EstimationError("no usable recording to identify from")
         cal = calibrate(recs, prof, version=__version__)
@@ -135,6 +181,10 @@ def register(app: typer.Typer) -> None:
         as_json: Annotated[
             bool, typer.Option("--json", help="Print the calibration file's content.")
         ] = False,
+        columns: Annotated[
+            Path | None,
+            typer.Option("--columns", help="Column map YAML for exports named otherwise."),
+        ] = None,
     ) -> None:
         """Calibrate a conveyor for weighing and write a versioned calibration file.
 
@@ -143,11 +193,12 @@ def register(app: typer.Typer) -> None:
         which run would improve it.
         """
         prof = load_profile(profile)
-        recs, refused = _read_all(expand_recordings(files), prof)
+        cmap = load_column_map(columns) if columns is not None else None
+        recs, refused = _read_all(expand_recordings(files), prof, cmap, known=True)
         if not recs:
             raise EstimationError("no usable recording to calibrate from")
         cal = calibrate(recs, prof, version=__version__)
-        cal.save(out)
+        _save(cal, out)
         if as_json:
             print_json(cal.to_dict())
         else:
@@ -177,17 +228,27 @@ def register(app: typer.Typer) -> None:
             Path, typer.Option("--calibration", help="Calibration file from `calibrate`.")
         ],
         as_json: Annotated[bool, typer.Option("--json", help="Print one JSON list.")] = False,
+        columns: Annotated[
+            Path | None,
+            typer.Option("--columns", help="Column map YAML for exports named otherwise."),
+        ] = None,
     ) -> None:
         """Weigh the payload of each recording from torque alone, with an uncertainty.
 
         Exit code 2 after the others are done when a file was refused.
         """
         cal = load_calibration(calibration)
+        cmap = load_column_map(columns) if columns is not None else None
         results: list[dict[str, Any]] = []
         for f in expand_recordings(files):
             try:
-                ins = load_recording(f, profile=cal.profile)
-                results.append(weigh(ins.recording, cal, source=f).to_dict())
+                rec = _load(f, cal.profile, cmap)
+                results.append(weigh(rec, cal, source=f).to_dict())
+            except EstimationError as exc:
+                message = str(exc)
+                if not message.startswith(f):
+                    message = f"{f}: {message}"
+                results.append({"file": f, "error": message})
             except ChaintwinError as exc:
                 results.append({"file": f, "error": str(exc)})
         if as_json:

@@ -14,13 +14,13 @@ from rich.console import Console
 from rich.progress import Progress
 
 from chaintwin.cli.common import print_json
-from chaintwin.errors import CalibrationError, ModelError
+from chaintwin.errors import CalibrationError, ModelError, RecordingError
 from chaintwin.read.profile import ConveyorProfile, ModelSpec, load_profile
 from chaintwin.read.reader import read_recording
 from chaintwin.read.writer import write_recording
 from chaintwin.simulate import setpoints as sp
 from chaintwin.simulate.faults import FAULT_NAMES, parse_faults
-from chaintwin.simulate.fleet import generate
+from chaintwin.simulate.fleet import GenerateSummary, generate
 from chaintwin.simulate.virtual import Realism, default_setpoints, run_virtual
 from chaintwin.units import RPM_TO_RAD_S
 
@@ -72,8 +72,29 @@ def build_model(
         return ModelSpec.model_validate(base)
     except ValidationError as exc:
         err = exc.errors()[0]
-        name = "--" + str(err["loc"][0]).replace("_", "-") if err["loc"] else "model"
+        options = {
+            "friction": "--friction",
+            "static_friction_ratio": "--static-friction-ratio",
+            "loss_constant_nm": "--loss-constant",
+            "loss_viscous_nm_s_rad": "--loss-viscous",
+            "loss_quadratic_nm_s2_rad2": "--loss-quadratic",
+            "belt_stiffness_n_m": "--stiffness",
+            "belt_damping_n_s_m": "--damping",
+        }
+        field = str(err["loc"][0]) if err["loc"] else ""
+        name = options.get(field, f"model field '{field}'")
         raise ModelError(f"option {name}: {err['msg']}") from None
+
+
+def _generate_or_refuse(out: Path, *args: Any, **kwargs: Any) -> GenerateSummary:
+    """Run :func:`generate`, turning file-system errors into a one-line refusal."""
+    try:
+        return generate(*args, **kwargs)
+    except OSError as exc:
+        where = exc.filename or out
+        raise RecordingError(
+            str(where), f"cannot be written ({exc.strerror or exc}); give a writable folder"
+        ) from None
 
 
 def build_realism(ideal: bool, without: list[str]) -> Realism:
@@ -152,7 +173,7 @@ def register(app: typer.Typer) -> None:
             float, typer.Option("--sample-time", help="Scope sample time, s.")
         ] = 0.006,
         fault: Annotated[list[str] | None, typer.Option("--fault", help=FAULT_HELP)] = None,
-        seed: Annotated[int | None, typer.Option("--seed", help="Random seed.")] = None,
+        seed: Annotated[int | None, typer.Option("--seed", min=0, help="Random seed.")] = None,
         speed_rpm: Annotated[
             float | None, typer.Option("--speed-rpm", help="Plateau motor speed, rpm.")
         ] = None,
@@ -265,8 +286,13 @@ def register(app: typer.Typer) -> None:
             calibration=known_load,
             source=str(out),
         )
-        out.parent.mkdir(parents=True, exist_ok=True)
-        write_recording(run.recording, out)
+        try:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            write_recording(run.recording, out)
+        except OSError as exc:
+            raise RecordingError(
+                str(out), f"cannot be written ({exc.strerror or exc}); check the path"
+            ) from None
         if as_json:
             print_json({"file": str(out), **run.truth})
         else:
@@ -296,7 +322,7 @@ def register(app: typer.Typer) -> None:
         drift: Annotated[
             float, typer.Option("--drift", help="Loss drift amplitude (0.05 = ±5 %).")
         ] = 0.05,
-        seed: Annotated[int, typer.Option("--seed", help="Random seed.")] = 0,
+        seed: Annotated[int, typer.Option("--seed", min=0, help="Random seed.")] = 0,
         no_calibration: Annotated[
             bool, typer.Option("--no-calibration", help="Skip the calibration recordings.")
         ] = False,
@@ -327,7 +353,8 @@ def register(app: typer.Typer) -> None:
             def progress(done: int, total: int) -> None:
                 bar.update(task, completed=done, total=total)
 
-            summary = generate(
+            summary = _generate_or_refuse(
+                out,
                 prof,
                 out,
                 days=days,

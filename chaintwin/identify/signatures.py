@@ -90,12 +90,19 @@ def _fit(
         sol, _r, rank, _sv = np.linalg.lstsq(xw, z * weights, rcond=None)
         return sol, xw, z * weights - xw @ sol, int(rank)
 
+    if z.shape[0] <= x0.shape[1]:
+        raise EstimationError(
+            f"{z.shape[0]} usable windows for {x0.shape[1]} unknowns: too little steady "
+            "motion to weigh; record a complete move"
+        )
     wt = 1.0 / np.sqrt(wi.duration)
     _sol, _xw, resid, _rank = solve(wt)
     short = wi.kind == 0
     rate_short = float(np.mean(resid[short] ** 2)) if short.sum() >= 3 else float(np.mean(resid**2))
     rate_ramp = ramp_rate if ramp_rate is not None and np.isfinite(ramp_rate) else rate_short
-    rates = np.where(short, rate_short, max(rate_ramp, 1e-30))
+    floor = 1e-12 * max(float(np.mean((z * wt) ** 2)), 1e-30)
+    rate_short = max(rate_short, floor)
+    rates = np.where(short, rate_short, max(rate_ramp, floor))
     weights = wt / np.sqrt(rates)
     sol, xw, resid, rank = solve(weights)
     if rank < x0.shape[1]:
@@ -103,7 +110,10 @@ def _fit(
     coef = sol / scale
     dof = max(z.shape[0] - x0.shape[1], 1)
     s2 = max(1.0, float(resid @ resid) / dof) * serial_correlation_factor(resid[short])
-    cov = s2 * np.linalg.inv(xw.T @ xw) / np.outer(scale, scale)
+    try:
+        cov = s2 * np.linalg.inv(xw.T @ xw) / np.outer(scale, scale)
+    except np.linalg.LinAlgError:
+        raise EstimationError("the recording does not determine the payload") from None
     k = len(cols)
     # friction payload of each window, other terms removed, for step detection
     rest = z - (xi * coef[1] if has_inertia else 0.0) - wi.ripple @ coef[k:]

@@ -103,7 +103,10 @@ def _parse_metadata(source: str, items: list[tuple[int, str, str]]) -> Metadata:
     values: dict[str, object] = {}
     extra: dict[str, str] = {}
     for lineno, key, value in items:
-        if key in values or key in extra:
+        if key in extra:
+            extra[key] = value  # unknown keys are kept, not rejected: the last one wins
+            continue
+        if key in values:
             raise RecordingError(
                 source, f"metadata key '{key}' is given twice; keep one", line=lineno
             )
@@ -115,7 +118,11 @@ def _parse_metadata(source: str, items: list[tuple[int, str, str]]) -> Metadata:
                 raise RecordingError(
                     source, f"metadata '{key}' is '{value}', not a number{hint}", line=lineno
                 ) from None
-            if not np.isfinite(number) or number < 0 or (number == 0 and key != "payload_kg"):
+            if (
+                not np.isfinite(number)
+                or number < 0
+                or (number == 0 and key not in ("payload_kg", "tray_kg"))
+            ):
                 raise RecordingError(
                     source,
                     f"metadata '{key}' is {value}; it must be a positive number",

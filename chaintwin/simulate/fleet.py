@@ -145,6 +145,8 @@ def generate(
         raise ModelError("--days and --per-day must be at least 1")
     if not 0 <= onset_day < days:
         raise ModelError(f"--onset {onset_day} must be a day from 0 to {days - 1}")
+    if not 0.0 <= drift < 0.5:
+        raise ModelError(f"--drift {drift} must be from 0 to 0.5 (0.05 = ±5 %)")
     lo, hi = payload_range_kg
     if not 0.0 <= lo <= hi:
         raise ModelError(f"payload range {lo}-{hi} kg must satisfy 0 <= low <= high")

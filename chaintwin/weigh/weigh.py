@@ -199,25 +199,36 @@ def weigh(
     if step is not None:
         t_step, _before, _after = step
         t = recording.time
-        first, _cov_first = fit_signatures(
-            recording, prof, params, tray, (float(t[0]), t_step), mot, rate
-        )
-        last, cov_last = fit_signatures(
-            recording, prof, params, tray, (t_step, float(t[-1])), mot, rate
-        )
-        segments = (
-            Segment(float(fit.windows.t0[0]), t_step, float(first.estimate[0])),
-            Segment(t_step, float(fit.windows.t1[-1]), float(last.estimate[0])),
-        )
-        warnings.append(
-            RecordingWarning(
-                "payload_changed",
-                f"the load changed at t = {t_step:.3f} s from {first.estimate[0]:.1f} kg to "
-                f"{last.estimate[0]:.1f} kg (friction signature); each part is weighed on "
-                "its own and the payload is the last part's",
+        try:
+            first, _cov_first = fit_signatures(
+                recording, prof, params, tray, (float(t[0]), t_step), mot, rate
             )
-        )
-        fit, cov = last, cov_last
+            last, cov_last = fit_signatures(
+                recording, prof, params, tray, (t_step, float(t[-1])), mot, rate
+            )
+        except EstimationError:
+            # too little on one side to weigh it: keep the whole-recording fit
+            warnings.append(
+                RecordingWarning(
+                    "payload_changed",
+                    f"the friction payload steps at t = {t_step:.3f} s, but one side is too "
+                    "short to weigh on its own; the whole recording was weighed",
+                )
+            )
+        else:
+            segments = (
+                Segment(float(fit.windows.t0[0]), t_step, float(first.estimate[0])),
+                Segment(t_step, float(fit.windows.t1[-1]), float(last.estimate[0])),
+            )
+            warnings.append(
+                RecordingWarning(
+                    "payload_changed",
+                    f"the load changed at t = {t_step:.3f} s from {first.estimate[0]:.1f} kg to "
+                    f"{last.estimate[0]:.1f} kg (friction signature); each part is weighed on "
+                    "its own and the payload is the last part's",
+                )
+            )
+            fit, cov = last, cov_last
 
     p_f = float(fit.estimate[0])
     s_f = float(np.sqrt(cov[0, 0]))

@@ -6,13 +6,45 @@ import json
 import sys
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.markup import escape
 
 from chaintwin.errors import RecordingError
 from chaintwin.read.columns import ColumnMap, load_column_map
 from chaintwin.read.profile import ConveyorProfile, load_profile
 
-__all__ = ["expand_recordings", "load_options", "print_json"]
+__all__ = [
+    "ColumnsOption",
+    "expand_recordings",
+    "load_options",
+    "print_json",
+    "print_refused",
+    "print_warning",
+]
+
+#: The ``--columns`` option every command that reads recordings takes.
+ColumnsOption = Annotated[
+    Path | None,
+    typer.Option("--columns", help="Column map YAML for exports named otherwise."),
+]
+
+
+def print_refused(console: Console, error: str) -> None:
+    """Print a refusal on one line (markup in the message escaped)."""
+    console.print(f"[red]refused[/red] {escape(error)}", highlight=False, soft_wrap=True)
+
+
+def print_warning(console: Console, where: str, code: str, message: str) -> None:
+    """Print a warning on one line: ``warning <where>: <code>: <message>``."""
+    prefix = f"{escape(where)}: " if where else ""
+    console.print(
+        f"[yellow]warning[/yellow] {prefix}[bold]{code}[/bold]: {escape(message)}",
+        highlight=False,
+        soft_wrap=True,
+    )
 
 
 def expand_recordings(paths: Iterable[Path]) -> list[str]:

@@ -11,7 +11,13 @@ from rich.markup import escape
 from rich.table import Table
 
 from chaintwin import __version__
-from chaintwin.cli.common import expand_recordings, print_json
+from chaintwin.cli.common import (
+    ColumnsOption,
+    expand_recordings,
+    print_json,
+    print_refused,
+    print_warning,
+)
 from chaintwin.errors import CalibrationError, ChaintwinError, EstimationError, RecordingError
 from chaintwin.identify.calibration import Calibration, calibrate, load_calibration
 from chaintwin.read.columns import ColumnMap, load_column_map
@@ -116,7 +122,7 @@ def identify_dict(cal: Calibration) -> dict[str, Any]:
 
 def _print_refused(console: Console, refused: list[dict[str, str]]) -> None:
     for r in refused:
-        console.print(f"[red]refused[/red] {escape(r['error'])}", highlight=False, soft_wrap=True)
+        print_refused(console, r["error"])
 
 
 def register(app: typer.Typer) -> None:
@@ -127,10 +133,7 @@ def register(app: typer.Typer) -> None:
         files: Annotated[list[Path], typer.Argument(help="Recordings with payload_kg metadata.")],
         profile: Annotated[Path, typer.Option("--profile", help="Conveyor profile YAML.")],
         as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
-        columns: Annotated[
-            Path | None,
-            typer.Option("--columns", help="Column map YAML for exports named otherwise."),
-        ] = None,
+        columns: ColumnsOption = None,
     ) -> None:
         """Identify friction, gear losses, inertia and torque lag from known-load recordings.
 
@@ -164,11 +167,7 @@ def register(app: typer.Typer) -> None:
                 )
             console.print(table)
             for w in out["warnings"]:
-                console.print(
-                    f"[yellow]warning[/yellow] {w['code']}: {escape(w['message'])}",
-                    highlight=False,
-                    soft_wrap=True,
-                )
+                print_warning(console, "", w["code"], w["message"])
             _print_refused(console, refused)
         if refused:
             raise typer.Exit(2)
@@ -181,10 +180,7 @@ def register(app: typer.Typer) -> None:
         as_json: Annotated[
             bool, typer.Option("--json", help="Print the calibration file's content.")
         ] = False,
-        columns: Annotated[
-            Path | None,
-            typer.Option("--columns", help="Column map YAML for exports named otherwise."),
-        ] = None,
+        columns: ColumnsOption = None,
     ) -> None:
         """Calibrate a conveyor for weighing and write a versioned calibration file.
 
@@ -212,11 +208,7 @@ def register(app: typer.Typer) -> None:
                 soft_wrap=True,
             )
             for w in cal.warnings:
-                console.print(
-                    f"[yellow]{w.code}[/yellow]: {escape(w.message)}",
-                    highlight=False,
-                    soft_wrap=True,
-                )
+                print_warning(console, "", w.code, w.message)
             _print_refused(console, refused)
         if refused:
             raise typer.Exit(2)
@@ -228,10 +220,7 @@ def register(app: typer.Typer) -> None:
             Path, typer.Option("--calibration", help="Calibration file from `calibrate`.")
         ],
         as_json: Annotated[bool, typer.Option("--json", help="Print one JSON list.")] = False,
-        columns: Annotated[
-            Path | None,
-            typer.Option("--columns", help="Column map YAML for exports named otherwise."),
-        ] = None,
+        columns: ColumnsOption = None,
     ) -> None:
         """Weigh the payload of each recording from torque alone, with an uncertainty.
 
@@ -277,11 +266,6 @@ def register(app: typer.Typer) -> None:
                 if "error" in r:
                     _print_refused(console, [r])
                 for w in r.get("warnings", []):
-                    console.print(
-                        f"[yellow]warning[/yellow] {escape(r['file'])}: {w['code']}: "
-                        f"{escape(w['message'])}",
-                        highlight=False,
-                        soft_wrap=True,
-                    )
+                    print_warning(console, r["file"], w["code"], w["message"])
         if any("error" in r for r in results):
             raise typer.Exit(2)

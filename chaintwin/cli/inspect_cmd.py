@@ -10,7 +10,14 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from chaintwin.cli.common import expand_recordings, load_options, print_json
+from chaintwin.cli.common import (
+    ColumnsOption,
+    expand_recordings,
+    load_options,
+    print_json,
+    print_refused,
+    print_warning,
+)
 from chaintwin.errors import RecordingError
 from chaintwin.read.columns import ColumnMap
 from chaintwin.read.profile import ConveyorProfile
@@ -82,16 +89,9 @@ def _print_table(results: list[dict[str, Any]]) -> None:
     console.print(table)
     for r in results:
         if "error" in r:
-            console.print(
-                f"[red]refused[/red] {escape(r['error'])}", highlight=False, soft_wrap=True
-            )
+            print_refused(console, r["error"])
         for w in r.get("warnings", []):
-            console.print(
-                f"[yellow]warning[/yellow] {escape(r['file'])}: [bold]{w['code']}[/bold]: "
-                f"{escape(w['message'])}",
-                highlight=False,
-                soft_wrap=True,
-            )
+            print_warning(console, r["file"], w["code"], w["message"])
 
 
 def register(app: typer.Typer) -> None:
@@ -106,10 +106,7 @@ def register(app: typer.Typer) -> None:
                 "--profile", help="Conveyor profile YAML: nominal torque, tray, torque limit."
             ),
         ] = None,
-        columns: Annotated[
-            Path | None,
-            typer.Option("--columns", help="Column map YAML for exports named otherwise."),
-        ] = None,
+        columns: ColumnsOption = None,
         as_json: Annotated[
             bool, typer.Option("--json", help="Print one JSON list instead of a table.")
         ] = False,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -314,3 +315,25 @@ def test_weigh_short_slices_are_weighed_or_refused_never_crash(cal_p2: Calibrati
             outcomes.add("weighed")
             assert res.payload_kg == pytest.approx(20.0, abs=3.0)
     assert outcomes == {"refused", "weighed"}
+
+
+def _without_setpoints(rec: Recording) -> Recording:
+    """The same recording as a drive that scopes actual values only would write it."""
+    keep = {k: v for k, v in rec.channels.items() if not k.endswith("_setpoint")}
+    bare = dataclasses.replace(rec, channels=keep, warnings=())
+    return inspect_recording(bare, PROFILE).recording
+
+
+def test_recordings_without_set_points_are_calibrated_and_weighed(cal_p2: Calibration) -> None:
+    """Steady phases come from the segmented actual speed when no set point is scoped."""
+    recs = [_without_setpoints(virtual(load, 300 + k)) for k, load in enumerate([0, 0, 0, 50])]
+    cal = calibrate(recs, PROFILE)
+    assert cal.case == cal_p2.case
+    assert cal.parameters["mu"] == pytest.approx(cal_p2.parameters["mu"], rel=0.01)
+    rec = virtual(40.0, 502, known=False)
+    bare = _without_setpoints(rec)
+    assert bare.speed_setpoint is None
+    with_sp, without = weigh(rec, cal_p2), weigh(bare, cal)
+    assert without.payload_kg == pytest.approx(40.0, abs=0.5)
+    assert without.payload_kg == pytest.approx(with_sp.payload_kg, abs=0.3)
+    assert without.consistent

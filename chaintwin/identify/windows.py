@@ -38,6 +38,7 @@ from chaintwin.errors import EstimationError
 from chaintwin.model.physics import G
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import FloatArray, Recording
+from chaintwin.validate.phases import Phase, segment
 
 __all__ = [
     "DEFAULT_WINDOW_S",
@@ -173,6 +174,7 @@ def motoring_mask(
 
 def _window_bounds(
     recording: Recording,
+    phases: list[Phase],
     moving: np.ndarray,
     n_win: int,
     corner_s: float,
@@ -187,15 +189,11 @@ def _window_bounds(
     belt's ringing (a lightly damped belt still swings after a corner, so its
     momentum differs from the rigid model's at any one instant).
     """
-    from chaintwin.validate.phases import segment
-
     t = recording.time
-    t.shape[0]
     dt = float(np.median(np.diff(t)))
     corner = max(1, round(corner_s / dt))
     settle = max(1, round(settle_s / dt))
     spread = max(0, round(average_s / dt))
-    phases = segment(recording)
     out: list[tuple[int, int, int, int, int]] = []
     for k, ph in enumerate(phases):
         if not ph.moving:
@@ -218,7 +216,6 @@ def _window_bounds(
         if ph.kind not in ("accelerate", "decelerate"):
             continue
         lo, hi = ph.start + corner, ph.stop - corner
-        (ph.start + ph.stop) // 2
         if hi <= lo or not moving[lo : hi + 1].all():
             continue
         if nxt is not None and nxt.kind == "constant" and ph.kind == "accelerate":
@@ -312,9 +309,19 @@ def window_integrals(
     if peak <= 0.0:
         raise EstimationError(f"{recording.source}: the conveyor does not move")
     moving = (np.abs(w) >= min_speed_share * peak) & (np.abs(basis) >= min_speed_share * peak)
-    # constant set point: |dω_sp/dt| small against the peak acceleration
-    dbasis = np.abs(np.gradient(basis, t))
-    steady = dbasis <= 0.02 * max(float(np.max(dbasis)), 1e-12)
+    phases = segment(recording)
+    if basis is wsp:
+        # constant set point: |dω_sp/dt| small against the peak acceleration
+        dbasis = np.abs(np.gradient(basis, t))
+        steady = dbasis <= 0.02 * max(float(np.max(dbasis)), 1e-12)
+    else:
+        # no set point: the differentiated actual speed is noise; the
+        # segmentation's constant phases (smoothed speed, noise-based
+        # thresholds) say where the speed is steady
+        steady = np.zeros(t.shape[0], dtype=bool)
+        for ph in phases:
+            if ph.kind == "constant":
+                steady[ph.start : ph.stop] = True
 
     dt = float(np.median(np.diff(t)))
     n_win = max(4, round(window_s / dt))
@@ -334,7 +341,8 @@ def window_integrals(
     c_gf_accel = 0.5 * (gf[1:] + gf[:-1]) * np.diff(w)
 
     bounds = np.asarray(
-        _window_bounds(recording, moving, n_win, corner_s, settle_s, average_s), dtype=np.int64
+        _window_bounds(recording, phases, moving, n_win, corner_s, settle_s, average_s),
+        dtype=np.int64,
     ).reshape(-1, 5)
     if span is not None:
         keep = (t[bounds[:, 0]] >= span[0]) & (t[bounds[:, 3]] <= span[1])

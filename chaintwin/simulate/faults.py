@@ -24,7 +24,10 @@ obstruction     a local obstruction on the rail at one place of the belt loop:
 elongation      chain elongation (wear of pins and bushes): pitch longer by
                 s × 3 % (3 % is a usual replacement limit); the chain rides
                 higher on the sprocket (radius × (1 + ε)), the polygon effect
-                is on, and articulation friction rises: μ × (1 + 2ε)
+                is on, articulation friction rises: μ × (1 + 2ε), and the
+                links no longer seat on the tooth flanks: an engagement impact
+                once per tooth pass, torque ripple at the tooth-pass order z/i
+                and its 2nd and 3rd harmonic of s × 2 % of nominal torque / h
 payload_step    a tray of s × 20 kg is placed on the moving belt at the middle
                 of the constant-speed run
 ==============  ==============================================================
@@ -40,6 +43,7 @@ from chaintwin.errors import ModelError
 
 __all__ = [
     "BEARING_ORDER",
+    "ELONGATION_IMPACT",
     "FAULT_NAMES",
     "Fault",
     "parse_fault",
@@ -71,6 +75,9 @@ OBSTRUCTION_WIDTH_M = 0.05
 
 ELONGATION_PER_SEVERITY = 0.03
 """Chain pitch elongation per unit severity (3 % at severity 1)."""
+
+ELONGATION_IMPACT = 0.02
+"""Tooth-pass engagement impact per unit elongation severity, share of nominal torque."""
 
 PAYLOAD_STEP_KG = 20.0
 """Mass placed on the moving belt per unit severity, kg."""

@@ -38,6 +38,7 @@ from chaintwin.simulate.engine import SimulationResult, simulate
 from chaintwin.simulate.faults import (
     BEARING_AMPLITUDE,
     BEARING_ORDER,
+    ELONGATION_IMPACT,
     ELONGATION_PER_SEVERITY,
     GEAR_TOOTH_AMPLITUDE,
     OBSTRUCTION_WIDTH_M,
@@ -241,6 +242,13 @@ def faulty_plant(
             changes["loop_length_m"] = plant.loop_length_m * (1.0 + eps)
             changes["polygon"] = plant.teeth > 0
             friction *= 1.0 + 2.0 * eps
+            if plant.teeth > 0:
+                # the longer pitch no longer seats on the tooth flank: each link
+                # lands and drops on engagement, an impact once per tooth pass
+                tooth_pass = plant.teeth / plant.ratio
+                for h in (1, 2, 3):
+                    orders.append(h * tooth_pass)
+                    amps.append(s * ELONGATION_IMPACT * tn / h)
         elif fault.name == "payload_step":
             changes["payload_step_time_s"] = payload_step_time_s
             changes["payload_step_kg"] = s * PAYLOAD_STEP_KG

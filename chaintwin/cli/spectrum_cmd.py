@@ -1,0 +1,182 @@
+"""``chaintwin spectrum``: the torque spectrum of one recording, lines marked."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from chaintwin.cli.common import ColumnsOption, load_options, print_json, print_warning
+from chaintwin.diagnose.spectra import (
+    MIN_SPEED_RPM,
+    Spectrum,
+    apparent_order,
+    band_amplitude,
+    line_orders,
+    order_spectrum,
+    plot_spectrum,
+    strongest_peaks,
+    welch_spectrum,
+)
+from chaintwin.errors import EstimationError, RecordingError
+from chaintwin.read.profile import ConveyorProfile
+from chaintwin.validate.checks import load_recording
+
+__all__ = ["line_rows", "register", "spectrum_dict"]
+
+FILE_HELP = "Recording file."
+PROFILE_HELP = "Conveyor profile YAML: needed for the characteristic lines."
+ORDERS_HELP = "Order spectrum (torque resampled to equal motor angle) instead of Welch."
+PNG_HELP = "Write the spectrum as a PNG, characteristic lines marked."
+JSON_HELP = "Print one JSON object instead of tables."
+
+PEAKS = 5
+"""How many of the strongest peaks are listed."""
+
+LOW_BINS = 6
+"""Peaks in the lowest bins (three true resolution cells) are trend leakage: not listed."""
+
+
+def line_rows(
+    spectrum: Spectrum, profile: ConveyorProfile | None, sample_time_s: float
+) -> list[dict[str, Any]]:
+    """The characteristic lines: where the scope shows them and the amplitude there.
+
+    One row per line of :func:`~chaintwin.diagnose.spectra.line_orders` with
+    ``name``, ``order``, ``frequency_hz`` (at the spectrum's mean speed),
+    ``apparent`` (folded; Hz for a frequency spectrum, orders for an order
+    spectrum), ``amplitude`` (Nm, ±2 bins) and ``aliased``; none without a profile.
+
+    Raises
+    ------
+    EstimationError
+        When the motor turns slower than 1 rpm on the analysed part.
+    """
+    if profile is None:
+        return []
+    if spectrum.speed_rpm < MIN_SPEED_RPM:
+        raise EstimationError(
+            f"the motor turns at {spectrum.speed_rpm:.2g} rpm on the analysed part: no "
+            "speed-locked lines to show; leave out --profile for the spectrum alone"
+        )
+    rot_hz = spectrum.speed_rpm / 60.0
+    rows: list[dict[str, Any]] = []
+    for name, order in line_orders(profile).items():
+        frequency = order * rot_hz
+        folded = apparent_order(order, spectrum.speed_rpm, sample_time_s)
+        apparent = folded if spectrum.kind == "order" else folded * rot_hz
+        rows.append(
+            {
+                "name": name,
+                "order": order,
+                "frequency_hz": frequency,
+                "apparent": apparent,
+                "amplitude": band_amplitude(spectrum, apparent),
+                "aliased": frequency > 0.5 / sample_time_s,
+            }
+        )
+    return rows
+
+
+def spectrum_dict(file: str, spectrum: Spectrum, rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Return the ``spectrum --json`` object.
+
+    ``{file, kind, speed_rpm, resolution, lines: [{name, order, apparent,
+    amplitude}], peaks: [{x, amplitude}]}`` with ``rows`` from :func:`line_rows`;
+    the peaks leave out the lowest bins, which hold trend leakage.
+    """
+    peaks = strongest_peaks(spectrum, top=PEAKS, min_x=LOW_BINS * spectrum.resolution)
+    return {
+        "file": file,
+        "kind": spectrum.kind,
+        "speed_rpm": spectrum.speed_rpm,
+        "resolution": spectrum.resolution,
+        "lines": [{k: r[k] for k in ("name", "order", "apparent", "amplitude")} for r in rows],
+        "peaks": [{"x": x, "amplitude": a} for x, a in peaks],
+    }
+
+
+def _print_tables(out: dict[str, Any], rows: list[dict[str, Any]], sample_time_s: float) -> None:
+    console = Console()
+    if not console.is_terminal:
+        console = Console(width=max(console.width, 120))
+    unit = "Hz" if out["kind"] == "frequency" else "order"
+    console.print(
+        f"{escape(out['file'])}: {out['kind']} spectrum at {out['speed_rpm']:.1f} rpm, "
+        f"Ts {sample_time_s * 1e3:.4g} ms, bin {out['resolution']:.4g} {unit}",
+        highlight=False,
+        soft_wrap=True,
+    )
+    if rows:
+        table = Table(title="characteristic lines")
+        for col in ("line", "order", "frequency [Hz]", f"apparent [{unit}]", "amplitude [Nm]"):
+            table.add_column(escape(col), justify="left" if col == "line" else "right")
+        table.add_column("aliased")
+        for r in rows:
+            table.add_row(
+                r["name"],
+                f"{r['order']:.4g}",
+                f"{r['frequency_hz']:.4g}",
+                f"{r['apparent']:.4g}",
+                f"{r['amplitude']:.3g}",
+                "[yellow]yes[/yellow]" if r["aliased"] else "no",
+            )
+        console.print(table)
+    else:
+        console.print("no --profile: characteristic lines not shown", highlight=False)
+    peaks = Table(title=f"{PEAKS} strongest peaks")
+    for col in (f"x [{unit}]", "amplitude [Nm]", "near line"):
+        peaks.add_column(escape(col), justify="left" if col == "near line" else "right")
+    tolerance = 2.0 * out["resolution"]
+    for p in out["peaks"]:
+        near = [r["name"] for r in rows if abs(r["apparent"] - p["x"]) <= tolerance]
+        peaks.add_row(f"{p['x']:.4g}", f"{p['amplitude']:.3g}", ", ".join(near))
+    console.print(peaks)
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``spectrum`` command to the application."""
+
+    @app.command("spectrum")
+    def spectrum(
+        file: Annotated[Path, typer.Argument(help=FILE_HELP)],
+        profile: Annotated[Path | None, typer.Option("--profile", help=PROFILE_HELP)] = None,
+        orders: Annotated[bool, typer.Option("--orders", help=ORDERS_HELP)] = False,
+        png: Annotated[Path | None, typer.Option("--png", help=PNG_HELP)] = None,
+        as_json: Annotated[bool, typer.Option("--json", help=JSON_HELP)] = False,
+        columns: ColumnsOption = None,
+    ) -> None:
+        """Show the torque spectrum of a recording with its characteristic lines.
+
+        Without --orders a Welch spectrum of the constant-speed plateau (lines
+        above the Nyquist frequency are looked for where they fold: drive
+        scopes have no anti-alias filter); with --orders an order spectrum of
+        the run above 30 % of peak speed. Amplitudes in Nm.
+        """
+        prof, cmap = load_options(profile, columns)
+        rec = load_recording(str(file), profile=prof, column_map=cmap).recording
+        spec = order_spectrum(rec) if orders else welch_spectrum(rec)
+        ts = rec.sample_time_s
+        rows = line_rows(spec, prof, ts)
+        out = spectrum_dict(str(file), spec, rows)
+        if png is not None:
+            kind = "order" if orders else "Welch"
+            marks = {r["name"]: r["apparent"] for r in rows}
+            try:
+                plot_spectrum(
+                    spec, png, lines=marks, title=f"{file.name}: {kind} spectrum of torque"
+                )
+            except OSError as exc:
+                raise RecordingError(
+                    str(png), f"cannot be written ({exc.strerror or exc}); check the path"
+                ) from None
+        if as_json:
+            print_json(out)
+        else:
+            _print_tables(out, rows, ts)
+            for w in rec.warnings:
+                print_warning(Console(), str(file), w.code, w.message)

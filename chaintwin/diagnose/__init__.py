@@ -1,0 +1,1 @@
+"""Condition monitoring: residuals, spectra, features, health model and alarms."""

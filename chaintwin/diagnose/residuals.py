@@ -1,0 +1,581 @@
+"""Residuals of the rigid model: measured minus model motor torque (DESIGN.md, section 3).
+
+The rigid model (DESIGN.md, section 2; the same equation the identification
+windows integrate, :mod:`chaintwin.identify.windows`) gives the motor torque
+per sample from the measured speed and identified parameters::
+
+    T_model = J_d·α
+            + g_f·(F + M·a)                       belt resistance and belt inertia
+            + BmA·sign(ω) + BmB·ω + BmC·ω·|ω|     gear and motor losses
+
+with ``F = μ·g·cosβ·M·sign(ω) + g·sinβ·(m_t + m_p)`` (N), M = m_b + m_t + m_p
+(kg), a = α·r/i the belt's acceleration (m/s²) and ``g_f = r/(i·η)`` while
+power flows motor → belt, ``r·η/i`` while the belt drives the motor (m).
+
+The residual ``e = T_measured − T_model`` (Nm) is what the rigid model does
+not explain: belt ringing after the ramp corners, the polygon effect, gear and
+bearing orders, an obstruction at one place on the belt, a wrong payload or
+drifting friction. :func:`residual_stats` condenses it into the statistics of
+DESIGN.md section 3; :func:`residual_analysis` does so for the whole recording
+and per kind of movement phase.
+
+A fault locked to one place on the belt (an obstruction, a damaged module)
+repeats at the same belt position in every recording, even when one belt
+revolution takes longer than a scope: :func:`belt_position_m` gives the
+absolute belt position per sample and :func:`position_profile` accumulates
+residuals (or anything else) over belt-position bins, recording by recording.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from scipy import stats
+from scipy.integrate import cumulative_trapezoid
+from scipy.signal import savgol_filter
+
+from chaintwin.errors import EstimationError
+from chaintwin.identify.regression import RigidParameters
+from chaintwin.identify.windows import motoring_mask
+from chaintwin.model.frequencies import _kinematic_ratio
+from chaintwin.model.physics import belt_force_n, gear_factor, loss_torque_nm
+from chaintwin.read.profile import ConveyorProfile
+from chaintwin.read.recording import FloatArray, Recording
+from chaintwin.validate.phases import Phase, segment
+
+__all__ = [
+    "CORNER_SAMPLES",
+    "DEFAULT_BIN_WIDTH_M",
+    "DERIVATIVE_WINDOW_S",
+    "MIN_SAMPLES",
+    "PARAMETER_KEYS",
+    "PHASE_KINDS",
+    "STANDSTILL_SHARE",
+    "ResidualReport",
+    "ResidualStats",
+    "belt_position_m",
+    "model_torque",
+    "position_profile",
+    "residual_analysis",
+    "residual_stats",
+]
+
+DERIVATIVE_WINDOW_S = 0.025
+"""Savitzky-Golay window for the acceleration, s (at least 5 samples, odd)."""
+
+STANDSTILL_SHARE = 0.02
+"""Below this share of the peak |ω| the friction and sign terms are set to zero."""
+
+MIN_SAMPLES = 4
+"""Fewest samples :func:`residual_stats` accepts."""
+
+CORNER_SAMPLES = 3
+"""Samples left out at each end of a phase in the per-phase statistics."""
+
+PHASE_KINDS: tuple[str, ...] = ("accelerate", "constant", "decelerate")
+"""The moving phase kinds :func:`residual_analysis` reports separately."""
+
+DEFAULT_BIN_WIDTH_M = 0.025
+"""Default belt-position bin width of :func:`position_profile`, m."""
+
+PARAMETER_KEYS: tuple[str, ...] = ("mu", "BmA", "BmB", "BmC", "J_d")
+"""Parameters :func:`model_torque` reads."""
+
+
+# --------------------------------------------------------------------- model torque
+def _acceleration(recording: Recording) -> FloatArray:
+    """Motor acceleration α, rad/s², Savitzky-Golay derivative of the measured speed.
+
+    Window about :data:`DERIVATIVE_WINDOW_S` (25 ms), at least 5 samples, odd,
+    at most the recording's length; polynomial order 2; ``mode="interp"`` at
+    the ends (the end samples get the derivative of the fit to the first and
+    last window).
+    """
+    n = recording.samples
+    if n < 3:
+        raise EstimationError(
+            f"{recording.source}: {n} samples; at least 3 are needed to differentiate the speed"
+        )
+    dt = recording.sample_time_s
+    win = max(5, round(DERIVATIVE_WINDOW_S / dt))
+    win += 1 - win % 2  # odd
+    win = min(win, n if n % 2 else n - 1)
+    out: FloatArray = savgol_filter(recording.speed, win, 2, deriv=1, delta=dt)
+    return out
+
+
+def _parameter(parameters: Mapping[str, float] | RigidParameters, name: str) -> float:
+    try:
+        return float(parameters[name])
+    except (KeyError, ValueError) as exc:
+        raise EstimationError(
+            f"model_torque needs the parameters {', '.join(PARAMETER_KEYS)}; '{name}' is missing"
+        ) from exc
+
+
+def model_torque(
+    recording: Recording,
+    profile: ConveyorProfile,
+    parameters: Mapping[str, float] | RigidParameters,
+    payload_kg: float,
+    *,
+    tray_kg: float | None = None,
+    motoring: np.ndarray | None = None,
+) -> FloatArray:
+    """Motor torque of the rigid model per sample, Nm.
+
+    ``T = J_d·α + g_f·(F + M·a) + BmA·sign(ω) + BmB·ω + BmC·ω·|ω|``, the
+    equation :mod:`chaintwin.identify.windows` integrates, evaluated sample by
+    sample (see the module notes for the symbols).
+
+    * α (rad/s²): Savitzky-Golay derivative of the measured speed, polynomial
+      order 2, window about 25 ms (:data:`DERIVATIVE_WINDOW_S`) but at least
+      5 samples (odd; 5 samples at 6 ms, 25 at 1 ms). The belt's acceleration
+      is ``a = α·r/i`` with r the chordal mean radius and i the gear ratio.
+    * Power flow: ``g_f = r/(i·η)`` where ``motoring`` is True, ``r·η/i``
+      elsewhere (:func:`~chaintwin.model.physics.gear_factor`); by default
+      from :func:`~chaintwin.identify.windows.motoring_mask` with the given
+      J_d and losses, i.e. from the measured torque that reaches the gear.
+    * F from :func:`~chaintwin.model.physics.belt_force_n` with the belt's
+      moving mass ``M = m_b + m_t + m_p`` (belt loop from the profile) and the
+      carried mass ``m_t + m_p`` (only it climbs an incline).
+    * Standstill: where ``|ω|`` is below 2 % of the recording's peak ``|ω|``
+      (:data:`STANDSTILL_SHARE`), the friction term ``μ·g·cosβ·M·sign(ω)``
+      and ``BmA·sign(ω)`` are set to zero. At standstill Coulomb friction
+      takes any value between its limits (it holds whatever the motor
+      applies), so the model cannot say what it is; a sign of a speed that
+      is only noise would put ± the full friction torque there. The incline,
+      inertia and speed-proportional terms stay (they are continuous).
+
+    Parameters
+    ----------
+    recording : Recording
+        Measured speed (rad/s, motor side) and, for the default power-flow
+        mask, torque (Nm).
+    profile : ConveyorProfile
+        Sprocket, gear (i, η), belt mass and incline; its ``model:`` section
+        is not read.
+    parameters : Mapping[str, float] or RigidParameters
+        ``mu`` (μ, dimensionless), ``BmA`` (Nm), ``BmB`` (Nm·s/rad), ``BmC``
+        (Nm·s²/rad²), ``J_d`` (motor + gear inertia at the motor, kg·m²), e.g.
+        a :class:`~chaintwin.identify.calibration.Calibration`'s
+        ``parameters``.
+    payload_kg : float
+        Payload on the belt, kg.
+    tray_kg : float, optional
+        Tray mass, kg; default the recording's ``metadata.tray_kg``, else the
+        profile's ``tray_mass_kg``.
+    motoring : np.ndarray of bool, optional
+        Power-flow direction per sample (True: motor → belt).
+
+    Returns
+    -------
+    FloatArray
+        Model motor torque, Nm, one value per sample.
+
+    Raises
+    ------
+    EstimationError
+        When a parameter is missing, the mask has the wrong length or the
+        recording has fewer than 3 samples.
+    """
+    mu = _parameter(parameters, "mu")
+    bma = _parameter(parameters, "BmA")
+    bmb = _parameter(parameters, "BmB")
+    bmc = _parameter(parameters, "BmC")
+    j_d = _parameter(parameters, "J_d")
+    if tray_kg is None:
+        tray_kg = recording.metadata.tray_kg
+    if tray_kg is None:
+        tray_kg = profile.tray_mass_kg
+
+    w = recording.speed
+    alpha = _acceleration(recording)
+    if motoring is None:
+        motoring = motoring_mask(recording, drive_inertia_kgm2=j_d, losses=(bma, bmb, bmc))
+    motoring = np.asarray(motoring, dtype=bool)
+    if motoring.shape != w.shape:
+        raise EstimationError(
+            f"{recording.source}: motoring mask has shape {motoring.shape}, the recording {w.shape}"
+        )
+
+    r = profile.chordal_radius_m
+    i = profile.gear.ratio
+    eta = profile.gear.efficiency
+    carried = tray_kg + payload_kg
+    moving_mass = profile.belt_mass_kg + carried
+    peak = float(np.max(np.abs(w))) if w.size else 0.0
+    still = np.abs(w) < STANDSTILL_SHARE * peak
+    direction = np.where(still, 0.0, np.sign(w))
+
+    # F is linear in sign(v): split into its incline part (direction 0) and
+    # its friction part per unit of direction
+    def force(d: float) -> float:
+        return belt_force_n(
+            friction=mu,
+            moving_mass_kg=moving_mass,
+            carried_mass_kg=carried,
+            incline_rad=profile.incline_rad,
+            direction=d,
+        )
+
+    f_incline = force(0.0)
+    f_friction = force(1.0) - f_incline
+    belt_force = f_friction * direction + f_incline
+    g_f = (r / i) * np.where(
+        motoring, gear_factor(eta, motoring=True), gear_factor(eta, motoring=False)
+    )
+    belt_accel = alpha * (r / i)
+    loss = loss_torque_nm(w, 0.0, bmb, bmc) + bma * direction
+    out: FloatArray = j_d * alpha + g_f * (belt_force + moving_mass * belt_accel) + loss
+    return out
+
+
+# --------------------------------------------------------------------- statistics
+@dataclass(frozen=True)
+class ResidualStats:
+    """Statistics of a residual ``e = measured − model`` (torques, Nm).
+
+    Attributes
+    ----------
+    mean, median : float
+        Of e, Nm.
+    std : float
+        Population standard deviation of e (``ddof=0``), Nm.
+    variance : float
+        Population variance of e (``ddof=0``), Nm².
+    rms : float
+        ``sqrt(mean(e²))``, Nm.
+    max_abs : float
+        ``max|e|``, Nm.
+    kurtosis : float
+        Pearson kurtosis ``scipy.stats.kurtosis(e, fisher=False)``
+        (biased, 3 for a Gaussian, 1.5 for a sine); nan when e is constant.
+    skewness : float
+        ``scipy.stats.skew(e)`` (biased); nan when e is constant.
+    crest_factor : float
+        ``max|e| / rms(e)`` (√2 for a sine); nan when e is all zero.
+    correlation : float
+        Pearson correlation of measured and model torque (not of e); 0.0 when
+        either is constant (the coefficient is undefined there, and a constant
+        model explains none of the measured variation).
+    rel_error_pct : float
+        ``100·rms(e)/rms(measured)``, %; nan when the measured torque is all
+        zero.
+    samples : int
+        Number of samples used (pairs where both torques are finite).
+
+    Notes
+    -----
+    :meth:`to_dict` writes nan as None (JSON null).
+    """
+
+    mean: float
+    median: float
+    std: float
+    variance: float
+    rms: float
+    max_abs: float
+    kurtosis: float
+    skewness: float
+    crest_factor: float
+    correlation: float
+    rel_error_pct: float
+    samples: int
+
+    def to_dict(self) -> dict[str, float | int | None]:
+        """Return the fields as a JSON-ready dict (non-finite floats as None)."""
+        out: dict[str, float | int | None] = {}
+        for name, value in asdict(self).items():
+            if isinstance(value, float) and not math.isfinite(value):
+                out[name] = None
+            else:
+                out[name] = value
+        return out
+
+
+def _pearson(a: FloatArray, b: FloatArray) -> float:
+    da = a - a.mean()
+    db = b - b.mean()
+    saa = float(da @ da)
+    sbb = float(db @ db)
+    if saa <= 0.0 or sbb <= 0.0:
+        return 0.0
+    return float(np.clip(float(da @ db) / math.sqrt(saa * sbb), -1.0, 1.0))
+
+
+def residual_stats(measured: FloatArray, model: FloatArray) -> ResidualStats:
+    """Statistics of the residual ``e = measured − model``.
+
+    See :class:`ResidualStats` for the definitions. Sample pairs where either
+    value is not finite are left out.
+
+    Parameters
+    ----------
+    measured : FloatArray
+        Measured torque, Nm.
+    model : FloatArray
+        Model torque, Nm, same shape.
+
+    Returns
+    -------
+    ResidualStats
+
+    Raises
+    ------
+    EstimationError
+        When the shapes differ or fewer than 4 finite sample pairs remain.
+    """
+    y = np.asarray(measured, dtype=np.float64)
+    m = np.asarray(model, dtype=np.float64)
+    if y.shape != m.shape:
+        raise EstimationError(
+            f"residual statistics need measured and model torque of the same shape; "
+            f"got {y.shape} and {m.shape}"
+        )
+    y = y.ravel()
+    m = m.ravel()
+    keep = np.isfinite(y) & np.isfinite(m)
+    y = y[keep]
+    m = m[keep]
+    n = int(y.shape[0])
+    if n < MIN_SAMPLES:
+        raise EstimationError(
+            f"residual statistics need at least {MIN_SAMPLES} finite samples; got {n}"
+        )
+    e = y - m
+    mean = float(e.mean())
+    variance = float(e.var())
+    std = math.sqrt(variance)
+    rms = math.sqrt(float(e @ e) / n)
+    max_abs = float(np.max(np.abs(e)))
+    # constant residual (within rounding): skewness and kurtosis are undefined,
+    # and scipy would warn about catastrophic cancellation
+    if std <= 1e-12 * max(max_abs, 1e-300):
+        kurtosis = skewness = math.nan
+    else:
+        kurtosis = float(stats.kurtosis(e, fisher=False))
+        skewness = float(stats.skew(e))
+    rms_measured = math.sqrt(float(y @ y) / n)
+    return ResidualStats(
+        mean=mean,
+        median=float(np.median(e)),
+        std=std,
+        variance=variance,
+        rms=rms,
+        max_abs=max_abs,
+        kurtosis=kurtosis,
+        skewness=skewness,
+        crest_factor=max_abs / rms if rms > 0.0 else math.nan,
+        correlation=_pearson(y, m),
+        rel_error_pct=100.0 * rms / rms_measured if rms_measured > 0.0 else math.nan,
+        samples=n,
+    )
+
+
+@dataclass(frozen=True)
+class ResidualReport:
+    """Residual statistics of one recording, whole and per phase kind.
+
+    Attributes
+    ----------
+    whole : ResidualStats
+        Over every sample of the moving phases (corners included), or over
+        the whole recording when asked to include standstill.
+    by_phase : dict of str to ResidualStats
+        ``"accelerate"``, ``"constant"``, ``"decelerate"``: pooled over all
+        phases of that kind, without the first and last
+        :data:`CORNER_SAMPLES` samples of each phase; a kind that is absent or
+        has fewer than 4 samples left is left out.
+    residual : FloatArray
+        ``measured − model`` per sample, Nm.
+    """
+
+    whole: ResidualStats
+    by_phase: dict[str, ResidualStats]
+    residual: FloatArray
+
+    def to_dict(self) -> dict[str, object]:
+        """Return ``{"whole": {...}, "by_phase": {kind: {...}}}`` (JSON-ready)."""
+        return {
+            "whole": self.whole.to_dict(),
+            "by_phase": {kind: s.to_dict() for kind, s in self.by_phase.items()},
+        }
+
+
+def residual_analysis(
+    recording: Recording,
+    model: FloatArray,
+    *,
+    phases: list[Phase] | None = None,
+    include_standstill: bool = False,
+) -> ResidualReport:
+    """Residual of the measured torque against a model torque, whole and per phase.
+
+    Parameters
+    ----------
+    recording : Recording
+        Measured torque (``recording.torque``, Nm).
+    model : FloatArray
+        Model torque per sample, Nm (e.g. from :func:`model_torque`).
+    phases : list of Phase, optional
+        Movement phases; default :func:`~chaintwin.validate.phases.segment`.
+        Each moving phase contributes its samples ``[start + 3, stop − 3)``
+        to its kind: the ramp corners (jerk, the belt's ringing, the motor's
+        torque lag) belong to neither side.
+    include_standstill : bool
+        Whether ``whole`` includes the standstill phases. Default False: at
+        standstill Coulomb friction holds whatever torque the drive applies
+        (after a stop, typically the speed controller's leftover braking
+        torque, held by stiction), which the model cannot know; those samples
+        would dominate the whole-recording statistics with something that
+        says nothing about the movement. The returned ``residual`` always
+        covers every sample.
+
+    Returns
+    -------
+    ResidualReport
+
+    Raises
+    ------
+    EstimationError
+        When ``model`` does not have one value per sample, or fewer than 4
+        finite samples are left for ``whole`` (no movement).
+    """
+    measured = recording.torque
+    model = np.asarray(model, dtype=np.float64)
+    if model.shape != measured.shape:
+        raise EstimationError(
+            f"{recording.source}: model torque has shape {model.shape}, "
+            f"the recording {measured.shape}"
+        )
+    if phases is None:
+        phases = segment(recording)
+    if include_standstill:
+        whole_idx = np.arange(measured.shape[0])
+    else:
+        moving = [np.arange(ph.start, ph.stop) for ph in phases if ph.moving]
+        whole_idx = np.concatenate(moving) if moving else np.empty(0, dtype=np.int64)
+    try:
+        whole = residual_stats(measured[whole_idx], model[whole_idx])
+    except EstimationError as exc:
+        raise EstimationError(f"{recording.source}: {exc}") from exc
+    by_phase: dict[str, ResidualStats] = {}
+    for kind in PHASE_KINDS:
+        parts = [
+            np.arange(ph.start + CORNER_SAMPLES, ph.stop - CORNER_SAMPLES)
+            for ph in phases
+            if ph.kind == kind and ph.moving
+        ]
+        idx = np.concatenate(parts) if parts else np.empty(0, dtype=np.int64)
+        sel = measured[idx], model[idx]
+        if int(np.count_nonzero(np.isfinite(sel[0]) & np.isfinite(sel[1]))) < MIN_SAMPLES:
+            continue
+        by_phase[kind] = residual_stats(*sel)
+    return ResidualReport(whole=whole, by_phase=by_phase, residual=measured - model)
+
+
+# --------------------------------------------------------------------- belt position
+def belt_position_m(recording: Recording, profile: ConveyorProfile) -> FloatArray:
+    """Belt position along its loop per sample, m, in ``[0, loop_length)``.
+
+    ``x = θ·r/i mod (2L + π·d)`` with θ the motor angle (rad), r the chordal
+    mean radius and i the kinematic gear ratio: the product of the stages'
+    tooth ratios when ``gear.stages`` is given (exact), else ``gear.ratio``
+    (as :mod:`chaintwin.model.frequencies` does).
+
+    The position channel is absolute (multi-turn, with any fixed offset), so
+    x is the same place on the belt in every recording of a conveyor, up to
+    that one offset. Without a position channel θ is the cumulative
+    trapezoid integral of the speed from 0 at the first sample: the result is
+    then relative to where the belt stood at the trigger and cannot be
+    compared across recordings.
+
+    Parameters
+    ----------
+    recording : Recording
+        ``position`` (rad), else ``speed`` (rad/s) and ``time`` (s).
+    profile : ConveyorProfile
+        Sprocket, gear and belt length.
+
+    Returns
+    -------
+    FloatArray
+        Belt position, m.
+    """
+    theta = recording.position
+    if theta is None:
+        theta = cumulative_trapezoid(recording.speed, recording.time, initial=0.0)
+    x = np.asarray(theta, dtype=np.float64) * (profile.chordal_radius_m / _kinematic_ratio(profile))
+    out: FloatArray = np.mod(x, profile.loop_length_m)
+    return out
+
+
+def position_profile(
+    position_m: FloatArray,
+    values: FloatArray,
+    loop_length_m: float,
+    *,
+    bin_width_m: float = DEFAULT_BIN_WIDTH_M,
+    bins: int | None = None,
+) -> tuple[FloatArray, FloatArray]:
+    """Sum and count of values per belt-position bin, for a belt-locked map.
+
+    The loop ``[0, loop_length)`` is cut into ``bins`` equal bins (default
+    ``ceil(loop_length / bin_width_m)``, so each is at most ``bin_width_m``
+    wide); positions are taken modulo the loop length first. Adding the
+    returned sums and counts of several recordings and dividing gives the
+    mean per place on the belt; a fault at one place (an obstruction) stands
+    out there. Only pairs where position and value are finite are counted.
+
+    Parameters
+    ----------
+    position_m : FloatArray
+        Belt position per sample, m (e.g. :func:`belt_position_m`).
+    values : FloatArray
+        A value per sample (e.g. the residual, Nm), same shape.
+    loop_length_m : float
+        Belt loop length, m (> 0).
+    bin_width_m : float
+        Largest bin width, m (default 25 mm).
+    bins : int, optional
+        Number of bins; overrides ``bin_width_m``.
+
+    Returns
+    -------
+    sums : FloatArray
+        Sum of the values per bin (units of the values).
+    counts : FloatArray
+        Number of values per bin.
+
+    Raises
+    ------
+    EstimationError
+        When the shapes differ, or the loop length, bin width or bin count is
+        not positive.
+    """
+    x = np.asarray(position_m, dtype=np.float64).ravel()
+    v = np.asarray(values, dtype=np.float64).ravel()
+    if np.shape(position_m) != np.shape(values):
+        raise EstimationError(
+            f"position and values must have the same shape; got "
+            f"{np.shape(position_m)} and {np.shape(values)}"
+        )
+    if not (loop_length_m > 0.0 and math.isfinite(loop_length_m)):
+        raise EstimationError(f"loop length must be positive; got {loop_length_m}")
+    if bins is None:
+        if not bin_width_m > 0.0:
+            raise EstimationError(f"bin width must be positive; got {bin_width_m}")
+        # tolerance: 0.3/0.025 is 11.999999999999998 in floating point
+        bins = max(1, math.ceil(loop_length_m / bin_width_m - 1e-9))
+    if bins < 1:
+        raise EstimationError(f"bin count must be at least 1; got {bins}")
+    keep = np.isfinite(x) & np.isfinite(v)
+    x = np.mod(x[keep], loop_length_m)
+    idx = np.minimum((x * (bins / loop_length_m)).astype(np.int64), bins - 1)
+    sums: FloatArray = np.bincount(idx, weights=v[keep], minlength=bins).astype(np.float64)
+    counts: FloatArray = np.bincount(idx, minlength=bins).astype(np.float64)
+    return sums, counts

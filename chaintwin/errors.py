@@ -15,7 +15,8 @@ them into a one-line message and exit code 2; a traceback means a bug.
     ├── ModelError              a model cannot be built or simulated
     ├── EstimationError         an estimator cannot be fitted or used
     │   └── NotFittedError      an estimator used before ``fit``
-    ├── StoreError              the results store cannot be used
+    ├── MonitorError            monitoring cannot run as asked (settings, alarms)
+    ├── StoreError              the results store or a state file cannot be used
     └── ConnectorError          a live data source cannot be used
 
 Each message names the file and the place (line, column, field path) and
@@ -36,6 +37,7 @@ __all__ = [
     "DataError",
     "EstimationError",
     "ModelError",
+    "MonitorError",
     "NotFittedError",
     "ProfileError",
     "RecordingError",
@@ -108,6 +110,10 @@ class EstimationError(ChaintwinError):
 
 class NotFittedError(EstimationError, AttributeError):
     """An estimator was used before it was fitted (also an AttributeError, as in scikit-learn)."""
+
+
+class MonitorError(ChaintwinError):
+    """Monitoring cannot run as asked (settings, alarm rule, alarm ids)."""
 
 
 class StoreError(ChaintwinError):

@@ -32,12 +32,21 @@ app = typer.Typer(
 
 def _register() -> None:
     # imported here so that `chaintwin --help` stays fast and modules stay small
-    from chaintwin.cli import demo_cmd, identify_cmd, inspect_cmd, simulate_cmd
+    from chaintwin.cli import (
+        demo_cmd,
+        identify_cmd,
+        inspect_cmd,
+        monitor_cmd,
+        simulate_cmd,
+        spectrum_cmd,
+    )
 
     inspect_cmd.register(app)
     simulate_cmd.register(app)
     identify_cmd.register(app)
     demo_cmd.register(app)
+    spectrum_cmd.register(app)
+    monitor_cmd.register(app)
 
 
 _register()

@@ -187,6 +187,7 @@ def welch_spectrum(
     *,
     span: tuple[int, int] | None = None,
     nperseg: int | None = None,
+    average: Literal["mean", "median"] = "mean",
 ) -> Spectrum:
     """Welch amplitude spectrum of a channel, by default over the constant-speed plateau.
 
@@ -210,6 +211,12 @@ def welch_spectrum(
     nperseg : int, optional
         Segment length, samples. Default: the power of two giving about
         eight averages, at least 64 (at most the span).
+    average : {"mean", "median"}
+        How the segments' periodograms are averaged. The median ignores
+        what only one segment holds (a transient: an obstruction passed once,
+        a bump at a ramp corner) and keeps what repeats in every segment
+        (shaft, mesh and bearing lines); scipy corrects its bias for a
+        Gaussian background.
 
     Returns
     -------
@@ -250,6 +257,7 @@ def welch_spectrum(
         nfft=nfft,
         detrend="linear",
         scaling="spectrum",
+        average=average,
     )
     amp = np.sqrt(2.0 * np.asarray(pxx, dtype=np.float64))
     amp[0] = math.sqrt(float(pxx[0]))

@@ -293,12 +293,12 @@ class Calibration:
                 recordings=list(data["recordings"]),
                 torque_lag_s=data.get("torque_lag_s"),
                 torque_lag_stderr_s=data.get("torque_lag_stderr_s"),
-                residual_rms_nm=float(data.get("residual_rms_nm", float("nan"))),
+                residual_rms_nm=_number(data.get("residual_rms_nm")),
                 inertia_gain=float(data["inertia_signature"]["gain"]),
                 inertia_gain_sigma=float(data["inertia_signature"]["gain_sigma"]),
                 inertia_offset_kg=float(data["inertia_signature"]["offset_kg"]),
                 inertia_offset_sigma_kg=float(data["inertia_signature"]["offset_sigma_kg"]),
-                ramp_noise_rate=float(data["inertia_signature"]["ramp_noise_rate"]),
+                ramp_noise_rate=_number(data["inertia_signature"]["ramp_noise_rate"]),
                 warnings=tuple(
                     RecordingWarning(str(w["code"]), str(w["message"]))
                     for w in data.get("warnings", [])
@@ -317,6 +317,11 @@ class Calibration:
                 "edited by hand. Calibrate again from the recordings"
             )
         return cal
+
+
+def _number(value: Any) -> float:
+    """A float from JSON, where null (or a missing value) stands for NaN."""
+    return float("nan") if value is None else float(value)
 
 
 def load_calibration(path: str | Path) -> Calibration:

@@ -22,7 +22,7 @@ from chaintwin.identify.windows import (
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import FloatArray, Recording
 
-__all__ = ["SignatureFit", "fit_signatures"]
+__all__ = ["SignatureFit", "fit_condition", "fit_signatures"]
 
 
 @dataclass(frozen=True)
@@ -69,8 +69,13 @@ def _fit(
     values: FloatArray,
     tray_kg: float,
     ramp_rate: float | None = None,
+    loss_term: bool = False,
 ) -> SignatureFit:
     """Weighted least squares of the residual on the signatures and ripple terms.
+
+    With ``loss_term`` a third unknown, a change of the speed-proportional
+    gear loss ΔBmB (N·m·s/rad), is fitted beside the two signatures (needs
+    a ramp: only the ramps vary the speed within a recording).
 
     Short and whole-ramp windows get their own noise rates (variance per
     second of window): the short windows' from this recording's residuals,
@@ -81,6 +86,10 @@ def _fit(
     z, xf, xi = _columns(wi, profile, values, tray_kg)
     has_inertia = bool(np.any(wi.kind == 1))
     cols = [xf, xi] if has_inertia else [xf]
+    if loss_term:
+        if not has_inertia:
+            raise EstimationError("a loss change needs a ramp between steady speeds")
+        cols.append(wi.speed)
     x0 = np.column_stack([*cols, wi.ripple])
     scale = np.sqrt(np.mean(x0 * x0, axis=0))
     scale[scale == 0.0] = 1.0
@@ -117,6 +126,8 @@ def _fit(
     k = len(cols)
     # friction payload of each window, other terms removed, for step detection
     rest = z - (xi * coef[1] if has_inertia else 0.0) - wi.ripple @ coef[k:]
+    if loss_term:
+        rest = rest - wi.speed * coef[2]
     with np.errstate(divide="ignore", invalid="ignore"):
         per_kg = np.where(np.abs(xf) > 0, rest / xf, np.nan)
     return SignatureFit(coef[:k], cov[:k, :k], has_inertia, wi, per_kg, weights)
@@ -192,3 +203,46 @@ def fit_signatures(
         lo_ = _fit(wi, prof, dn, tray, ramp_rate).estimate
         jac[:, j] = (hi_ - lo_) / (2 * step)
     return base, base.covariance + jac @ params.covariance @ jac.T
+
+
+def fit_condition(
+    rec: Recording,
+    prof: ConveyorProfile,
+    params: RigidParameters,
+    tray: float,
+    motoring: np.ndarray | None = None,
+    ramp_rate: float | None = None,
+) -> SignatureFit:
+    """Friction payload, inertia payload and a speed-loss change, fitted together.
+
+    For condition monitoring: a change of the rail friction moves the
+    friction payload away from the inertia payload, a change of the gear
+    unit's speed-dependent losses (lubrication, temperature) shows as ΔBmB,
+    and fitting both keeps one from being read as the other (at a single
+    plateau speed the two are told apart by the ramps only, so ΔBmB is less
+    precise than either payload). Uses every window, ramp interiors included.
+
+    Parameters
+    ----------
+    rec, prof, params, tray, motoring, ramp_rate
+        As :func:`fit_signatures`.
+
+    Returns
+    -------
+    SignatureFit
+        ``estimate`` = [p_f (kg), p_i (kg, raw: before the calibration's
+        inertia gain), ΔBmB (N·m·s/rad)], statistical covariance only.
+
+    Raises
+    ------
+    EstimationError
+        Without a ramp between steady speeds, or too few windows.
+    """
+    if motoring is None:
+        motoring = motoring_mask(
+            rec,
+            drive_inertia_kgm2=params["J_d"],
+            losses=(params["BmA"], params["BmB"], params["BmC"]),
+        )
+    every = window_integrals(rec, prof, motoring=motoring)
+    return _fit(every, prof, params.values, tray, ramp_rate, loss_term=True)

@@ -37,7 +37,7 @@ from chaintwin.units import CANONICAL_CHANNELS, REQUIRED_CHANNELS, UnitContext, 
 if TYPE_CHECKING:
     from chaintwin.read.profile import ConveyorProfile
 
-__all__ = ["MIN_SAMPLES", "parse_recording", "read_recording"]
+__all__ = ["MIN_SAMPLES", "parse_recording", "read_metadata", "read_recording"]
 
 MIN_SAMPLES = 32
 """Fewest samples a recording may hold."""
@@ -84,6 +84,30 @@ def read_recording(
             source, f"cannot be read ({exc.strerror or exc}); check the path"
         ) from None
     return parse_recording(raw, source, profile=profile, column_map=column_map)
+
+
+def read_metadata(path: str | Path) -> Metadata:
+    """Read only the ``# key: value`` metadata of a recording file.
+
+    For matching recordings to conveyors (``conveyor``) and ordering them
+    (``recorded_at``) before reading them whole.
+
+    Raises
+    ------
+    RecordingError
+        When the file cannot be read, has no header row or bad metadata.
+    """
+    source = str(path)
+    try:
+        raw = Path(path).read_bytes()
+    except IsADirectoryError:
+        raise RecordingError(source, "is a folder, not a recording file") from None
+    except OSError as exc:
+        raise RecordingError(
+            source, f"cannot be read ({exc.strerror or exc}); check the path"
+        ) from None
+    items, _lineno, _header, _body = _split_head(source, _decode(raw))
+    return _parse_metadata(source, items)
 
 
 def _decode(raw: bytes) -> str:

@@ -1,0 +1,393 @@
+"""``chaintwin monitor``, ``maintenance`` and ``acknowledge``."""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Sequence
+from datetime import datetime
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from chaintwin.cli.app import EXIT_ALARM
+from chaintwin.cli.common import (
+    ColumnsOption,
+    expand_recordings,
+    print_json,
+    print_refused,
+    print_warning,
+)
+from chaintwin.diagnose.monitor import ConveyorMonitor, MonitorSettings, RecordingResult
+from chaintwin.diagnose.state import (
+    MAINTENANCE_KINDS,
+    acknowledge_alarm,
+    add_maintenance,
+    load_state,
+    save_state,
+)
+from chaintwin.errors import (
+    ChaintwinError,
+    MonitorError,
+    ProfileError,
+    RecordingError,
+    StoreError,
+)
+from chaintwin.identify.calibration import Calibration, load_calibration
+from chaintwin.read.columns import ColumnMap, load_column_map
+from chaintwin.read.profile import ConveyorProfile, load_profile
+from chaintwin.read.reader import read_metadata
+from chaintwin.read.recording import RecordingWarning
+from chaintwin.validate.checks import load_recording
+
+__all__ = ["load_profiles", "order_recordings", "register", "run_monitor"]
+
+_PROFILE_HELP = "Profile of the one conveyor monitored."
+_PROFILES_HELP = "Folder of profiles (*.yaml); recordings are matched to them by conveyor id."
+_CAL_HELP = (
+    "Calibration file (repeat for several conveyors). A calibration of another conveyor "
+    "serves as a sibling's starting point when one --profile is given."
+)
+_STATE_HELP = "State file: monitoring continues from it and is saved back (created if missing)."
+_BASELINE_HELP = "Recordings in a baseline (and in a learned calibration)."
+_RULE_HELP = "Alarm rule X/Y: X exceedances of one feature in the last Y recordings."
+_Z_HELP = "A feature exceeds above this many robust baseline scales."
+_JSON_HELP = "Print one JSON object: recordings and conveyors."
+_FAIL_HELP = "Exit with 3 when an unacknowledged alarm is open."
+_FILES_HELP = "Recordings (files or folders), in any order: they are sorted by recorded_at."
+
+
+def load_profiles(profile: Path | None, profiles: Path | None) -> dict[str, ConveyorProfile]:
+    """The profiles of ``--profile`` or ``--profiles``, by id.
+
+    Raises
+    ------
+    ProfileError
+        When neither or both are given, a folder holds none, or two share an id.
+    """
+    if (profile is None) == (profiles is None):
+        raise ProfileError("give either --profile FILE (one conveyor) or --profiles DIR")
+    if profile is not None:
+        p = load_profile(profile)
+        return {p.id: p}
+    assert profiles is not None
+    if not profiles.is_dir():
+        raise ProfileError(f"{profiles}: --profiles must be a folder of profile YAML files")
+    found: dict[str, ConveyorProfile] = {}
+    where: dict[str, Path] = {}
+    for f in sorted([*profiles.glob("*.yaml"), *profiles.glob("*.yml")]):
+        p = load_profile(f)
+        if p.id in found:
+            raise ProfileError(f"{f}: id '{p.id}' is also the id of {where[p.id]}; ids must differ")
+        found[p.id] = p
+        where[p.id] = f
+    if not found:
+        raise ProfileError(f"{profiles}: holds no profile (*.yaml)")
+    return found
+
+
+def order_recordings(
+    items: Sequence[tuple[str, datetime | None]],
+) -> tuple[list[str], set[str]]:
+    """Recorded order: by ``recorded_at``; one without it stays after its predecessor in file order.
+
+    Returns
+    -------
+    (list of str, set of str)
+        The files in processing order, and those without ``recorded_at``.
+    """
+    keyed: list[tuple[str, int, str]] = []
+    last = ""
+    missing: set[str] = set()
+    for k, (f, when) in enumerate(items):
+        if when is None:
+            missing.add(f)
+        else:
+            last = when.isoformat()
+        keyed.append((last, k, f))
+    keyed.sort()
+    return [f for _t, _k, f in keyed], missing
+
+
+def _sha256(path: str) -> str | None:
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError:
+        return None
+
+
+def run_monitor(
+    files: list[str],
+    profiles: dict[str, ConveyorProfile],
+    calibrations: Sequence[Calibration],
+    settings: MonitorSettings,
+    state: dict[str, Any] | None,
+    column_map: ColumnMap | None,
+) -> tuple[list[RecordingResult], list[ConveyorMonitor]]:
+    """Monitor recordings of one or several conveyors (the ``monitor`` command's core).
+
+    Parameters
+    ----------
+    files : list of str
+        Recording files, any order.
+    profiles : dict
+        Profiles by id.
+    calibrations : sequence of Calibration
+        Calibrations; one of another conveyor serves a single profile as a sibling's.
+    settings : MonitorSettings
+        Baseline size and alarm rule.
+    state : dict, optional
+        A state (:mod:`chaintwin.diagnose.state`); updated in place.
+    column_map : ColumnMap, optional
+        For exports named otherwise.
+
+    Returns
+    -------
+    (list of RecordingResult, list of ConveyorMonitor)
+        Results in processing order (refused files first), and the monitors.
+    """
+    cal_by_id: dict[str, Calibration] = {}
+    for cal in calibrations:
+        cid = cal.profile.id
+        if cid not in profiles:
+            if len(profiles) == 1 and len(calibrations) == 1:
+                cid = next(iter(profiles))
+            else:
+                raise StoreError(
+                    f"calibration of '{cal.profile.id}' matches none of the profiles "
+                    f"({', '.join(sorted(profiles))})"
+                )
+        cal_by_id[cid] = cal
+    refused: list[RecordingResult] = []
+    groups: dict[str, list[tuple[str, datetime | None]]] = {}
+    single = next(iter(profiles)) if len(profiles) == 1 else None
+    for f in files:
+        try:
+            meta = read_metadata(f)
+            conveyor = meta.conveyor or single
+            if conveyor is None:
+                raise RecordingError(
+                    f, "has no 'conveyor' in its metadata; add '# conveyor: <profile id>'"
+                )
+            if conveyor not in profiles:
+                raise RecordingError(
+                    f,
+                    f"is a recording of conveyor '{conveyor}', for which no profile was given "
+                    f"(profiles: {', '.join(sorted(profiles))})",
+                )
+        except ChaintwinError as exc:
+            refused.append(RecordingResult(f, "", None, "refused", error=str(exc)))
+            continue
+        groups.setdefault(conveyor, []).append((f, meta.recorded_at))
+    results: list[RecordingResult] = list(refused)
+    monitors: list[ConveyorMonitor] = []
+    stored = state["conveyors"] if state is not None else {}
+    for cid, items in groups.items():
+        prof = profiles[cid]
+
+        def loader(name: str, prof: ConveyorProfile = prof) -> Any:
+            return load_recording(name, profile=prof, column_map=column_map).recording
+
+        given = cal_by_id.get(cid)
+        if cid in stored:
+            mon = ConveyorMonitor.from_state(stored[cid], prof, loader=loader, source="--state")
+            mon.settings = settings
+            if given is not None and mon.calibration_source != "file":
+                # features change with the model: the baseline starts again
+                mon.set_calibration(given)
+                mon.restart_baseline()
+            elif (
+                given is not None
+                and mon.calibration is not None
+                and given.to_dict()["parameters"] != mon.calibration.to_dict()["parameters"]
+            ):
+                raise StoreError(
+                    f"--state: conveyor '{cid}' is monitored with another calibration; "
+                    "record a maintenance event and use a new state file to change it"
+                )
+        else:
+            mon = ConveyorMonitor(prof, settings, given, loader=loader)
+        order, missing = order_recordings(items)
+        for f in order:
+            try:
+                rec = loader(f)
+            except ChaintwinError as exc:
+                results.append(RecordingResult(f, cid, None, "refused", error=str(exc)))
+                continue
+            if f in missing:
+                rec = rec.with_warnings(
+                    RecordingWarning(
+                        "no_recorded_at",
+                        "no recorded_at in the metadata: processed in file order after the "
+                        "recording before it",
+                    )
+                )
+            results += mon.process(rec, _sha256(f))
+        results += mon.finish()
+        monitors.append(mon)
+        if state is not None:
+            state["conveyors"][cid] = mon.to_state()
+    return results, monitors
+
+
+def _print_table(results: list[RecordingResult], monitors: list[ConveyorMonitor]) -> None:
+    console = Console()
+    table = Table(title="chaintwin monitor")
+    for col in ("file", "conveyor", "status", "payload [kg]", "TLF", "alarm", "causes"):
+        table.add_column(col)
+    for r in results:
+        if r.error is not None:
+            table.add_row(escape(r.file), "", "[red]refused[/red]", "", "", "", "")
+            continue
+        causes = ", ".join(f"{c['cause']} ({c['feature']} {c['change']:+.0%})" for c in r.causes)
+        table.add_row(
+            escape(r.file),
+            r.conveyor,
+            r.status,
+            "-" if r.payload_kg is None else f"{r.payload_kg:.1f}",
+            "-" if r.tlf is None else f"{r.tlf:.3f}",
+            "[red]ALARM[/red]" if r.alarm else "",
+            escape(causes),
+        )
+    console.print(table)
+    for r in results:
+        if r.error is not None:
+            print_refused(console, r.error)
+    for mon in monitors:
+        s = mon.summary()
+        base = s["baseline"]
+        console.print(
+            f"[bold]{escape(s['conveyor'])}[/bold]: calibration {s['calibration']}, "
+            f"{s['recordings']} recordings, baseline "
+            f"{'complete' if base['complete'] else 'learning'} ({base['recordings']})",
+            highlight=False,
+        )
+        for a in s["open_alarms"]:
+            ack = " (acknowledged)" if a["acknowledged"] else ""
+            console.print(
+                f"  [red]alarm {a['id']}[/red]{ack}: {a['cause']} - {a['feature']} "
+                f"{a['change']:+.0%} since {a['since']}",
+                highlight=False,
+            )
+        for fc in s["forecasts"]:
+            console.print(
+                f"  forecast: {fc['feature']} ({fc['cause']}) crosses {fc['limit']:.4g} about "
+                f"{fc['crosses_at'][:10]} (90 %: {fc['earliest'][:10]} to "
+                f"{(fc['latest'] or 'beyond a year')[:10]})",
+                highlight=False,
+            )
+        for n in s["notes"]:
+            print_warning(console, s["conveyor"], n["code"], n["message"])
+
+
+def _parse_rule(rule: str) -> tuple[int, int]:
+    x, sep, y = rule.partition("/")
+    try:
+        if not sep:
+            raise ValueError
+        return int(x), int(y)
+    except ValueError:
+        raise MonitorError(f"--alarm-rule '{rule}' must be X/Y, e.g. 3/10") from None
+
+
+def register(app: typer.Typer) -> None:
+    """Add the commands to the application."""
+
+    @app.command("monitor")
+    def monitor_cmd(
+        files: Annotated[list[Path], typer.Argument(help=_FILES_HELP)],
+        profile: Annotated[Path | None, typer.Option("--profile", help=_PROFILE_HELP)] = None,
+        profiles: Annotated[Path | None, typer.Option("--profiles", help=_PROFILES_HELP)] = None,
+        calibration: Annotated[
+            list[Path] | None, typer.Option("--calibration", help=_CAL_HELP)
+        ] = None,
+        state: Annotated[Path | None, typer.Option("--state", help=_STATE_HELP)] = None,
+        baseline: Annotated[int, typer.Option("--baseline", help=_BASELINE_HELP)] = 20,
+        alarm_rule: Annotated[str, typer.Option("--alarm-rule", help=_RULE_HELP)] = "3/10",
+        z_limit: Annotated[float, typer.Option("--z-limit", help=_Z_HELP)] = 5.0,
+        as_json: Annotated[bool, typer.Option("--json", help=_JSON_HELP)] = False,
+        fail_on_alarm: Annotated[bool, typer.Option("--fail-on-alarm", help=_FAIL_HELP)] = False,
+        columns: ColumnsOption = None,
+    ) -> None:
+        """Follow conveyors' health over their recordings: baselines, alarms, causes, forecasts.
+
+        Exit code 3 with --fail-on-alarm when an unacknowledged alarm is open,
+        else 2 when a file was refused (after the others are done).
+        """
+        profs = load_profiles(profile, profiles)
+        cals = [load_calibration(c) for c in calibration or []]
+        x, y = _parse_rule(alarm_rule)
+        settings = MonitorSettings(baseline_n=baseline, x=x, y=y, z_limit=z_limit)
+        data = load_state(state) if state is not None else None
+        cmap = load_column_map(columns) if columns is not None else None
+        results, monitors = run_monitor(expand_recordings(files), profs, cals, settings, data, cmap)
+        if state is not None and data is not None:
+            save_state(state, data)
+        if as_json:
+            print_json(
+                {
+                    "recordings": [r.to_dict() for r in results],
+                    "conveyors": [m.summary() for m in monitors],
+                }
+            )
+        else:
+            _print_table(results, monitors)
+        alarm = any(a["acknowledged"] is None for m in monitors for a in m.open_alarms())
+        if fail_on_alarm and alarm:
+            raise typer.Exit(EXIT_ALARM)
+        if any(r.error is not None for r in results):
+            raise typer.Exit(2)
+
+    @app.command("maintenance")
+    def maintenance_cmd(
+        state: Annotated[Path, typer.Option("--state", help="The monitoring state file.")],
+        conveyor: Annotated[str, typer.Option("--conveyor", help="Conveyor id.")],
+        kind: Annotated[
+            str, typer.Option("--kind", help=f"One of {', '.join(MAINTENANCE_KINDS)}.")
+        ],
+        by: Annotated[str, typer.Option("--by", help="Who did it.")],
+        why: Annotated[str, typer.Option("--why", help="What was done and why.")] = "",
+        at: Annotated[
+            str | None, typer.Option("--at", help="When (ISO 8601); default now.")
+        ] = None,
+    ) -> None:
+        """Record a maintenance event: the conveyor's baseline restarts after it."""
+        data = load_state(state, missing_ok=False)
+        when = _parse_at(at)
+        event = add_maintenance(data, conveyor, kind, by, why, when)
+        save_state(state, data)
+        Console().print(
+            f"recorded maintenance {event['id']} ({kind}) on {escape(conveyor)} at {event['at']}; "
+            "the baseline restarts with the recordings after it",
+            highlight=False,
+        )
+
+    @app.command("acknowledge")
+    def acknowledge_cmd(
+        alarm: Annotated[str, typer.Argument(help="Alarm id (from monitor).")],
+        state: Annotated[Path, typer.Option("--state", help="The monitoring state file.")],
+        by: Annotated[str, typer.Option("--by", help="Who acknowledges.")],
+        why: Annotated[str, typer.Option("--why", help="Why (e.g. work order).")] = "",
+    ) -> None:
+        """Acknowledge an alarm: it stays open but --fail-on-alarm no longer fails on it."""
+        data = load_state(state, missing_ok=False)
+        a = acknowledge_alarm(data, alarm, by, why)
+        save_state(state, data)
+        Console().print(
+            f"acknowledged alarm {a['id']} ({a['cause']}, {a['feature']}) on {a['conveyor']}",
+            highlight=False,
+        )
+
+
+def _parse_at(text: str | None) -> datetime | None:
+    if text is None:
+        return None
+    try:
+        return datetime.fromisoformat(text)
+    except ValueError:
+        raise StoreError(
+            f"--at '{text}' is not an ISO 8601 time (e.g. 2026-11-21T10:15:00Z)"
+        ) from None

@@ -1,0 +1,356 @@
+"""Condition features of one recording: what the health model tracks.
+
+Each feature is a number per recording whose rise means a particular kind
+of degradation (:data:`FEATURES` names the probable cause of each). They
+come from the calibrated model of the conveyor (a calibration file, or one
+learned from the conveyor's first recordings, :mod:`chaintwin.diagnose.learned`):
+
+``friction``
+    Rail friction against the calibration, μ_now/μ_cal, from one fit of the
+    friction payload p_f, the inertia payload p_i and a speed-loss change
+    together (:func:`~chaintwin.identify.signatures.fit_condition`):
+    ``(m0 + p_f)/(m0 + p_i)`` with m0 the belt and tray mass. The inertia
+    signature does not see friction, so this is 1 for any load on a healthy
+    conveyor and rises with the rails' friction.
+``speed_loss``
+    The gear unit's speed-dependent loss at the plateau speed against the
+    calibration's: ``1 + ΔBmB·ω/(BmA + BmB·ω + BmC·ω²)``. Lubrication
+    trouble raises it; temperature moves it by several percent.
+``residual_std``
+    Of the constant-speed residual (measured − model torque,
+    :mod:`chaintwin.diagnose.residuals`): broadband noise (bearing).
+``residual_kurtosis``, ``crest_factor``
+    Of the same residual: impulses. Tracked and reported, not alarmed on:
+    an obstruction passed once in a scope moves them as much as a damaged
+    tooth, so the gear is judged by its shaft comb instead.
+``tooth_pass``
+    Sum of the residual spectrum's amplitudes (Nm) at the sprocket
+    tooth-pass order and its 2nd and 3rd harmonic: the chain's engagement
+    with the sprocket (elongation).
+``comb_<shaft>``
+    Sum of the amplitudes (Nm) at the first :data:`COMB_HARMONICS`
+    harmonics of a gear shaft's order: one damaged tooth on that shaft hits
+    once per revolution, a comb of its harmonics.
+``unexplained_peak``
+    The largest ratio of the residual spectrum to the conveyor's baseline
+    spectrum away from every characteristic line and its harmonics (a
+    line at a non-integer order: a bearing); set by the health model, which
+    holds the baseline spectrum.
+``belt_bump``
+    The largest local rise of the constant-speed residual at one place of
+    the belt loop above the loop's median, in robust standard deviations of
+    the belt map the health model keeps (an obstruction at one place of the
+    rails).
+
+The spectral features come from a Welch spectrum of the plateau's residual
+averaged with the median over segments, so that a transient seen in one
+segment only (an obstruction passed once) does not read as a line. Lines
+above the Nyquist frequency of the scope are looked for where they fold
+(:func:`~chaintwin.diagnose.spectra.apparent_order`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from chaintwin.errors import EstimationError
+from chaintwin.identify.calibration import Calibration
+from chaintwin.identify.signatures import fit_condition
+from chaintwin.identify.windows import motoring_mask
+from chaintwin.model.frequencies import characteristic_orders
+from chaintwin.read.recording import FloatArray, Recording, RecordingWarning
+from chaintwin.validate.phases import segment
+from chaintwin.weigh.weigh import WeighResult, weigh
+
+from .residuals import belt_position_m, model_torque, position_profile, residual_analysis
+from .spectra import Spectrum, apparent_order, band_amplitude, welch_spectrum
+
+__all__ = [
+    "COMB_HARMONICS",
+    "FEATURES",
+    "FeatureSpec",
+    "RecordingFeatures",
+    "known_line_orders",
+    "recording_features",
+]
+
+COMB_HARMONICS = 8
+"""Harmonics of a shaft order summed into its ``comb_<shaft>`` feature."""
+
+TOOTH_PASS_HARMONICS = 3
+"""Harmonics of the tooth-pass order summed into ``tooth_pass``."""
+
+GUARD_BINS = 4
+"""Bins (of the zero-padded spectrum) either side of a line that belong to it."""
+
+SPECTRUM_SEGMENT = 512
+"""Welch segment length, samples (fewer when the plateau is shorter)."""
+
+
+@dataclass(frozen=True, slots=True)
+class FeatureSpec:
+    """How the health model treats a feature.
+
+    Attributes
+    ----------
+    cause : str or None
+        Probable cause when it rises (None: tracked, never alarmed).
+    min_rel : float
+        Smallest relative rise against the baseline that counts as an
+        exceedance, whatever the statistics say (the allowance for slow
+        temperature drift and the like).
+    unit : str
+        Unit of the value, for display.
+    payload_dependent : bool
+        The baseline regresses the value on the estimated payload.
+    min_scale : float
+        Floor of the baseline's robust scale (feature units), for features
+        whose baseline can hold few distinct values.
+    """
+
+    cause: str | None
+    min_rel: float
+    unit: str
+    payload_dependent: bool = False
+    min_scale: float = 0.0
+
+
+FEATURES: dict[str, FeatureSpec] = {
+    "friction": FeatureSpec("friction", 0.05, "-"),
+    "speed_loss": FeatureSpec("lubrication", 0.15, "-"),
+    "residual_std": FeatureSpec("bearing", 0.3, "Nm", payload_dependent=True),
+    "residual_kurtosis": FeatureSpec(None, 0.0, "-"),
+    "crest_factor": FeatureSpec(None, 0.0, "-"),
+    "tooth_pass": FeatureSpec("elongation", 0.25, "Nm", payload_dependent=True),
+    "unexplained_peak": FeatureSpec("bearing", 1.0, "-"),
+    "belt_bump": FeatureSpec("obstruction", 1.0, "-", min_scale=0.5),
+    "payload_kg": FeatureSpec(None, 0.0, "kg"),
+    "tlf": FeatureSpec(None, 0.0, "-"),
+}
+"""Every tracked feature (``comb_<shaft>`` features are added per profile, cause gear)."""
+
+COMB_SPEC = FeatureSpec("gear", 0.5, "Nm", payload_dependent=True)
+"""Spec of the ``comb_<shaft>`` features."""
+
+
+def feature_spec(name: str) -> FeatureSpec:
+    """The spec of a feature, ``comb_<shaft>`` included."""
+    if name.startswith("comb_"):
+        return COMB_SPEC
+    return FEATURES[name]
+
+
+@dataclass(frozen=True)
+class RecordingFeatures:
+    """What one recording says about the conveyor's condition.
+
+    Attributes
+    ----------
+    weighing : WeighResult
+        Payload, signatures, segments, TLF, warnings.
+    values : dict of str to float
+        Scalar features (NaN where the recording cannot tell).
+    spectrum : Spectrum or None
+        Plateau spectrum of the residual (for ``unexplained_peak``).
+    bump_bins, bump_values : FloatArray
+        Belt-position bins this recording covered at constant speed and the
+        residual's local rise there, Nm (for ``belt_bump``).
+    residuals : dict
+        :meth:`~chaintwin.diagnose.residuals.ResidualReport.to_dict`.
+    warnings : tuple of RecordingWarning
+        The weighing's and the feature extraction's warnings.
+    """
+
+    weighing: WeighResult
+    values: dict[str, float]
+    spectrum: Spectrum | None
+    bump_bins: FloatArray = field(default_factory=lambda: np.empty(0))
+    bump_values: FloatArray = field(default_factory=lambda: np.empty(0))
+    residuals: dict[str, Any] = field(default_factory=dict)
+    warnings: tuple[RecordingWarning, ...] = ()
+
+
+def known_line_orders(calibration: Calibration) -> list[float]:
+    """Orders of every characteristic line and its harmonics a spectrum may hold.
+
+    Shaft orders with :data:`COMB_HARMONICS` harmonics, meshes and the
+    tooth pass with three; the output shaft and the belt revolution are too
+    low to matter at a scope's resolution.
+    """
+    out: list[float] = []
+    for name, order in characteristic_orders(calibration.id_profile).items():
+        if name in ("output_shaft", "belt_revolution"):
+            continue
+        harmonics = COMB_HARMONICS if name == "rotor" or name.endswith("_shaft") else 3
+        out += [h * order for h in range(1, harmonics + 1)]
+    return out
+
+
+def _shaft_orders(calibration: Calibration) -> dict[str, float]:
+    return {
+        name: order
+        for name, order in characteristic_orders(calibration.id_profile).items()
+        if name == "rotor" or (name.startswith("stage") and name.endswith("_shaft"))
+    }
+
+
+def _line_sum(spec: Spectrum, orders: list[float], ts: float, avoid: Sequence[float] = ()) -> float:
+    """Sum of band amplitudes at the apparent places of the given orders, Nm.
+
+    Orders whose apparent place lies within :data:`GUARD_BINS` bins of the
+    apparent place of an order in ``avoid`` are skipped (another line's
+    mainlobe would be read as this one's).
+    """
+    speed_hz = spec.speed_rpm / 60.0
+    guard = GUARD_BINS * spec.resolution
+    others = [apparent_order(o, spec.speed_rpm, ts) * speed_hz for o in avoid]
+    total = 0.0
+    for o in orders:
+        x = apparent_order(o, spec.speed_rpm, ts) * speed_hz
+        if any(abs(x - y) <= guard for y in others):
+            continue
+        if guard < x < spec.x[-1]:
+            total += band_amplitude(spec, x, half_width_bins=2)
+    return total
+
+
+def _bump(
+    recording: Recording, calibration: Calibration, residual: FloatArray, constant: np.ndarray
+) -> tuple[FloatArray, FloatArray]:
+    """Per belt-position bin, the constant-speed residual's rise above its median, Nm.
+
+    The residual is averaged over one tooth pitch of belt travel (which
+    removes the polygon effect's ripple and its harmonics) before binning.
+    """
+    prof = calibration.id_profile
+    if not constant.any() or recording.position is None:
+        return np.empty(0), np.empty(0)
+    x = belt_position_m(recording, prof)
+    w = recording.speed
+    v = float(np.median(np.abs(w[constant]))) * prof.chordal_radius_m / prof.gear.ratio
+    teeth = prof.sprocket.teeth or 20
+    pitch = math.pi * prof.sprocket.pitch_diameter_m / teeth
+    n = max(1, round(pitch / max(v * recording.sample_time_s, 1e-9)))
+    e = residual * np.sign(w)
+    smooth = np.convolve(e, np.ones(n) / n, mode="same")
+    idx = np.flatnonzero(constant)
+    idx = idx[(idx >= n) & (idx < e.shape[0] - n)]
+    if idx.shape[0] < 2 * n:
+        return np.empty(0), np.empty(0)
+    rise = smooth[idx] - float(np.median(smooth[idx]))
+    sums, counts = position_profile(x[idx], rise, prof.loop_length_m)
+    seen = np.flatnonzero(counts > 0)
+    return seen.astype(np.float64), sums[seen] / counts[seen]
+
+
+def recording_features(recording: Recording, calibration: Calibration) -> RecordingFeatures:
+    """Weigh a recording and extract its condition features.
+
+    Parameters
+    ----------
+    recording : Recording
+        A validated recording of the calibrated conveyor.
+    calibration : Calibration
+        The conveyor's calibration (from a file or learned).
+
+    Returns
+    -------
+    RecordingFeatures
+
+    Raises
+    ------
+    EstimationError
+        When the recording cannot be weighed (no motion, no usable window).
+    """
+    prof = calibration.id_profile
+    params = calibration.parameters
+    warnings: list[RecordingWarning] = []
+    w = weigh(recording, calibration)
+    tray = recording.metadata.tray_kg
+    tray = prof.tray_mass_kg if tray is None else tray
+    m0 = prof.belt_mass_kg + tray
+    nan = float("nan")
+    values: dict[str, float] = {
+        "payload_kg": w.payload_kg,
+        "tlf": nan if w.tlf is None else w.tlf,
+    }
+    mot = motoring_mask(
+        recording,
+        drive_inertia_kgm2=params["J_d"],
+        losses=(params["BmA"], params["BmB"], params["BmC"]),
+    )
+    try:
+        cond = fit_condition(recording, prof, params, tray, mot, calibration.ramp_noise_rate)
+    except EstimationError:
+        values["friction"] = values["speed_loss"] = nan
+    else:
+        p_f = float(cond.estimate[0])
+        p_i = (float(cond.estimate[1]) - calibration.inertia_offset_kg) / calibration.inertia_gain
+        values["friction"] = (m0 + p_f) / max(m0 + p_i, 1e-6 * m0)
+        wi = cond.windows
+        omega = float(np.median(wi.mean_speed[wi.constant])) if wi.constant.any() else nan
+        loss = params["BmA"] + params["BmB"] * omega + params["BmC"] * omega * omega
+        values["speed_loss"] = (
+            1.0 + float(cond.estimate[2]) * omega / loss if loss > 0 and omega > 0 else nan
+        )
+
+    model = model_torque(recording, prof, params, w.payload_kg, tray_kg=tray, motoring=mot)
+    phases = segment(recording)
+    report = residual_analysis(recording, model, phases=phases)
+    steady = report.by_phase.get("constant")
+    values["residual_std"] = steady.std if steady else nan
+    values["residual_kurtosis"] = steady.kurtosis if steady else nan
+    values["crest_factor"] = steady.crest_factor if steady else nan
+
+    constant = np.zeros(recording.samples, dtype=bool)
+    plateaus = [p for p in phases if p.kind == "constant"]
+    spectrum: Spectrum | None = None
+    if plateaus:
+        longest = max(plateaus, key=lambda p: p.stop - p.start)
+        for p in plateaus:
+            constant[p.start + 3 : p.stop - 3] = True
+        with_res = replace(recording, channels={**recording.channels, "residual": report.residual})
+        try:
+            spectrum = welch_spectrum(
+                with_res,
+                "residual",
+                span=(longest.start, longest.stop),
+                nperseg=min(SPECTRUM_SEGMENT, longest.stop - longest.start),
+                average="median",
+            )
+        except EstimationError:
+            spectrum = None
+    ts = recording.sample_time_s
+    if spectrum is not None:
+        orders = characteristic_orders(prof)
+        tp = orders.get("sprocket_tooth_pass")
+        tp_orders = [h * tp for h in range(1, TOOTH_PASS_HARMONICS + 1)] if tp else []
+        values["tooth_pass"] = _line_sum(spectrum, tp_orders, ts) if tp else nan
+        for name, order in _shaft_orders(calibration).items():
+            values[f"comb_{name}"] = _line_sum(
+                spectrum, [h * order for h in range(1, COMB_HARMONICS + 1)], ts, tp_orders
+            )
+    else:
+        values["tooth_pass"] = nan
+        warnings.append(
+            RecordingWarning(
+                "no_plateau_spectrum",
+                "no constant-speed phase long enough for a spectrum: the spectral "
+                "features of this recording are unknown",
+            )
+        )
+    bins, bump = _bump(recording, calibration, report.residual, constant)
+    return RecordingFeatures(
+        weighing=w,
+        values=values,
+        spectrum=spectrum,
+        bump_bins=bins,
+        bump_values=bump,
+        residuals=report.to_dict(),
+        warnings=tuple(warnings),
+    )

@@ -1,0 +1,319 @@
+"""Baselines, control limits, the X-of-Y rule and trend forecasts.
+
+A conveyor's baseline is learned from its first N recordings (after
+calibration, and again after each maintenance event). For every feature it
+is a robust line ``value = a + b·payload`` (``b`` only for features that
+depend on the load, such as the tooth-pass ripple, and only when the
+baseline's payloads spread over at least :data:`MIN_PAYLOAD_SPREAD_KG`;
+else the median) with a robust scale ``s = 1.4826·MAD`` of what the line
+leaves. The baseline is checked for outliers: values more than
+:data:`OUTLIER_Z` scales off are left out and the line fitted again.
+
+A recording *exceeds* on a feature when its value is above the baseline
+line at its payload by more than ``z_limit·s`` **and** by more than the
+feature's smallest relative change (:class:`~chaintwin.diagnose.features.FeatureSpec`
+``min_rel``: the allowance for slow temperature drift and the payload's
+estimation error). Only rises count: every tracked feature grows with its
+fault.
+
+An *alarm* needs X exceedances of one feature in the last Y recordings
+(default 3 of 10, :func:`x_of_y`), so one odd scope pages no one.
+
+Forecasts fit a straight line to a feature over time (ordinary least
+squares, statsmodels) since the baseline and report when the line, and the
+band of its 90 % confidence interval, cross the limit.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from datetime import datetime, timedelta
+from typing import Any
+
+import numpy as np
+import statsmodels.api as sm
+
+from chaintwin.read.recording import FloatArray
+
+__all__ = [
+    "MIN_PAYLOAD_SPREAD_KG",
+    "OUTLIER_Z",
+    "Exceedance",
+    "FeatureBaseline",
+    "Forecast",
+    "fit_baseline",
+    "forecast_crossing",
+    "x_of_y",
+]
+
+MIN_PAYLOAD_SPREAD_KG = 5.0
+"""The baseline's payloads must spread this much to fit a payload slope, kg."""
+
+OUTLIER_Z = 5.0
+"""Baseline values this many robust scales off the line are left out."""
+
+MIN_BASELINE = 5
+"""Fewest finite values a feature's baseline needs."""
+
+
+@dataclass(frozen=True, slots=True)
+class Exceedance:
+    """A feature's value against its baseline at one recording."""
+
+    expected: float
+    deviation: float
+    z: float
+    change: float
+    """Relative change against the expected value (0.2 = 20 % above)."""
+    exceeded: bool
+
+
+@dataclass(frozen=True, slots=True)
+class FeatureBaseline:
+    """A feature's healthy level: ``intercept + slope·payload`` ± ``scale``.
+
+    Attributes
+    ----------
+    intercept : float
+        Value at zero payload (feature units).
+    slope : float
+        Per kg of payload (0 when not payload dependent).
+    scale : float
+        Robust standard deviation about the line (1.4826·MAD).
+    count : int
+        Baseline values used.
+    outliers : int
+        Baseline values left out as outliers.
+    mean_payload_kg : float
+        Mean payload of the baseline recordings, kg.
+    """
+
+    intercept: float
+    slope: float
+    scale: float
+    count: int
+    outliers: int
+    mean_payload_kg: float
+
+    def expected(self, payload_kg: float) -> float:
+        """The healthy value at a payload."""
+        p = payload_kg if math.isfinite(payload_kg) else self.mean_payload_kg
+        return self.intercept + self.slope * p
+
+    def limit(self, z_limit: float, min_rel: float, payload_kg: float | None = None) -> float:
+        """The value above which a recording exceeds (at the mean payload by default)."""
+        e = self.expected(self.mean_payload_kg if payload_kg is None else payload_kg)
+        return e + max(z_limit * self.scale, min_rel * abs(e))
+
+    def check(self, value: float, payload_kg: float, z_limit: float, min_rel: float) -> Exceedance:
+        """Compare a value with the baseline (one-sided: rises only)."""
+        e = self.expected(payload_kg)
+        dev = value - e
+        z = dev / self.scale
+        change = dev / abs(e) if e != 0.0 else math.copysign(math.inf, dev)
+        exceeded = bool(math.isfinite(value) and z > z_limit and dev > min_rel * abs(e))
+        return Exceedance(e, dev, z, change, exceeded)
+
+    def to_dict(self) -> dict[str, float | int]:
+        """JSON-ready."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> FeatureBaseline:
+        """Inverse of :meth:`to_dict`."""
+        return cls(**data)
+
+
+def _line(values: FloatArray, payloads: FloatArray, with_slope: bool) -> tuple[float, float]:
+    if with_slope:
+        x = np.column_stack([np.ones_like(payloads), payloads])
+        sol = np.linalg.lstsq(x, values, rcond=None)[0]
+        return float(sol[0]), float(sol[1])
+    return float(np.median(values)), 0.0
+
+
+def fit_baseline(
+    values: Sequence[float],
+    payloads_kg: Sequence[float],
+    *,
+    payload_dependent: bool,
+    min_scale: float = 0.0,
+) -> FeatureBaseline | None:
+    """Learn a feature's baseline from healthy recordings.
+
+    Parameters
+    ----------
+    values : sequence of float
+        The feature per baseline recording (NaN where unknown).
+    payloads_kg : sequence of float
+        The estimated payload per recording, kg.
+    payload_dependent : bool
+        Regress the value on the payload (when the payloads spread enough).
+    min_scale : float
+        Floor of the robust scale (feature units).
+
+    Returns
+    -------
+    FeatureBaseline or None
+        None when fewer than :data:`MIN_BASELINE` values are finite.
+    """
+    v = np.asarray(values, dtype=np.float64)
+    p = np.asarray(payloads_kg, dtype=np.float64)
+    ok = np.isfinite(v) & np.isfinite(p)
+    if ok.sum() < MIN_BASELINE:
+        return None
+    v, p = v[ok], p[ok]
+    with_slope = payload_dependent and float(np.ptp(p)) >= MIN_PAYLOAD_SPREAD_KG
+    keep = np.ones(v.shape[0], dtype=bool)
+    a, b = _line(v, p, with_slope)
+    for _ in range(2):
+        r = v - (a + b * p)
+        scale = 1.4826 * float(np.median(np.abs(r[keep] - np.median(r[keep]))))
+        scale = max(scale, 1e-9 * max(abs(a), 1e-12))
+        new_keep = np.abs(r - float(np.median(r[keep]))) <= OUTLIER_Z * scale
+        if new_keep.sum() < MIN_BASELINE or np.array_equal(new_keep, keep):
+            break
+        keep = new_keep
+        a, b = _line(v[keep], p[keep], with_slope)
+    r = v[keep] - (a + b * p[keep])
+    scale = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+    scale = max(scale, min_scale, 1e-9 * max(abs(a), 1e-12))
+    return FeatureBaseline(
+        intercept=a,
+        slope=b,
+        scale=scale,
+        count=int(keep.sum()),
+        outliers=int((~keep).sum()),
+        mean_payload_kg=float(np.mean(p[keep])),
+    )
+
+
+def x_of_y(exceeded: Sequence[bool], x: int, y: int) -> list[bool]:
+    """The X-of-Y rule along a sequence of exceedances.
+
+    Parameters
+    ----------
+    exceeded : sequence of bool
+        Whether each recording exceeded, in recorded order.
+    x, y : int
+        At least ``x`` exceedances among the last ``y`` recordings (the
+        current one included), 1 ≤ x ≤ y.
+
+    Returns
+    -------
+    list of bool
+        Whether the rule is met at each recording.
+    """
+    if not 1 <= x <= y:
+        raise ValueError(f"X-of-Y needs 1 <= X <= Y, got {x} of {y}")
+    flags = np.asarray(exceeded, dtype=np.int64)
+    csum = np.concatenate(([0], np.cumsum(flags)))
+    idx = np.arange(1, flags.shape[0] + 1)
+    counts = csum[idx] - csum[np.maximum(idx - y, 0)]
+    return [bool(c >= x) for c in counts]
+
+
+@dataclass(frozen=True, slots=True)
+class Forecast:
+    """When a feature's trend crosses its limit."""
+
+    feature: str
+    limit: float
+    slope_per_day: float
+    crosses_at: datetime
+    earliest: datetime
+    latest: datetime | None
+    """None when the 90 % band does not cross within the horizon."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready."""
+        return {
+            "feature": self.feature,
+            "limit": self.limit,
+            "slope_per_day": self.slope_per_day,
+            "crosses_at": self.crosses_at.isoformat(),
+            "earliest": self.earliest.isoformat(),
+            "latest": None if self.latest is None else self.latest.isoformat(),
+        }
+
+
+def forecast_crossing(
+    feature: str,
+    times: Sequence[datetime],
+    values: Sequence[float],
+    limit: float,
+    *,
+    horizon_days: float = 365.0,
+    alpha: float = 0.1,
+    max_p_value: float = 0.01,
+) -> Forecast | None:
+    """Forecast when a rising feature crosses its limit.
+
+    Fits ``value = a + b·t`` (t in days) by ordinary least squares and, if
+    the slope is positive and significant (p < ``max_p_value``), finds
+    where the fitted line and the (1 − ``alpha``) confidence band of the
+    mean cross ``limit``.
+
+    Parameters
+    ----------
+    feature : str
+        Name, for the result.
+    times : sequence of datetime
+        When each value was recorded.
+    values : sequence of float
+        The feature (NaN values are left out).
+    limit : float
+        The alarm limit in the feature's units.
+    horizon_days : float
+        How far ahead to look from the last value, days.
+    alpha : float
+        1 − confidence level of the band.
+    max_p_value : float
+        Largest p-value of the slope that counts as a trend.
+
+    Returns
+    -------
+    Forecast or None
+        None without a significant rising trend, or when the line does not
+        cross within the horizon.
+    """
+    v = np.asarray(values, dtype=np.float64)
+    ok = np.isfinite(v)
+    if ok.sum() < 8:
+        return None
+    t0 = times[0]
+    t = np.array([(ti - t0).total_seconds() / 86400.0 for ti in times])[ok]
+    v = v[ok]
+    if float(np.ptp(t)) <= 0.0:
+        return None
+    x = sm.add_constant(t)
+    fit = sm.OLS(v, x).fit()
+    b = float(fit.params[1])
+    if b <= 0.0 or float(fit.pvalues[1]) >= max_p_value:
+        return None
+    t_last = float(t[-1])
+    grid = np.linspace(t_last, t_last + horizon_days, 2001)
+    pred = fit.get_prediction(sm.add_constant(grid, has_constant="add"))
+    band = pred.conf_int(alpha=alpha)
+    mean = pred.predicted_mean
+
+    def first(mask: np.ndarray) -> float | None:
+        hit = np.flatnonzero(mask)
+        return float(grid[hit[0]]) if hit.shape[0] else None
+
+    cross = first(mean >= limit)
+    if cross is None:
+        return None
+    earliest = first(band[:, 1] >= limit)
+    latest = first(band[:, 0] >= limit)
+    day = timedelta(days=1)
+    return Forecast(
+        feature=feature,
+        limit=limit,
+        slope_per_day=b,
+        crosses_at=t0 + cross * day,
+        earliest=t0 + (earliest if earliest is not None else cross) * day,
+        latest=None if latest is None else t0 + latest * day,
+    )

@@ -1,0 +1,230 @@
+"""The monitoring state file: what ``monitor --state FILE`` carries between runs.
+
+One JSON object::
+
+    {"format": "chaintwin.monitor-state", "format_version": 1,
+     "conveyors": {"<id>": <ConveyorMonitor.to_state()>, ...}}
+
+Unknown numbers (NaN) are written as null. It is written atomically (a
+temporary file, then a rename), so a run that fails or is killed leaves the
+previous state intact. Maintenance events and
+alarm acknowledgements are added to it by ``chaintwin maintenance`` and
+``chaintwin acknowledge`` (:func:`add_maintenance`, :func:`acknowledge_alarm`)
+with who, when and why; the next ``monitor`` run applies them.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import uuid
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from chaintwin.errors import StoreError
+
+__all__ = [
+    "MAINTENANCE_KINDS",
+    "STATE_FORMAT",
+    "STATE_VERSION",
+    "acknowledge_alarm",
+    "add_maintenance",
+    "empty_state",
+    "load_state",
+    "new_event",
+    "save_state",
+]
+
+STATE_FORMAT = "chaintwin.monitor-state"
+STATE_VERSION = 1
+
+MAINTENANCE_KINDS: tuple[str, ...] = (
+    "repair",
+    "lubrication",
+    "belt_change",
+    "chain_change",
+    "cleaning",
+    "other",
+)
+"""Kinds of maintenance event."""
+
+
+def empty_state() -> dict[str, Any]:
+    """A state with no conveyor."""
+    return {"format": STATE_FORMAT, "format_version": STATE_VERSION, "conveyors": {}}
+
+
+def load_state(path: str | Path, *, missing_ok: bool = True) -> dict[str, Any]:
+    """Read a state file (an empty state when it does not exist yet and ``missing_ok``).
+
+    Raises
+    ------
+    StoreError
+        When it cannot be read or is not a chaintwin monitoring state.
+    """
+    p = Path(path)
+    if not p.exists():
+        if missing_ok:
+            return empty_state()
+        raise StoreError(f"{p}: no such state file; run `chaintwin monitor --state {p}` first")
+    try:
+        data = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise StoreError(f"{p}: cannot read the state ({exc})") from None
+    except json.JSONDecodeError as exc:
+        raise StoreError(
+            f"{p}, line {exc.lineno}: the state is not valid JSON; restore it from a backup "
+            "or start a new state file"
+        ) from None
+    if not isinstance(data, dict) or data.get("format") != STATE_FORMAT:
+        raise StoreError(f"{p}: not a chaintwin monitoring state (no 'format: {STATE_FORMAT}')")
+    if data.get("format_version") != STATE_VERSION:
+        raise StoreError(
+            f"{p}: state format version {data.get('format_version')!r} is not supported "
+            f"(this chaintwin reads version {STATE_VERSION})"
+        )
+    if not isinstance(data.get("conveyors"), dict):
+        raise StoreError(f"{p}: the state has no 'conveyors' object; start a new state file")
+    return data
+
+
+def _json_ready(value: Any) -> Any:
+    """Non-finite floats become null (standard JSON); containers are copied."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _json_ready(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_ready(v) for v in value]
+    return value
+
+
+def save_state(path: str | Path, data: dict[str, Any]) -> Path:
+    """Write a state file atomically.
+
+    Raises
+    ------
+    StoreError
+        When it cannot be written (the previous state is left as it was).
+    """
+    p = Path(path)
+    tmp = p.with_name(f".{p.name}.{uuid.uuid4().hex[:8]}.tmp")
+    try:
+        tmp.write_text(json.dumps(_json_ready(data), allow_nan=False) + "\n", encoding="utf-8")
+        tmp.replace(p)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise StoreError(
+            f"{p}: cannot write the state ({exc.strerror or exc}); check the path"
+        ) from None
+    return p
+
+
+def _conveyor(data: dict[str, Any], conveyor: str) -> dict[str, Any]:
+    conveyors: dict[str, Any] = data["conveyors"]
+    if conveyor not in conveyors:
+        known = ", ".join(sorted(conveyors)) or "none yet"
+        raise StoreError(f"the state holds no conveyor '{conveyor}' (it holds: {known})")
+    state: dict[str, Any] = conveyors[conveyor]
+    return state
+
+
+def new_event(kind: str, by: str, why: str, at: datetime | None = None) -> dict[str, Any]:
+    """A maintenance event record: id, kind, at, by, why, when it was recorded.
+
+    Parameters
+    ----------
+    kind : str
+        One of :data:`MAINTENANCE_KINDS`.
+    by, why : str
+        Who did it and why.
+    at : datetime, optional
+        When it was done (default now); recordings after it form the new baseline.
+
+    Raises
+    ------
+    StoreError
+        For an unknown kind or an empty ``by``.
+    """
+    if kind not in MAINTENANCE_KINDS:
+        raise StoreError(f"maintenance kind '{kind}' must be one of {', '.join(MAINTENANCE_KINDS)}")
+    if not by.strip():
+        raise StoreError("say who did the maintenance (--by)")
+    when = at or datetime.now(UTC)
+    if when.tzinfo is None:
+        when = when.replace(tzinfo=UTC)
+    return {
+        "id": uuid.uuid4().hex[:8],
+        "kind": kind,
+        "at": when.isoformat(),
+        "by": by,
+        "why": why,
+        "recorded": datetime.now(UTC).isoformat(),
+        "applied": False,
+    }
+
+
+def add_maintenance(
+    data: dict[str, Any],
+    conveyor: str,
+    kind: str,
+    by: str,
+    why: str,
+    at: datetime | None = None,
+) -> dict[str, Any]:
+    """Record a maintenance event in a state; the conveyor's baseline restarts after it.
+
+    Parameters
+    ----------
+    data : dict
+        The state (changed in place).
+    conveyor : str
+        Conveyor id.
+    kind, by, why, at
+        As :func:`new_event`.
+
+    Returns
+    -------
+    dict
+        The event.
+
+    Raises
+    ------
+    StoreError
+        For an unknown conveyor or kind, or an empty ``by``.
+    """
+    state = _conveyor(data, conveyor)
+    event = new_event(kind, by, why, at)
+    state["events"].append(event)
+    state["events"].sort(key=lambda e: e["at"])
+    return event
+
+
+def acknowledge_alarm(
+    data: dict[str, Any], alarm_id: str, by: str, why: str, at: datetime | None = None
+) -> dict[str, Any]:
+    """Acknowledge an open alarm (any conveyor): it stays open but no longer fails scripts.
+
+    Raises
+    ------
+    StoreError
+        When no alarm has that id, or ``by`` is empty.
+    """
+    if not by.strip():
+        raise StoreError("say who acknowledges the alarm (--by)")
+    open_ids = []
+    for state in data["conveyors"].values():
+        for alarm in state["alarms"]:
+            if alarm["id"] == alarm_id:
+                alarm["acknowledged"] = {
+                    "by": by,
+                    "why": why,
+                    "at": (at or datetime.now(UTC)).isoformat(),
+                }
+                return dict(alarm)
+            if alarm["status"] == "open":
+                open_ids.append(alarm["id"])
+    raise StoreError(
+        f"no alarm '{alarm_id}' in the state (open alarms: {', '.join(open_ids) or 'none'})"
+    )

@@ -12,6 +12,9 @@ from conftest import EXAMPLES, REFERENCE_PROFILE
 from chaintwin import ProfileError, load_profile, load_profiles
 from chaintwin.read.profile import ConveyorProfile, parse_profile
 
+I_TEETH = (43 / 12) * (75 / 23) * (61 / 23)
+"""The reference gear's ratio from its teeth (nameplate 30.99): what kinematics use."""
+
 
 def reference_dict() -> dict:  # type: ignore[type-arg]
     return yaml.safe_load(REFERENCE_PROFILE.read_text())
@@ -32,10 +35,10 @@ def test_reference_derived_quantities_by_hand(reference_profile: ConveyorProfile
     m_b = 4.1 * (2 * 4.3 + math.pi * 0.121)
     assert p.belt_mass_kg == pytest.approx(m_b, rel=1e-12)
     assert p.belt_mass_kg == pytest.approx(36.8185, abs=1e-3)
-    assert p.belt_speed_per_motor_speed == pytest.approx(r / 30.99)
-    j = 0.0022 + 0.00012 + (m_b + 10 + 40) * r**2 / (30.99**2 * 0.93)
+    assert p.belt_speed_per_motor_speed == pytest.approx(r / I_TEETH)
+    j = 0.0022 + 0.00012 + (m_b + 10 + 40) * r**2 / (I_TEETH**2 * 0.93)
     assert p.reflected_inertia_kgm2(40) == pytest.approx(j, rel=1e-12)
-    jg = 0.0022 + 0.00012 + (m_b + 10 + 40) * r**2 / 30.99**2 * 0.93
+    jg = 0.0022 + 0.00012 + (m_b + 10 + 40) * r**2 / I_TEETH**2 * 0.93
     assert p.reflected_inertia_kgm2(40, motoring=False) == pytest.approx(jg, rel=1e-12)
     assert p.torque_limit_nm == 7.5
     assert p.belt_stiffness_n_m() == 1.0e6

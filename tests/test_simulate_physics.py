@@ -48,7 +48,7 @@ def hand(profile: ConveyorProfile, payload_kg: float = 40.0) -> dict[str, float]
         "r": r,
         "m_b": m_b,
         "m": m,
-        "i": profile.gear.ratio,
+        "i": profile.kinematic_ratio,
         "eta": profile.gear.efficiency,
         "mu": profile.model.friction,
         "A": profile.model.loss_constant_nm,

@@ -103,7 +103,7 @@ def test_ideal_steady_torque_equals_hand_calculation(reference_profile: Conveyor
     m = reference_profile.model
     assert m is not None
     r = reference_profile.chordal_radius_m
-    i, eta = 30.99, 0.93
+    i, eta = (43 / 12) * (75 / 23) * (61 / 23), 0.93  # the teeth, not the nameplate 30.99
     w = 1415 * 2 * math.pi / 60
     f = m.friction * 9.81 * (reference_profile.belt_mass_kg + 10 + 40)
     hand = (

@@ -87,7 +87,7 @@ def identification_profile(profile: ConveyorProfile) -> ConveyorProfile:
 def sensitivity_nm_per_kg(profile: ConveyorProfile, mu: float) -> float:
     """Payload sensitivity while motoring: ``g·(μ·cosβ + sinβ)·r/(i·η)``, Nm/kg."""
     g_cos, g_sin = incline_terms(profile)
-    gf = profile.chordal_radius_m / (profile.gear.ratio * profile.gear.efficiency)
+    gf = profile.chordal_radius_m / (profile.kinematic_ratio * profile.gear.efficiency)
     return (g_cos * mu + g_sin) * gf
 
 
@@ -175,7 +175,7 @@ class Calibration:
     def inertia_kgm2(self) -> float:
         """Reflected inertia at zero payload, tray included (motoring), kg·m²."""
         p = self.profile
-        ratio = p.chordal_radius_m / p.gear.ratio
+        ratio = p.chordal_radius_m / p.kinematic_ratio
         return float(
             self.parameters["J_d"]
             + (p.belt_mass_kg + p.tray_mass_kg) * ratio * ratio / p.gear.efficiency

@@ -134,7 +134,7 @@ def design_matrix(
     """
     g_cos, g_sin = incline_terms(profile)
     mass = profile.belt_mass_kg + tray_kg + payload_kg
-    r_over_i = profile.chordal_radius_m / profile.gear.ratio
+    r_over_i = profile.chordal_radius_m / profile.kinematic_ratio
     known = g_sin * (tray_kg + payload_kg) * wi.gf + mass * r_over_i * wi.gf_accel
     x = np.column_stack((wi.d_speed, g_cos * mass * wi.gf_sign, wi.sign, wi.speed, wi.speed_sq))
     return x, wi.torque - known
@@ -416,7 +416,7 @@ class RigidModelRegression:
         self._check()
         p = self.profile_
         tray = p.tray_mass_kg if tray_kg is None else tray_kg
-        ratio = p.chordal_radius_m / p.gear.ratio
+        ratio = p.chordal_radius_m / p.kinematic_ratio
         return float(
             self.parameters_["J_d"]
             + (p.belt_mass_kg + tray + payload_kg) * ratio * ratio / p.gear.efficiency
@@ -463,7 +463,7 @@ def model_torque(
     w = recording.speed
     alpha = acceleration(recording)
     r = profile.chordal_radius_m
-    i = profile.gear.ratio
+    i = profile.kinematic_ratio
     eta = profile.gear.efficiency
     g_cos, g_sin = incline_terms(profile)
     mass = profile.belt_mass_kg + tray_kg + payload_kg

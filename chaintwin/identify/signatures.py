@@ -48,7 +48,7 @@ def _columns(
     jd, mu, bma, bmb, bmc = (float(v) for v in values)
     g_cos, g_sin = incline_terms(profile)
     m0 = profile.belt_mass_kg + tray_kg
-    r_over_i = profile.chordal_radius_m / profile.gear.ratio
+    r_over_i = profile.chordal_radius_m / profile.kinematic_ratio
     base = (
         jd * wi.d_speed
         + g_cos * mu * m0 * wi.gf_sign

@@ -298,7 +298,7 @@ def window_integrals(
             torque_channel=torque_channel,
         )
     r = profile.chordal_radius_m
-    i = profile.gear.ratio
+    i = profile.kinematic_ratio
     eta = profile.gear.efficiency
     gf = np.where(motoring, r / (i * eta), r * eta / i)
     sgn = np.sign(w)

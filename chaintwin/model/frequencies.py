@@ -178,10 +178,7 @@ class CharacteristicLine:
 
 def _kinematic_ratio(profile: ConveyorProfile) -> float:
     """Motor over output-shaft speed: the tooth-count product when stages are given."""
-    stages = profile.gear.stages
-    if stages:
-        return math.prod(g / p for p, g in stages)
-    return profile.gear.ratio
+    return profile.kinematic_ratio
 
 
 def characteristic_orders(profile: ConveyorProfile) -> dict[str, float]:

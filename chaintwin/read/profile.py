@@ -206,6 +206,21 @@ class ConveyorProfile(_Spec):
         return self.pitch_radius_m * math.sin(x) / x
 
     @property
+    def kinematic_ratio(self) -> float:
+        """Gear ratio i as the gear's teeth make it: motor over sprocket speed.
+
+        The product of the stages' tooth ratios ``Π(gear/pinion)`` when
+        ``gear.stages`` is given (exact integers), else the nameplate
+        ``gear.ratio`` (rounded; the profile accepts up to 2 % between the
+        two). Every computation uses this one, so that the simulator and the
+        analysis turn motor angle into belt travel alike.
+        """
+        stages = self.gear.stages
+        if stages:
+            return math.prod(g / p for p, g in stages)
+        return self.gear.ratio
+
+    @property
     def loop_length_m(self) -> float:
         """Belt loop length 2L + π·d, m."""
         return 2.0 * self.belt.length_m + math.pi * self.sprocket.pitch_diameter_m
@@ -223,7 +238,7 @@ class ConveyorProfile(_Spec):
     @property
     def belt_speed_per_motor_speed(self) -> float:
         """Mean belt speed per motor speed, r/i, in (m/s)/(rad/s)."""
-        return self.chordal_radius_m / self.gear.ratio
+        return self.chordal_radius_m / self.kinematic_ratio
 
     @property
     def nominal_torque_nm(self) -> float | None:
@@ -258,7 +273,7 @@ class ConveyorProfile(_Spec):
         """
         eta = self.gear.efficiency
         factor = 1.0 / eta if motoring else eta
-        ratio = self.chordal_radius_m / self.gear.ratio
+        ratio = self.chordal_radius_m / self.kinematic_ratio
         return (
             self.motor.inertia_kgm2
             + self.gear.inertia_kgm2

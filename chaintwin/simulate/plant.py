@@ -291,7 +291,7 @@ class PlantParameters:
         base = cls(
             motor_inertia_kgm2=profile.motor.inertia_kgm2,
             gear_inertia_kgm2=profile.gear.inertia_kgm2,
-            ratio=profile.gear.ratio,
+            ratio=profile.kinematic_ratio,
             efficiency=profile.gear.efficiency,
             pitch_radius_m=profile.pitch_radius_m,
             teeth=profile.sprocket.teeth or 0,

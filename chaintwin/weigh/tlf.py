@@ -65,7 +65,7 @@ def sprocket_work_and_distance(
     p_out = np.where(p_in >= 0.0, eta * p_in, p_in / eta)
     h = np.diff(t)
     work = float(np.sum(0.5 * (p_out[1:] + p_out[:-1]) * h))
-    speed = np.abs(w) * profile.chordal_radius_m / profile.gear.ratio
+    speed = np.abs(w) * profile.chordal_radius_m / profile.kinematic_ratio
     distance = float(np.sum(0.5 * (speed[1:] + speed[:-1]) * h))
     return work, distance
 

@@ -113,8 +113,14 @@ def run_series(
         sev = max(t["faults"].values()) if t["faults"] else 0.0
         cause = first.causes[0]["cause"] if first.causes else None
     every = sorted({r.causes[0]["cause"] for r in results if r.alarm and r.causes})
+    pairs: dict[str, int] = {}
+    for r in results:
+        for c in r.causes if r.alarm else []:
+            key = f"{c['cause']}:{c['feature']}"
+            pairs[key] = pairs.get(key, 0) + 1
     return {
         "every_cause": every,
+        "pairs": pairs,
         "series": name,
         "start": start,
         "onset": onset_at,
@@ -183,6 +189,10 @@ def main() -> None:
     print("probable causes given over each whole series (first cause of every alarm):")
     for r in rows:
         print(f"  {r['series']:12s} {', '.join(r['every_cause']) or '-'}")
+    print("cause:feature named in alarm recordings (how many recordings):")
+    for r in rows:
+        pairs = ", ".join(f"{k} {v}" for k, v in sorted(r["pairs"].items()))
+        print(f"  {r['series']:12s} {pairs or '-'}")
     print("first alarm, every cause named:")
     for r in rows:
         if r["first_causes"]:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from datetime import UTC, datetime, timedelta
+from datetime import UTC, datetime, timedelta, timezone
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +11,7 @@ import pytest
 from conftest import REFERENCE_PROFILE
 
 from chaintwin.cli.app import EXIT_ALARM, main
+from chaintwin.cli.monitor_cmd import order_recordings
 from chaintwin.diagnose.health import fit_baseline, forecast_crossing, x_of_y
 from chaintwin.diagnose.monitor import (
     ConveyorMonitor,
@@ -18,12 +19,14 @@ from chaintwin.diagnose.monitor import (
     RecordingResult,
     resolve_causes,
 )
-from chaintwin.diagnose.state import load_state
+from chaintwin.diagnose.state import acknowledge_alarm, add_maintenance, load_state
 from chaintwin.errors import MonitorError, StoreError
 from chaintwin.identify.calibration import Calibration, calibrate
 from chaintwin.read.profile import load_profile
+from chaintwin.read.writer import write_recording
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate
+from chaintwin.simulate.virtual import run_virtual
 from chaintwin.validate.checks import load_recording
 
 PROFILE = load_profile(REFERENCE_PROFILE)
@@ -121,6 +124,7 @@ def series(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
         "healthy": _series(root / "healthy", [], 11),
         "friction": _series(root / "friction", [Fault("friction", 0.6)], 12),
         "obstruction": _series(root / "obstruction", [Fault("obstruction", 0.6)], 13),
+        "payload_step": _series(root / "payload_step", [Fault("payload_step", 1.0)], 14),
     }
 
 
@@ -329,7 +333,7 @@ def test_cli_refusals_are_one_line_and_keep_the_state(
     assert "\n" not in errors[str(bad)]
     # the good recordings wait for a learned calibration, kept in the state
     saved = load_state(state)["conveyors"]["white-belt-01"]
-    assert saved["pending_files"] == good
+    assert [p["file"] for p in saved["pending"]] == good
     # a damaged state is refused on one line and left as it was
     state.write_text("{not json", encoding="utf-8")
     assert main(["monitor", "--profile", REFERENCE_PROFILE, "--state", str(state), *good]) == 2
@@ -337,3 +341,103 @@ def test_cli_refusals_are_one_line_and_keep_the_state(
     assert state.read_text(encoding="utf-8") == "{not json"
     assert main(["monitor", *good]) == 2
     assert "--profile" in capsys.readouterr().err
+
+
+def test_cli_profiles_folder_serves_several_conveyors(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Recordings of two conveyors, mixed and unordered: each goes to its profile."""
+    profiles = tmp_path / "profiles"
+    profiles.mkdir()
+    names = ("white-belt-01", "short-fast-03")
+    for name in names:
+        (profiles / f"{name}.yaml").write_bytes(
+            (REFERENCE_PROFILE.parent / f"{name}.yaml").read_bytes()
+        )
+    t0 = datetime(2026, 3, 2, 8, 0, tzinfo=UTC)
+    files = []
+    for k in range(6):
+        for j, name in enumerate(names):
+            prof = load_profile(profiles / f"{name}.yaml")
+            run = run_virtual(
+                prof,
+                payload_kg=10.0 + 5 * k,
+                seed=100 * j + k,
+                recorded_at=t0 + timedelta(hours=k),
+                source=name,
+            )
+            path = tmp_path / f"{name}-{k}.csv"
+            write_recording(run.recording, path)
+            files.append(str(path))
+    files.reverse()  # newest first: monitor sorts them by recorded_at
+    code = main(["monitor", "--profiles", str(profiles), "--baseline", "5", "--json", *files])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0
+    assert sorted(c["conveyor"] for c in out["conveyors"]) == sorted(names)
+    for name in names:
+        mine = [r for r in out["recordings"] if r["conveyor"] == name]
+        assert len(mine) == 6
+        times = [r["recorded_at"] for r in mine]
+        assert times == sorted(times)
+        assert [r["status"] for r in mine] == ["baseline"] * 5 + ["monitored"]
+    summary = {c["conveyor"]: c for c in out["conveyors"]}
+    assert summary["white-belt-01"]["calibration"] == "learned"
+
+
+def test_a_load_placed_mid_cycle_is_reported_not_alarmed(
+    series: dict[str, Path], cal: Calibration
+) -> None:
+    mon = ConveyorMonitor(PROFILE, MonitorSettings(baseline_n=BASELINE), cal)
+    results = _run(mon, _files(series["payload_step"]))
+    stepped = [r for r in results if any(c["cause"] == "payload_changed" for c in r.causes)]
+    assert len(stepped) >= 10  # most recordings after the onset carry a step
+    for r in stepped:
+        assert "not_judged" in [w["code"] for w in r.warnings]
+        assert r.exceeded == []
+    assert not any(r.alarm for r in results)
+
+
+def test_recordings_are_ordered_in_utc() -> None:
+    a = datetime(2026, 3, 29, 9, 0, tzinfo=timezone(timedelta(hours=2)))  # 07:00 UTC
+    b = datetime(2026, 3, 29, 8, 0, tzinfo=UTC)
+    order, missing = order_recordings([("b", b), ("a", a), ("c", None)])
+    # c has no time: it stays right after a, the file before it in the order given
+    assert order == ["a", "c", "b"]
+    assert missing == {"c"}
+
+
+def test_a_calibration_given_later_takes_the_waiting_recordings(
+    series: dict[str, Path], cal: Calibration
+) -> None:
+    files = _files(series["healthy"])
+    mon = ConveyorMonitor(PROFILE, MonitorSettings(baseline_n=BASELINE))
+    for f in files[:3]:
+        assert mon.process(load_recording(f, profile=PROFILE).recording, f.name) == []
+    # the same content again while waiting is not counted twice
+    again = mon.process(load_recording(files[0], profile=PROFILE).recording, files[0].name)
+    assert again[0].status == "duplicate"
+    assert len(mon.pending) == 3
+    state = json.loads(json.dumps(mon.to_state()))
+    loader = lambda p: load_recording(p, profile=PROFILE).recording  # noqa: E731
+    back = ConveyorMonitor.from_state(state, PROFILE, loader=loader)
+    assert [r.source for r in back.pending] == [str(f) for f in files[:3]]
+    back.set_calibration(cal)
+    flushed = back.flush_pending()
+    assert [r.status for r in flushed] == ["baseline"] * 3
+    assert back.pending == []
+
+
+def test_maintenance_in_the_state_closes_alarms_at_once(
+    series: dict[str, Path], cal: Calibration
+) -> None:
+    mon = ConveyorMonitor(PROFILE, MonitorSettings(baseline_n=BASELINE), cal)
+    _run(mon, _files(series["friction"]))
+    data = {"conveyors": {PROFILE.id: mon.to_state()}}
+    add_maintenance(data, PROFILE.id, "cleaning", "A. Fitter", "rails cleaned")
+    alarms = data["conveyors"][PROFILE.id]["alarms"]
+    assert alarms and all(a["status"] == "closed" for a in alarms)
+    assert "A. Fitter" in alarms[0]["closed_by"]
+    with pytest.raises(StoreError, match="closed"):
+        acknowledge_alarm(data, alarms[0]["id"], "me", "late")
+    with pytest.raises(StoreError, match="kind"):
+        add_maintenance(data, PROFILE.id, "magic", "me", "")

@@ -11,14 +11,11 @@ import sys
 
 import typer
 
+from chaintwin.cli.common import EXIT_ALARM, EXIT_USAGE
 from chaintwin.errors import ChaintwinError
 
 __all__ = ["EXIT_ALARM", "EXIT_USAGE", "app", "main"]
 
-EXIT_USAGE = 2
-"""Exit code for bad input or usage."""
-EXIT_ALARM = 3
-"""Exit code for ``--fail-on-alarm`` when an alarm is open."""
 
 app = typer.Typer(
     name="chaintwin",

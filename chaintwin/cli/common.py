@@ -17,6 +17,8 @@ from chaintwin.read.columns import ColumnMap, load_column_map
 from chaintwin.read.profile import ConveyorProfile, load_profile
 
 __all__ = [
+    "EXIT_ALARM",
+    "EXIT_USAGE",
     "ColumnsOption",
     "expand_recordings",
     "load_options",
@@ -24,6 +26,11 @@ __all__ = [
     "print_refused",
     "print_warning",
 ]
+
+EXIT_USAGE = 2
+"""Exit code for bad input or usage."""
+EXIT_ALARM = 3
+"""Exit code for ``--fail-on-alarm`` when an alarm is open."""
 
 #: The ``--columns`` option every command that reads recordings takes.
 ColumnsOption = Annotated[

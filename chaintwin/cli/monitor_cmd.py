@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Sequence
-from datetime import datetime
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -13,15 +13,15 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from chaintwin.cli.app import EXIT_ALARM
 from chaintwin.cli.common import (
+    EXIT_ALARM,
     ColumnsOption,
     expand_recordings,
     print_json,
     print_refused,
     print_warning,
 )
-from chaintwin.diagnose.monitor import ConveyorMonitor, MonitorSettings, RecordingResult
+from chaintwin.diagnose.monitor import ConveyorMonitor, RecordingResult, SettingsGiven
 from chaintwin.diagnose.state import (
     MAINTENANCE_KINDS,
     acknowledge_alarm,
@@ -52,9 +52,9 @@ _CAL_HELP = (
     "serves as a sibling's starting point when one --profile is given."
 )
 _STATE_HELP = "State file: monitoring continues from it and is saved back (created if missing)."
-_BASELINE_HELP = "Recordings in a baseline (and in a learned calibration)."
-_RULE_HELP = "Alarm rule X/Y: X exceedances of one feature in the last Y recordings."
-_Z_HELP = "A feature exceeds above this many robust baseline scales."
+_BASELINE_HELP = "Recordings in a baseline (and in a learned calibration) [20]."
+_RULE_HELP = "Alarm rule X/Y: X exceedances of one feature in the last Y recordings [3/10]."
+_Z_HELP = "A feature exceeds above this many robust baseline scales [5]."
 _JSON_HELP = "Print one JSON object: recordings and conveyors."
 _FAIL_HELP = "Exit with 3 when an unacknowledged alarm is open."
 _FILES_HELP = "Recordings (files or folders), in any order: they are sorted by recorded_at."
@@ -106,7 +106,7 @@ def order_recordings(
         if when is None:
             missing.add(f)
         else:
-            last = when.isoformat()
+            last = when.astimezone(UTC).isoformat()
         keyed.append((last, k, f))
     keyed.sort()
     return [f for _t, _k, f in keyed], missing
@@ -123,7 +123,7 @@ def run_monitor(
     files: list[str],
     profiles: dict[str, ConveyorProfile],
     calibrations: Sequence[Calibration],
-    settings: MonitorSettings,
+    settings: SettingsGiven,
     state: dict[str, Any] | None,
     column_map: ColumnMap | None,
 ) -> tuple[list[RecordingResult], list[ConveyorMonitor]]:
@@ -137,8 +137,8 @@ def run_monitor(
         Profiles by id.
     calibrations : sequence of Calibration
         Calibrations; one of another conveyor serves a single profile as a sibling's.
-    settings : MonitorSettings
-        Baseline size and alarm rule.
+    settings : SettingsGiven
+        Baseline size and alarm rule as given (the rest from the state, else defaults).
     state : dict, optional
         A state (:mod:`chaintwin.diagnose.state`); updated in place.
     column_map : ColumnMap, optional
@@ -194,22 +194,24 @@ def run_monitor(
         given = cal_by_id.get(cid)
         if cid in stored:
             mon = ConveyorMonitor.from_state(stored[cid], prof, loader=loader, source="--state")
-            mon.settings = settings
-            if given is not None and mon.calibration_source != "file":
-                # features change with the model: the baseline starts again
-                mon.set_calibration(given)
-                mon.restart_baseline()
-            elif (
-                given is not None
-                and mon.calibration is not None
-                and given.to_dict()["parameters"] != mon.calibration.to_dict()["parameters"]
-            ):
+            mon.settings = settings.merged(mon.settings)
+            same = given is None or (
+                mon.calibration is not None
+                and given.to_dict()["parameters"] == mon.calibration.to_dict()["parameters"]
+            )
+            if not same and mon.calibration_source == "file":
                 raise StoreError(
                     f"--state: conveyor '{cid}' is monitored with another calibration; "
-                    "record a maintenance event and use a new state file to change it"
+                    "use a new state file to monitor it with this one"
                 )
+            if not same and given is not None:
+                # a calibration replaces a learned one (or a sibling's): the features
+                # change with the model, so the baseline starts again
+                mon.set_calibration(given)
+                mon.restart_baseline()
+                results += mon.flush_pending()
         else:
-            mon = ConveyorMonitor(prof, settings, given, loader=loader)
+            mon = ConveyorMonitor(prof, settings.merged(None), given, loader=loader)
         order, missing = order_recordings(items)
         for f in order:
             try:
@@ -233,6 +235,15 @@ def run_monitor(
     return results, monitors
 
 
+def open_unacknowledged(state: dict[str, Any] | None, monitors: list[ConveyorMonitor]) -> bool:
+    """Whether any conveyor (of this run, or of the state) has an open, unacknowledged alarm."""
+    alarms = [a for m in monitors for a in m.open_alarms()]
+    if state is not None:
+        for conveyor in state["conveyors"].values():
+            alarms += [a for a in conveyor.get("alarms", []) if a.get("status") == "open"]
+    return any(a.get("acknowledged") is None for a in alarms)
+
+
 def _print_table(results: list[RecordingResult], monitors: list[ConveyorMonitor]) -> None:
     console = Console()
     table = Table(title="chaintwin monitor")
@@ -242,7 +253,7 @@ def _print_table(results: list[RecordingResult], monitors: list[ConveyorMonitor]
         if r.error is not None:
             table.add_row(escape(r.file), "", "[red]refused[/red]", "", "", "", "")
             continue
-        causes = ", ".join(f"{c['cause']} ({c['feature']} {c['change']:+.0%})" for c in r.causes)
+        causes = ", ".join(f"{c['cause']} ({c['feature']} {_pct(c['change'])})" for c in r.causes)
         table.add_row(
             escape(r.file),
             r.conveyor,
@@ -269,7 +280,7 @@ def _print_table(results: list[RecordingResult], monitors: list[ConveyorMonitor]
             ack = " (acknowledged)" if a["acknowledged"] else ""
             console.print(
                 f"  [red]alarm {a['id']}[/red]{ack}: {a['cause']} - {a['feature']} "
-                f"{a['change']:+.0%} since {a['since']}",
+                f"{_pct(a['change'])} since {a['since']}",
                 highlight=False,
             )
         for fc in s["forecasts"]:
@@ -281,6 +292,10 @@ def _print_table(results: list[RecordingResult], monitors: list[ConveyorMonitor]
             )
         for n in s["notes"]:
             print_warning(console, s["conveyor"], n["code"], n["message"])
+
+
+def _pct(change: float | None) -> str:
+    return "-" if change is None else f"{change:+.0%}"
 
 
 def _parse_rule(rule: str) -> tuple[int, int]:
@@ -305,9 +320,9 @@ def register(app: typer.Typer) -> None:
             list[Path] | None, typer.Option("--calibration", help=_CAL_HELP)
         ] = None,
         state: Annotated[Path | None, typer.Option("--state", help=_STATE_HELP)] = None,
-        baseline: Annotated[int, typer.Option("--baseline", help=_BASELINE_HELP)] = 20,
-        alarm_rule: Annotated[str, typer.Option("--alarm-rule", help=_RULE_HELP)] = "3/10",
-        z_limit: Annotated[float, typer.Option("--z-limit", help=_Z_HELP)] = 5.0,
+        baseline: Annotated[int | None, typer.Option("--baseline", help=_BASELINE_HELP)] = None,
+        alarm_rule: Annotated[str | None, typer.Option("--alarm-rule", help=_RULE_HELP)] = None,
+        z_limit: Annotated[float | None, typer.Option("--z-limit", help=_Z_HELP)] = None,
         as_json: Annotated[bool, typer.Option("--json", help=_JSON_HELP)] = False,
         fail_on_alarm: Annotated[bool, typer.Option("--fail-on-alarm", help=_FAIL_HELP)] = False,
         columns: ColumnsOption = None,
@@ -319,8 +334,9 @@ def register(app: typer.Typer) -> None:
         """
         profs = load_profiles(profile, profiles)
         cals = [load_calibration(c) for c in calibration or []]
-        x, y = _parse_rule(alarm_rule)
-        settings = MonitorSettings(baseline_n=baseline, x=x, y=y, z_limit=z_limit)
+        x, y = _parse_rule(alarm_rule) if alarm_rule is not None else (None, None)
+        settings = SettingsGiven(baseline_n=baseline, x=x, y=y, z_limit=z_limit)
+        settings.merged(None)  # checks the values before anything is read
         data = load_state(state) if state is not None else None
         cmap = load_column_map(columns) if columns is not None else None
         results, monitors = run_monitor(expand_recordings(files), profs, cals, settings, data, cmap)
@@ -335,8 +351,7 @@ def register(app: typer.Typer) -> None:
             )
         else:
             _print_table(results, monitors)
-        alarm = any(a["acknowledged"] is None for m in monitors for a in m.open_alarms())
-        if fail_on_alarm and alarm:
+        if fail_on_alarm and open_unacknowledged(data, monitors):
             raise typer.Exit(EXIT_ALARM)
         if any(r.error is not None for r in results):
             raise typer.Exit(2)

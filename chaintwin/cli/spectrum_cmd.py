@@ -159,9 +159,18 @@ def register(app: typer.Typer) -> None:
         """
         prof, cmap = load_options(profile, columns)
         rec = load_recording(str(file), profile=prof, column_map=cmap).recording
+        conveyor = rec.metadata.conveyor
+        if prof is not None and conveyor is not None and conveyor != prof.id:
+            raise RecordingError(
+                str(file),
+                f"is a recording of conveyor '{conveyor}', not of '{prof.id}'; give its profile",
+            )
         spec = order_spectrum(rec) if orders else welch_spectrum(rec)
         ts = rec.sample_time_s
-        rows = line_rows(spec, prof, ts)
+        try:
+            rows = line_rows(spec, prof, ts)
+        except EstimationError as exc:
+            raise EstimationError(f"{file}: {exc}") from None
         out = spectrum_dict(str(file), spec, rows)
         if png is not None:
             kind = "order" if orders else "Welch"

@@ -53,7 +53,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -87,6 +87,9 @@ TOOTH_PASS_HARMONICS = 3
 
 GUARD_BINS = 4
 """Bins (of the zero-padded spectrum) either side of a line that belong to it."""
+
+LOW_FREQUENCY_HZ = 3.0
+"""Lines whose apparent frequency is below this are left out of the line sums, Hz."""
 
 SPECTRUM_SEGMENT = 512
 """Welch segment length, samples (fewer when the plateau is shorter)."""
@@ -204,7 +207,10 @@ def _line_sum(spec: Spectrum, orders: list[float], ts: float, avoid: Sequence[fl
 
     Orders whose apparent place lies within :data:`GUARD_BINS` bins of the
     apparent place of an order in ``avoid`` are skipped (another line's
-    mainlobe would be read as this one's).
+    mainlobe would be read as this one's), and so are those that fold below
+    :data:`LOW_FREQUENCY_HZ` (a harmonic close to a multiple of the sampling
+    frequency), where the residual's slow content moves with the load and
+    the losses.
     """
     speed_hz = spec.speed_rpm / 60.0
     guard = GUARD_BINS * spec.resolution
@@ -214,7 +220,7 @@ def _line_sum(spec: Spectrum, orders: list[float], ts: float, avoid: Sequence[fl
         x = apparent_order(o, spec.speed_rpm, ts) * speed_hz
         if any(abs(x - y) <= guard for y in others):
             continue
-        if guard < x < spec.x[-1]:
+        if LOW_FREQUENCY_HZ < x < spec.x[-1]:
             total += band_amplitude(spec, x, half_width_bins=2)
     return total
 
@@ -232,7 +238,7 @@ def _bump(
         return np.empty(0), np.empty(0)
     x = belt_position_m(recording, prof)
     w = recording.speed
-    v = float(np.median(np.abs(w[constant]))) * prof.chordal_radius_m / prof.gear.ratio
+    v = float(np.median(np.abs(w[constant]))) * prof.chordal_radius_m / prof.kinematic_ratio
     teeth = prof.sprocket.teeth or 20
     pitch = math.pi * prof.sprocket.pitch_diameter_m / teeth
     n = max(1, round(pitch / max(v * recording.sample_time_s, 1e-9)))
@@ -291,7 +297,8 @@ def recording_features(recording: Recording, calibration: Calibration) -> Record
     else:
         p_f = float(cond.estimate[0])
         p_i = (float(cond.estimate[1]) - calibration.inertia_offset_kg) / calibration.inertia_gain
-        values["friction"] = (m0 + p_f) / max(m0 + p_i, 1e-6 * m0)
+        # an inertia payload that would take away half the belt is no reading
+        values["friction"] = (m0 + p_f) / (m0 + p_i) if m0 + p_i > 0.5 * m0 else nan
         wi = cond.windows
         omega = float(np.median(wi.mean_speed[wi.constant])) if wi.constant.any() else nan
         loss = params["BmA"] + params["BmB"] * omega + params["BmC"] * omega * omega
@@ -314,11 +321,10 @@ def recording_features(recording: Recording, calibration: Calibration) -> Record
         longest = max(plateaus, key=lambda p: p.stop - p.start)
         for p in plateaus:
             constant[p.start + 3 : p.stop - 3] = True
-        with_res = replace(recording, channels={**recording.channels, "residual": report.residual})
         try:
             spectrum = welch_spectrum(
-                with_res,
-                "residual",
+                recording,
+                "torque",
                 span=(longest.start, longest.stop),
                 nperseg=min(SPECTRUM_SEGMENT, longest.stop - longest.start),
                 average="median",

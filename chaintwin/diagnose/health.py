@@ -226,6 +226,8 @@ class Forecast:
     earliest: datetime
     latest: datetime | None
     """None when the 90 % band does not cross within the horizon."""
+    crossed: bool = False
+    """The fitted line is already above the limit at the last value."""
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready."""
@@ -236,6 +238,7 @@ class Forecast:
             "crosses_at": self.crosses_at.isoformat(),
             "earliest": self.earliest.isoformat(),
             "latest": None if self.latest is None else self.latest.isoformat(),
+            "crossed": self.crossed,
         }
 
 
@@ -277,7 +280,8 @@ def forecast_crossing(
     -------
     Forecast or None
         None without a significant rising trend, or when the line does not
-        cross within the horizon.
+        cross within the horizon. When the fitted line is above the limit
+        already, ``crossed`` is True and the times say when it got there.
     """
     v = np.asarray(values, dtype=np.float64)
     ok = np.isfinite(v)
@@ -294,7 +298,8 @@ def forecast_crossing(
     if b <= 0.0 or float(fit.pvalues[1]) >= max_p_value:
         return None
     t_last = float(t[-1])
-    grid = np.linspace(t_last, t_last + horizon_days, 2001)
+    # from the first value on, so that a limit already crossed says since when
+    grid = np.linspace(float(t[0]), t_last + horizon_days, 4001)
     pred = fit.get_prediction(sm.add_constant(grid, has_constant="add"))
     band = pred.conf_int(alpha=alpha)
     mean = pred.predicted_mean
@@ -316,4 +321,5 @@ def forecast_crossing(
         crosses_at=t0 + cross * day,
         earliest=t0 + (earliest if earliest is not None else cross) * day,
         latest=None if latest is None else t0 + latest * day,
+        crossed=cross <= t_last,
     )

@@ -70,7 +70,7 @@ def learn_calibration(
     """
     prof = identification_profile(profile)
     jd = prof.motor.inertia_kgm2 + prof.gear.inertia_kgm2
-    per_kg = (prof.chordal_radius_m / prof.gear.ratio) ** 2
+    per_kg = (prof.chordal_radius_m / prof.kinematic_ratio) ** 2
     usable: list[Recording] = []
     for rec in recordings:
         try:

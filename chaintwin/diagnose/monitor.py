@@ -23,16 +23,18 @@ Maintenance events and acknowledgements are kept with who, when and why.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from datetime import datetime
+from datetime import UTC, datetime
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from chaintwin.errors import EstimationError, MonitorError, StoreError
+from chaintwin.errors import ChaintwinError, EstimationError, MonitorError, StoreError
 from chaintwin.identify.calibration import Calibration
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording, RecordingWarning
@@ -43,13 +45,14 @@ from .health import FeatureBaseline, fit_baseline, forecast_crossing, x_of_y
 from .learned import learn_calibration
 from .residuals import DEFAULT_BIN_WIDTH_M
 from .spectra import Spectrum, apparent_order
-from .state import new_event
+from .state import close_alarms, new_event
 
 __all__ = [
     "CAUSE_PRIORITY",
     "ConveyorMonitor",
     "MonitorSettings",
     "RecordingResult",
+    "SettingsGiven",
     "resolve_causes",
 ]
 
@@ -78,6 +81,11 @@ EXPLAINED_BY: dict[str, tuple[str, ...]] = {
 every ``comb_<shaft>``): an obstruction's bump, passed once in a scope, is
 an impulse whose spectrum spreads over the shaft lines too."""
 
+NO_FORECAST: tuple[str, ...] = ("belt_bump",)
+"""Features without a trend forecast: the belt map carries each place's value
+from recording to recording, so its points are not independent (and an
+obstruction does not grow steadily)."""
+
 SPECTRUM_GUARD_BINS = 4
 """Bins either side of a known line left out of ``unexplained_peak``."""
 
@@ -86,7 +94,6 @@ MIN_MAP_SHARE = 0.9
 
 MAP_PASSES = 4
 """A belt-map place holds the mean of its last passes, about this many."""
-"""Share of the belt loop the belt map must cover before ``belt_bump`` is computed."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -114,8 +121,39 @@ class MonitorSettings:
             raise MonitorError(f"--baseline {self.baseline_n} must be at least 5 recordings")
         if not 1 <= self.x <= self.y:
             raise MonitorError(f"--alarm-rule {self.x}/{self.y} needs 1 <= X <= Y")
-        if not self.z_limit > 0:
-            raise MonitorError(f"--z-limit {self.z_limit} must be positive")
+        if not (math.isfinite(self.z_limit) and self.z_limit > 0):
+            raise MonitorError(f"--z-limit {self.z_limit} must be a positive number")
+
+
+@dataclass(frozen=True, slots=True)
+class SettingsGiven:
+    """Settings as a user gave them (None: not given), merged with stored ones.
+
+    A state keeps the settings it was monitored with; options given again
+    replace them, options left out keep them (and defaults apply to a new
+    conveyor).
+    """
+
+    baseline_n: int | None = None
+    x: int | None = None
+    y: int | None = None
+    z_limit: float | None = None
+
+    def merged(self, stored: MonitorSettings | None) -> MonitorSettings:
+        """The settings to use: given, else stored, else the defaults.
+
+        Raises
+        ------
+        MonitorError
+            When the result is not a valid setting.
+        """
+        base = stored or MonitorSettings()
+        return MonitorSettings(
+            baseline_n=base.baseline_n if self.baseline_n is None else self.baseline_n,
+            x=base.x if self.x is None else self.x,
+            y=base.y if self.y is None else self.y,
+            z_limit=base.z_limit if self.z_limit is None else self.z_limit,
+        )
 
 
 @dataclass
@@ -204,11 +242,16 @@ def _priority(cause: str) -> int:
 
 
 def _iso(t: datetime | None) -> str | None:
-    return None if t is None else t.isoformat()
+    """ISO 8601 in UTC, so that times from plants in other zones compare as strings."""
+    return None if t is None else t.astimezone(UTC).isoformat()
 
 
 def _parse_time(text: str | None) -> datetime | None:
-    return None if text is None else datetime.fromisoformat(text)
+    """A stored ISO time, None when absent or unreadable."""
+    try:
+        return None if text is None else datetime.fromisoformat(text)
+    except (TypeError, ValueError):
+        return None
 
 
 class ConveyorMonitor:
@@ -251,7 +294,7 @@ class ConveyorMonitor:
         self._pending_meta: list[tuple[str | None, list[dict[str, str]]]] = []
         self.baseline_rows: list[dict[str, Any]] = []
         self.late_rows: list[dict[str, Any]] = []
-        self.baseline_spectra: list[tuple[list[float], list[float], float]] = []
+        self.baseline_spectra: list[tuple[list[float], list[float], float] | None] = []
         self.baselines: dict[str, FeatureBaseline] | None = None
         self.baseline_spectrum: tuple[list[float], list[float], float] | None = None
         self.baseline_since: str | None = None
@@ -299,9 +342,11 @@ class ConveyorMonitor:
         event = new_event(kind, by, why, at)
         self.events.append(event)
         self.events.sort(key=lambda e: e["at"])
+        close_alarms(self.alarms, event)
         return event
 
     def _apply_events(self, when: datetime | None) -> list[dict[str, str]]:
+        """Apply maintenance events made before this recording: a new baseline."""
         notes: list[dict[str, str]] = []
         if when is None:
             return notes
@@ -313,11 +358,7 @@ class ConveyorMonitor:
             if at <= when:
                 event["applied"] = True
                 self.restart_baseline()
-                for alarm in self.alarms:
-                    if alarm["status"] == "open":
-                        alarm["status"] = "closed"
-                        alarm["closed_at"] = event["at"]
-                        alarm["closed_by"] = f"maintenance {event['kind']} ({event['by']})"
+                close_alarms(self.alarms, event)
                 notes.append(
                     RecordingWarning(
                         "baseline_restarted",
@@ -351,6 +392,22 @@ class ConveyorMonitor:
             recordings wait), all waiting ones when it has been learned.
         """
         when = recording.metadata.recorded_at
+        if sha256 is not None and any(sha == sha256 for sha, _x in self._pending_meta):
+            return [
+                RecordingResult(
+                    file=recording.source,
+                    conveyor=self.profile.id,
+                    recorded_at=_iso(when),
+                    status="duplicate",
+                    warnings=[
+                        RecordingWarning(
+                            "already_processed",
+                            "this recording is already waiting for the learned calibration "
+                            "(same content); it is not counted twice",
+                        ).to_dict()
+                    ],
+                )
+            ]
         if sha256 is not None and sha256 in self.processed:
             old = RecordingResult.from_dict(self.history[self.processed[sha256]])
             old.file = recording.source
@@ -365,10 +422,11 @@ class ConveyorMonitor:
             ]
             return [old]
         extra: list[dict[str, str]] = []
+        stamp = _iso(when)
         if (
-            when is not None
+            stamp is not None
             and self.last_recorded_at is not None
-            and when.isoformat() < self.last_recorded_at
+            and stamp < self.last_recorded_at
         ):
             extra.append(
                 RecordingWarning(
@@ -377,31 +435,49 @@ class ConveyorMonitor:
                     f"({self.last_recorded_at}); processed now, after it",
                 ).to_dict()
             )
-        if when is not None:
-            self.last_recorded_at = max(self.last_recorded_at or "", when.isoformat())
+        if stamp is not None:
+            self.last_recorded_at = max(self.last_recorded_at or "", stamp)
         extra += self._apply_events(when)
+        if recording.position is None and not self._noted("no_position"):
+            self.notes.append(
+                RecordingWarning(
+                    "no_position",
+                    "the recordings have no position channel: faults at one place of the belt "
+                    "(obstruction) cannot be followed; add the position to the scope",
+                ).to_dict()
+            )
         if self.calibration is None:
             self.pending.append(recording)
-            self.pending_files.append(recording.source)
+            self.pending_files.append(str(Path(recording.source).resolve()))
             self._pending_meta.append((sha256, extra))
             if len(self.pending) < self.settings.baseline_n:
                 return []
             return self._learn()
         return [self._monitor(recording, sha256, extra)]
 
-    def _learn(self) -> list[RecordingResult]:
-        recs = self.pending
-        meta = self._pending_meta
-        try:
-            cal = learn_calibration(recs, self.profile)
-        except EstimationError as exc:
-            # keep waiting for more recordings
-            self.notes.append(RecordingWarning("learning_failed", str(exc)).to_dict())
+    def _noted(self, code: str) -> bool:
+        return any(n["code"] == code for n in self.notes)
+
+    def flush_pending(self) -> list[RecordingResult]:
+        """Monitor the recordings that waited for a calibration (after :meth:`set_calibration`)."""
+        if self.calibration is None:
             return []
-        self.calibration = cal
-        self.calibration_source = "learned"
+        recs, meta = self.pending, self._pending_meta
         self.pending, self.pending_files, self._pending_meta = [], [], []
         return [self._monitor(r, sha, extra) for r, (sha, extra) in zip(recs, meta, strict=True)]
+
+    def _learn(self) -> list[RecordingResult]:
+        try:
+            cal = learn_calibration(self.pending, self.profile)
+        except EstimationError as exc:
+            # keep waiting for more recordings
+            self.notes = [n for n in self.notes if n["code"] != "learning_failed"]
+            self.notes.append(RecordingWarning("learning_failed", str(exc)).to_dict())
+            return []
+        self.notes = [n for n in self.notes if n["code"] != "learning_failed"]
+        self.calibration = cal
+        self.calibration_source = "learned"
+        return self.flush_pending()
 
     def finish(self) -> list[RecordingResult]:
         """Results for recordings still waiting for a learned calibration."""
@@ -505,7 +581,10 @@ class ConveyorMonitor:
             feats = extract(recording, self.calibration)
         except EstimationError as exc:
             base.status = "refused"
-            base.error = f"{recording.source}: {exc}"
+            text = str(exc)
+            base.error = (
+                text if text.startswith(recording.source) else f"{recording.source}: {text}"
+            )
             return base
         w = feats.weighing
         values = dict(feats.values)
@@ -535,14 +614,26 @@ class ConveyorMonitor:
                     "since": _iso(when),
                 }
             )
-        if self.baselines is None:
+        if w.segments:
+            # the load changed during the movement: its features mix two loads
+            base.status = "baseline" if self.baselines is None else "monitored"
+            base.features = {k: _finite(v) for k, v in values.items()}
+            warnings.append(
+                RecordingWarning(
+                    "not_judged",
+                    "the load changed during the movement: this recording's features are "
+                    "reported but neither learned nor compared with the baseline",
+                ).to_dict()
+            )
+        elif self.baselines is None:
             base.status = "baseline"
             if self.baseline_since is None:
                 self.baseline_since = _iso(when)
             self.baseline_rows.append(values)
-            if feats.spectrum is not None:
-                s = feats.spectrum
-                self.baseline_spectra.append((s.x.tolist(), s.amplitude.tolist(), s.speed_rpm))
+            s = feats.spectrum
+            self.baseline_spectra.append(
+                None if s is None else (s.x.tolist(), s.amplitude.tolist(), s.speed_rpm)
+            )
             n = len(self.baseline_rows)
             warnings.append(
                 RecordingWarning(
@@ -574,18 +665,18 @@ class ConveyorMonitor:
                 del times[: -self.settings.y]
                 if ex.exceeded:
                     base.exceeded.append(name)
+                if math.isfinite(ex.change):
                     change[name] = ex.change
                 if x_of_y(win, self.settings.x, self.settings.y)[-1]:
                     met.append(name)
-                    change.setdefault(name, ex.change)
             self._late_baselines(values)
             resolved = resolve_causes(met)
             for name in met:
-                alarm = self._open_alarm(name, resolved[name], change[name], when)
+                alarm = self._open_alarm(name, resolved[name], change.get(name), when)
                 detail = {
                     "cause": resolved[name],
                     "feature": name,
-                    "change": change[name],
+                    "change": alarm["change"],
                     "since": alarm["since"],
                 }
                 if name == "belt_bump" and bump_at is not None:
@@ -595,7 +686,7 @@ class ConveyorMonitor:
                 causes.append(detail)
             self._close_alarms(when)
             base.alarm = bool(met)
-        causes.sort(key=lambda c: (_priority(c["cause"]), -abs(c["change"])))
+        causes.sort(key=lambda c: (_priority(c["cause"]), -abs(c["change"] or 0.0)))
         base.causes = causes
         base.warnings = warnings
         self.history.append(base.to_dict() | {"sha256": sha256})
@@ -605,15 +696,17 @@ class ConveyorMonitor:
 
     def _form_baseline(self) -> None:
         rows = self.baseline_rows
-        if self.baseline_spectra:
-            grid = np.asarray(self.baseline_spectra[0][0])
-            amps = np.array(
-                [np.interp(grid, np.asarray(x), np.asarray(a)) for x, a, _ in self.baseline_spectra]
-            )
-            speed = float(np.median([s for _x, _a, s in self.baseline_spectra]))
+        spectra = [sp for sp in self.baseline_spectra if sp is not None]
+        if spectra:
+            grid = np.asarray(spectra[0][0])
+            amps = np.array([np.interp(grid, np.asarray(x), np.asarray(a)) for x, a, _ in spectra])
+            speed = float(np.median([s for _x, _a, s in spectra]))
             self.baseline_spectrum = (grid.tolist(), np.median(amps, axis=0).tolist(), speed)
             # the baseline's own unexplained peaks, for its limit
-            for row, (x, a, s) in zip(rows, self.baseline_spectra, strict=False):
+            for row, sp in zip(rows, self.baseline_spectra, strict=True):
+                if sp is None:
+                    continue
+                x, a, s = sp
                 own = Spectrum(
                     x=np.asarray(x),
                     amplitude=np.asarray(a),
@@ -623,6 +716,7 @@ class ConveyorMonitor:
                     speed_rpm=s,
                 )
                 row["unexplained_peak"] = self._unexplained_peak(own)[0]
+        self.baseline_spectra = []  # the median is kept; the rows' spectra are not needed
         payloads = [_number(r.get("payload_kg")) for r in rows]
         names = sorted({k for r in rows for k in r})
         out: dict[str, FeatureBaseline] = {}
@@ -671,12 +765,15 @@ class ConveyorMonitor:
                 self.baselines[name] = fb
 
     def _open_alarm(
-        self, feature: str, cause: str, change: float, when: datetime | None
+        self, feature: str, cause: str, change: float | None, when: datetime | None
     ) -> dict[str, Any]:
+        """The open alarm of a feature (opened now if there is none); its change is
+        the latest known (a recording that cannot tell keeps the last one)."""
         for alarm in self.alarms:
             if alarm["status"] == "open" and alarm["feature"] == feature:
                 alarm["cause"] = cause
-                alarm["change"] = change
+                if change is not None:
+                    alarm["change"] = change
                 alarm["last_seen"] = _iso(when)
                 return alarm
         times = self.window_times.get(feature, [])
@@ -728,10 +825,12 @@ class ConveyorMonitor:
         times = [datetime.fromisoformat(h["recorded_at"]) for h in rows]
         for name, fb in self.baselines.items():
             spec = feature_spec(name)
-            if spec.cause is None:
+            if spec.cause is None or name in NO_FORECAST:
                 continue
+            # at the baseline's mean payload: the load's part of the value taken out
             vals = [
-                float("nan") if h["features"].get(name) is None else float(h["features"][name])
+                _number(h["features"].get(name))
+                - fb.slope * (_number(h["features"].get("payload_kg")) - fb.mean_payload_kg)
                 for h in rows
             ]
             fc = forecast_crossing(name, times, vals, fb.limit(self.settings.z_limit, spec.min_rel))
@@ -773,7 +872,12 @@ class ConveyorMonitor:
             },
             "calibration": None if self.calibration is None else self.calibration.to_dict(),
             "calibration_source": self.calibration_source,
-            "pending_files": list(self.pending_files),
+            "pending": [
+                {"path": path, "file": rec.source, "sha256": sha, "warnings": extra}
+                for path, rec, (sha, extra) in zip(
+                    self.pending_files, self.pending, self._pending_meta, strict=True
+                )
+            ],
             "baseline_rows": self.baseline_rows,
             "late_rows": self.late_rows,
             "baseline_spectra": self.baseline_spectra,
@@ -812,8 +916,8 @@ class ConveyorMonitor:
         if data.get("profile_sha256") != profile.content_hash():
             raise StoreError(
                 f"{source}: conveyor '{profile.id}' was monitored with another version of its "
-                "profile; start a new state file (or record a maintenance event) after a "
-                "profile change"
+                "profile; give the profile it was monitored with, or start a new state file "
+                "for the changed conveyor"
             )
         try:
             s = data["settings"]
@@ -830,7 +934,8 @@ class ConveyorMonitor:
             mon.baseline_rows = list(data["baseline_rows"])
             mon.late_rows = list(data["late_rows"])
             mon.baseline_spectra = [
-                (list(x), list(a), float(sp)) for x, a, sp in data["baseline_spectra"]
+                None if sp is None else (list(sp[0]), list(sp[1]), float(sp[2]))
+                for sp in data["baseline_spectra"]
             ]
             if data["baselines"] is not None:
                 mon.baselines = {
@@ -849,23 +954,30 @@ class ConveyorMonitor:
             mon.notes = list(data["notes"])
             mon.last_recorded_at = data["last_recorded_at"]
             mon.processed = {h["sha256"]: k for k, h in enumerate(mon.history) if h.get("sha256")}
-            pending = list(data["pending_files"])
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            pending = [
+                (str(p["path"]), str(p["file"]), p["sha256"], list(p["warnings"]))
+                for p in data["pending"]
+            ]
+        except (KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
             raise StoreError(
-                f"{source}: monitoring state of '{profile.id}' is damaged ({exc}); start a new "
-                "state file"
+                f"{source}: monitoring state of '{profile.id}' is damaged ({exc!r}); restore it "
+                "from a backup or start a new state file"
             ) from None
-        for name in pending:
-            if loader is None:
-                raise StoreError(f"{source}: cannot read the waiting recording {name}")
+        for path, name, sha, extra in pending:
             try:
-                rec = loader(name)
-            except Exception as exc:  # the file is gone or changed
-                raise StoreError(
-                    f"{source}: recording {name}, waiting for the learned calibration, cannot "
-                    f"be read again ({exc}); restore it or start a new state file"
-                ) from None
+                if loader is None:
+                    raise StoreError("no reader given")
+                rec = dataclasses.replace(loader(path), source=name)
+            except ChaintwinError as exc:  # the file is gone or no longer readable
+                mon.notes.append(
+                    RecordingWarning(
+                        "pending_lost",
+                        f"{name}, waiting for the learned calibration, cannot be read again "
+                        f"({exc}); it is left out",
+                    ).to_dict()
+                )
+                continue
             mon.pending.append(rec)
-            mon.pending_files.append(name)
-            mon._pending_meta.append((None, []))
+            mon.pending_files.append(path)
+            mon._pending_meta.append((sha, extra))
         return mon

@@ -203,7 +203,7 @@ def model_torque(
         )
 
     r = profile.chordal_radius_m
-    i = profile.gear.ratio
+    i = profile.kinematic_ratio
     eta = profile.gear.efficiency
     carried = tray_kg + payload_kg
     moving_mass = profile.belt_mass_kg + carried

@@ -30,6 +30,7 @@ __all__ = [
     "STATE_VERSION",
     "acknowledge_alarm",
     "add_maintenance",
+    "close_alarms",
     "empty_state",
     "load_state",
     "new_event",
@@ -154,6 +155,7 @@ def new_event(kind: str, by: str, why: str, at: datetime | None = None) -> dict[
     when = at or datetime.now(UTC)
     if when.tzinfo is None:
         when = when.replace(tzinfo=UTC)
+    when = when.astimezone(UTC)
     return {
         "id": uuid.uuid4().hex[:8],
         "kind": kind,
@@ -196,9 +198,24 @@ def add_maintenance(
     """
     state = _conveyor(data, conveyor)
     event = new_event(kind, by, why, at)
-    state["events"].append(event)
-    state["events"].sort(key=lambda e: e["at"])
+    try:
+        state["events"].append(event)
+        state["events"].sort(key=lambda e: e["at"])
+        close_alarms(state["alarms"], event)
+    except (KeyError, TypeError, AttributeError) as exc:
+        raise StoreError(
+            f"the state of '{conveyor}' is damaged ({exc!r}); start a new one"
+        ) from None
     return event
+
+
+def close_alarms(alarms: list[dict[str, Any]], event: dict[str, Any]) -> None:
+    """Close the open alarms of a conveyor for a maintenance event (who and what did it)."""
+    for alarm in alarms:
+        if alarm.get("status") == "open":
+            alarm["status"] = "closed"
+            alarm["closed_at"] = event["at"]
+            alarm["closed_by"] = f"maintenance {event['kind']} ({event['by']}: {event['why']})"
 
 
 def acknowledge_alarm(
@@ -215,16 +232,29 @@ def acknowledge_alarm(
         raise StoreError("say who acknowledges the alarm (--by)")
     open_ids = []
     for state in data["conveyors"].values():
-        for alarm in state["alarms"]:
-            if alarm["id"] == alarm_id:
+        for alarm in state.get("alarms", []) if isinstance(state, dict) else []:
+            if not isinstance(alarm, dict):
+                continue
+            if alarm.get("id") == alarm_id:
+                if alarm.get("status") != "open":
+                    raise StoreError(
+                        f"alarm '{alarm_id}' is closed ({alarm.get('closed_by', 'closed')}); "
+                        "only open alarms are acknowledged"
+                    )
+                done = alarm.get("acknowledged")
+                if done:
+                    raise StoreError(
+                        f"alarm '{alarm_id}' was acknowledged by {done.get('by')} at "
+                        f"{done.get('at')} ({done.get('why')}); it stays so"
+                    )
                 alarm["acknowledged"] = {
                     "by": by,
                     "why": why,
-                    "at": (at or datetime.now(UTC)).isoformat(),
+                    "at": (at or datetime.now(UTC)).astimezone(UTC).isoformat(),
                 }
                 return dict(alarm)
-            if alarm["status"] == "open":
-                open_ids.append(alarm["id"])
+            if alarm.get("status") == "open":
+                open_ids.append(str(alarm.get("id")))
     raise StoreError(
         f"no alarm '{alarm_id}' in the state (open alarms: {', '.join(open_ids) or 'none'})"
     )

@@ -276,7 +276,12 @@ def recording_features(recording: Recording, calibration: Calibration) -> Record
     prof = calibration.id_profile
     params = calibration.parameters
     warnings: list[RecordingWarning] = []
-    w = weigh(recording, calibration)
+    mot = motoring_mask(
+        recording,
+        drive_inertia_kgm2=params["J_d"],
+        losses=(params["BmA"], params["BmB"], params["BmC"]),
+    )
+    w = weigh(recording, calibration, motoring=mot)
     tray = recording.metadata.tray_kg
     tray = prof.tray_mass_kg if tray is None else tray
     m0 = prof.belt_mass_kg + tray
@@ -285,11 +290,6 @@ def recording_features(recording: Recording, calibration: Calibration) -> Record
         "payload_kg": w.payload_kg,
         "tlf": nan if w.tlf is None else w.tlf,
     }
-    mot = motoring_mask(
-        recording,
-        drive_inertia_kgm2=params["J_d"],
-        losses=(params["BmA"], params["BmB"], params["BmC"]),
-    )
     try:
         cond = fit_condition(recording, prof, params, tray, mot, calibration.ramp_noise_rate)
     except EstimationError:

@@ -90,10 +90,7 @@ SPECTRUM_GUARD_BINS = 4
 """Bins either side of a known line left out of ``unexplained_peak``."""
 
 MIN_MAP_SHARE = 0.9
-"""Share of the belt loop the belt map must cover before ``belt_bump`` is computed."""
-
-MAP_PASSES = 4
-"""A belt-map place holds the mean of its last passes, about this many."""
+"""Share of the belt loop the belt map must have seen twice before ``belt_bump`` is computed."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -298,8 +295,8 @@ class ConveyorMonitor:
         self.baselines: dict[str, FeatureBaseline] | None = None
         self.baseline_spectrum: tuple[list[float], list[float], float] | None = None
         self.baseline_since: str | None = None
-        self.belt_map: list[float | None] = []
-        self.belt_passes: list[int] = []
+        self.belt_last: list[float | None] = []
+        self.belt_prev: list[float | None] = []
         self.windows: dict[str, list[bool]] = {}
         self.window_times: dict[str, list[str | None]] = {}
         self.alarms: list[dict[str, Any]] = []
@@ -376,8 +373,8 @@ class ConveyorMonitor:
         self.baselines = None
         self.baseline_spectrum = None
         self.baseline_since = None
-        self.belt_map = []
-        self.belt_passes = []
+        self.belt_last = []
+        self.belt_prev = []
         self.windows = {}
         self.window_times = {}
 
@@ -527,33 +524,31 @@ class ConveyorMonitor:
     def _belt_bump(self, feats: RecordingFeatures) -> tuple[float, float | None]:
         """Update the belt map; its largest local rise and where, m.
 
-        The rise is in robust standard deviations of the map (its median
-        absolute deviation over the loop), so the statistic does not depend
-        on how many passes the map has averaged yet.
+        The map holds, per place of the loop, the residual's rise on the last
+        two passes. A place counts with the smaller of the two: an obstruction
+        is there on every pass, a one-off disturbance (stick-slip, a knock)
+        on one only. The rise is in robust standard deviations of the map
+        over the loop (median absolute deviation), a number that does not
+        depend on the conveyor's noise level.
         """
         if self.calibration is None:
             return float("nan"), None
         prof = self.calibration.id_profile
         nbins = math.ceil(prof.loop_length_m / DEFAULT_BIN_WIDTH_M)
-        if len(self.belt_map) != nbins or len(self.belt_passes) != nbins:
-            self.belt_map = [None] * nbins
-            self.belt_passes = [0] * nbins
+        if len(self.belt_last) != nbins or len(self.belt_prev) != nbins:
+            self.belt_last = [None] * nbins
+            self.belt_prev = [None] * nbins
         for b, v in zip(feats.bump_bins, feats.bump_values, strict=True):
             if math.isfinite(float(v)):
-                k = min(self.belt_passes[int(b)] + 1, MAP_PASSES)
-                old = self.belt_map[int(b)]
-                # each place's mean over its recent passes (the last MAP_PASSES)
-                self.belt_map[int(b)] = float(v) if old is None else old + (float(v) - old) / k
-                self.belt_passes[int(b)] += 1
-        values = np.array([np.nan if v is None else v for v in self.belt_map])
-        if np.isfinite(values).sum() < MIN_MAP_SHARE * nbins:
+                self.belt_prev[int(b)] = self.belt_last[int(b)]
+                self.belt_last[int(b)] = float(v)
+        last = np.array([np.nan if v is None else v for v in self.belt_last])
+        prev = np.array([np.nan if v is None else v for v in self.belt_prev])
+        both = np.where(np.isfinite(last) & np.isfinite(prev), np.minimum(last, prev), np.nan)
+        if np.isfinite(both).sum() < MIN_MAP_SHARE * nbins:
             return float("nan"), None
-        # standardise for the number of passes averaged, so places seen once
-        # and places seen often compare alike
-        passes = np.minimum(np.asarray(self.belt_passes, dtype=np.float64), MAP_PASSES)
-        dev = (values - float(np.nanmedian(values))) * np.sqrt(np.maximum(passes, 1.0))
         # a bump spans a few bins (its width plus a tooth pitch of averaging)
-        padded = np.concatenate((dev[-1:], dev, dev[:1]))
+        padded = np.concatenate((both[-1:], both, both[:1]))
         smooth = np.convolve(np.nan_to_num(padded, nan=0.0), np.ones(3), mode="valid")
         counts = np.convolve(np.isfinite(padded).astype(float), np.ones(3), mode="valid")
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -886,8 +881,8 @@ class ConveyorMonitor:
             else {k: v.to_dict() for k, v in self.baselines.items()},
             "baseline_spectrum": self.baseline_spectrum,
             "baseline_since": self.baseline_since,
-            "belt_map": self.belt_map,
-            "belt_passes": self.belt_passes,
+            "belt_last": self.belt_last,
+            "belt_prev": self.belt_prev,
             "windows": self.windows,
             "window_times": self.window_times,
             "alarms": self.alarms,
@@ -944,8 +939,8 @@ class ConveyorMonitor:
             bs = data["baseline_spectrum"]
             mon.baseline_spectrum = None if bs is None else (bs[0], bs[1], float(bs[2]))
             mon.baseline_since = data["baseline_since"]
-            mon.belt_map = list(data["belt_map"])
-            mon.belt_passes = [int(k) for k in data["belt_passes"]]
+            mon.belt_last = list(data["belt_last"])
+            mon.belt_prev = list(data["belt_prev"])
             mon.windows = {k: list(v) for k, v in data["windows"].items()}
             mon.window_times = {k: list(v) for k, v in data["window_times"].items()}
             mon.alarms = list(data["alarms"])

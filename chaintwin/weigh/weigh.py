@@ -156,6 +156,7 @@ def weigh(
     calibration: Calibration,
     *,
     source: str | None = None,
+    motoring: np.ndarray | None = None,
 ) -> WeighResult:
     """Weigh the payload of one recording.
 
@@ -168,6 +169,9 @@ def weigh(
         The conveyor's calibration.
     source : str, optional
         File name to report (default ``recording.source``).
+    motoring : np.ndarray of bool, optional
+        Power-flow direction per sample, when already computed with the
+        calibration's parameters (:func:`~chaintwin.identify.windows.motoring_mask`).
 
     Returns
     -------
@@ -186,10 +190,14 @@ def weigh(
     tray = recording.metadata.tray_kg
     tray = prof.tray_mass_kg if tray is None else tray
     warnings: list[RecordingWarning] = list(recording.warnings)
-    mot = motoring_mask(
-        recording,
-        drive_inertia_kgm2=params["J_d"],
-        losses=(params["BmA"], params["BmB"], params["BmC"]),
+    mot = (
+        motoring
+        if motoring is not None
+        else motoring_mask(
+            recording,
+            drive_inertia_kgm2=params["J_d"],
+            losses=(params["BmA"], params["BmB"], params["BmC"]),
+        )
     )
     rate = calibration.ramp_noise_rate
     fit, cov = fit_signatures(recording, prof, params, tray, motoring=mot, ramp_rate=rate)

@@ -114,6 +114,10 @@ class FeatureSpec:
     min_scale : float
         Floor of the baseline's robust scale (feature units), for features
         whose baseline can hold few distinct values.
+    regressor : str
+        The payload estimate the baseline regresses on: ``payload_kg`` (the
+        weighing's), or ``payload_inertia_kg`` for a feature that a friction
+        change moves together with the friction payload (which would hide it).
     """
 
     cause: str | None
@@ -121,23 +125,29 @@ class FeatureSpec:
     unit: str
     payload_dependent: bool = False
     min_scale: float = 0.0
+    regressor: str = "payload_kg"
 
 
 FEATURES: dict[str, FeatureSpec] = {
-    "friction": FeatureSpec("friction", 0.05, "-"),
-    "speed_loss": FeatureSpec("lubrication", 0.15, "-"),
-    "residual_std": FeatureSpec("bearing", 0.3, "Nm", payload_dependent=True),
+    "friction": FeatureSpec(
+        "friction", 0.05, "-", payload_dependent=True, regressor="payload_inertia_kg"
+    ),
+    "speed_loss": FeatureSpec("lubrication", 0.15, "-", payload_dependent=True),
+    "residual_std": FeatureSpec(
+        "bearing", 0.3, "Nm", payload_dependent=True, regressor="payload_inertia_kg"
+    ),
     "residual_kurtosis": FeatureSpec(None, 0.0, "-"),
     "crest_factor": FeatureSpec(None, 0.0, "-"),
-    "tooth_pass": FeatureSpec("elongation", 0.25, "Nm", payload_dependent=True),
+    "tooth_pass": FeatureSpec("elongation", 0.08, "Nm", payload_dependent=True),
     "unexplained_peak": FeatureSpec("bearing", 1.0, "-"),
-    "belt_bump": FeatureSpec("obstruction", 1.0, "-", min_scale=0.5),
+    "belt_bump": FeatureSpec("obstruction", 1.5, "-", min_scale=0.5),
     "payload_kg": FeatureSpec(None, 0.0, "kg"),
+    "payload_inertia_kg": FeatureSpec(None, 0.0, "kg"),
     "tlf": FeatureSpec(None, 0.0, "-"),
 }
 """Every tracked feature (``comb_<shaft>`` features are added per profile, cause gear)."""
 
-COMB_SPEC = FeatureSpec("gear", 0.5, "Nm", payload_dependent=True)
+COMB_SPEC = FeatureSpec("gear", 0.5, "Nm", payload_dependent=True, regressor="payload_inertia_kg")
 """Spec of the ``comb_<shaft>`` features."""
 
 
@@ -248,7 +258,13 @@ def _bump(
     idx = idx[(idx >= n) & (idx < e.shape[0] - n)]
     if idx.shape[0] < 2 * n:
         return np.empty(0), np.empty(0)
-    rise = smooth[idx] - float(np.median(smooth[idx]))
+    # against the plateau's own slow course (a straight line in time, fitted
+    # robustly: the residual drifts along a plateau as a long belt settles)
+    t = idx.astype(np.float64)
+    slope, level = np.polyfit(t, smooth[idx], 1)
+    trend = level + slope * t
+    rise = smooth[idx] - trend
+    rise -= float(np.median(rise))
     sums, counts = position_profile(x[idx], rise, prof.loop_length_m)
     seen = np.flatnonzero(counts > 0)
     return seen.astype(np.float64), sums[seen] / counts[seen]
@@ -288,6 +304,7 @@ def recording_features(recording: Recording, calibration: Calibration) -> Record
     nan = float("nan")
     values: dict[str, float] = {
         "payload_kg": w.payload_kg,
+        "payload_inertia_kg": nan if w.payload_inertia_kg is None else w.payload_inertia_kg,
         "tlf": nan if w.tlf is None else w.tlf,
     }
     try:

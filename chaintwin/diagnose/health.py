@@ -3,11 +3,12 @@
 A conveyor's baseline is learned from its first N recordings (after
 calibration, and again after each maintenance event). For every feature it
 is a robust line ``value = a + b·payload`` (``b`` only for features that
-depend on the load, such as the tooth-pass ripple, and only when the
-baseline's payloads spread over at least :data:`MIN_PAYLOAD_SPREAD_KG`;
-else the median) with a robust scale ``s = 1.4826·MAD`` of what the line
-leaves. The baseline is checked for outliers: values more than
-:data:`OUTLIER_Z` scales off are left out and the line fitted again.
+depend on the load, such as the tooth-pass ripple, only when the baseline's
+payloads spread over at least :data:`MIN_PAYLOAD_SPREAD_KG` and only when the
+slope stands :data:`MIN_SLOPE_T` standard errors out of zero; else the
+median) with a robust scale ``s = 1.4826·MAD`` of what the line leaves.
+The baseline is checked for outliers: values more than :data:`OUTLIER_Z`
+scales off are left out and the line fitted again.
 
 A recording *exceeds* on a feature when its value is above the baseline
 line at its payload by more than ``z_limit·s`` **and** by more than the
@@ -56,6 +57,9 @@ OUTLIER_Z = 5.0
 
 MIN_BASELINE = 5
 """Fewest finite values a feature's baseline needs."""
+
+MIN_SLOPE_T = 3.0
+"""A baseline's payload slope is kept when it is this many standard errors from zero."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -127,10 +131,22 @@ class FeatureBaseline:
 
 
 def _line(values: FloatArray, payloads: FloatArray, with_slope: bool) -> tuple[float, float]:
-    if with_slope:
+    """Intercept and slope; the slope only when it stands out of its noise.
+
+    A slope less than :data:`MIN_SLOPE_T` standard errors from zero is
+    dropped (the median is used): a spurious slope would make the expected
+    value follow a payload estimate that a friction or loss change moves.
+    """
+    if with_slope and values.shape[0] >= 4:
         x = np.column_stack([np.ones_like(payloads), payloads])
-        sol = np.linalg.lstsq(x, values, rcond=None)[0]
-        return float(sol[0]), float(sol[1])
+        sol, _res, _rank, _sv = np.linalg.lstsq(x, values, rcond=None)
+        resid = values - x @ sol
+        dof = values.shape[0] - 2
+        s2 = float(resid @ resid) / dof
+        sxx = float(np.sum((payloads - payloads.mean()) ** 2))
+        se = math.sqrt(s2 / sxx) if sxx > 0 else math.inf
+        if abs(float(sol[1])) > MIN_SLOPE_T * se:
+            return float(sol[0]), float(sol[1])
     return float(np.median(values)), 0.0
 
 

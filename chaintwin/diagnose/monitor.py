@@ -379,8 +379,17 @@ class ConveyorMonitor:
         self.window_times = {}
 
     # ---------------------------------------------------------- processing
-    def process(self, recording: Recording, sha256: str | None = None) -> list[RecordingResult]:
+    def process(
+        self,
+        recording: Recording,
+        sha256: str | None = None,
+        *,
+        features: RecordingFeatures | None = None,
+    ) -> list[RecordingResult]:
         """Take the next recording (in recorded order).
+
+        ``features``, when given, are the recording's features computed
+        elsewhere (a worker process) against this monitor's calibration.
 
         Returns
         -------
@@ -450,7 +459,7 @@ class ConveyorMonitor:
             if len(self.pending) < self.settings.baseline_n:
                 return []
             return self._learn()
-        return [self._monitor(recording, sha256, extra)]
+        return [self._monitor(recording, sha256, extra, features)]
 
     def _noted(self, code: str) -> bool:
         return any(n["code"] == code for n in self.notes)
@@ -562,7 +571,11 @@ class ConveyorMonitor:
         return (float(local[idx]) - centre) / spread, (idx + 0.5) * width
 
     def _monitor(
-        self, recording: Recording, sha256: str | None, extra: list[dict[str, str]]
+        self,
+        recording: Recording,
+        sha256: str | None,
+        extra: list[dict[str, str]],
+        features: RecordingFeatures | None = None,
     ) -> RecordingResult:
         assert self.calibration is not None
         when = recording.metadata.recorded_at
@@ -573,7 +586,7 @@ class ConveyorMonitor:
             status="monitored",
         )
         try:
-            feats = extract(recording, self.calibration)
+            feats = features if features is not None else extract(recording, self.calibration)
         except EstimationError as exc:
             base.status = "refused"
             text = str(exc)
@@ -651,7 +664,8 @@ class ConveyorMonitor:
                 if spec.cause is None:
                     continue
                 value = values.get(name, float("nan"))
-                ex = fb.check(value, w.payload_kg, self.settings.z_limit, spec.min_rel)
+                load = values.get(spec.regressor, float("nan"))
+                ex = fb.check(value, load, self.settings.z_limit, spec.min_rel)
                 win = self.windows.setdefault(name, [])
                 times = self.window_times.setdefault(name, [])
                 win.append(ex.exceeded)
@@ -712,7 +726,6 @@ class ConveyorMonitor:
                 )
                 row["unexplained_peak"] = self._unexplained_peak(own)[0]
         self.baseline_spectra = []  # the median is kept; the rows' spectra are not needed
-        payloads = [_number(r.get("payload_kg")) for r in rows]
         names = sorted({k for r in rows for k in r})
         out: dict[str, FeatureBaseline] = {}
         for name in names:
@@ -721,7 +734,7 @@ class ConveyorMonitor:
             spec = feature_spec(name)
             fb = fit_baseline(
                 [_number(r.get(name)) for r in rows],
-                payloads,
+                [_number(r.get(spec.regressor)) for r in rows],
                 payload_dependent=spec.payload_dependent,
                 min_scale=spec.min_scale,
             )
@@ -744,7 +757,6 @@ class ConveyorMonitor:
             return
         self.late_rows.append(values)
         need = max(5, self.settings.baseline_n // 2)
-        payloads = [_number(r.get("payload_kg")) for r in self.late_rows]
         for name in missing:
             column = [_number(r.get(name)) for r in self.late_rows]
             if sum(np.isfinite(column)) < need:
@@ -752,7 +764,7 @@ class ConveyorMonitor:
             spec = feature_spec(name)
             fb = fit_baseline(
                 column,
-                payloads,
+                [_number(r.get(spec.regressor)) for r in self.late_rows],
                 payload_dependent=spec.payload_dependent,
                 min_scale=spec.min_scale,
             )
@@ -825,7 +837,7 @@ class ConveyorMonitor:
             # at the baseline's mean payload: the load's part of the value taken out
             vals = [
                 _number(h["features"].get(name))
-                - fb.slope * (_number(h["features"].get("payload_kg")) - fb.mean_payload_kg)
+                - fb.slope * (_number(h["features"].get(spec.regressor)) - fb.mean_payload_kg)
                 for h in rows
             ]
             fc = forecast_crossing(name, times, vals, fb.limit(self.settings.z_limit, spec.min_rel))

@@ -32,6 +32,7 @@ __all__ = [
     "add_maintenance",
     "close_alarms",
     "empty_state",
+    "json_ready",
     "load_state",
     "new_event",
     "save_state",
@@ -90,14 +91,14 @@ def load_state(path: str | Path, *, missing_ok: bool = True) -> dict[str, Any]:
     return data
 
 
-def _json_ready(value: Any) -> Any:
+def json_ready(value: Any) -> Any:
     """Non-finite floats become null (standard JSON); containers are copied."""
     if isinstance(value, float):
         return value if math.isfinite(value) else None
     if isinstance(value, dict):
-        return {k: _json_ready(v) for k, v in value.items()}
+        return {str(k): json_ready(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
-        return [_json_ready(v) for v in value]
+        return [json_ready(v) for v in value]
     return value
 
 
@@ -112,7 +113,7 @@ def save_state(path: str | Path, data: dict[str, Any]) -> Path:
     p = Path(path)
     tmp = p.with_name(f".{p.name}.{uuid.uuid4().hex[:8]}.tmp")
     try:
-        tmp.write_text(json.dumps(_json_ready(data), allow_nan=False) + "\n", encoding="utf-8")
+        tmp.write_text(json.dumps(json_ready(data), allow_nan=False) + "\n", encoding="utf-8")
         tmp.replace(p)
     except OSError as exc:
         tmp.unlink(missing_ok=True)

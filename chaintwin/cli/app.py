@@ -36,6 +36,7 @@ def _register() -> None:
         monitor_cmd,
         simulate_cmd,
         spectrum_cmd,
+        store_cmd,
     )
 
     inspect_cmd.register(app)
@@ -44,6 +45,7 @@ def _register() -> None:
     demo_cmd.register(app)
     spectrum_cmd.register(app)
     monitor_cmd.register(app)
+    store_cmd.register(app)
 
 
 _register()

@@ -176,7 +176,13 @@ def register(app: typer.Typer) -> None:
     def calibrate_cmd(
         files: Annotated[list[Path], typer.Argument(help="Recordings with payload_kg metadata.")],
         profile: Annotated[Path, typer.Option("--profile", help="Conveyor profile YAML.")],
-        out: Annotated[Path, typer.Option("--out", help="Calibration file to write (JSON).")],
+        out: Annotated[
+            Path | None, typer.Option("--out", help="Calibration file to write (JSON).")
+        ] = None,
+        db: Annotated[
+            str | None,
+            typer.Option("--db", help="Keep the calibration in this results store (URL)."),
+        ] = None,
         as_json: Annotated[
             bool, typer.Option("--json", help="Print the calibration file's content.")
         ] = False,
@@ -184,23 +190,38 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Calibrate a conveyor for weighing and write a versioned calibration file.
 
+        With --db the calibration is kept in the results store (where ingest
+        uses it); --out and --db may be given together. One of them is needed.
+
         Accepts any mix of empty-tray runs, reference-load runs and runs at
         several speeds, and says how well the payload sensitivity is known and
         which run would improve it.
         """
+        if out is None and db is None:
+            raise CalibrationError("give --out FILE, --db URL or both: where the calibration goes")
         prof = load_profile(profile)
         cmap = load_column_map(columns) if columns is not None else None
         recs, refused = _read_all(expand_recordings(files), prof, cmap, known=True)
         if not recs:
             raise EstimationError("no usable recording to calibrate from")
         cal = calibrate(recs, prof, version=__version__)
-        _save(cal, out)
+        if out is not None:
+            _save(cal, out)
+        if db is not None:
+            from chaintwin.store.store import Store, store_url
+
+            store = Store(store_url(db))
+            try:
+                store.put_calibration(cal)
+            finally:
+                store.close()
         if as_json:
             print_json(cal.to_dict())
         else:
             console = Console()
             console.print(
-                f"wrote {escape(str(out))}: {len(recs)} recordings, case "
+                f"wrote {escape(str(out) if out is not None else 'the store')}: "
+                f"{len(recs)} recordings, case "
                 f"[bold]{cal.case}[/bold], mu = {cal.parameters['mu']:.4f}, payload "
                 f"sensitivity {cal.sensitivity_nm_per_kg * 1e3:.3f} mNm/kg "
                 f"± {cal.sensitivity_rel_uncertainty:.2%}",

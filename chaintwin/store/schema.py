@@ -1,0 +1,154 @@
+"""The results store's tables (SQLAlchemy), the same on SQLite and PostgreSQL.
+
+=================  =============================================================
+table              what a row holds
+=================  =============================================================
+``schema``         the schema version (one row); a store written by a newer
+                   chaintwin is refused, an older one is migrated
+``conveyors``      a conveyor: id, its profile (YAML as JSON) and the profile's
+                   SHA-256
+``calibrations``   a calibration file's content, per conveyor, newest used
+``recordings``     a recording: content SHA-256 (unique: the same file twice is
+                   stored once), file as given, conveyor, recorded_at,
+                   metadata, warnings, and the samples (compressed), so that any
+                   result can be recomputed
+``results``        what monitoring said of a recording (the ``monitor --json``
+                   object), with its main numbers as columns for queries
+``monitor_states`` the health model of a conveyor (baseline, belt map, alarm
+                   windows): :meth:`ConveyorMonitor.to_state` as JSON
+``alarms``         alarms with their life: opened, acknowledged, closed
+``events``         maintenance events with who, when, why
+=================  =============================================================
+
+One recording is stored in one transaction together with its result and the
+conveyor's updated health model: a crash or a kill leaves a recording either
+entirely stored or not at all.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from sqlalchemy import (
+    JSON,
+    Boolean,
+    Float,
+    ForeignKey,
+    Integer,
+    LargeBinary,
+    String,
+    Text,
+)
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
+
+__all__ = [
+    "SCHEMA_VERSION",
+    "AlarmRow",
+    "Base",
+    "CalibrationRow",
+    "ConveyorRow",
+    "EventRow",
+    "MonitorStateRow",
+    "RecordingRow",
+    "ResultRow",
+    "SchemaRow",
+]
+
+SCHEMA_VERSION = 1
+"""Version of the tables this chaintwin writes."""
+
+
+class Base(DeclarativeBase):
+    """Declarative base of the store's tables."""
+
+
+class SchemaRow(Base):
+    """The schema version of the store."""
+
+    __tablename__ = "schema"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    version: Mapped[int] = mapped_column(Integer)
+
+
+class ConveyorRow(Base):
+    """A conveyor and its profile."""
+
+    __tablename__ = "conveyors"
+    id: Mapped[str] = mapped_column(String(200), primary_key=True)
+    profile: Mapped[dict[str, Any]] = mapped_column(JSON)
+    profile_sha256: Mapped[str] = mapped_column(String(64))
+
+
+class CalibrationRow(Base):
+    """A calibration (the calibration file's JSON)."""
+
+    __tablename__ = "calibrations"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    conveyor_id: Mapped[str] = mapped_column(ForeignKey("conveyors.id"), index=True)
+    created_at: Mapped[str] = mapped_column(String(40))
+    content: Mapped[dict[str, Any]] = mapped_column(JSON)
+
+
+class RecordingRow(Base):
+    """A recording with its samples."""
+
+    __tablename__ = "recordings"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    sha256: Mapped[str] = mapped_column(String(64), unique=True)
+    conveyor_id: Mapped[str] = mapped_column(ForeignKey("conveyors.id"), index=True)
+    file: Mapped[str] = mapped_column(Text)
+    recorded_at: Mapped[str | None] = mapped_column(String(40), index=True)
+    meta: Mapped[dict[str, Any]] = mapped_column(JSON)
+    warnings: Mapped[list[Any]] = mapped_column(JSON)
+    samples: Mapped[bytes] = mapped_column(LargeBinary)
+
+
+class ResultRow(Base):
+    """Monitoring's result for one recording."""
+
+    __tablename__ = "results"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    recording_id: Mapped[int] = mapped_column(ForeignKey("recordings.id"), unique=True)
+    conveyor_id: Mapped[str] = mapped_column(ForeignKey("conveyors.id"), index=True)
+    recorded_at: Mapped[str | None] = mapped_column(String(40), index=True)
+    status: Mapped[str] = mapped_column(String(20))
+    alarm: Mapped[bool] = mapped_column(Boolean)
+    payload_kg: Mapped[float | None] = mapped_column(Float)
+    tlf: Mapped[float | None] = mapped_column(Float)
+    content: Mapped[dict[str, Any]] = mapped_column(JSON)
+
+
+class MonitorStateRow(Base):
+    """A conveyor's health model."""
+
+    __tablename__ = "monitor_states"
+    conveyor_id: Mapped[str] = mapped_column(ForeignKey("conveyors.id"), primary_key=True)
+    state: Mapped[dict[str, Any]] = mapped_column(JSON)
+    updated_at: Mapped[str] = mapped_column(String(40))
+    version: Mapped[int] = mapped_column(Integer)
+    """Raised by every write: a writer that read an older version lost a race
+    with another ingest and processes its recording again on the newer state."""
+
+
+class AlarmRow(Base):
+    """An alarm and its life."""
+
+    __tablename__ = "alarms"
+    id: Mapped[str] = mapped_column(String(16), primary_key=True)
+    conveyor_id: Mapped[str] = mapped_column(ForeignKey("conveyors.id"), index=True)
+    feature: Mapped[str] = mapped_column(String(80))
+    cause: Mapped[str] = mapped_column(String(40))
+    status: Mapped[str] = mapped_column(String(10))
+    since: Mapped[str | None] = mapped_column(String(40))
+    content: Mapped[dict[str, Any]] = mapped_column(JSON)
+
+
+class EventRow(Base):
+    """A maintenance event."""
+
+    __tablename__ = "events"
+    id: Mapped[str] = mapped_column(String(16), primary_key=True)
+    conveyor_id: Mapped[str] = mapped_column(ForeignKey("conveyors.id"), index=True)
+    kind: Mapped[str] = mapped_column(String(20))
+    at: Mapped[str] = mapped_column(String(40))
+    content: Mapped[dict[str, Any]] = mapped_column(JSON)

@@ -1,0 +1,291 @@
+"""The results store on SQLite and on a real PostgreSQL server; ingest and export."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from conftest import REFERENCE_PROFILE
+
+from chaintwin.cli.app import main
+from chaintwin.diagnose.monitor import MonitorSettings
+from chaintwin.read.profile import load_profile
+from chaintwin.simulate.faults import Fault
+from chaintwin.simulate.fleet import generate
+from chaintwin.store.ingest import ingest
+from chaintwin.store.store import Store
+
+PROFILE = load_profile(REFERENCE_PROFILE)
+
+
+# ---------------------------------------------------------------- servers
+def _pg_bin() -> Path | None:
+    found = shutil.which("initdb")
+    if found:
+        return Path(found).resolve().parent
+    for cand in sorted(Path("/usr/lib/postgresql").glob("*/bin"), reverse=True):
+        if (cand / "initdb").exists():
+            return cand
+    return None
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.fixture(scope="module")
+def postgres() -> Iterator[str]:
+    """A PostgreSQL server of our own on a free port (CI installs the binaries)."""
+    bindir = _pg_bin()
+    if bindir is None:
+        pytest.fail(
+            "PostgreSQL server binaries (initdb, pg_ctl) not found: `.ci/run` installs them "
+            "(apt-get install postgresql)"
+        )
+    # not under pytest's folder: the server runs as another user, who must reach it
+    root = Path(tempfile.mkdtemp(prefix="chaintwin-pg-"))
+    data = root / "data"
+    port = _free_port()
+    as_user: list[str] = []
+    if os.geteuid() == 0:  # the server refuses to run as root
+        root.chmod(0o777)
+        as_user = ["runuser", "-u", "postgres", "--"]
+    subprocess.run(
+        [*as_user, str(bindir / "initdb"), "-D", str(data), "-U", "postgres", "-A", "trust"],
+        check=True,
+        capture_output=True,
+    )
+    subprocess.run(
+        [
+            *as_user,
+            str(bindir / "pg_ctl"),
+            "-D",
+            str(data),
+            "-o",
+            f"-p {port} -k {root} -c listen_addresses=127.0.0.1",
+            "-l",
+            str(root / "log"),
+            "-w",
+            "start",
+        ],
+        check=True,
+        capture_output=True,
+    )
+    try:
+        yield f"postgresql://postgres@127.0.0.1:{port}/postgres"
+    finally:
+        subprocess.run(
+            [*as_user, str(bindir / "pg_ctl"), "-D", str(data), "-m", "immediate", "stop"],
+            capture_output=True,
+        )
+        shutil.rmtree(root, ignore_errors=True)
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def db(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
+    """An empty store: a SQLite file, or a fresh database on the PostgreSQL server."""
+    if request.param == "sqlite":
+        yield f"sqlite:///{tmp_path / 'plant.db'}"
+        return
+    base: str = request.getfixturevalue("postgres")
+    import psycopg
+
+    name = f"t{os.getpid()}_{int(time.time() * 1e6) % 10**9}"
+    with psycopg.connect(base.replace("postgresql://", "postgresql://", 1), autocommit=True) as c:
+        c.execute(f"CREATE DATABASE {name}")
+    yield base.rsplit("/", 1)[0] + "/" + name
+
+
+# ---------------------------------------------------------------- data
+@pytest.fixture(scope="module")
+def plant(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The reference conveyor's recordings over three days (friction rising) and its profile."""
+    root = tmp_path_factory.mktemp("plant")
+    generate(
+        PROFILE,
+        root / "recs" / "wb",
+        days=3,
+        per_day=6,
+        faults=[Fault("friction", 0.6)],
+        onset_day=1,
+        seed=5,
+    )
+    (root / "profiles").mkdir()
+    shutil.copy(REFERENCE_PROFILE, root / "profiles" / "white-belt-01.yaml")
+    return root
+
+
+def _recordings(plant: Path) -> list[str]:
+    return sorted(str(p) for p in (plant / "recs" / "wb").glob("*.csv"))
+
+
+def _calibrate(plant: Path, url: str) -> None:
+    cal = sorted(str(p) for p in (plant / "recs" / "wb" / "calibration").glob("*.csv"))
+    assert main(["calibrate", "--profile", str(REFERENCE_PROFILE), *cal, "--db", url]) == 0
+
+
+# ---------------------------------------------------------------- tests
+def test_ingest_is_idempotent_and_keeps_a_refused_file_out(
+    plant: Path, db: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _calibrate(plant, db)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("# conveyor: white-belt-01\ntime [s],speed [rpm]\n0,1\n", encoding="utf-8")
+    files = _recordings(plant)
+    args = ["ingest", *files, str(bad), "--profiles", str(plant / "profiles"), "--db", db]
+    capsys.readouterr()
+    assert main([*args, "--json", "--workers", "2", "--baseline", "6"]) == 0
+    first = json.loads(capsys.readouterr().out)
+    assert first["processed"] == len(files)
+    assert first["refused"] == 1 and first["refusals"][0]["file"] == str(bad)
+    assert first["new_alarms"] >= 1  # friction rises by 60 % over the days
+    assert main([*args, "--json"]) == 0
+    again = json.loads(capsys.readouterr().out)
+    assert again["processed"] == 0 and again["duplicates"] == len(files)
+    store = Store(db)
+    try:
+        assert store.counts()["results"] == len(files)
+        assert store.counts()["recordings"] == len(files)
+        rows = store.results("white-belt-01")
+    finally:
+        store.close()
+    assert [r["recorded_at"] for r in rows] == sorted(r["recorded_at"] for r in rows)
+    assert any(r["alarm"] and r["causes"][0]["cause"] == "friction" for r in rows)
+    # export: CSV for other tools, one row per recording
+    assert main(["export", "--db", db, "--conveyor", "white-belt-01", "--format", "csv"]) == 0
+    table = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
+    assert len(table) == len(files)
+    assert {"conveyor", "file", "payload_kg", "friction", "alarm"} <= set(table[0])
+    assert main(["export", "--db", db, "--conveyor", "nope"]) == 2
+    assert "nope" in capsys.readouterr().err
+
+
+def _ingest_cmd(plant: Path, url: str) -> list[str]:
+    return [
+        sys.executable,
+        "-m",
+        "chaintwin",
+        "ingest",
+        *_recordings(plant),
+        "--profiles",
+        str(plant / "profiles"),
+        "--db",
+        url,
+        "--baseline",
+        "6",
+        "--workers",
+        "1",
+        "--json",
+    ]
+
+
+def test_killed_ingest_leaves_one_result_per_recording(plant: Path, db: str) -> None:
+    _calibrate(plant, db)
+    files = _recordings(plant)
+    # its own process group: the kill takes its worker processes too, as a
+    # service manager stopping it would
+    proc = subprocess.Popen(
+        _ingest_cmd(plant, db), stdout=subprocess.DEVNULL, start_new_session=True
+    )
+    store = Store(db)
+    try:
+        deadline = time.monotonic() + 120
+        while store.counts()["results"] < 3 and time.monotonic() < deadline:
+            if proc.poll() is not None:
+                break
+            time.sleep(0.05)
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+        partial = store.counts()["results"]
+        assert 0 < partial < len(files), "the kill came too late to test anything"
+        # nothing half-written: every stored recording has its result
+        assert store.counts()["recordings"] == partial
+        done = subprocess.run(_ingest_cmd(plant, db), capture_output=True, check=True, text=True)
+        summary = json.loads(done.stdout)
+        assert summary["duplicates"] == partial
+        assert summary["processed"] == len(files) - partial
+        assert store.counts()["results"] == len(files)
+        rows = store.results()
+        assert len({r["file"] for r in rows}) == len(files)
+    finally:
+        store.close()
+        if proc.poll() is None:
+            proc.kill()
+
+
+def test_two_ingests_at_once_store_each_recording_once(plant: Path, db: str) -> None:
+    _calibrate(plant, db)
+    files = _recordings(plant)
+    a = subprocess.Popen(
+        _ingest_cmd(plant, db), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    b = subprocess.Popen(
+        _ingest_cmd(plant, db), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    out_a, err_a = a.communicate(timeout=300)
+    out_b, err_b = b.communicate(timeout=300)
+    assert a.returncode == 0, err_a
+    assert b.returncode == 0, err_b
+    sa, sb = json.loads(out_a), json.loads(out_b)
+    assert sa["processed"] + sb["processed"] == len(files)
+    assert sa["processed"] + sa["duplicates"] == len(files)
+    store = Store(db)
+    try:
+        assert store.counts()["results"] == len(files)
+        assert len({r["file"] for r in store.results()}) == len(files)
+    finally:
+        store.close()
+
+
+def test_dask_cluster_gives_the_same_results_as_the_local_pool(plant: Path, tmp_path: Path) -> None:
+    from distributed import LocalCluster
+
+    files = _recordings(plant)
+    profiles = {PROFILE.id: PROFILE}
+    settings = MonitorSettings(baseline_n=6)
+    out: dict[str, list[dict[str, object]]] = {}
+    cluster = LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    )
+    try:
+        for kind, scheduler in (("local", None), ("dask", cluster.scheduler_address)):
+            url = f"sqlite:///{tmp_path / kind}.db"
+            _calibrate(plant, url)
+            store = Store(url)
+            try:
+                s = ingest(
+                    files, profiles, store, settings=settings, workers=2, scheduler=scheduler
+                )
+                assert s.processed == len(files)
+                out[kind] = store.results()
+            finally:
+                store.close()
+    finally:
+        cluster.close()
+    local, dask = out["local"], out["dask"]
+    assert [r["file"] for r in local] == [r["file"] for r in dask]
+    for x, y in zip(local, dask, strict=True):
+        assert x["payload_kg"] == pytest.approx(y["payload_kg"], rel=1e-9)
+        assert x["alarm"] == y["alarm"]
+        assert x["status"] == y["status"]
+        fx, fy = x["features"], y["features"]
+        assert isinstance(fx, dict) and isinstance(fy, dict) and fx.keys() == fy.keys()
+        for k, v in fx.items():
+            if v is None:
+                assert fy[k] is None, k
+            else:
+                assert fy[k] == pytest.approx(v, rel=1e-9), k

@@ -1,0 +1,326 @@
+"""Benchmark: throughput of the whole ingest pipeline into a SQLite store (a script, not a test).
+
+Scenario: the reference conveyor white-belt-01, a simulated series of
+``DAYS`` x ``PER_DAY`` recordings (payload 10-40 kg, seasonal and daily loss
+drift, a friction rise growing to +30 % from day ``ONSET_DAY``) written by
+:func:`chaintwin.simulate.fleet.generate` into a temporary folder with its
+calibration recordings, and one calibration made from those (setup, not
+timed). Each timed ingest goes into a fresh SQLite store
+(``sqlite:///<tmp>/bN.db``) that holds that calibration (put before the
+clock starts) and runs
+``ingest(files, profiles, store, settings=MonitorSettings(baseline_n=20), workers=N)``.
+
+Prints one table (recordings per second and ms per recording, with the ratio
+of the time per recording to the reference row measured in the same run):
+
+1. reference: ``load_recording`` (read + validate) alone, in this process;
+2. ingest with 1 local worker process;
+3. ingest with 2 local worker processes;
+4. worker start-up: an ingest of 2 recordings with 1 and with 2 workers,
+   and from it an estimate of the throughput without start-up;
+5. for explanation: the part of an ingest that runs in this process, one
+   recording after the other whatever the workers (``ConveyorMonitor.process``
+   with the features computed beforehand + ``Store.commit_recording``).
+
+Then the issue's targets: 2 workers at least 1.8x the throughput of 1 worker,
+and 200 recordings per second per core (5 ms per recording end to end).
+
+Included in each timed ingest: starting its worker processes (forked from the
+fork server) and shutting them down, reading the metadata and hashing every
+file, the duplicate check, reading + validating + weighing + features in the
+workers, sending the recordings back, the health model and one transaction
+per recording in this process. Not included: generating the data, the
+calibration, opening the store and putting the calibration, numba compilation
+and the start of the fork server (a warm-up ingest into a throwaway store
+runs first). Every measurement is repeated in ``ROUNDS`` rounds, the
+configurations interleaved so that they see the same load on the machine,
+and the best round is kept. BLAS is pinned to one thread (DESIGN.md).
+
+Run: ``python benchmarks/bench_ingest.py`` (about 40 s on 2 cores).
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"  # small least-squares fits: no BLAS thread oversubscription
+
+import hashlib  # noqa: E402
+import statistics  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from chaintwin.diagnose.monitor import ConveyorMonitor, MonitorSettings  # noqa: E402
+from chaintwin.identify.calibration import calibrate  # noqa: E402
+from chaintwin.read.profile import load_profile  # noqa: E402
+from chaintwin.simulate.faults import Fault  # noqa: E402
+from chaintwin.simulate.fleet import generate  # noqa: E402
+from chaintwin.store.ingest import IngestSummary, ingest, prepare  # noqa: E402
+from chaintwin.store.store import Store  # noqa: E402
+from chaintwin.validate.checks import load_recording  # noqa: E402
+
+PROFILE = (
+    Path(__file__).resolve().parents[1]
+    / "chaintwin"
+    / "examples"
+    / "profiles"
+    / "white-belt-01.yaml"
+)
+DAYS = 5
+PER_DAY = 16
+ONSET_DAY = 2
+SEED = 3
+BASELINE_N = 20
+WORKERS = (1, 2)
+STARTUP_N = 2  # recordings in the start-up ingest
+ROUNDS = 3
+TARGET_SCALING = 1.8  # 2 workers / 1 worker
+TARGET_PER_CORE = 200.0  # recordings per second per core (5 ms end to end)
+
+
+def db_bytes(db: Path) -> int:
+    """Size of a SQLite store on disk (the file, and its WAL and shm files if left)."""
+    return sum(
+        p.stat().st_size
+        for p in (db, db.with_name(db.name + "-wal"), db.with_name(db.name + "-shm"))
+        if p.exists()
+    )
+
+
+def main() -> None:
+    t_start = time.perf_counter()
+    load_before = os.getloadavg()[0]
+    prof = load_profile(PROFILE)
+    profiles = {prof.id: prof}
+    settings = MonitorSettings(baseline_n=BASELINE_N)
+    with tempfile.TemporaryDirectory(prefix="bench_ingest_") as tmp_name:
+        tmp = Path(tmp_name)
+        folder = tmp / "recordings"
+        # ------------------------------------------------------------ setup
+        t0 = time.perf_counter()
+        generate(
+            prof,
+            folder,
+            days=DAYS,
+            per_day=PER_DAY,
+            faults=[Fault("friction", 0.3)],
+            onset_day=ONSET_DAY,
+            seed=SEED,
+        )
+        t_gen = time.perf_counter() - t0
+        cal_files = sorted((folder / "calibration").glob("*.csv"))
+        cal = calibrate([load_recording(p, profile=prof).recording for p in cal_files], prof)
+        files = [str(p) for p in sorted(folder.glob("*.csv"))]  # names are timestamps
+        n = len(files)
+        size_kb = statistics.median(Path(f).stat().st_size for f in files) / 1e3
+
+        serial = 0
+
+        def run(workers: int, some: list[str]) -> tuple[float, IngestSummary, dict[str, int], int]:
+            """One ingest into a fresh store: (seconds, summary, counts, bytes on disk)."""
+            nonlocal serial
+            serial += 1
+            db = tmp / f"b{serial}.db"
+            store = Store(f"sqlite:///{db}")
+            store.put_calibration(cal)
+            t0 = time.perf_counter()
+            summary = ingest(some, profiles, store, settings=settings, workers=workers)
+            seconds = time.perf_counter() - t0
+            counts = store.counts()
+            store.close()
+            size = db_bytes(db)
+            for p in tmp.glob(f"b{serial}.db*"):
+                p.unlink()
+            return seconds, summary, counts, size
+
+        # ------------------------------------------------------------ warm-up
+        # a short baseline so that the baseline phase, its formation and the
+        # monitored phase all run once (numba compiled or loaded from its
+        # cache, the fork server started) before anything is timed
+        t0 = time.perf_counter()
+        for p in files[:3]:
+            load_recording(p, profile=prof)
+        warm_store = Store(f"sqlite:///{tmp / 'warm.db'}")
+        warm_store.put_calibration(cal)
+        ingest(files[:8], profiles, warm_store, settings=MonitorSettings(baseline_n=5), workers=2)
+        warm_store.close()
+        t_warm = time.perf_counter() - t0
+
+        # ------------------------------------------------------------ rounds
+        t_load: list[list[float]] = []
+        t_full: dict[int, list[float]] = {w: [] for w in WORKERS}
+        t_start_up: dict[int, list[float]] = {w: [] for w in WORKERS}
+        sizes: list[int] = []
+        checks: list[str] = []
+        cpu0, wall0 = time.process_time(), time.perf_counter()
+        for _rnd in range(ROUNDS):
+            times = []
+            for p in files:
+                t0 = time.perf_counter()
+                load_recording(p, profile=prof)
+                times.append(time.perf_counter() - t0)
+            t_load.append(times)
+            for w in WORKERS:
+                seconds, summary, counts, size = run(w, files)
+                t_full[w].append(seconds)
+                sizes.append(size)
+                if (
+                    summary.processed != n
+                    or summary.refused
+                    or counts["recordings"] != n
+                    or counts["results"] != n
+                ):
+                    checks.append(
+                        f"{w} worker(s): processed {summary.processed}, refused "
+                        f"{summary.refused} {summary.refusals[:2]}, store {counts}"
+                    )
+                seconds, summary, counts, _size = run(w, files[:STARTUP_N])
+                t_start_up[w].append(seconds)
+                if summary.processed != STARTUP_N or counts["recordings"] != STARTUP_N:
+                    checks.append(
+                        f"start-up, {w} worker(s): processed {summary.processed}, store {counts}"
+                    )
+        cpu_share = (time.process_time() - cpu0) / (time.perf_counter() - wall0)
+
+        # ------------------------------------------------------------ serial part
+        # what ingest does in this process, one recording after the other:
+        # the health model and the store transaction (features precomputed,
+        # as the workers deliver them; not timed)
+        prepared = []
+        for f in files:
+            rec, feats, error = prepare(f, prof, None, cal)
+            assert rec is not None, f"{f}: {error}"
+            prepared.append((rec, feats, hashlib.sha256(Path(f).read_bytes()).hexdigest()))
+        db = tmp / "serial.db"
+        store = Store(f"sqlite:///{db}")
+        store.put_calibration(cal)
+        mon = ConveyorMonitor(prof, settings, store.calibration(prof.id))
+        version = 0
+        t_process: list[float] = []
+        t_commit: list[float] = []
+        for rec, feats, sha in prepared:
+            t0 = time.perf_counter()
+            results = mon.process(rec, sha, features=feats)
+            t1 = time.perf_counter()
+            for res in results:
+                version = store.commit_recording(rec, sha, res, mon, version)
+            t_commit.append(time.perf_counter() - t1)
+            t_process.append(t1 - t0)
+        store.close()
+
+    # ------------------------------------------------------------ report
+    ref_total = min(sum(t) for t in t_load)
+    ref = ref_total / n
+    best = {w: min(v) for w, v in t_full.items()}
+    best_up = {w: min(v) for w, v in t_start_up.items()}
+    rate = {w: n / best[w] for w in WORKERS}
+    steady = {w: (n - STARTUP_N) / (best[w] - best_up[w]) for w in WORKERS}
+    rows: list[tuple[str, int, float, float]] = [
+        ("1. read + validate: load_recording, here [reference]", n, ref_total, ref)
+    ]
+    for k, w in enumerate(WORKERS):
+        rows.append(
+            (
+                f"{2 + k}. ingest, {w} worker{'s' * (w > 1)} (start-up included)",
+                n,
+                best[w],
+                best[w] / n,
+            )
+        )
+    rows.append(
+        (
+            f"4. start-up: ingest of {STARTUP_N}, 1 worker",
+            STARTUP_N,
+            best_up[1],
+            best_up[1] / STARTUP_N,
+        )
+    )
+    rows.append(("   4a. the same, 2 workers", STARTUP_N, best_up[2], best_up[2] / STARTUP_N))
+    for w, label in (
+        (1, "4b. 1 worker, without start-up: 2 - 4"),
+        (2, "4c. 2 workers, without start-up: 3 - 4a"),
+    ):
+        rows.append((f"   {label}", n - STARTUP_N, best[w] - best_up[w], 1 / steady[w]))
+    serial_s = sum(t_process) + sum(t_commit)
+    rows.append(("5. this process' part alone (1 round)", n, serial_s, serial_s / n))
+    rows.append(
+        ("   5a. ConveyorMonitor.process, features given", n, sum(t_process), sum(t_process) / n)
+    )
+    rows.append(
+        ("   5b. Store.commit_recording (one transaction)", n, sum(t_commit), sum(t_commit) / n)
+    )
+
+    print(
+        f"chaintwin ingest pipeline, {prof.id}: {n} recordings ({DAYS} days x {PER_DAY}), "
+        f"{size_kb:.0f} kB per file, into a fresh SQLite store each time"
+    )
+    print(
+        f"faults: friction +30 % growing from day {ONSET_DAY}; baseline_n={BASELINE_N}; "
+        f"os.cpu_count() = {os.cpu_count()}; BLAS threads pinned to 1"
+    )
+    print(
+        f"setup (not timed): generate {t_gen:.1f} s, calibrate from {len(cal_files)} "
+        f"recordings; warm-up ingest of 8 recordings (baseline_n=5) with 2 workers into "
+        f"a throwaway store ({t_warm:.1f} s: numba, fork server start)"
+    )
+    print(
+        "included in rows 2-4: worker start-up and shut-down, metadata + sha256 of each "
+        "file, read + validate + weigh + features in the workers, health model and one "
+        "store transaction per recording here; NOT included: opening the store, putting "
+        "the calibration, numba compilation, the fork server's start"
+    )
+    print(
+        f"best of {ROUNDS} rounds (configurations interleaved); ratio = ms per recording / "
+        f"reference ms per recording; load average before / after: {load_before:.2f} / "
+        f"{os.getloadavg()[0]:.2f}; CPU time / wall time of this process over the rounds: "
+        f"{cpu_share:.2f}"
+    )
+    print()
+    head = f"{'what':58s} {'n':>3s} {'total s':>8s} {'ms/rec':>8s} {'rec/s':>8s} {'ratio':>6s}"
+    print(head)
+    print("-" * len(head))
+    for label, count, total, per in rows:
+        print(
+            f"{label:58s} {count:3d} {total:8.3f} {per * 1e3:8.2f} {1 / per:8.1f} {per / ref:6.2f}"
+        )
+    print()
+    for problem in checks:
+        print(f"CHECK FAILED: {problem}")
+    scaling = rate[2] / rate[1]
+    print(
+        f"scaling, 2 workers / 1 worker: {scaling:.2f}x ({rate[2]:.1f} / {rate[1]:.1f} rec/s); "
+        f"target at least {TARGET_SCALING}x: {'MET' if scaling >= TARGET_SCALING else 'NOT MET'}"
+        f" (without start-up, estimate: {steady[2] / steady[1]:.2f}x)"
+    )
+    for w in WORKERS:
+        per_core = rate[w] / w
+        print(
+            f"per core, {w} worker{'s' * (w > 1)}: {per_core:.1f} rec/s per worker "
+            f"({1e3 / per_core:.1f} ms per recording per core); target {TARGET_PER_CORE:.0f} "
+            f"rec/s per core (5 ms): {'MET' if per_core >= TARGET_PER_CORE else 'NOT MET'} "
+            f"({per_core / TARGET_PER_CORE:.2f} of it; without start-up, estimate: "
+            f"{steady[w] / w:.1f} rec/s)"
+        )
+    print(
+        "  (per core = recordings/s / worker processes; the main process that runs the "
+        "health model and writes the store is not counted)"
+    )
+    size = statistics.median(sizes)
+    print(
+        f"store size: {size / 1e6:.2f} MB for {n} recordings after closing the store, "
+        f"{size / 1e3 / n:.1f} kB per recording ({size / 1e3 / n / size_kb:.2f}x the CSV file)"
+    )
+    m = min(10, n // 2)
+    print(
+        f"Store.commit_recording, median of the first / last {m} recordings: "
+        f"{statistics.median(t_commit[:m]) * 1e3:.1f} / "
+        f"{statistics.median(t_commit[-m:]) * 1e3:.1f} ms (each transaction also writes the "
+        "whole health model)"
+    )
+    print(f"total run time {time.perf_counter() - t_start:.0f} s")
+
+
+if __name__ == "__main__":
+    main()

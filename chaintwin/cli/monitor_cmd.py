@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-import hashlib
 from collections.abc import Sequence
-from datetime import UTC, datetime
+from datetime import datetime
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -33,13 +32,12 @@ from chaintwin.errors import (
     ChaintwinError,
     MonitorError,
     ProfileError,
-    RecordingError,
     StoreError,
 )
 from chaintwin.identify.calibration import Calibration, load_calibration
+from chaintwin.read.batch import group_by_conveyor, order_recordings
 from chaintwin.read.columns import ColumnMap, load_column_map
 from chaintwin.read.profile import ConveyorProfile, load_profile
-from chaintwin.read.reader import read_metadata
 from chaintwin.read.recording import RecordingWarning
 from chaintwin.validate.checks import load_recording
 
@@ -89,36 +87,6 @@ def load_profiles(profile: Path | None, profiles: Path | None) -> dict[str, Conv
     return found
 
 
-def order_recordings(
-    items: Sequence[tuple[str, datetime | None]],
-) -> tuple[list[str], set[str]]:
-    """Recorded order: by ``recorded_at``; one without it stays after its predecessor in file order.
-
-    Returns
-    -------
-    (list of str, set of str)
-        The files in processing order, and those without ``recorded_at``.
-    """
-    keyed: list[tuple[str, int, str]] = []
-    last = ""
-    missing: set[str] = set()
-    for k, (f, when) in enumerate(items):
-        if when is None:
-            missing.add(f)
-        else:
-            last = when.astimezone(UTC).isoformat()
-        keyed.append((last, k, f))
-    keyed.sort()
-    return [f for _t, _k, f in keyed], missing
-
-
-def _sha256(path: str) -> str | None:
-    try:
-        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-    except OSError:
-        return None
-
-
 def run_monitor(
     files: list[str],
     profiles: dict[str, ConveyorProfile],
@@ -161,28 +129,8 @@ def run_monitor(
                     f"({', '.join(sorted(profiles))})"
                 )
         cal_by_id[cid] = cal
-    refused: list[RecordingResult] = []
-    groups: dict[str, list[tuple[str, datetime | None]]] = {}
-    single = next(iter(profiles)) if len(profiles) == 1 else None
-    for f in files:
-        try:
-            meta = read_metadata(f)
-            conveyor = meta.conveyor or single
-            if conveyor is None:
-                raise RecordingError(
-                    f, "has no 'conveyor' in its metadata; add '# conveyor: <profile id>'"
-                )
-            if conveyor not in profiles:
-                raise RecordingError(
-                    f,
-                    f"is a recording of conveyor '{conveyor}', for which no profile was given "
-                    f"(profiles: {', '.join(sorted(profiles))})",
-                )
-        except ChaintwinError as exc:
-            refused.append(RecordingResult(f, "", None, "refused", error=str(exc)))
-            continue
-        groups.setdefault(conveyor, []).append((f, meta.recorded_at))
-    results: list[RecordingResult] = list(refused)
+    groups, refused = group_by_conveyor(files, profiles)
+    results = [RecordingResult(f, "", None, "refused", error=e) for f, e in refused]
     monitors: list[ConveyorMonitor] = []
     stored = state["conveyors"] if state is not None else {}
     for cid, items in groups.items():
@@ -212,7 +160,8 @@ def run_monitor(
                 results += mon.flush_pending()
         else:
             mon = ConveyorMonitor(prof, settings.merged(None), given, loader=loader)
-        order, missing = order_recordings(items)
+        sha = {item.path: item.sha256 for item in items}
+        order, missing = order_recordings([(item.path, item.recorded_at) for item in items])
         for f in order:
             try:
                 rec = loader(f)
@@ -227,7 +176,7 @@ def run_monitor(
                         "recording before it",
                     )
                 )
-            results += mon.process(rec, _sha256(f))
+            results += mon.process(rec, sha[f])
         results += mon.finish()
         monitors.append(mon)
         if state is not None:

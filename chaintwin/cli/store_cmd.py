@@ -104,7 +104,8 @@ def register(app: typer.Typer) -> None:
         files = expand_recordings(paths)
         store = Store(store_url(db))
         try:
-            if as_json:
+            with Progress(transient=True, disable=as_json) as bar:
+                task = bar.add_task("ingest", total=len(files))
                 summary = ingest(
                     files,
                     profs,
@@ -113,20 +114,8 @@ def register(app: typer.Typer) -> None:
                     workers=workers,
                     scheduler=scheduler,
                     column_map=cmap,
+                    progress=lambda d, n: bar.update(task, completed=d, total=n),
                 )
-            else:
-                with Progress(transient=True) as bar:
-                    task = bar.add_task("ingest", total=len(files))
-                    summary = ingest(
-                        files,
-                        profs,
-                        store,
-                        settings=settings,
-                        workers=workers,
-                        scheduler=scheduler,
-                        column_map=cmap,
-                        progress=lambda d, n: bar.update(task, completed=d, total=n),
-                    )
         finally:
             store.close()
         if as_json:

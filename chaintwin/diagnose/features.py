@@ -61,7 +61,7 @@ import numpy as np
 from chaintwin.errors import EstimationError
 from chaintwin.identify.calibration import Calibration
 from chaintwin.identify.signatures import fit_condition
-from chaintwin.identify.windows import motoring_mask
+from chaintwin.identify.windows import WindowIntegrals, motoring_mask, window_integrals
 from chaintwin.model.frequencies import characteristic_orders
 from chaintwin.read.recording import FloatArray, Recording, RecordingWarning
 from chaintwin.validate.phases import segment
@@ -297,7 +297,14 @@ def recording_features(recording: Recording, calibration: Calibration) -> Record
         drive_inertia_kgm2=params["J_d"],
         losses=(params["BmA"], params["BmB"], params["BmC"]),
     )
-    w = weigh(recording, calibration, motoring=mot)
+    # the window integrals serve weighing and the condition fit alike; when
+    # there are none, weighing refuses the recording in its own words
+    every: WindowIntegrals | None
+    try:
+        every = window_integrals(recording, prof, motoring=mot)
+    except EstimationError:
+        every = None
+    w = weigh(recording, calibration, motoring=mot, windows=every)
     tray = recording.metadata.tray_kg
     tray = prof.tray_mass_kg if tray is None else tray
     m0 = prof.belt_mass_kg + tray
@@ -308,7 +315,9 @@ def recording_features(recording: Recording, calibration: Calibration) -> Record
         "tlf": nan if w.tlf is None else w.tlf,
     }
     try:
-        cond = fit_condition(recording, prof, params, tray, mot, calibration.ramp_noise_rate)
+        cond = fit_condition(
+            recording, prof, params, tray, mot, calibration.ramp_noise_rate, windows=every
+        )
     except EstimationError:
         values["friction"] = values["speed_loss"] = nan
     else:

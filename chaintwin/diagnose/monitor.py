@@ -44,7 +44,7 @@ from .features import recording_features as extract
 from .health import FeatureBaseline, fit_baseline, forecast_crossing, x_of_y
 from .learned import learn_calibration
 from .residuals import DEFAULT_BIN_WIDTH_M
-from .spectra import Spectrum, apparent_order
+from .spectra import Spectrum, apparent_order, median_spectrum
 from .state import close_alarms, new_event
 
 __all__ = [
@@ -196,6 +196,19 @@ class RecordingResult:
     def from_dict(cls, data: dict[str, Any]) -> RecordingResult:
         """Inverse of :meth:`to_dict` (for results kept in a state)."""
         return cls(**{k: v for k, v in data.items() if k in cls.__dataclass_fields__})
+
+
+def _spectrum(x: list[float], amplitude: list[float], speed_rpm: float) -> Spectrum:
+    """A plateau torque spectrum as a state keeps it (grid, amplitudes, speed)."""
+    grid = np.asarray(x)
+    return Spectrum(
+        x=grid,
+        amplitude=np.asarray(amplitude),
+        kind="frequency",
+        resolution=float(grid[1] - grid[0]),
+        channel="torque",
+        speed_rpm=speed_rpm,
+    )
 
 
 def _number(x: float | None) -> float:
@@ -705,26 +718,19 @@ class ConveyorMonitor:
 
     def _form_baseline(self) -> None:
         rows = self.baseline_rows
-        spectra = [sp for sp in self.baseline_spectra if sp is not None]
+        own = [None if sp is None else _spectrum(*sp) for sp in self.baseline_spectra]
+        spectra = [sp for sp in own if sp is not None]
         if spectra:
-            grid = np.asarray(spectra[0][0])
-            amps = np.array([np.interp(grid, np.asarray(x), np.asarray(a)) for x, a, _ in spectra])
-            speed = float(np.median([s for _x, _a, s in spectra]))
-            self.baseline_spectrum = (grid.tolist(), np.median(amps, axis=0).tolist(), speed)
+            median = median_spectrum(spectra)
+            self.baseline_spectrum = (
+                median.x.tolist(),
+                median.amplitude.tolist(),
+                median.speed_rpm,
+            )
             # the baseline's own unexplained peaks, for its limit
-            for row, sp in zip(rows, self.baseline_spectra, strict=True):
-                if sp is None:
-                    continue
-                x, a, s = sp
-                own = Spectrum(
-                    x=np.asarray(x),
-                    amplitude=np.asarray(a),
-                    kind="frequency",
-                    resolution=float(x[1] - x[0]),
-                    channel="residual",
-                    speed_rpm=s,
-                )
-                row["unexplained_peak"] = self._unexplained_peak(own)[0]
+            for row, sp in zip(rows, own, strict=True):
+                if sp is not None:
+                    row["unexplained_peak"] = self._unexplained_peak(sp)[0]
         self.baseline_spectra = []  # the median is kept; the rows' spectra are not needed
         names = sorted({k for r in rows for k in r})
         out: dict[str, FeatureBaseline] = {}

@@ -141,6 +141,7 @@ def fit_signatures(
     span: tuple[float, float] | None = None,
     motoring: np.ndarray | None = None,
     ramp_rate: float | None = None,
+    windows: WindowIntegrals | None = None,
 ) -> tuple[SignatureFit, FloatArray]:
     """Fit the payload signatures against a calibrated empty-conveyor model.
 
@@ -161,6 +162,9 @@ def fit_signatures(
     ramp_rate : float, optional
         Noise rate of whole-ramp windows learned by the calibration,
         (N·m·s)²/s (default: that of the short windows).
+    windows : WindowIntegrals, optional
+        The recording's window integrals, when already computed with this
+        ``motoring`` (ignored with a ``span``).
 
     Returns
     -------
@@ -174,7 +178,10 @@ def fit_signatures(
             drive_inertia_kgm2=params["J_d"],
             losses=(params["BmA"], params["BmB"], params["BmC"]),
         )
-    every = window_integrals(rec, prof, motoring=motoring, span=span)
+    if windows is not None and span is None:
+        every = windows
+    else:
+        every = window_integrals(rec, prof, motoring=motoring, span=span)
     # primary: plateau windows and whole-ramp windows; the short windows inside
     # ramps see the belt's ringing against the motor's acceleration and bias the
     # inertia signature of a lightly damped belt
@@ -212,6 +219,7 @@ def fit_condition(
     tray: float,
     motoring: np.ndarray | None = None,
     ramp_rate: float | None = None,
+    windows: WindowIntegrals | None = None,
 ) -> SignatureFit:
     """Friction payload, inertia payload and a speed-loss change, fitted together.
 
@@ -224,7 +232,7 @@ def fit_condition(
 
     Parameters
     ----------
-    rec, prof, params, tray, motoring, ramp_rate
+    rec, prof, params, tray, motoring, ramp_rate, windows
         As :func:`fit_signatures`.
 
     Returns
@@ -244,5 +252,5 @@ def fit_condition(
             drive_inertia_kgm2=params["J_d"],
             losses=(params["BmA"], params["BmB"], params["BmC"]),
         )
-    every = window_integrals(rec, prof, motoring=motoring)
+    every = windows if windows is not None else window_integrals(rec, prof, motoring=motoring)
     return _fit(every, prof, params.values, tray, ramp_rate, loss_term=True)

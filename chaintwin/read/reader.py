@@ -37,7 +37,14 @@ from chaintwin.units import CANONICAL_CHANNELS, REQUIRED_CHANNELS, UnitContext, 
 if TYPE_CHECKING:
     from chaintwin.read.profile import ConveyorProfile
 
-__all__ = ["MIN_SAMPLES", "parse_recording", "read_metadata", "read_recording"]
+__all__ = [
+    "MIN_SAMPLES",
+    "parse_metadata",
+    "parse_recording",
+    "read_bytes",
+    "read_metadata",
+    "read_recording",
+]
 
 MIN_SAMPLES = 32
 """Fewest samples a recording may hold."""
@@ -75,15 +82,7 @@ def read_recording(
         Naming the file, the line or column, and what to do.
     """
     source = str(path)
-    try:
-        raw = Path(path).read_bytes()
-    except IsADirectoryError:
-        raise RecordingError(source, "is a folder, not a recording file") from None
-    except OSError as exc:
-        raise RecordingError(
-            source, f"cannot be read ({exc.strerror or exc}); check the path"
-        ) from None
-    return parse_recording(raw, source, profile=profile, column_map=column_map)
+    return parse_recording(read_bytes(path), source, profile=profile, column_map=column_map)
 
 
 def read_metadata(path: str | Path) -> Metadata:
@@ -97,15 +96,30 @@ def read_metadata(path: str | Path) -> Metadata:
     RecordingError
         When the file cannot be read, has no header row or bad metadata.
     """
+    return parse_metadata(read_bytes(path), str(path))
+
+
+def read_bytes(path: str | Path) -> bytes:
+    """A recording file's bytes.
+
+    Raises
+    ------
+    RecordingError
+        When it is a folder or cannot be read.
+    """
     source = str(path)
     try:
-        raw = Path(path).read_bytes()
+        return Path(path).read_bytes()
     except IsADirectoryError:
         raise RecordingError(source, "is a folder, not a recording file") from None
     except OSError as exc:
         raise RecordingError(
             source, f"cannot be read ({exc.strerror or exc}); check the path"
         ) from None
+
+
+def parse_metadata(raw: bytes, source: str) -> Metadata:
+    """The ``# key: value`` metadata of a recording's bytes (:func:`read_metadata`)."""
     items, _lineno, _header, _body = _split_head(source, _decode(raw))
     return _parse_metadata(source, items)
 

@@ -20,7 +20,6 @@ kill finishes the job.
 
 from __future__ import annotations
 
-import hashlib
 import multiprocessing
 import os
 from collections.abc import Callable, Iterator, Sequence
@@ -28,16 +27,15 @@ from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
-from pathlib import Path
 from typing import Any
 
 from chaintwin.diagnose.features import RecordingFeatures, recording_features
 from chaintwin.diagnose.monitor import ConveyorMonitor, MonitorSettings
 from chaintwin.errors import ChaintwinError, EstimationError, StoreError
 from chaintwin.identify.calibration import Calibration
+from chaintwin.read.batch import group_by_conveyor, order_recordings
 from chaintwin.read.columns import ColumnMap
 from chaintwin.read.profile import ConveyorProfile
-from chaintwin.read.reader import read_metadata
 from chaintwin.read.recording import Recording
 from chaintwin.validate.checks import load_recording
 
@@ -143,10 +141,6 @@ def prepare(
         return rec, None, None  # the monitor reports it in its own words
 
 
-def _sha256(path: str) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
 def ingest(
     files: Sequence[str],
     profiles: dict[str, ConveyorProfile],
@@ -186,25 +180,11 @@ def ingest(
     started = datetime.now(UTC)
     settings = settings or MonitorSettings()
     summary = IngestSummary()
-    single = next(iter(profiles)) if len(profiles) == 1 else None
-    groups: dict[str, list[tuple[str, str, datetime | None]]] = {}
-    hashes: dict[str, str] = {}
-    for f in files:
-        try:
-            meta = read_metadata(f)
-            conveyor = meta.conveyor or single
-            if conveyor is None or conveyor not in profiles:
-                raise StoreError(
-                    f"{f}: no profile for conveyor '{conveyor}' (profiles: "
-                    f"{', '.join(sorted(profiles))}); add its profile to --profiles"
-                )
-            hashes[f] = _sha256(f)
-        except (ChaintwinError, OSError) as exc:
-            summary.refused += 1
-            summary.refusals.append({"file": f, "error": str(exc)})
-            continue
-        groups.setdefault(conveyor, []).append((f, hashes[f], meta.recorded_at))
-    known = store.known(hashes.values())
+    groups, refused = group_by_conveyor(files, profiles)
+    for f, error in refused:
+        summary.refused += 1
+        summary.refusals.append({"file": f, "error": error})
+    known = store.known(item.sha256 for items in groups.values() for item in items)
     total = sum(len(v) for v in groups.values())
     done = 0
 
@@ -220,36 +200,38 @@ def ingest(
     with executor(workers, scheduler) as ex:
         for cid, items in groups.items():
             prof = profiles[cid]
-            fresh = []
-            seen: set[str] = set()
-            for f, sha, when in items:
-                if sha in known or sha in seen:
+            sha: dict[str, str] = {}
+            for item in items:
+                if item.sha256 in known:
                     summary.duplicates += 1
                     tick()
                 else:
-                    seen.add(sha)
-                    fresh.append((f, sha, when))
-            fresh.sort(key=lambda x: (x[2] is None, x[2].astimezone(UTC) if x[2] else 0))
+                    known.add(item.sha256)  # the same content twice in one batch
+                    sha[item.path] = item.sha256
+            order, _missing = order_recordings(
+                [(item.path, item.recorded_at) for item in items if item.path in sha]
+            )
+            fresh = [(f, sha[f]) for f in order]
             cal = store.calibration(cid)
             mon, version = store.monitor(prof, settings)
             if mon is None:
                 mon = ConveyorMonitor(prof, settings, cal)
             use = mon.calibration
             futures: list[Future[tuple[Any, Any, Any]]] = [
-                ex.submit(prepare, f, prof, column_map, use) for f, _sha, _w in fresh
+                ex.submit(prepare, f, prof, column_map, use) for f, _sha in fresh
             ]
             opened = {a["id"] for a in mon.alarms}
             waiting: dict[str, tuple[Recording, str]] = {}
-            for (f, sha, _when), fut in zip(fresh, futures, strict=True):
+            for (f, digest), fut in zip(fresh, futures, strict=True):
                 rec, feats, error = fut.result()
                 tick()
                 if rec is None:
                     summary.refused += 1
                     summary.refusals.append({"file": f, "error": error or "refused"})
                     continue
-                waiting[rec.source] = (rec, sha)
+                waiting[rec.source] = (rec, digest)
                 while True:
-                    results = mon.process(rec, sha, features=feats)
+                    results = mon.process(rec, digest, features=feats)
                     try:
                         for res in results:
                             r_rec, r_sha = waiting.pop(res.file)
@@ -266,11 +248,11 @@ def ingest(
                         mon, version = store.monitor(prof, settings)
                         if mon is None:  # pragma: no cover - a row never disappears
                             raise StoreError(f"the health model of '{cid}' vanished") from None
-                        if store.known([sha]):
+                        if store.known([digest]):
                             summary.duplicates += 1
                             waiting.pop(rec.source, None)
                             break
-                        waiting[rec.source] = (rec, sha)
+                        waiting[rec.source] = (rec, digest)
             summary.new_alarms += len({a["id"] for a in mon.alarms} - opened)
     summary.seconds = (datetime.now(UTC) - started).total_seconds()
     return summary

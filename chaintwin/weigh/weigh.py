@@ -38,7 +38,7 @@ import numpy as np
 from chaintwin.errors import EstimationError
 from chaintwin.identify.calibration import INERTIA_MODEL_REL, Calibration
 from chaintwin.identify.signatures import SignatureFit, fit_signatures
-from chaintwin.identify.windows import motoring_mask
+from chaintwin.identify.windows import WindowIntegrals, motoring_mask
 from chaintwin.read.recording import Recording, RecordingWarning
 from chaintwin.units import RPM_TO_RAD_S
 from chaintwin.weigh.tlf import transport_loss_factor
@@ -157,6 +157,7 @@ def weigh(
     *,
     source: str | None = None,
     motoring: np.ndarray | None = None,
+    windows: WindowIntegrals | None = None,
 ) -> WeighResult:
     """Weigh the payload of one recording.
 
@@ -172,6 +173,9 @@ def weigh(
     motoring : np.ndarray of bool, optional
         Power-flow direction per sample, when already computed with the
         calibration's parameters (:func:`~chaintwin.identify.windows.motoring_mask`).
+    windows : WindowIntegrals, optional
+        The recording's window integrals with that ``motoring``, when already
+        computed (:func:`~chaintwin.identify.windows.window_integrals`).
 
     Returns
     -------
@@ -200,7 +204,9 @@ def weigh(
         )
     )
     rate = calibration.ramp_noise_rate
-    fit, cov = fit_signatures(recording, prof, params, tray, motoring=mot, ramp_rate=rate)
+    fit, cov = fit_signatures(
+        recording, prof, params, tray, motoring=mot, ramp_rate=rate, windows=windows
+    )
 
     segments: tuple[Segment, ...] = ()
     step = _step(fit)

@@ -174,7 +174,7 @@ def test_ingest_is_idempotent_and_keeps_a_refused_file_out(
     assert "nope" in capsys.readouterr().err
 
 
-def _ingest_cmd(plant: Path, url: str) -> list[str]:
+def _ingest_cmd(plant: Path, url: str, group: int) -> list[str]:
     return [
         sys.executable,
         "-m",
@@ -189,6 +189,8 @@ def _ingest_cmd(plant: Path, url: str) -> list[str]:
         "6",
         "--workers",
         "1",
+        "--commit-group",
+        str(group),
         "--json",
     ]
 
@@ -198,8 +200,9 @@ def test_killed_ingest_leaves_one_result_per_recording(plant: Path, db: str) -> 
     files = _recordings(plant)
     # its own process group: the kill takes its worker processes too, as a
     # service manager stopping it would
+    # groups of 2 recordings per transaction: the kill lands between or inside groups
     proc = subprocess.Popen(
-        _ingest_cmd(plant, db), stdout=subprocess.DEVNULL, start_new_session=True
+        _ingest_cmd(plant, db, 2), stdout=subprocess.DEVNULL, start_new_session=True
     )
     store = Store(db)
     try:
@@ -214,7 +217,7 @@ def test_killed_ingest_leaves_one_result_per_recording(plant: Path, db: str) -> 
         assert 0 < partial < len(files), "the kill came too late to test anything"
         # nothing half-written: every stored recording has its result
         assert store.counts()["recordings"] == partial
-        done = subprocess.run(_ingest_cmd(plant, db), capture_output=True, check=True, text=True)
+        done = subprocess.run(_ingest_cmd(plant, db, 2), capture_output=True, check=True, text=True)
         summary = json.loads(done.stdout)
         assert summary["duplicates"] == partial
         assert summary["processed"] == len(files) - partial
@@ -230,11 +233,13 @@ def test_killed_ingest_leaves_one_result_per_recording(plant: Path, db: str) -> 
 def test_two_ingests_at_once_store_each_recording_once(plant: Path, db: str) -> None:
     _calibrate(plant, db)
     files = _recordings(plant)
+    # one writes each recording on its own, the other in groups of 3: races
+    # between groups and single recordings both happen
     a = subprocess.Popen(
-        _ingest_cmd(plant, db), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        _ingest_cmd(plant, db, 1), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
     b = subprocess.Popen(
-        _ingest_cmd(plant, db), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        _ingest_cmd(plant, db, 3), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
     out_a, err_a = a.communicate(timeout=300)
     out_b, err_b = b.communicate(timeout=300)

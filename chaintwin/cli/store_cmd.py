@@ -30,6 +30,10 @@ _SCHED_HELP = (
 _WORKERS_HELP = "Local worker processes (default: one per core)."
 _JSON_HELP = "Print one JSON summary object."
 _BASELINE_HELP = "Recordings in a baseline (new conveyors) [20]."
+_GROUP_HELP = (
+    "Most recordings stored in one transaction [64]; a kill loses at most the group being "
+    "written (ingest again to finish it)."
+)
 
 EXPORT_COLUMNS: tuple[str, ...] = (
     "conveyor",
@@ -87,6 +91,7 @@ def register(app: typer.Typer) -> None:
         baseline: Annotated[int | None, typer.Option("--baseline", help=_BASELINE_HELP)] = None,
         as_json: Annotated[bool, typer.Option("--json", help=_JSON_HELP)] = False,
         columns: ColumnsOption = None,
+        commit_group: Annotated[int, typer.Option("--commit-group", help=_GROUP_HELP)] = 64,
     ) -> None:
         """Read, validate, weigh and monitor recordings into the results store.
 
@@ -99,6 +104,8 @@ def register(app: typer.Typer) -> None:
         profs = load_profiles(profile, profiles)
         if workers is not None and workers < 1:
             raise StoreError(f"--workers {workers} must be at least 1")
+        if commit_group < 1:
+            raise StoreError(f"--commit-group {commit_group} must be at least 1")
         settings = SettingsGiven(baseline_n=baseline).merged(None)
         cmap = load_column_map(columns) if columns is not None else None
         files = expand_recordings(paths)
@@ -115,6 +122,7 @@ def register(app: typer.Typer) -> None:
                     scheduler=scheduler,
                     column_map=cmap,
                     progress=lambda d, n: bar.update(task, completed=d, total=n),
+                    commit_group=commit_group,
                 )
         finally:
             store.close()

@@ -6,8 +6,12 @@ it runs in parallel: on a local process pool by default, on a Dask cluster
 when given its scheduler address. Both are used through the same
 ``concurrent.futures`` interface (``distributed.Client.get_executor()``), so
 the code path is the same. The health model of a conveyor then takes the
-recordings one by one in recorded order, in this process, and each recording
-is stored in its own transaction (:meth:`Store.commit_recording`).
+recordings one by one in recorded order, in this process. Recordings are
+stored in groups (up to :data:`COMMIT_GROUP`, or what :data:`COMMIT_EVERY_S`
+gathered), each group in one transaction with the health model that produced
+its results (:meth:`Store.commit_recordings`): writing the health model once
+per group instead of once per recording is what lets the store keep up with
+the workers.
 
 A conveyor without a calibration in the store (``calibrate --db``) learns one
 from its first recordings; until then its recordings are read in parallel but
@@ -22,12 +26,13 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
-from typing import Any
+from typing import Any, NamedTuple
 
 from chaintwin.diagnose.features import RecordingFeatures, recording_features
 from chaintwin.diagnose.monitor import ConveyorMonitor, MonitorSettings
@@ -39,9 +44,9 @@ from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
 from chaintwin.validate.checks import load_recording
 
-from .store import StateConflict, Store
+from .store import Finished, StateConflict, Store, pack_samples
 
-__all__ = ["IngestSummary", "executor", "ingest", "prepare"]
+__all__ = ["COMMIT_GROUP", "IngestSummary", "Prepared", "executor", "ingest", "prepare"]
 
 
 @dataclass
@@ -117,28 +122,135 @@ def executor(workers: int | None, scheduler: str | None) -> Iterator[Executor]:
         client.close()  # type: ignore[no-untyped-call]
 
 
+class Prepared(NamedTuple):
+    """What a worker sends back for one recording."""
+
+    recording: Recording | None
+    features: RecordingFeatures | None
+    error: str | None
+    samples: bytes | None
+    """The compressed channels, packed in the worker (``store.pack_samples``)."""
+
+
 def prepare(
     path: str,
     profile: ConveyorProfile,
     column_map: ColumnMap | None,
     calibration: Calibration | None,
-) -> tuple[Recording | None, RecordingFeatures | None, str | None]:
-    """Read, validate and (with a calibration) weigh one recording: the parallel part.
-
-    Returns
-    -------
-    (Recording or None, RecordingFeatures or None, error or None)
-    """
+) -> Prepared:
+    """Read, validate and (with a calibration) weigh one recording: the parallel part."""
     try:
         rec = load_recording(path, profile=profile, column_map=column_map).recording
     except ChaintwinError as exc:
-        return None, None, str(exc)
+        return Prepared(None, None, str(exc), None)
+    samples = pack_samples(rec)
     if calibration is None:
-        return rec, None, None
+        return Prepared(rec, None, None, samples)
     try:
-        return rec, recording_features(rec, calibration), None
+        return Prepared(rec, recording_features(rec, calibration), None, samples)
     except EstimationError:
-        return rec, None, None  # the monitor reports it in its own words
+        return Prepared(rec, None, None, samples)  # the monitor reports it in its own words
+
+
+COMMIT_GROUP = 64
+"""Most recordings stored in one transaction."""
+
+COMMIT_EVERY_S = 2.0
+"""A group is stored at the latest this long after its first recording, s."""
+
+
+class _Conveyor:
+    """One conveyor's part of an ingest: its health model and the group not yet stored."""
+
+    def __init__(
+        self,
+        store: Store,
+        profile: ConveyorProfile,
+        settings: MonitorSettings,
+        summary: IngestSummary,
+        group: int,
+    ) -> None:
+        self.store = store
+        self.group = group
+        self.profile = profile
+        self.settings = settings
+        self.summary = summary
+        mon, self.version = store.monitor(profile, settings)
+        self.monitor = mon or ConveyorMonitor(profile, settings, store.calibration(profile.id))
+        self.opened = {a["id"] for a in self.monitor.alarms}
+        # taken by monitoring but not yet stored, in the order taken (file -> input)
+        self.waiting: dict[str, Prepared] = {}
+        self.digests: dict[str, str] = {}
+        self.finished: list[Finished] = []
+        self.group_started = 0.0
+
+    def take(self, item: Prepared, digest: str) -> None:
+        """Monitor one recording; store the group when it is full or old."""
+        rec = item.recording
+        assert rec is not None
+        if not self.waiting:
+            self.group_started = time.monotonic()
+        self.waiting[rec.source] = item
+        self.digests[rec.source] = digest
+        self._process(item)
+        if (
+            len(self.finished) >= self.group
+            or time.monotonic() - self.group_started > COMMIT_EVERY_S
+        ):
+            self.flush()
+
+    def _process(self, item: Prepared) -> None:
+        rec = item.recording
+        assert rec is not None
+        for res in self.monitor.process(rec, self.digests[rec.source], features=item.features):
+            done = self.waiting[res.file]
+            assert done.recording is not None
+            self.finished.append(
+                Finished(done.recording, self.digests[res.file], res, done.samples)
+            )
+
+    def flush(self) -> None:
+        """Store the finished recordings; after a lost race, go again from the newer model."""
+        while self.finished:
+            try:
+                self.version = self.store.commit_recordings(
+                    self.finished, self.monitor, self.version
+                )
+            except StateConflict:
+                self._again()
+                continue
+            for fin in self.finished:
+                self.waiting.pop(fin.result.file, None)
+                res = fin.result
+                if res.error is not None:
+                    self.summary.refused += 1
+                    self.summary.refusals.append({"file": res.file, "error": res.error})
+                else:
+                    self.summary.processed += 1
+                    self.summary.warnings += len(res.warnings)
+            self.finished = []
+
+    def _again(self) -> None:
+        """Another ingest advanced this conveyor: take the waiting recordings on its model."""
+        mon, self.version = self.store.monitor(self.profile, self.settings)
+        if mon is None:  # pragma: no cover - a row never disappears
+            raise StoreError(f"the health model of '{self.profile.id}' vanished") from None
+        self.monitor = mon
+        self.finished = []
+        stored = self.store.known(self.digests[f] for f in self.waiting)
+        again = list(self.waiting.items())
+        self.waiting = {}
+        for f, item in again:
+            if self.digests[f] in stored:
+                self.summary.duplicates += 1
+                continue
+            self.waiting[f] = item
+            self._process(item)
+
+    def close(self) -> None:
+        """Store what is left; count the alarms this ingest opened."""
+        self.flush()
+        self.summary.new_alarms += len({a["id"] for a in self.monitor.alarms} - self.opened)
 
 
 def ingest(
@@ -151,6 +263,7 @@ def ingest(
     scheduler: str | None = None,
     column_map: ColumnMap | None = None,
     progress: Callable[[int, int], None] | None = None,
+    commit_group: int = COMMIT_GROUP,
 ) -> IngestSummary:
     """Run the whole pipeline over recordings into the store.
 
@@ -172,6 +285,8 @@ def ingest(
         For exports named otherwise.
     progress : callable, optional
         Called with (done, total).
+    commit_group : int
+        Most recordings stored in one transaction (1: each on its own).
 
     Returns
     -------
@@ -211,48 +326,19 @@ def ingest(
             order, _missing = order_recordings(
                 [(item.path, item.recorded_at) for item in items if item.path in sha]
             )
-            fresh = [(f, sha[f]) for f in order]
-            cal = store.calibration(cid)
-            mon, version = store.monitor(prof, settings)
-            if mon is None:
-                mon = ConveyorMonitor(prof, settings, cal)
-            use = mon.calibration
-            futures: list[Future[tuple[Any, Any, Any]]] = [
-                ex.submit(prepare, f, prof, column_map, use) for f, _sha in fresh
+            conv = _Conveyor(store, prof, settings, summary, max(1, commit_group))
+            use = conv.monitor.calibration
+            futures: list[Future[Prepared]] = [
+                ex.submit(prepare, f, prof, column_map, use) for f in order
             ]
-            opened = {a["id"] for a in mon.alarms}
-            waiting: dict[str, tuple[Recording, str]] = {}
-            for (f, digest), fut in zip(fresh, futures, strict=True):
-                rec, feats, error = fut.result()
+            for f, fut in zip(order, futures, strict=True):
+                prepared = fut.result()
                 tick()
-                if rec is None:
+                if prepared.recording is None:
                     summary.refused += 1
-                    summary.refusals.append({"file": f, "error": error or "refused"})
+                    summary.refusals.append({"file": f, "error": prepared.error or "refused"})
                     continue
-                waiting[rec.source] = (rec, digest)
-                while True:
-                    results = mon.process(rec, digest, features=feats)
-                    try:
-                        for res in results:
-                            r_rec, r_sha = waiting.pop(res.file)
-                            if res.error is not None:
-                                summary.refused += 1
-                                summary.refusals.append({"file": res.file, "error": res.error})
-                            version = store.commit_recording(r_rec, r_sha, res, mon, version)
-                            if res.error is None:
-                                summary.processed += 1
-                                summary.warnings += len(res.warnings)
-                        break
-                    except StateConflict:
-                        # another ingest advanced this conveyor: go again from its model
-                        mon, version = store.monitor(prof, settings)
-                        if mon is None:  # pragma: no cover - a row never disappears
-                            raise StoreError(f"the health model of '{cid}' vanished") from None
-                        if store.known([digest]):
-                            summary.duplicates += 1
-                            waiting.pop(rec.source, None)
-                            break
-                        waiting[rec.source] = (rec, digest)
-            summary.new_alarms += len({a["id"] for a in mon.alarms} - opened)
+                conv.take(prepared, sha[f])
+            conv.close()
     summary.seconds = (datetime.now(UTC) - started).total_seconds()
     return summary

@@ -19,7 +19,8 @@ from __future__ import annotations
 import io
 import json
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
 
@@ -49,7 +50,17 @@ from .schema import (
     SchemaRow,
 )
 
-__all__ = ["DEFAULT_URL", "HISTORY_IN_STATE", "StateConflict", "Store", "store_url"]
+__all__ = [
+    "DEFAULT_URL",
+    "HISTORY_IN_STATE",
+    "Finished",
+    "StateConflict",
+    "Store",
+    "load_samples",
+    "pack_samples",
+    "recording_meta",
+    "store_url",
+]
 
 DEFAULT_URL = "sqlite:///chaintwin.db"
 """The embedded default: a SQLite file in the working folder."""
@@ -57,6 +68,17 @@ DEFAULT_URL = "sqlite:///chaintwin.db"
 HISTORY_IN_STATE = 300
 """Recent results kept inside a stored health model (for trend forecasts); all
 results are in the ``results`` table."""
+
+
+@dataclass(frozen=True, slots=True)
+class Finished:
+    """A recording that monitoring has taken, ready to be stored."""
+
+    recording: Recording
+    sha256: str
+    result: RecordingResult
+    samples: bytes | None = None
+    """The compressed channels (:func:`pack_samples`), when packed already (in a worker)."""
 
 
 class StateConflict(Exception):
@@ -82,7 +104,8 @@ def _safe_url(url: str) -> str:
     return f"{scheme}://{user}:***@{tail}"
 
 
-def _samples(recording: Recording) -> bytes:
+def pack_samples(recording: Recording) -> bytes:
+    """The channels (SI) of a recording, compressed (``numpy.savez_compressed``)."""
     buf = io.BytesIO()
     arrays: dict[str, Any] = {k: np.asarray(v) for k, v in recording.channels.items()}
     np.savez_compressed(buf, **arrays)
@@ -216,7 +239,27 @@ class Store:
         monitor: ConveyorMonitor,
         version: int,
     ) -> int:
-        """Store a recording, its result and the health model, in one transaction.
+        """Store one recording, its result and the health model (see :meth:`commit_recordings`)."""
+        return self.commit_recordings([Finished(recording, sha256, result)], monitor, version)
+
+    def commit_recordings(
+        self, items: Sequence[Finished], monitor: ConveyorMonitor, version: int
+    ) -> int:
+        """Store recordings, their results and the health model, in one transaction.
+
+        The group is stored whole or not at all, and the health model stored
+        with it is the one that produced the results: a kill between two
+        groups loses nothing, a kill inside one leaves none of it.
+
+        Parameters
+        ----------
+        items : sequence of Finished
+            Recordings of ``monitor``'s conveyor with their results, in the
+            order monitoring took them.
+        monitor : ConveyorMonitor
+            The health model after the last of them.
+        version : int
+            The model's version when it was read from the store (0: new).
 
         Returns
         -------
@@ -226,20 +269,21 @@ class Store:
         Raises
         ------
         StateConflict
-            When another writer advanced the model since ``version`` (nothing
-            was stored; go again from the newer model).
+            When another writer advanced the model since ``version`` or stored
+            one of the recordings meanwhile (nothing was stored; go again from
+            the newer model).
         """
         conveyor = monitor.profile.id
         state = monitor.to_state()
         state["history"] = state["history"][-HISTORY_IN_STATE:]
-        state = json.loads(json.dumps(json_ready(state)))
-        content = json.loads(json.dumps(json_ready(result.to_dict())))
+        state = json_ready(state)
+        now = _now()
         try:
             with Session(self.engine) as s, s.begin():
                 if version == 0:
                     s.add(
                         MonitorStateRow(
-                            conveyor_id=conveyor, state=state, updated_at=_now(), version=1
+                            conveyor_id=conveyor, state=state, updated_at=now, version=1
                         )
                     )
                     s.flush()
@@ -250,63 +294,77 @@ class Store:
                             MonitorStateRow.conveyor_id == conveyor,
                             MonitorStateRow.version == version,
                         )
-                        .values(state=state, updated_at=_now(), version=version + 1)
+                        .values(state=state, updated_at=now, version=version + 1)
                     )
                     if done.rowcount != 1:  # type: ignore[attr-defined]
                         raise StateConflict(conveyor)
-                rec = RecordingRow(
-                    sha256=sha256,
-                    conveyor_id=conveyor,
-                    file=result.file,
-                    recorded_at=result.recorded_at,
-                    meta=json.loads(json.dumps(_metadata(recording))),
-                    warnings=[w.to_dict() for w in recording.warnings],
-                    samples=_samples(recording),
-                )
-                s.add(rec)
+                recs = [
+                    RecordingRow(
+                        sha256=item.sha256,
+                        conveyor_id=conveyor,
+                        file=item.result.file,
+                        recorded_at=item.result.recorded_at,
+                        meta=recording_meta(item.recording),
+                        warnings=[w.to_dict() for w in item.recording.warnings],
+                        samples=item.samples or pack_samples(item.recording),
+                    )
+                    for item in items
+                ]
+                s.add_all(recs)
                 s.flush()
-                s.add(
+                s.add_all(
                     ResultRow(
                         recording_id=rec.id,
                         conveyor_id=conveyor,
-                        recorded_at=result.recorded_at,
-                        status=result.status,
-                        alarm=result.alarm,
-                        payload_kg=result.payload_kg,
-                        tlf=result.tlf,
-                        content=content,
+                        recorded_at=item.result.recorded_at,
+                        status=item.result.status,
+                        alarm=item.result.alarm,
+                        payload_kg=item.result.payload_kg,
+                        tlf=item.result.tlf,
+                        content=json_ready(item.result.to_dict()),
                     )
+                    for rec, item in zip(recs, items, strict=True)
                 )
-                for alarm in monitor.alarms:
-                    row = s.get(AlarmRow, alarm["id"])
-                    values = {
-                        "conveyor_id": conveyor,
-                        "feature": alarm["feature"],
-                        "cause": alarm["cause"],
-                        "status": alarm["status"],
-                        "since": alarm.get("since"),
-                        "content": json.loads(json.dumps(json_ready(alarm))),
-                    }
-                    if row is None:
-                        s.add(AlarmRow(id=alarm["id"], **values))
-                    else:
-                        for k, v in values.items():
-                            setattr(row, k, v)
-                for ev in monitor.events:
-                    if s.get(EventRow, ev["id"]) is None:
-                        s.add(
-                            EventRow(
-                                id=ev["id"],
-                                conveyor_id=conveyor,
-                                kind=ev["kind"],
-                                at=ev["at"],
-                                content=dict(ev),
-                            )
-                        )
+                self._put_alarms_events(s, monitor)
         except IntegrityError:
-            # the same recording was stored by another writer in the meantime
+            # one of the recordings was stored by another writer in the meantime
             raise StateConflict(conveyor) from None
         return 1 if version == 0 else version + 1
+
+    @staticmethod
+    def _put_alarms_events(s: Session, monitor: ConveyorMonitor) -> None:
+        """Bring the alarm and event rows of a conveyor up to its health model."""
+        conveyor = monitor.profile.id
+        rows = {
+            r.id: r for r in s.scalars(select(AlarmRow).where(AlarmRow.conveyor_id == conveyor))
+        }
+        for alarm in monitor.alarms:
+            values = {
+                "conveyor_id": conveyor,
+                "feature": alarm["feature"],
+                "cause": alarm["cause"],
+                "status": alarm["status"],
+                "since": alarm.get("since"),
+                "content": json_ready(alarm),
+            }
+            row = rows.get(alarm["id"])
+            if row is None:
+                s.add(AlarmRow(id=alarm["id"], **values))
+            elif row.content != values["content"] or row.status != values["status"]:
+                for k, v in values.items():
+                    setattr(row, k, v)
+        known = set(s.scalars(select(EventRow.id).where(EventRow.conveyor_id == conveyor)))
+        for ev in monitor.events:
+            if ev["id"] not in known:
+                s.add(
+                    EventRow(
+                        id=ev["id"],
+                        conveyor_id=conveyor,
+                        kind=ev["kind"],
+                        at=ev["at"],
+                        content=json_ready(ev),
+                    )
+                )
 
     # ------------------------------------------------------------ reading
     def results(self, conveyor: str | None = None) -> list[dict[str, Any]]:
@@ -335,7 +393,8 @@ class Store:
             }
 
 
-def _metadata(recording: Recording) -> dict[str, Any]:
+def recording_meta(recording: Recording) -> dict[str, Any]:
+    """A recording's metadata and channel units, JSON-ready, as stored."""
     m = recording.metadata
     out: dict[str, Any] = {
         k: getattr(m, k)
@@ -346,7 +405,7 @@ def _metadata(recording: Recording) -> dict[str, Any]:
         out["recorded_at"] = m.recorded_at.isoformat()
     out["extra"] = dict(m.extra)
     out["units"] = dict(recording.si_units())
-    return out
+    return json_ready(out)  # type: ignore[no-any-return]
 
 
 def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:

@@ -16,6 +16,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import REFERENCE_PROFILE
 
@@ -26,6 +27,7 @@ from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate
 from chaintwin.store.ingest import ingest
 from chaintwin.store.store import Store
+from chaintwin.validate.checks import load_recording
 
 PROFILE = load_profile(REFERENCE_PROFILE)
 
@@ -172,6 +174,76 @@ def test_ingest_is_idempotent_and_keeps_a_refused_file_out(
     assert {"conveyor", "file", "payload_kg", "friction", "alarm"} <= set(table[0])
     assert main(["export", "--db", db, "--conveyor", "nope"]) == 2
     assert "nope" in capsys.readouterr().err
+
+
+def test_store_keeps_samples_acknowledgements_and_maintenance(
+    plant: Path, db: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _calibrate(plant, db)
+    files = _recordings(plant)
+    args = ["ingest", *files, "--profiles", str(plant / "profiles"), "--db", db, "--json"]
+    assert main([*args, "--baseline", "6", "--commit-group", "5"]) == 0
+    capsys.readouterr()
+    store = Store(db)
+    try:
+        # the samples are kept: a stored recording is the file's recording again
+        index = store.recording_index("white-belt-01")
+        assert len(index) == len(files)
+        rid, name, _at = index[-1]
+        again = store.recording(rid)
+        orig = load_recording(name, profile=PROFILE).recording
+        assert set(again.channels) == set(orig.channels)
+        for k, v in orig.channels.items():
+            np.testing.assert_array_equal(again.channels[k], v)
+        assert again.metadata.recorded_at == orig.metadata.recorded_at
+        opened = [a for a in store.alarms("white-belt-01") if a["status"] == "open"]
+        assert opened, "friction rises by 60 %: an alarm is open"
+        target = opened[0]["id"]
+        assert main(["acknowledge", target, "--db", db, "--by", "A. Fitter", "--why", "WO 7"]) == 0
+        acked = {a["id"]: a for a in store.alarms("white-belt-01")}[target]
+        assert acked["acknowledged"]["by"] == "A. Fitter" and acked["status"] == "open"
+        state = store.state("white-belt-01")
+        assert state is not None
+        assert {a["id"]: a for a in state["alarms"]}[target]["acknowledged"]["why"] == "WO 7"
+        # twice is refused in one line, exit 2, nothing changed
+        assert main(["acknowledge", target, "--db", db, "--by", "B"]) == 2
+        assert "acknowledged by A. Fitter" in capsys.readouterr().err
+        assert main(["acknowledge", "nope", "--db", db, "--by", "B"]) == 2
+        assert "no alarm 'nope'" in capsys.readouterr().err
+        # maintenance closes the open alarms at once and is kept as an event
+        assert (
+            main(
+                [
+                    "maintenance",
+                    "--db",
+                    db,
+                    "--conveyor",
+                    "white-belt-01",
+                    "--kind",
+                    "cleaning",
+                    "--by",
+                    "A. Fitter",
+                    "--why",
+                    "rails cleaned",
+                ]
+            )
+            == 0
+        )
+        assert all(a["status"] == "closed" for a in store.alarms("white-belt-01"))
+        events = store.events("white-belt-01")
+        assert [e["kind"] for e in events] == ["cleaning"] and events[0]["by"] == "A. Fitter"
+        # the next ingest continues from the changed model (its baseline restarts)
+        mon, _version = store.monitor(PROFILE, MonitorSettings(baseline_n=6))
+        assert mon is not None and [e["kind"] for e in mon.events] == ["cleaning"]
+        assert (
+            main(
+                ["maintenance", "--db", db, "--conveyor", "nope", "--kind", "cleaning", "--by", "x"]
+            )
+            == 2
+        )
+        assert "no health model of conveyor 'nope'" in capsys.readouterr().err
+    finally:
+        store.close()
 
 
 def _ingest_cmd(plant: Path, url: str, group: int) -> list[str]:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from datetime import datetime
 from pathlib import Path
 from typing import Annotated, Any
@@ -51,6 +51,11 @@ _CAL_HELP = (
 )
 _STATE_HELP = "State file: monitoring continues from it and is saved back (created if missing)."
 _BASELINE_HELP = "Recordings in a baseline (and in a learned calibration) [20]."
+_EDIT_STATE_HELP = "The monitoring state file (of `monitor --state`)."
+_EDIT_DB_HELP = (
+    "Or the results store (of `ingest --db`); without --state the store is used: this URL, "
+    "else CHAINTWIN_DB, else sqlite:///chaintwin.db."
+)
 _RULE_HELP = "Alarm rule X/Y: X exceedances of one feature in the last Y recordings [3/10]."
 _Z_HELP = "A feature exceeds above this many robust baseline scales [5]."
 _JSON_HELP = "Print one JSON object: recordings and conveyors."
@@ -307,7 +312,6 @@ def register(app: typer.Typer) -> None:
 
     @app.command("maintenance")
     def maintenance_cmd(
-        state: Annotated[Path, typer.Option("--state", help="The monitoring state file.")],
         conveyor: Annotated[str, typer.Option("--conveyor", help="Conveyor id.")],
         kind: Annotated[
             str, typer.Option("--kind", help=f"One of {', '.join(MAINTENANCE_KINDS)}.")
@@ -317,12 +321,14 @@ def register(app: typer.Typer) -> None:
         at: Annotated[
             str | None, typer.Option("--at", help="When (ISO 8601); default now.")
         ] = None,
+        state: Annotated[Path | None, typer.Option("--state", help=_EDIT_STATE_HELP)] = None,
+        db: Annotated[str | None, typer.Option("--db", help=_EDIT_DB_HELP)] = None,
     ) -> None:
         """Record a maintenance event: the conveyor's baseline restarts after it."""
-        data = load_state(state, missing_ok=False)
         when = _parse_at(at)
-        event = add_maintenance(data, conveyor, kind, by, why, when)
-        save_state(state, data)
+        event = _edit(
+            state, db, conveyor, lambda data: add_maintenance(data, conveyor, kind, by, why, when)
+        )
         Console().print(
             f"recorded maintenance {event['id']} ({kind}) on {escape(conveyor)} at {event['at']}; "
             "the baseline restarts with the recordings after it",
@@ -332,18 +338,43 @@ def register(app: typer.Typer) -> None:
     @app.command("acknowledge")
     def acknowledge_cmd(
         alarm: Annotated[str, typer.Argument(help="Alarm id (from monitor).")],
-        state: Annotated[Path, typer.Option("--state", help="The monitoring state file.")],
         by: Annotated[str, typer.Option("--by", help="Who acknowledges.")],
         why: Annotated[str, typer.Option("--why", help="Why (e.g. work order).")] = "",
+        state: Annotated[Path | None, typer.Option("--state", help=_EDIT_STATE_HELP)] = None,
+        db: Annotated[str | None, typer.Option("--db", help=_EDIT_DB_HELP)] = None,
     ) -> None:
         """Acknowledge an alarm: it stays open but --fail-on-alarm no longer fails on it."""
-        data = load_state(state, missing_ok=False)
-        a = acknowledge_alarm(data, alarm, by, why)
-        save_state(state, data)
+        a = _edit(state, db, None, lambda data: acknowledge_alarm(data, alarm, by, why), alarm)
         Console().print(
             f"acknowledged alarm {a['id']} ({a['cause']}, {a['feature']}) on {a['conveyor']}",
             highlight=False,
         )
+
+
+def _edit(
+    state: Path | None,
+    db: str | None,
+    conveyor: str | None,
+    edit: Callable[[dict[str, Any]], dict[str, Any]],
+    alarm: str | None = None,
+) -> dict[str, Any]:
+    """Apply a change to a state file, or to the health model in a results store."""
+    if state is not None and db is not None:
+        raise StoreError("give either --state (a state file) or --db (a results store), not both")
+    if state is not None:
+        data = load_state(state, missing_ok=False)
+        out = edit(data)
+        save_state(state, data)
+        return out
+    from chaintwin.store.store import Store, store_url
+
+    store = Store(store_url(db))
+    try:
+        if conveyor is None:
+            conveyor = store.alarm_conveyor(alarm or "")
+        return store.edit_state(conveyor, edit)
+    finally:
+        store.close()
 
 
 def _parse_at(text: str | None) -> datetime | None:

@@ -19,10 +19,10 @@ from __future__ import annotations
 import io
 import json
 import os
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from sqlalchemy import create_engine, event, select, update
@@ -60,6 +60,7 @@ __all__ = [
     "pack_samples",
     "recording_meta",
     "store_url",
+    "stored_recording",
 ]
 
 DEFAULT_URL = "sqlite:///chaintwin.db"
@@ -79,6 +80,9 @@ class Finished:
     result: RecordingResult
     samples: bytes | None = None
     """The compressed channels (:func:`pack_samples`), when packed already (in a worker)."""
+
+
+T = TypeVar("T")
 
 
 class StateConflict(Exception):
@@ -325,20 +329,21 @@ class Store:
                     )
                     for rec, item in zip(recs, items, strict=True)
                 )
-                self._put_alarms_events(s, monitor)
+                self._put_alarms_events(s, conveyor, monitor.alarms, monitor.events)
         except IntegrityError:
             # one of the recordings was stored by another writer in the meantime
             raise StateConflict(conveyor) from None
         return 1 if version == 0 else version + 1
 
     @staticmethod
-    def _put_alarms_events(s: Session, monitor: ConveyorMonitor) -> None:
+    def _put_alarms_events(
+        s: Session, conveyor: str, alarms: list[dict[str, Any]], events: list[dict[str, Any]]
+    ) -> None:
         """Bring the alarm and event rows of a conveyor up to its health model."""
-        conveyor = monitor.profile.id
         rows = {
             r.id: r for r in s.scalars(select(AlarmRow).where(AlarmRow.conveyor_id == conveyor))
         }
-        for alarm in monitor.alarms:
+        for alarm in alarms:
             values = {
                 "conveyor_id": conveyor,
                 "feature": alarm["feature"],
@@ -354,7 +359,7 @@ class Store:
                 for k, v in values.items():
                     setattr(row, k, v)
         known = set(s.scalars(select(EventRow.id).where(EventRow.conveyor_id == conveyor)))
-        for ev in monitor.events:
+        for ev in events:
             if ev["id"] not in known:
                 s.add(
                     EventRow(
@@ -374,6 +379,132 @@ class Store:
             if conveyor is not None:
                 q = q.where(ResultRow.conveyor_id == conveyor)
             return [dict(r.content) for r in s.scalars(q)]
+
+    def profile(self, conveyor: str) -> ConveyorProfile | None:
+        """A stored conveyor's profile, if the conveyor is stored."""
+        from chaintwin.read.profile import parse_profile
+
+        with Session(self.engine) as s:
+            row = s.get(ConveyorRow, conveyor)
+            if row is None:
+                return None
+            return parse_profile(row.profile, f"{_safe_url(self.url)} conveyor {conveyor}")
+
+    def state(self, conveyor: str) -> dict[str, Any] | None:
+        """A conveyor's stored health model (:meth:`ConveyorMonitor.to_state` JSON)."""
+        with Session(self.engine) as s:
+            row = s.get(MonitorStateRow, conveyor)
+            return None if row is None else dict(row.state)
+
+    def alarms(self, conveyor: str | None = None) -> list[dict[str, Any]]:
+        """Stored alarms (as the health model keeps them), oldest first."""
+        with Session(self.engine) as s:
+            q = select(AlarmRow).order_by(AlarmRow.since, AlarmRow.id)
+            if conveyor is not None:
+                q = q.where(AlarmRow.conveyor_id == conveyor)
+            return [dict(r.content) | {"conveyor": r.conveyor_id} for r in s.scalars(q)]
+
+    def events(self, conveyor: str | None = None) -> list[dict[str, Any]]:
+        """Stored maintenance events, oldest first."""
+        with Session(self.engine) as s:
+            q = select(EventRow).order_by(EventRow.at, EventRow.id)
+            if conveyor is not None:
+                q = q.where(EventRow.conveyor_id == conveyor)
+            return [dict(r.content) | {"conveyor": r.conveyor_id} for r in s.scalars(q)]
+
+    def recording_index(self, conveyor: str) -> list[tuple[int, str, str | None]]:
+        """``(id, file, recorded_at)`` of a conveyor's stored recordings, in recorded order."""
+        with Session(self.engine) as s:
+            q = (
+                select(RecordingRow.id, RecordingRow.file, RecordingRow.recorded_at)
+                .where(RecordingRow.conveyor_id == conveyor)
+                .order_by(RecordingRow.recorded_at, RecordingRow.id)
+            )
+            return [(int(i), str(f), t) for i, f, t in s.execute(q)]
+
+    def recording(self, recording_id: int) -> Recording:
+        """A stored recording, rebuilt from its samples (SI) and metadata.
+
+        Raises
+        ------
+        StoreError
+            When there is no such recording.
+        """
+        with Session(self.engine) as s:
+            row = s.get(RecordingRow, recording_id)
+            if row is None:
+                raise StoreError(f"{_safe_url(self.url)}: no recording with id {recording_id}")
+            return stored_recording(row.file, row.meta, row.warnings, row.samples)
+
+    def edit_state(self, conveyor: str, edit: Callable[[dict[str, Any]], T]) -> T:
+        """Change a conveyor's stored health model (maintenance, acknowledgement), atomically.
+
+        Parameters
+        ----------
+        conveyor : str
+            Conveyor id.
+        edit : callable
+            Called with ``{"conveyors": {conveyor: state}}`` (the layout of a
+            state file, so that :func:`~chaintwin.diagnose.state.add_maintenance`
+            and :func:`~chaintwin.diagnose.state.acknowledge_alarm` apply); it
+            changes the state in place and returns what the caller wants back.
+
+        Raises
+        ------
+        StoreError
+            When the store has no health model of the conveyor, or from ``edit``.
+        """
+        for _attempt in range(20):
+            try:
+                return self._edit_once(conveyor, edit)
+            except StateConflict:
+                continue  # an ingest advanced the model meanwhile: edit the newer one
+        raise StoreError(f"the health model of '{conveyor}' kept changing; try again")
+
+    def _edit_once(self, conveyor: str, edit: Callable[[dict[str, Any]], T]) -> T:
+        with Session(self.engine) as s, s.begin():
+            row = s.get(MonitorStateRow, conveyor)
+            if row is None:
+                raise StoreError(
+                    f"{_safe_url(self.url)}: no health model of conveyor '{conveyor}' "
+                    f"(stored: {', '.join(self._monitored(s)) or 'none'}); ingest its "
+                    "recordings first"
+                )
+            state = json.loads(json.dumps(row.state))  # a copy to change
+            out = edit({"conveyors": {conveyor: state}})
+            done = s.execute(
+                update(MonitorStateRow)
+                .where(
+                    MonitorStateRow.conveyor_id == conveyor,
+                    MonitorStateRow.version == row.version,
+                )
+                .values(state=json_ready(state), updated_at=_now(), version=row.version + 1)
+            )
+            if done.rowcount != 1:  # type: ignore[attr-defined]
+                raise StateConflict(conveyor)  # rolls the transaction back
+            self._put_alarms_events(s, conveyor, state["alarms"], state["events"])
+            return out
+
+    def alarm_conveyor(self, alarm_id: str) -> str:
+        """The conveyor an alarm belongs to.
+
+        Raises
+        ------
+        StoreError
+            When the store has no alarm with that id.
+        """
+        with Session(self.engine) as s:
+            row = s.get(AlarmRow, alarm_id)
+            if row is None:
+                raise StoreError(
+                    f"{_safe_url(self.url)}: no alarm '{alarm_id}'; the ids are in "
+                    "`chaintwin export --format json` and in the reports"
+                )
+            return row.conveyor_id
+
+    @staticmethod
+    def _monitored(s: Session) -> list[str]:
+        return list(s.scalars(select(MonitorStateRow.conveyor_id)))
 
     def conveyors(self) -> list[str]:
         """Ids of the stored conveyors."""
@@ -406,6 +537,33 @@ def recording_meta(recording: Recording) -> dict[str, Any]:
     out["extra"] = dict(m.extra)
     out["units"] = dict(recording.si_units())
     return json_ready(out)  # type: ignore[no-any-return]
+
+
+def stored_recording(
+    file: str, meta: dict[str, Any], warnings: list[Any], samples: bytes
+) -> Recording:
+    """Rebuild a :class:`Recording` from what the store keeps of it."""
+    from chaintwin.read.recording import Metadata, RecordingWarning
+
+    at = meta.get("recorded_at")
+    metadata = Metadata(
+        conveyor=meta.get("conveyor"),
+        recorded_at=None if at is None else datetime.fromisoformat(at),
+        sample_time_s=meta.get("sample_time_s"),
+        payload_kg=meta.get("payload_kg"),
+        tray_kg=meta.get("tray_kg"),
+        extra=dict(meta.get("extra", {})),
+    )
+    channels = load_samples(samples)
+    units = dict(meta.get("units", {}))
+    return Recording(
+        source=file,
+        channels=channels,
+        units={k: units.get(k, "") for k in channels},
+        headers={k: k for k in channels},
+        metadata=metadata,
+        warnings=tuple(RecordingWarning(str(w["code"]), str(w["message"])) for w in warnings),
+    )
 
 
 def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:

@@ -68,7 +68,7 @@ from chaintwin.validate.phases import segment
 from chaintwin.weigh.weigh import WeighResult, weigh
 
 from .residuals import belt_position_m, model_torque, position_profile, residual_analysis
-from .spectra import Spectrum, apparent_order, band_amplitude, welch_spectrum
+from .spectra import Spectrum, apparent_order, band_amplitudes, welch_spectrum
 
 __all__ = [
     "COMB_HARMONICS",
@@ -212,8 +212,10 @@ def _shaft_orders(calibration: Calibration) -> dict[str, float]:
     }
 
 
-def _line_sum(spec: Spectrum, orders: list[float], ts: float, avoid: Sequence[float] = ()) -> float:
-    """Sum of band amplitudes at the apparent places of the given orders, Nm.
+def _line_centres(
+    spec: Spectrum, orders: list[float], ts: float, avoid: Sequence[float] = ()
+) -> list[float]:
+    """Apparent places (Hz) of the given orders whose band amplitudes are summed.
 
     Orders whose apparent place lies within :data:`GUARD_BINS` bins of the
     apparent place of an order in ``avoid`` are skipped (another line's
@@ -225,24 +227,52 @@ def _line_sum(spec: Spectrum, orders: list[float], ts: float, avoid: Sequence[fl
     speed_hz = spec.speed_rpm / 60.0
     guard = GUARD_BINS * spec.resolution
     others = [apparent_order(o, spec.speed_rpm, ts) * speed_hz for o in avoid]
-    total = 0.0
+    top = float(spec.x[-1])
+    out: list[float] = []
     for o in orders:
         x = apparent_order(o, spec.speed_rpm, ts) * speed_hz
         if any(abs(x - y) <= guard for y in others):
             continue
-        if LOW_FREQUENCY_HZ < x < spec.x[-1]:
-            total += band_amplitude(spec, x, half_width_bins=2)
-    return total
+        if LOW_FREQUENCY_HZ < x < top:
+            out.append(x)
+    return out
+
+
+def _line_sums(spec: Spectrum, centres: dict[str, list[float]]) -> dict[str, float]:
+    """Sum of band amplitudes (±2 bins) at each group of apparent places, Nm."""
+    flat = [x for group in centres.values() for x in group]
+    amplitudes = iter(band_amplitudes(spec, flat, half_width_bins=2))
+    sums: dict[str, float] = {}
+    for name, group in centres.items():
+        total = 0.0
+        for _ in group:
+            total += next(amplitudes)
+        sums[name] = total
+    return sums
+
+
+def _line_sum(spec: Spectrum, orders: list[float], ts: float, avoid: Sequence[float] = ()) -> float:
+    """Sum of band amplitudes at the apparent places of the given orders, Nm.
+
+    See :func:`_line_centres` for the orders left out.
+    """
+    return _line_sums(spec, {"": _line_centres(spec, orders, ts, avoid)})[""]
 
 
 def _bump(
-    recording: Recording, calibration: Calibration, residual: FloatArray, constant: np.ndarray
+    recording: Recording,
+    calibration: Calibration,
+    residual: FloatArray,
+    constant: np.ndarray,
+    sample_time_s: float | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """Per belt-position bin, the constant-speed residual's rise above its median, Nm.
 
     The residual is averaged over one tooth pitch of belt travel (which
     removes the polygon effect's ripple and its harmonics) before binning.
+    ``sample_time_s`` is the recording's (median) sample time, s, when known.
     """
+    ts = recording.sample_time_s if sample_time_s is None else sample_time_s
     prof = calibration.id_profile
     if not constant.any() or recording.position is None:
         return np.empty(0), np.empty(0)
@@ -251,7 +281,7 @@ def _bump(
     v = float(np.median(np.abs(w[constant]))) * prof.chordal_radius_m / prof.kinematic_ratio
     teeth = prof.sprocket.teeth or 20
     pitch = math.pi * prof.sprocket.pitch_diameter_m / teeth
-    n = max(1, round(pitch / max(v * recording.sample_time_s, 1e-9)))
+    n = max(1, round(pitch / max(v * ts, 1e-9)))
     e = residual * np.sign(w)
     smooth = np.convolve(e, np.ones(n) / n, mode="same")
     idx = np.flatnonzero(constant)
@@ -299,9 +329,10 @@ def recording_features(recording: Recording, calibration: Calibration) -> Record
     )
     # the window integrals serve weighing and the condition fit alike; when
     # there are none, weighing refuses the recording in its own words
+    phases = segment(recording)
     every: WindowIntegrals | None
     try:
-        every = window_integrals(recording, prof, motoring=mot)
+        every = window_integrals(recording, prof, motoring=mot, phases=phases)
     except EstimationError:
         every = None
     w = weigh(recording, calibration, motoring=mot, windows=every)
@@ -333,7 +364,6 @@ def recording_features(recording: Recording, calibration: Calibration) -> Record
         )
 
     model = model_torque(recording, prof, params, w.payload_kg, tray_kg=tray, motoring=mot)
-    phases = segment(recording)
     report = residual_analysis(recording, model, phases=phases)
     steady = report.by_phase.get("constant")
     values["residual_std"] = steady.std if steady else nan
@@ -362,11 +392,17 @@ def recording_features(recording: Recording, calibration: Calibration) -> Record
         orders = characteristic_orders(prof)
         tp = orders.get("sprocket_tooth_pass")
         tp_orders = [h * tp for h in range(1, TOOTH_PASS_HARMONICS + 1)] if tp else []
-        values["tooth_pass"] = _line_sum(spectrum, tp_orders, ts) if tp else nan
+        centres: dict[str, list[float]] = {}
+        if tp:
+            centres["tooth_pass"] = _line_centres(spectrum, tp_orders, ts)
         for name, order in _shaft_orders(calibration).items():
-            values[f"comb_{name}"] = _line_sum(
+            centres[f"comb_{name}"] = _line_centres(
                 spectrum, [h * order for h in range(1, COMB_HARMONICS + 1)], ts, tp_orders
             )
+        sums = _line_sums(spectrum, centres)
+        values["tooth_pass"] = sums["tooth_pass"] if tp else nan
+        for name in _shaft_orders(calibration):
+            values[f"comb_{name}"] = sums[f"comb_{name}"]
     else:
         values["tooth_pass"] = nan
         warnings.append(
@@ -376,7 +412,7 @@ def recording_features(recording: Recording, calibration: Calibration) -> Record
                 "features of this recording are unknown",
             )
         )
-    bins, bump = _bump(recording, calibration, report.residual, constant)
+    bins, bump = _bump(recording, calibration, report.residual, constant, ts)
     return RecordingFeatures(
         weighing=w,
         values=values,

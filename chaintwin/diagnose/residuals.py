@@ -30,11 +30,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 from scipy.integrate import cumulative_trapezoid
-from scipy.signal import savgol_filter
 
 from chaintwin.errors import EstimationError
 from chaintwin.identify.regression import RigidParameters
@@ -43,6 +42,7 @@ from chaintwin.model.frequencies import _kinematic_ratio
 from chaintwin.model.physics import belt_force_n, gear_factor, loss_torque_nm
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import FloatArray, Recording
+from chaintwin.validate.filters import savgol
 from chaintwin.validate.phases import Phase, segment
 
 __all__ = [
@@ -102,7 +102,7 @@ def _acceleration(recording: Recording) -> FloatArray:
     win = max(5, round(DERIVATIVE_WINDOW_S / dt))
     win += 1 - win % 2  # odd
     win = min(win, n if n % 2 else n - 1)
-    out: FloatArray = savgol_filter(recording.speed, win, 2, deriv=1, delta=dt)
+    out: FloatArray = savgol(recording.speed, win, 2, deriv=1, delta=dt)
     return out
 
 
@@ -288,12 +288,17 @@ class ResidualStats:
     def to_dict(self) -> dict[str, float | int | None]:
         """Return the fields as a JSON-ready dict (non-finite floats as None)."""
         out: dict[str, float | int | None] = {}
-        for name, value in asdict(self).items():
+        for name in _STATS_FIELDS:
+            value = getattr(self, name)
             if isinstance(value, float) and not math.isfinite(value):
                 out[name] = None
             else:
                 out[name] = value
         return out
+
+
+_STATS_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(ResidualStats))
+"""Field names of :class:`ResidualStats` in order (``to_dict`` without ``asdict``'s deep copy)."""
 
 
 def _pearson(a: FloatArray, b: FloatArray) -> float:

@@ -44,8 +44,16 @@ class SignatureFit:
 def _columns(
     wi: WindowIntegrals, profile: ConveyorProfile, values: FloatArray, tray_kg: float
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Residual z of the empty model, friction and inertia regressors per kg."""
-    jd, mu, bma, bmb, bmc = (float(v) for v in values)
+    """Residual z of the empty model, friction and inertia regressors per kg.
+
+    ``values`` is one parameter vector (J_d, μ, BmA, BmB, BmC), giving z and
+    the friction regressor per window, or a stack of them (K × 5), giving
+    K × n_windows arrays (the same arithmetic per element, so each row is
+    bit for bit what one vector gives). The inertia regressor does not
+    depend on the parameters.
+    """
+    vals = np.asarray(values, dtype=np.float64)
+    jd, mu, bma, bmb, bmc = (vals[..., j, None] for j in range(5))
     g_cos, g_sin = incline_terms(profile)
     m0 = profile.belt_mass_kg + tray_kg
     r_over_i = profile.chordal_radius_m / profile.kinematic_ratio
@@ -133,6 +141,114 @@ def _fit(
     return SignatureFit(coef[:k], cov[:k, :k], has_inertia, wi, per_kg, weights)
 
 
+WELL_CONDITIONED = 1e-8
+"""Smallest eigenvalue ratio of a normal matrix :func:`_estimates` solves directly.
+
+A condition number of the scaled regressors below 1e4, far from lstsq's
+rank cut-off; the weighing's are typically about 4.
+"""
+
+
+def _well_conditioned(normal: FloatArray) -> np.ndarray:
+    """Per matrix of a stack of normal matrices: eigenvalues within :data:`WELL_CONDITIONED`."""
+    eig = np.linalg.eigvalsh(normal)
+    good: np.ndarray = eig[..., 0] > WELL_CONDITIONED * eig[..., -1]
+    return good
+
+
+def _estimates(
+    wi: WindowIntegrals,
+    profile: ConveyorProfile,
+    values: FloatArray,
+    tray_kg: float,
+    ramp_rate: float | None = None,
+) -> FloatArray:
+    """The signature estimates of :func:`_fit`, for a stack of parameter vectors.
+
+    For the numerical Jacobian of :func:`fit_signatures`, which asked
+    :func:`_fit` ten times for the estimates alone. The same two weighted
+    least-squares passes, solved together by their normal equations:
+
+    * the regressors depend on the parameters through μ only, so they are
+      scaled and weighted once per distinct μ;
+    * the second pass's weights take one value over the short windows and
+      one over the ramp windows, so its normal matrix is
+      ``N_short/rate_short + N_ramp/rate_ramp`` of two matrices per μ.
+
+    The normal equations agree with lstsq to rounding when the scaled
+    regressors are well conditioned (:data:`WELL_CONDITIONED`); any
+    parameter vector whose problem is not is handed to :func:`_fit` itself.
+
+    Parameters
+    ----------
+    wi, profile, tray_kg, ramp_rate
+        As :func:`_fit`.
+    values : FloatArray
+        K × 5 parameter vectors (J_d, μ, BmA, BmB, BmC).
+
+    Returns
+    -------
+    FloatArray
+        K × 1 (p_f) or K × 2 (p_f, raw p_i) estimates, kg.
+
+    Raises
+    ------
+    EstimationError
+        As :func:`_fit`.
+    """
+    z, xf, xi = _columns(wi, profile, values, tray_kg)
+    count, n = z.shape
+    has_inertia = bool(np.any(wi.kind == 1))
+    mus, group = np.unique(values[:, 1], return_inverse=True)
+    first = np.array([int(np.argmax(group == g)) for g in range(mus.shape[0])])
+    cols = [xf[first], np.broadcast_to(xi, (first.shape[0], n))] if has_inertia else [xf[first]]
+    ripple = np.broadcast_to(wi.ripple, (first.shape[0], *wi.ripple.shape))
+    x0 = np.concatenate([np.stack(cols, axis=-1), ripple], axis=-1)  # per μ: n × p
+    p = x0.shape[-1]
+    if n <= p:
+        raise EstimationError(
+            f"{n} usable windows for {p} unknowns: too little steady "
+            "motion to weigh; record a complete move"
+        )
+    scale = np.sqrt(np.mean(x0 * x0, axis=-2))
+    scale[scale == 0.0] = 1.0
+    wt = 1.0 / np.sqrt(wi.duration)
+    short = wi.kind == 0
+    a = x0 / scale[:, None, :] * wt[:, None]  # first pass's weighted regressors
+    at = np.swapaxes(a, -1, -2)
+    a_short, a_ramp = at[:, :, short], at[:, :, ~short]
+    n_short = a_short @ np.swapaxes(a_short, -1, -2)
+    n_ramp = a_ramp @ np.swapaxes(a_ramp, -1, -2)
+    zw = z * wt
+    # first pass: weights 1/sqrt(duration)
+    normal = at[group] @ a[group]
+    good = _well_conditioned(normal)
+    sol = np.linalg.solve(normal, at[group] @ zw[..., None])
+    resid = zw - (a[group] @ sol)[..., 0]
+    if short.sum() >= 3:
+        rate_short = np.mean(resid[:, short] ** 2, axis=-1)
+    else:
+        rate_short = np.mean(resid**2, axis=-1)
+    if ramp_rate is not None and np.isfinite(ramp_rate):
+        rate_ramp = np.full(count, float(ramp_rate))
+    else:
+        rate_ramp = rate_short
+    floor = 1e-12 * np.maximum(np.mean(zw**2, axis=-1), 1e-30)
+    rate_short = np.maximum(rate_short, floor)[:, None, None]
+    rate_ramp = np.maximum(rate_ramp, floor)[:, None, None]
+    # second pass: weights 1/sqrt(duration · rate)
+    normal = n_short[group] / rate_short + n_ramp[group] / rate_ramp
+    rhs = (a_short[group] @ zw[:, short, None]) / rate_short + (
+        a_ramp[group] @ zw[:, ~short, None]
+    ) / rate_ramp
+    good &= _well_conditioned(normal)
+    sol = np.linalg.solve(normal, rhs)[..., 0]
+    estimates: FloatArray = (sol / scale[group])[:, : len(cols)]
+    for k in np.flatnonzero(~good):
+        estimates[k] = _fit(wi, profile, values[k], tray_kg, ramp_rate).estimate
+    return estimates
+
+
 def fit_signatures(
     rec: Recording,
     prof: ConveyorProfile,
@@ -197,6 +313,10 @@ def fit_signatures(
     base = replace(base, inertia_alternative=alternative)
     k = base.estimate.shape[0]
     jac = np.zeros((k, 5))
+    # central differences: each parameter half a standard deviation up and down
+    moved: list[int] = []
+    steps: list[float] = []
+    shifted: list[FloatArray] = []
     for j in range(5):
         sd = float(np.sqrt(max(params.covariance[j, j], 0.0)))
         if sd == 0.0:
@@ -206,9 +326,13 @@ def fit_signatures(
         up[j] += step
         dn = params.values.copy()
         dn[j] -= step
-        hi_ = _fit(wi, prof, up, tray, ramp_rate).estimate
-        lo_ = _fit(wi, prof, dn, tray, ramp_rate).estimate
-        jac[:, j] = (hi_ - lo_) / (2 * step)
+        moved.append(j)
+        steps.append(step)
+        shifted += [up, dn]
+    if moved:
+        est = _estimates(wi, prof, np.stack(shifted), tray, ramp_rate)
+        for m, (j, step) in enumerate(zip(moved, steps, strict=True)):
+            jac[:, j] = (est[2 * m] - est[2 * m + 1]) / (2 * step)
     return base, base.covariance + jac @ params.covariance @ jac.T
 
 

@@ -31,13 +31,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
+import numpy.typing as npt
 
 from chaintwin.errors import EstimationError
 from chaintwin.model.physics import G
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import FloatArray, Recording
+from chaintwin.validate.filters import gradient, savgol
 from chaintwin.validate.phases import Phase, segment
 
 __all__ = [
@@ -130,13 +133,11 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
 
 def acceleration(recording: Recording) -> FloatArray:
     """Motor acceleration, rad/s²: Savitzky-Golay derivative of the speed (9 points)."""
-    from scipy.signal import savgol_filter
-
     w = recording.speed
     n = w.shape[0]
     dt = float(np.median(np.diff(recording.time)))
     win = min(n if n % 2 else n - 1, 9)
-    out: FloatArray = savgol_filter(w, win, 2, deriv=1, delta=dt)
+    out: FloatArray = savgol(w, win, 2, deriv=1, delta=dt)
     return out
 
 
@@ -172,6 +173,18 @@ def motoring_mask(
     return mask
 
 
+def _misses(mask: np.ndarray) -> npt.NDArray[np.int64]:
+    """Prefix count of the False entries of a mask, length n + 1.
+
+    ``mask[a:b].all()`` is ``misses[b] == misses[a]`` for ``0 <= a <= b <= n``:
+    the window loops ask that a few hundred times per recording, where a
+    numpy reduction per slice cost more than the integrals themselves.
+    """
+    out: npt.NDArray[np.int64] = np.zeros(mask.shape[0] + 1, dtype=np.int64)
+    np.cumsum(~mask.astype(bool), out=out[1:])
+    return out
+
+
 def _window_bounds(
     recording: Recording,
     phases: list[Phase],
@@ -180,34 +193,39 @@ def _window_bounds(
     corner_s: float,
     settle_s: float,
     average_s: float,
-) -> list[tuple[int, int, int, int, int]]:
-    """Windows as (start_lo, start_hi, end_lo, end_hi, kind) sample indices.
+    dt: float | None = None,
+) -> npt.NDArray[np.int64]:
+    """Windows as rows (start_lo, start_hi, end_lo, end_hi, kind) of sample indices.
 
     Kind 0: a short window (single start and end). Kind 1: a ramp window
     between the ramp's middle half and the plateau; its ends are averaged over
     spans of samples (``average_s`` in the plateau), which averages out the
     belt's ringing (a lightly damped belt still swings after a corner, so its
-    momentum differs from the rigid model's at any one instant).
+    momentum differs from the rigid model's at any one instant). ``dt`` is
+    the median sample time, s (computed from the recording when not given).
     """
-    t = recording.time
-    dt = float(np.median(np.diff(t)))
+    if dt is None:
+        dt = float(np.median(np.diff(recording.time)))
     corner = max(1, round(corner_s / dt))
     settle = max(1, round(settle_s / dt))
     spread = max(0, round(average_s / dt))
-    out: list[tuple[int, int, int, int, int]] = []
+    n = int(moving.shape[0])
+    misses = _misses(moving)
+    out: list[npt.NDArray[np.int64]] = []
     for k, ph in enumerate(phases):
         if not ph.moving:
             continue
         prev = phases[k - 1] if k > 0 else None
         nxt = phases[k + 1] if k + 1 < len(phases) else None
-        # short windows, away from the phase's corners (belt ringing, breakaway)
+        # short windows, away from the phase's corners (belt ringing, breakaway):
+        # every n_win samples from a while the window fits before b, where the
+        # speed is above the threshold throughout (the end sample included)
         a = ph.start + (settle if ph.kind == "constant" else corner)
         b = ph.stop - corner
-        j = a
-        while j + n_win <= b:
-            if moving[j : j + n_win + 1].all():
-                out.append((j, j, j + n_win, j + n_win, 0))
-            j += n_win
+        starts = np.arange(a, b - n_win + 1, n_win, dtype=np.int64)
+        starts = starts[misses[np.minimum(starts + n_win + 1, n)] == misses[starts]]
+        ends = starts + n_win
+        out.append(np.column_stack((starts, starts, ends, ends, np.zeros_like(starts))))
         # one window per ramp between steady states: from the middle of the ramp
         # (belt and motor accelerate alike there; the start's breakaway and the
         # stop's wind-up of an elastic belt are left out) to the plateau, or from
@@ -216,17 +234,30 @@ def _window_bounds(
         if ph.kind not in ("accelerate", "decelerate"):
             continue
         lo, hi = ph.start + corner, ph.stop - corner
-        if hi <= lo or not moving[lo : hi + 1].all():
+        if hi <= lo or misses[min(hi + 1, n)] != misses[lo]:
             continue
+        row: tuple[int, int, int, int, int] | None = None
         if nxt is not None and nxt.kind == "constant" and ph.kind == "accelerate":
             e_lo = min(nxt.stop - 1, nxt.start + settle)
             e_hi = min(nxt.stop - 1, e_lo + spread)
-            out.append((lo, max(lo, hi - corner), e_lo, e_hi, 1))
+            row = (lo, max(lo, hi - corner), e_lo, e_hi, 1)
         elif prev is not None and prev.kind == "constant" and ph.kind == "decelerate":
             s_hi = max(prev.start, ph.start - corner)
             s_lo = min(s_hi, max(prev.start + settle, s_hi - spread))
-            out.append((s_lo, s_hi, min(lo + corner, hi), hi, 1))
-    return out
+            row = (s_lo, s_hi, min(lo + corner, hi), hi, 1)
+        if row is not None:
+            out.append(np.array([row], dtype=np.int64))
+    if not out:
+        return np.zeros((0, 5), dtype=np.int64)
+    return np.concatenate(out)
+
+
+@lru_cache(maxsize=256)
+def _hann_weights(length: int) -> tuple[FloatArray, float]:
+    """Interior of ``np.hanning(length + 2)`` (``length`` positive weights) and their sum."""
+    weights = np.hanning(length + 2)[1:-1]
+    weights.setflags(write=False)
+    return weights, float(weights.sum())
 
 
 def window_integrals(
@@ -241,6 +272,7 @@ def window_integrals(
     settle_s: float = 0.4,
     average_s: float = 0.6,
     span: tuple[float, float] | None = None,
+    phases: list[Phase] | None = None,
 ) -> WindowIntegrals:
     """Integrate the rigid model's regressors over windows of a recording.
 
@@ -276,6 +308,9 @@ def window_integrals(
         A whole-ramp window's end in a plateau is averaged over this span, s.
     span : (float, float), optional
         Only windows inside this time span, s.
+    phases : list of Phase, optional
+        The recording's movement phases, when already computed
+        (:func:`~chaintwin.validate.phases.segment`).
 
     Returns
     -------
@@ -309,10 +344,11 @@ def window_integrals(
     if peak <= 0.0:
         raise EstimationError(f"{recording.source}: the conveyor does not move")
     moving = (np.abs(w) >= min_speed_share * peak) & (np.abs(basis) >= min_speed_share * peak)
-    phases = segment(recording)
+    if phases is None:
+        phases = segment(recording)
     if basis is wsp:
         # constant set point: |dω_sp/dt| small against the peak acceleration
-        dbasis = np.abs(np.gradient(basis, t))
+        dbasis = np.abs(gradient(basis, t))
         steady = dbasis <= 0.02 * max(float(np.max(dbasis)), 1e-12)
     else:
         # no set point: the differentiated actual speed is noise; the
@@ -323,27 +359,11 @@ def window_integrals(
             if ph.kind == "constant":
                 steady[ph.start : ph.stop] = True
 
-    dt = float(np.median(np.diff(t)))
+    h = np.diff(t)
+    dt = float(np.median(h))
     n_win = max(4, round(window_s / dt))
 
-    # per-step trapezoid integrals (length n-1)
-    h = np.diff(t)
-
-    def trap(f: FloatArray) -> FloatArray:
-        return 0.5 * (f[1:] + f[:-1]) * h
-
-    c_torque = trap(torque)
-    c_sign = trap(sgn)
-    c_speed = trap(w)
-    c_speed_sq = trap(w * np.abs(w))
-    c_gf_sign = trap(gf * sgn)
-    c_gf = trap(gf)
-    c_gf_accel = 0.5 * (gf[1:] + gf[:-1]) * np.diff(w)
-
-    bounds = np.asarray(
-        _window_bounds(recording, phases, moving, n_win, corner_s, settle_s, average_s),
-        dtype=np.int64,
-    ).reshape(-1, 5)
+    bounds = _window_bounds(recording, phases, moving, n_win, corner_s, settle_s, average_s, dt)
     if span is not None:
         keep = (t[bounds[:, 0]] >= span[0]) & (t[bounds[:, 3]] <= span[1])
         bounds = bounds[keep]
@@ -354,58 +374,65 @@ def window_integrals(
         )
     s_lo, s_hi, e_lo, e_hi, kind = bounds.T
 
-    def avg(x: FloatArray, lo: np.ndarray, hi: np.ndarray) -> FloatArray:
-        """Hann-weighted mean of a sample-indexed array over [lo, hi], per window.
-
-        A taper rather than a plain mean: a sinusoid (the belt's ringing) leaks
-        into a plain mean as 1/(f·L), into a Hann-weighted one as 1/(f·L)³.
-        """
-        out: FloatArray = x[lo].astype(np.float64)
-        for j in np.flatnonzero(hi > lo):
-            weights = np.hanning(int(hi[j] - lo[j]) + 3)[1:-1]
-            out[j] = float(weights @ x[lo[j] : hi[j] + 1]) / float(weights.sum())
-        return out
-
-    def win(c: FloatArray) -> FloatArray:
-        """Integral of per-step values from the (averaged) start to the (averaged) end."""
-        cum = np.concatenate(([0.0], np.cumsum(c)))
-        return avg(cum, e_lo, e_hi) - avg(cum, s_lo, s_hi)
-
-    t0 = avg(t, s_lo, s_hi)
-    t1 = avg(t, e_lo, e_hi)
-    steady_win = np.array(
-        [
-            bool(np.all(steady[a : b + 1])) and k == 0
-            for a, b, k in zip(s_lo, e_hi, kind, strict=True)
-        ]
-    )
-    mean_speed = win(np.abs(0.5 * (w[1:] + w[:-1])) * h) / (t1 - t0)
+    # the integrands per sample; their per-step trapezoid integrals (n − 1)
+    # and the running integrals (n, from 0) in one table, beside t and ω
     teeth = profile.sprocket.teeth
     theta = recording.position
-    ripple_cols: list[FloatArray] = []
+    samples = [torque, sgn, w, w * np.abs(w), gf * sgn, gf]
     if teeth and theta is not None:
         psi = theta * (teeth / i)  # tooth-pass phase from the motor angle
         w2 = w * w
         for harmonic in (1.0, 2.0):
-            ripple_cols.append(win(trap(w2 * np.cos(harmonic * psi))))
-            ripple_cols.append(win(trap(w2 * np.sin(harmonic * psi))))
-    ripple = np.column_stack(ripple_cols) if ripple_cols else np.empty((kind.shape[0], 0))
+            samples += [w2 * np.cos(harmonic * psi), w2 * np.sin(harmonic * psi)]
+    f = np.column_stack(samples)
+    m = f.shape[1]
+    steps = np.empty((h.shape[0], m + 2))
+    np.multiply(0.5 * (f[1:] + f[:-1]), h[:, None], out=steps[:, :m])
+    steps[:, m] = 0.5 * (gf[1:] + gf[:-1]) * np.diff(w)  # Σ g_f·Δω
+    steps[:, m + 1] = np.abs(0.5 * (w[1:] + w[:-1])) * h  # ∫|ω| dt
+    table = np.empty((t.shape[0], m + 4))
+    table[:, 0] = t
+    table[:, 1] = w
+    table[0, 2:] = 0.0
+    np.cumsum(steps, axis=0, out=table[1:, 2:])
+
+    def avg(lo: np.ndarray, hi: np.ndarray) -> FloatArray:
+        """Hann-weighted mean of the table's rows over [lo, hi], per window.
+
+        A taper rather than a plain mean: a sinusoid (the belt's ringing) leaks
+        into a plain mean as 1/(f·L), into a Hann-weighted one as 1/(f·L)³.
+        """
+        out: FloatArray = table[lo]
+        for j in np.flatnonzero(hi > lo).tolist():
+            a, b = int(lo[j]), int(hi[j])
+            weights, total = _hann_weights(b - a + 1)
+            out[j] = (weights @ table[a : b + 1]) / total
+        return out
+
+    at_start = avg(s_lo, s_hi)
+    at_end = avg(e_lo, e_hi)
+    t0, t1 = at_start[:, 0], at_end[:, 0]
+    integral = at_end[:, 2:] - at_start[:, 2:]  # from the (averaged) start to the end
+    steady_misses = _misses(steady)
+    steady_win = (steady_misses[np.minimum(e_hi + 1, t.shape[0])] == steady_misses[s_lo]) & (
+        kind == 0
+    )
     return WindowIntegrals(
         t0=t0,
         t1=t1,
-        torque=win(c_torque),
-        d_speed=avg(w, e_lo, e_hi) - avg(w, s_lo, s_hi),
-        sign=win(c_sign),
-        speed=win(c_speed),
-        speed_sq=win(c_speed_sq),
-        gf_sign=win(c_gf_sign),
-        gf=win(c_gf),
-        gf_accel=win(c_gf_accel),
+        torque=integral[:, 0],
+        d_speed=at_end[:, 1] - at_start[:, 1],
+        sign=integral[:, 1],
+        speed=integral[:, 2],
+        speed_sq=integral[:, 3],
+        gf_sign=integral[:, 4],
+        gf=integral[:, 5],
+        gf_accel=integral[:, m],
         constant=steady_win,
-        mean_speed=mean_speed,
+        mean_speed=integral[:, m + 1] / (t1 - t0),
         duration=t1 - t0,
         kind=kind,
-        ripple=ripple,
+        ripple=integral[:, 6:m],
     )
 
 

@@ -16,10 +16,10 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 from chaintwin.read.recording import FloatArray, Recording
 from chaintwin.units import RPM_TO_RAD_S
+from chaintwin.validate.filters import gradient, savgol
 
 __all__ = ["Phase", "PhaseKind", "segment", "segment_speed"]
 
@@ -138,7 +138,7 @@ def segment_speed(time: FloatArray, speed: FloatArray, *, clean: bool) -> list[P
             sigma = 0.0
         else:
             win = min(n if n % 2 else n - 1, 11)
-            w = savgol_filter(speed, win, 2) if win >= 5 else speed.astype(np.float64)
+            w = savgol(speed, win, 2) if win >= 5 else speed.astype(np.float64)
             sigma = _noise_sigma(speed)
         peak = float(np.max(np.abs(w))) if n else 0.0
         if not np.isfinite(peak) or not np.isfinite(dt) or dt <= 0:
@@ -151,14 +151,10 @@ def segment_speed(time: FloatArray, speed: FloatArray, *, clean: bool) -> list[P
             # rate of change of |speed|
             mag = np.abs(w)
             if clean:
-                rate = np.gradient(mag, time)
+                rate = gradient(mag, time)
             else:
                 win = min(n if n % 2 else n - 1, 15)
-                rate = (
-                    savgol_filter(mag, win, 2, deriv=1, delta=dt)
-                    if win >= 5
-                    else np.gradient(mag, time)
-                )
+                rate = savgol(mag, win, 2, deriv=1, delta=dt) if win >= 5 else gradient(mag, time)
             moving_rate = np.abs(rate[moving])
             top = float(np.percentile(moving_rate, 98)) if moving_rate.size else 0.0
             a0 = 0.05 * top

@@ -135,15 +135,17 @@ def _step(fit: SignatureFit) -> tuple[float, float, float] | None:
         sigma = float(np.std(q)) or 1e-12
     csum = np.cumsum(q)
     total = csum[-1]
-    best_z, best_j = 0.0, -1
-    for j in range(3, n - 2):
-        left = csum[j - 1] / j
-        right = (total - csum[j - 1]) / (n - j)
-        zval = abs(right - left) / (sigma * np.sqrt(1.0 / j + 1.0 / (n - j)))
-        if zval > best_z:
-            best_z, best_j = zval, j
-    if best_j < 0:
+    # the two-sample z of every split point j (first j windows against the
+    # rest), 3 <= j < n - 2; the first largest positive one is the step
+    j = np.arange(3, n - 2)
+    left = csum[j - 1] / j
+    right = (total - csum[j - 1]) / (n - j)
+    zval = np.abs(right - left) / (sigma * np.sqrt(1.0 / j + 1.0 / (n - j)))
+    zval = np.where(zval > 0.0, zval, -np.inf)  # also drops NaN, as a comparison would
+    if zval.shape[0] == 0 or not zval.max() > 0.0:
         return None
+    k = int(np.argmax(zval))
+    best_z, best_j = float(zval[k]), int(j[k])
     before = float(np.mean(q[:best_j]))
     after = float(np.mean(q[best_j:]))
     if best_z < STEP_SIGMA or abs(after - before) < STEP_MIN_KG:

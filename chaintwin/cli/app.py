@@ -34,6 +34,7 @@ def _register() -> None:
         identify_cmd,
         inspect_cmd,
         monitor_cmd,
+        report_cmd,
         simulate_cmd,
         spectrum_cmd,
         store_cmd,
@@ -46,6 +47,7 @@ def _register() -> None:
     spectrum_cmd.register(app)
     monitor_cmd.register(app)
     store_cmd.register(app)
+    report_cmd.register(app)
 
 
 _register()

@@ -11,12 +11,9 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from chaintwin.cli.inspect_cmd import _print_table, inspection_to_dict
-from chaintwin.errors import RecordingError
-from chaintwin.read.columns import ColumnMap, load_column_map
-from chaintwin.read.profile import ConveyorProfile, load_profiles
-from chaintwin.read.reader import read_recording
-from chaintwin.validate.checks import inspect_recording, load_recording
+from chaintwin import __version__
+from chaintwin.errors import StoreError
+from chaintwin.read.profile import load_profiles
 
 __all__ = ["examples_dir", "register"]
 
@@ -27,89 +24,184 @@ def examples_dir() -> Path:
         return Path(path)
 
 
-def _demo_weighing(
-    root: Path, profile: ConveyorProfile, vendor_map: ColumnMap, console: Console
-) -> None:
-    """Calibrate the reference conveyor and weigh its example recordings."""
-    from chaintwin.identify.calibration import calibrate
-    from chaintwin.weigh.weigh import weigh
+DEMO_PLANT: tuple[tuple[str, str | None], ...] = (
+    ("white-belt-01", None),
+    ("incline-line-02", "friction:0.5"),
+    ("short-fast-03", None),
+)
+"""The demo's virtual plant: conveyor (bundled profile) and the fault it develops."""
 
-    rec_dir = root / "recordings"
-    cal_recs = [
-        load_recording(rec_dir / name, profile=profile).recording
-        for name in ("white-belt-01-cal-empty.csv", "white-belt-01-cal-50kg.csv")
-    ]
-    cal = calibrate(cal_recs, profile)
+DEMO_MARKER = ".chaintwin-demo"
+"""File that marks a folder as the demo's own (it may be emptied and rebuilt)."""
+
+
+def _demo_folder(out: Path) -> None:
+    """Make ``out`` the demo's folder: new, empty, or a previous demo's (emptied)."""
+    if out.exists() and any(out.iterdir()):
+        if not (out / DEMO_MARKER).exists():
+            raise StoreError(
+                f"--out {out}: the folder exists and is not a previous demo's; give a new "
+                "or empty folder"
+            )
+        for sub in ("recordings", "reports"):
+            shutil.rmtree(out / sub, ignore_errors=True)
+        for f in out.glob("plant.db*"):
+            f.unlink()
+    out.mkdir(parents=True, exist_ok=True)
+    (out / DEMO_MARKER).write_text("made by `chaintwin demo`; it may empty this folder\n")
+
+
+def run_demo(out: Path, *, days: int, per_day: int, workers: int | None, console: Console) -> int:
+    """The demo: a virtual plant, calibration, ingest into the embedded store, reports.
+
+    Returns
+    -------
+    int
+        Open alarms at the end.
+    """
+    import time
+
+    from rich.progress import Progress
+
+    from chaintwin.identify.calibration import calibrate
+    from chaintwin.report.data import conveyor_data
+    from chaintwin.report.html import report_file_name, write_folder
+    from chaintwin.simulate.faults import parse_fault
+    from chaintwin.simulate.fleet import generate
+    from chaintwin.store.ingest import ingest
+    from chaintwin.store.store import Store
+    from chaintwin.validate.checks import load_recording
+
+    started = time.perf_counter()
+    _demo_folder(out)
+    profiles = load_profiles(examples_dir() / "profiles")
+    plant = {cid: profiles[cid] for cid, _f in DEMO_PLANT}
+    onset = days // 3
     console.print(
-        f"calibrated {profile.id} ({cal.case}): mu = {cal.parameters['mu']:.4f} "
-        f"± {cal.parameters.stderr('mu'):.4f}, payload sensitivity "
-        f"{cal.sensitivity_nm_per_kg * 1e3:.3f} mNm/kg ± {cal.sensitivity_rel_uncertainty:.2%}",
+        f"[bold]1. virtual plant[/]: {len(plant)} conveyors, {days} days x {per_day} recordings "
+        f"each at 6 ms, payload 10-40 kg, every realism effect on; incline-line-02 develops "
+        f"a friction rise (to +50 %) from day {onset + 1}",
+        highlight=False,
+    )
+    files: list[str] = []
+    with Progress(transient=True, console=console) as bar:
+        task = bar.add_task("simulate", total=len(plant) * days * per_day)
+        for k, (cid, fault) in enumerate(DEMO_PLANT):
+
+            def tick(d: int, _n: int, before: int = k * days * per_day) -> None:
+                bar.update(task, completed=before + d)
+
+            summary = generate(
+                plant[cid],
+                out / "recordings" / cid,
+                days=days,
+                per_day=per_day,
+                faults=[parse_fault(fault)] if fault else [],
+                onset_day=onset,
+                seed=11 + k,
+                progress=tick,
+            )
+            files += sorted(str(f) for f in summary.folder.glob("*.csv"))
+    store = Store(f"sqlite:///{out / 'plant.db'}")
+    try:
+        console.print("[bold]2. calibration[/] from each conveyor's calibration runs:")
+        for cid, prof in plant.items():
+            cal_files = sorted((out / "recordings" / cid / "calibration").glob("*.csv"))
+            recs = [load_recording(f, profile=prof).recording for f in cal_files]
+            cal = calibrate(recs, prof, version=__version__)
+            store.put_calibration(cal)
+            loads = sorted({r.metadata.payload_kg or 0.0 for r in recs})
+            console.print(
+                f"   {cid}: {len(recs)} runs at {', '.join(f'{x:g}' for x in loads)} kg, "
+                f"mu = {cal.parameters['mu']:.4f} ± {cal.parameters.stderr('mu'):.4f}, payload "
+                f"sensitivity ± {cal.sensitivity_rel_uncertainty:.2%}",
+                highlight=False,
+            )
+        console.print(
+            f"[bold]3. ingest[/] {len(files)} recordings into {out / 'plant.db'} "
+            "(read, validate, weigh, monitor):",
+            highlight=False,
+        )
+        with Progress(transient=True, console=console) as bar:
+            task = bar.add_task("ingest", total=len(files))
+            result = ingest(
+                files,
+                plant,
+                store,
+                workers=workers,
+                progress=lambda d, n: bar.update(task, completed=d, total=n),
+            )
+        console.print(
+            f"   {result.processed} processed, {result.duplicates} duplicates, "
+            f"{result.refused} refused, {result.warnings} warnings, {result.new_alarms} new "
+            f"alarms ({result.seconds:.1f} s)",
+            highlight=False,
+        )
+        console.print("[bold]4. reports[/]:")
+        pages = write_folder(store, out / "reports")
+        table = Table(title="the plant after the demo")
+        for col in (
+            "conveyor",
+            "recordings",
+            "status",
+            "open alarms (cause, since)",
+            "payload [kg]",
+            "TLF",
+            "health",
+            "report",
+        ):
+            table.add_column(col)
+        open_alarms = 0
+        for cid in plant:
+            d = conveyor_data(store, cid, waterfall=0)
+            opened = d.open_alarms()
+            open_alarms += len(opened)
+            table.add_row(
+                cid,
+                str(len(d.results)),
+                d.status,
+                "; ".join(f"{a['cause']} ({(a.get('since') or '')[:10]})" for a in opened) or "-",
+                f"{d.recent_payload():.1f}",
+                f"{d.recent_tlf():.3f}",
+                f"{d.health_index:.2f}",
+                str(out / "reports" / report_file_name(cid)),
+            )
+        console.print(table)
+    finally:
+        store.close()
+    console.print(
+        f"open [bold]{pages[-1]}[/] in a browser (works offline); the store is "
+        f"{out / 'plant.db'} (try `chaintwin export --db sqlite:///{out / 'plant.db'}`). "
+        f"Demo took {time.perf_counter() - started:.0f} s.",
         highlight=False,
         soft_wrap=True,
     )
-    table = Table(title=f"weighing {profile.id} (true payloads: 40, 20 and 30 kg)")
-    for col in ("recording", "payload [kg]", "± [kg]", "friction", "inertia", "ok", "TLF"):
-        table.add_column(col)
-    for path, cmap in (
-        (rec_dir / "white-belt-01-40kg.csv", None),
-        (rec_dir / "white-belt-01-1ms.csv", None),
-        (root / "vendor" / "white-belt-01-vendor-export.csv", vendor_map),
-    ):
-        rec = load_recording(path, profile=profile, column_map=cmap).recording
-        res = weigh(rec, cal, source=path.name)
-        inertia = res.payload_inertia_kg
-        table.add_row(
-            path.name,
-            f"{res.payload_kg:.2f}",
-            f"{res.uncertainty_kg:.2f}",
-            f"{res.payload_friction_kg:.2f}",
-            "-" if inertia is None else f"{inertia:.2f}",
-            "yes" if res.consistent else "NO",
-            "-" if res.tlf is None else f"{res.tlf:.3f}",
-        )
-    console.print(table)
+    return open_alarms
 
 
 def register(app: typer.Typer) -> None:
     """Add the ``demo`` and ``examples`` commands to the application."""
 
     @app.command("demo")
-    def demo() -> None:
-        """Run the main job on the bundled virtual conveyor's example recordings.
+    def demo(
+        out: Annotated[
+            Path, typer.Option("--out", help="Folder for the plant's data, store and reports.")
+        ] = Path("chaintwin-demo"),
+        days: Annotated[int, typer.Option("--days", min=4, help="Simulated days.")] = 12,
+        per_day: Annotated[int, typer.Option("--per-day", min=1, help="Recordings per day.")] = 6,
+        workers: Annotated[
+            int | None, typer.Option("--workers", help="Worker processes (default: one per core).")
+        ] = None,
+    ) -> None:
+        """The main job on a virtual plant: simulate, calibrate, ingest, monitor, report.
 
-        Inspects every bundled recording against its conveyor's profile
-        (matched by id), calibrates the reference conveyor from its two
-        calibration recordings (empty tray and a 50 kg reference load) and
-        weighs its other recordings, the vendor export included.
+        Three conveyors (the bundled profiles) are simulated over days with
+        every realism effect on, one of them developing a fault; each is
+        calibrated from its calibration runs, all recordings are ingested into
+        an embedded SQLite store (weighed and monitored), and HTML reports are
+        written. Prints a summary table and where the reports are.
         """
-        root = examples_dir()
-        profiles = load_profiles(root / "profiles")
-        vendor_map = load_column_map(root / "columns" / "vendor-de.yaml")
-        files: list[tuple[Path, ColumnMap | None]] = [
-            (f, None) for f in sorted((root / "recordings").glob("*.csv"))
-        ]
-        files += [(f, vendor_map) for f in sorted((root / "vendor").glob("*.csv"))]
-        results = []
-        for f, cmap in files:
-            shown = f"examples/{f.parent.name}/{f.name}"
-            try:
-                rec = read_recording(f, column_map=cmap)
-                profile = profiles.get(rec.metadata.conveyor or "")
-                if profile is not None:  # re-read: the profile may supply % nominal torque
-                    rec = read_recording(f, profile=profile, column_map=cmap)
-                results.append(inspection_to_dict(shown, inspect_recording(rec, profile), profile))
-            except RecordingError as exc:
-                results.append({"file": shown, "error": str(exc)})
-        _print_table(results)
-        console = Console()
-        console.print(
-            f"\n{len(results)} example recordings of {len(profiles)} conveyors "
-            f"({', '.join(sorted(profiles))}); the vendor export is read with "
-            "columns/vendor-de.yaml. Copy them with `chaintwin examples --out DIR`.\n",
-            highlight=False,
-            soft_wrap=True,
-        )
-        _demo_weighing(root, profiles["white-belt-01"], vendor_map, console)
+        run_demo(out, days=days, per_day=per_day, workers=workers, console=Console())
 
     @app.command("examples")
     def examples(

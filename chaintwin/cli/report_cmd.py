@@ -1,0 +1,77 @@
+"""``chaintwin report``: self-contained HTML pages from the results store."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+
+from chaintwin.errors import StoreError
+
+__all__ = ["register"]
+
+_DB_HELP = (
+    "Results store URL (sqlite:///file.db, postgresql://...); default CHAINTWIN_DB, "
+    "else sqlite:///chaintwin.db."
+)
+_CONVEYOR_HELP = "The conveyor whose page is made."
+_FLEET_HELP = "Make the fleet page (conveyors ranked by health and by TLF)."
+_ALL_HELP = "Make every conveyor's page and the fleet page (fleet.html) in the --out folder."
+_OUT_HELP = (
+    "The page to write (default <conveyor>.html, or fleet.html); with --all, the folder "
+    "(default reports/)."
+)
+
+
+def register(app: typer.Typer) -> None:
+    """Add the command to the application."""
+
+    @app.command("report")
+    def report_cmd(
+        db: Annotated[str | None, typer.Option("--db", help=_DB_HELP)] = None,
+        conveyor: Annotated[str | None, typer.Option("--conveyor", help=_CONVEYOR_HELP)] = None,
+        fleet: Annotated[bool, typer.Option("--fleet", help=_FLEET_HELP)] = False,
+        every: Annotated[bool, typer.Option("--all", help=_ALL_HELP)] = False,
+        out: Annotated[Path | None, typer.Option("--out", help=_OUT_HELP)] = None,
+    ) -> None:
+        """Write HTML reports that open offline: per conveyor, or for the fleet.
+
+        A conveyor's page: status and forecasts, alarms and maintenance,
+        parameter trends with control limits, payload and TLF over time,
+        residual statistics, spectrum and order waterfall, the latest recording
+        against the model.
+        """
+        from chaintwin.report.html import (
+            conveyor_page,
+            fleet_page,
+            report_file_name,
+            write_folder,
+            write_page,
+        )
+        from chaintwin.store.store import Store, store_url
+
+        if sum((conveyor is not None, fleet, every)) != 1:
+            raise StoreError("give one of --conveyor ID, --fleet or --all")
+        store = Store(store_url(db))
+        console = Console()
+        try:
+            if conveyor is not None:
+                html, _d = conveyor_page(store, conveyor)
+                target = write_page(html, out or Path(report_file_name(conveyor)))
+                console.print(f"wrote {escape(str(target))}", highlight=False)
+            elif fleet:
+                target = write_page(fleet_page(store, links=False), out or Path("fleet.html"))
+                console.print(f"wrote {escape(str(target))}", highlight=False)
+            else:
+                folder = out or Path("reports")
+                written = write_folder(store, folder)
+                console.print(
+                    f"wrote {len(written)} pages into {escape(str(folder))} "
+                    f"(start with {escape(str(written[-1]))})",
+                    highlight=False,
+                )
+        finally:
+            store.close()

@@ -1,0 +1,297 @@
+"""What a report shows, gathered from the results store.
+
+A conveyor's page is built from its stored results (one per recording), its
+health model (baselines, alarms, forecasts), its maintenance events and a
+few of its stored recordings rebuilt from their samples (the latest one
+against the model; a spread of recordings for the spectrum waterfall).
+
+Trend values are shown as the health model judges them: a payload-dependent
+feature is moved to the baseline's mean payload
+(``value − slope·(payload − mean payload)``), so that one line and one limit
+hold for every recording.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from dataclasses import dataclass, field
+from datetime import datetime
+from typing import Any
+
+import numpy as np
+
+from chaintwin.diagnose.features import feature_spec
+from chaintwin.diagnose.health import FeatureBaseline
+from chaintwin.diagnose.monitor import ConveyorMonitor
+from chaintwin.errors import ChaintwinError, StoreError
+from chaintwin.identify.calibration import Calibration
+from chaintwin.read.profile import ConveyorProfile
+from chaintwin.read.recording import Recording
+from chaintwin.store.store import Store
+
+__all__ = [
+    "RECENT",
+    "WATERFALL_RECORDINGS",
+    "ConveyorData",
+    "FeatureTrend",
+    "conveyor_data",
+    "health_status",
+]
+
+WATERFALL_RECORDINGS = 40
+"""Most recordings in a spectrum waterfall (spread evenly over the history)."""
+
+RECENT = 10
+"""Recordings the health index and the fleet's TLF figure look at (the latest)."""
+
+WATCH_INDEX = 0.7
+"""A health index from here (0 = baseline, 1 = alarm limit) puts a conveyor on watch."""
+
+WATCH_DAYS = 30.0
+"""A forecast crossing within this many days of the latest recording puts it on watch."""
+
+STATUS_ORDER = ("alarm", "acknowledged", "watch", "ok", "learning")
+"""Statuses from worst to best (fleet ranking)."""
+
+
+@dataclass
+class FeatureTrend:
+    """One tracked feature over time, as the health model judges it.
+
+    Attributes
+    ----------
+    name, cause, unit : str
+        Feature, probable cause when it rises, unit of the values.
+    index : list of int
+        Positions of the values in the conveyor's results.
+    values : list of float
+        Values at the baseline's mean payload (NaN where unknown).
+    exceeded : list of bool
+        Whether the recording exceeded on this feature.
+    expected, limit : float or None
+        Baseline level and alarm limit at the mean payload (None before a baseline).
+    """
+
+    name: str
+    cause: str
+    unit: str
+    index: list[int]
+    values: list[float]
+    exceeded: list[bool]
+    expected: float | None
+    limit: float | None
+
+    def health_index(self, recent: int = RECENT) -> float:
+        """Median of ``(value − expected)/(limit − expected)`` over the latest values.
+
+        0 at the baseline, 1 at the alarm limit; NaN without a baseline.
+        """
+        if self.expected is None or self.limit is None or self.limit <= self.expected:
+            return math.nan
+        vals = [v for v in self.values[-recent:] if math.isfinite(v)]
+        if not vals:
+            return math.nan
+        return (statistics.median(vals) - self.expected) / (self.limit - self.expected)
+
+
+@dataclass
+class ConveyorData:
+    """Everything a conveyor's page shows."""
+
+    profile: ConveyorProfile
+    results: list[dict[str, Any]]
+    times: list[datetime | None]
+    alarms: list[dict[str, Any]]
+    events: list[dict[str, Any]]
+    summary: dict[str, Any]
+    forecasts: list[dict[str, Any]]
+    trends: list[FeatureTrend]
+    calibration: Calibration | None
+    baseline_since: str | None
+    latest: Recording | None = None
+    latest_result: dict[str, Any] | None = None
+    waterfall: list[tuple[str, Recording]] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def status(self) -> str:
+        """``alarm``, ``acknowledged``, ``watch``, ``ok`` or ``learning``."""
+        return health_status(self)
+
+    @property
+    def health_index(self) -> float:
+        """The largest feature health index (0 baseline, 1 alarm limit); NaN if none."""
+        vals = [t.health_index() for t in self.trends]
+        vals = [v for v in vals if math.isfinite(v)]
+        return max(vals) if vals else math.nan
+
+    @property
+    def worst_feature(self) -> FeatureTrend | None:
+        """The feature closest to (or furthest over) its limit."""
+        best: tuple[float, FeatureTrend] | None = None
+        for t in self.trends:
+            h = t.health_index()
+            if math.isfinite(h) and (best is None or h > best[0]):
+                best = (h, t)
+        return None if best is None else best[1]
+
+    def recent_tlf(self) -> float:
+        """Median TLF of the latest :data:`RECENT` recordings with one (NaN if none)."""
+        vals = [r["tlf"] for r in self.results if r.get("tlf") is not None][-RECENT:]
+        return float(statistics.median(vals)) if vals else math.nan
+
+    def recent_payload(self) -> float:
+        """Median payload of the latest :data:`RECENT` weighed recordings, kg."""
+        vals = [r["payload_kg"] for r in self.results if r.get("payload_kg") is not None]
+        return float(statistics.median(vals[-RECENT:])) if vals else math.nan
+
+    def open_alarms(self) -> list[dict[str, Any]]:
+        """Open alarms, acknowledged ones included."""
+        return [a for a in self.alarms if a.get("status") == "open"]
+
+
+def health_status(data: ConveyorData) -> str:
+    """A conveyor's status for the fleet page (see :data:`STATUS_ORDER`)."""
+    opened = data.open_alarms()
+    if any(not a.get("acknowledged") for a in opened):
+        return "alarm"
+    if opened:
+        return "acknowledged"
+    if not data.summary.get("baseline", {}).get("complete"):
+        return "learning"
+    if data.health_index >= WATCH_INDEX:
+        return "watch"
+    last = next((t for t in reversed(data.times) if t is not None), None)
+    for fc in data.forecasts:
+        when = datetime.fromisoformat(fc["crosses_at"])
+        if last is not None and (when - last).total_seconds() < WATCH_DAYS * 86400.0:
+            return "watch"
+    return "ok"
+
+
+def _time(text: str | None) -> datetime | None:
+    return None if text is None else datetime.fromisoformat(text)
+
+
+def _number(x: Any) -> float:
+    return float(x) if isinstance(x, int | float) and x is not None else math.nan
+
+
+def _trends(
+    results: list[dict[str, Any]],
+    baselines: dict[str, FeatureBaseline],
+    z_limit: float,
+) -> list[FeatureTrend]:
+    names: list[str] = []
+    for r in results:
+        for k in r.get("features") or {}:
+            if k not in names and feature_spec(k).cause is not None:
+                names.append(k)
+    out = []
+    for name in names:
+        spec = feature_spec(name)
+        fb = baselines.get(name)
+        idx, vals, exc = [], [], []
+        for k, r in enumerate(results):
+            feats = r.get("features") or {}
+            if name not in feats:
+                continue
+            v = _number(feats.get(name))
+            if fb is not None and fb.slope != 0.0:
+                v -= fb.slope * (_number(feats.get(spec.regressor)) - fb.mean_payload_kg)
+            idx.append(k)
+            vals.append(v)
+            exc.append(name in (r.get("exceeded") or []))
+        out.append(
+            FeatureTrend(
+                name=name,
+                cause=spec.cause or "",
+                unit=spec.unit,
+                index=idx,
+                values=vals,
+                exceeded=exc,
+                expected=None if fb is None else fb.expected(fb.mean_payload_kg),
+                limit=None if fb is None else fb.limit(z_limit, spec.min_rel),
+            )
+        )
+    return out
+
+
+def _spread(n: int, k: int) -> list[int]:
+    """``k`` positions spread evenly over ``range(n)``, the last included."""
+    if n <= k:
+        return list(range(n))
+    return sorted({round(float(x)) for x in np.linspace(0, n - 1, k)})
+
+
+def conveyor_data(
+    store: Store, conveyor: str, *, waterfall: int = WATERFALL_RECORDINGS
+) -> ConveyorData:
+    """Gather a conveyor's page from the store.
+
+    Parameters
+    ----------
+    store : Store
+        The results store.
+    conveyor : str
+        Conveyor id.
+    waterfall : int
+        Most recordings rebuilt for the spectrum waterfall.
+
+    Raises
+    ------
+    StoreError
+        When the store does not hold the conveyor.
+    """
+    profile = store.profile(conveyor)
+    if profile is None:
+        raise StoreError(
+            f"the store holds no conveyor '{conveyor}' "
+            f"(it holds: {', '.join(store.conveyors()) or 'none'})"
+        )
+    results = [r for r in store.results(conveyor) if "error" not in r]
+    state = store.state(conveyor)
+    notes: list[str] = []
+    summary: dict[str, Any] = {"baseline": {"complete": False}}
+    forecasts: list[dict[str, Any]] = []
+    baselines: dict[str, FeatureBaseline] = {}
+    z_limit = 5.0
+    calibration = store.calibration(conveyor)
+    baseline_since = None
+    if state is not None:
+        try:
+            mon = ConveyorMonitor.from_state(state, profile, source=f"store {conveyor}")
+        except ChaintwinError as exc:
+            notes.append(f"health model not readable: {exc}")
+        else:
+            summary = mon.summary()
+            forecasts = mon.forecasts()
+            baselines = dict(mon.baselines or {})
+            z_limit = mon.settings.z_limit
+            baseline_since = mon.baseline_since
+            if mon.calibration is not None:
+                calibration = mon.calibration
+    data = ConveyorData(
+        profile=profile,
+        results=results,
+        times=[_time(r.get("recorded_at")) for r in results],
+        alarms=store.alarms(conveyor),
+        events=store.events(conveyor),
+        summary=summary,
+        forecasts=forecasts,
+        trends=_trends(results, baselines, z_limit),
+        calibration=calibration,
+        baseline_since=baseline_since,
+        notes=notes,
+    )
+    index = store.recording_index(conveyor)
+    by_file = {r["file"]: r for r in results}
+    if index:
+        rid, name, _at = index[-1]
+        data.latest = store.recording(rid)
+        data.latest_result = by_file.get(name)
+    for k in _spread(len(index), waterfall):
+        rid, _name, at = index[k]
+        data.waterfall.append((at or f"#{k + 1}", store.recording(rid)))
+    return data

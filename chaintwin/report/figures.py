@@ -1,0 +1,390 @@
+"""The report's plots: matplotlib figures as PNG data URIs (the page needs no network).
+
+Figures are drawn on the Agg canvas directly (no pyplot, no global state),
+so reports can be built in worker processes and in tests. Every function
+returns a ``data:image/png;base64,...`` URI, or None when there is nothing
+to draw.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import math
+from collections.abc import Sequence
+from datetime import datetime
+from typing import Any
+
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.colors import LogNorm
+from matplotlib.figure import Figure
+
+from chaintwin.diagnose.residuals import model_torque
+from chaintwin.diagnose.spectra import (
+    Spectrum,
+    apparent_order,
+    line_orders,
+    order_spectrum,
+    welch_spectrum,
+)
+from chaintwin.errors import ChaintwinError
+from chaintwin.identify.windows import motoring_mask
+from chaintwin.read.recording import Recording
+from chaintwin.units import RPM_TO_RAD_S
+
+from .data import ConveyorData, FeatureTrend
+
+__all__ = [
+    "fleet_health_figure",
+    "fleet_tlf_figure",
+    "latest_figure",
+    "payload_tlf_figure",
+    "residual_figure",
+    "trend_figure",
+    "waterfall_figure",
+]
+
+DPI = 96
+"""Resolution of the PNGs, dots per inch."""
+
+GRID_POINTS = 400
+"""Points of the common axis a waterfall's spectra are interpolated onto."""
+
+
+def _figure(width: float, height: float) -> Figure:
+    fig = Figure(figsize=(width, height), dpi=DPI)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _uri(fig: Figure) -> str:
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _x(data: ConveyorData) -> tuple[list[Any], str]:
+    """The results' x positions: their times when every one has a time, else their numbers."""
+    if data.times and all(t is not None for t in data.times):
+        return list(data.times), "recorded at (UTC)"
+    return list(range(1, len(data.results) + 1)), "recording number"
+
+
+def _when(data: ConveyorData, text: str | None) -> Any:
+    """An ISO time as an x position of the results axis (None when it cannot be placed)."""
+    if text is None:
+        return None
+    xs, _label = _x(data)
+    t = datetime.fromisoformat(text)
+    if isinstance(xs[0], datetime):
+        return t
+    later = [k for k, rt in enumerate(data.times) if rt is not None and rt >= t]
+    return xs[later[0]] if later else None
+
+
+def _marks(ax: Axes, data: ConveyorData, feature: str | None = None) -> None:
+    """Maintenance events (vertical lines) and alarm periods (shaded) on a time axis."""
+    xs, _label = _x(data)
+    end = xs[-1]
+    for alarm in data.alarms:
+        if feature is not None and alarm.get("feature") != feature:
+            continue
+        start = _when(data, alarm.get("since"))
+        stop = _when(data, alarm.get("closed_at")) or end
+        if start is not None:
+            ax.axvspan(start, stop, color="tab:red", alpha=0.08, linewidth=0)
+    for ev in data.events:
+        at = _when(data, ev.get("at"))
+        if at is not None:
+            ax.axvline(at, color="tab:purple", linewidth=1.0, linestyle=":")
+            ax.text(
+                at,
+                0.98,
+                f" {ev.get('kind', '')}",
+                transform=ax.get_xaxis_transform(),
+                fontsize=7,
+                color="tab:purple",
+                va="top",
+            )
+
+
+def _time_axis(ax: Axes, label: str) -> None:
+    ax.set_xlabel(label)
+    ax.grid(True, alpha=0.3)
+    ax.tick_params(axis="x", labelrotation=20)
+
+
+def trend_figure(data: ConveyorData, trend: FeatureTrend) -> str | None:
+    """One feature over time: values, baseline, alarm limit, exceedances, alarms, events."""
+    if not trend.values:
+        return None
+    xs, label = _x(data)
+    fig = _figure(6.4, 3.0)
+    ax = fig.add_subplot()
+    x = [xs[k] for k in trend.index]
+    v = np.asarray(trend.values, dtype=float)
+    exc = np.asarray(trend.exceeded, dtype=bool)
+    statuses = [data.results[k].get("status") for k in trend.index]
+    base = np.asarray([s in ("baseline", "learning") for s in statuses])
+    ok = ~exc & ~base
+    ax.plot(x, v, color="0.75", linewidth=0.6, zorder=1)
+    ax.scatter([x[k] for k in np.flatnonzero(base)], v[base], s=9, color="0.5", label="baseline")
+    ax.scatter([x[k] for k in np.flatnonzero(ok)], v[ok], s=9, color="tab:blue", label="monitored")
+    ax.scatter([x[k] for k in np.flatnonzero(exc)], v[exc], s=14, color="tab:red", label="exceeded")
+    if trend.expected is not None and trend.limit is not None:
+        ax.axhline(trend.expected, color="tab:green", linewidth=1.0, label="baseline level")
+        ax.axhline(trend.limit, color="tab:red", linewidth=1.0, linestyle="--", label="alarm limit")
+    _marks(ax, data, trend.name)
+    unit = "" if trend.unit == "-" else f" [{trend.unit}]"
+    ax.set_ylabel(f"{trend.name}{unit}")
+    ax.set_title(f"{trend.name} (rises with: {trend.cause})", fontsize=10)
+    ax.legend(fontsize=7, loc="upper left", ncols=3)
+    _time_axis(ax, label)
+    return _uri(fig)
+
+
+def payload_tlf_figure(data: ConveyorData) -> str | None:
+    """Payload (with its standard uncertainty) and the transport loss factor over time."""
+    xs, label = _x(data)
+    pay = [
+        (x, r["payload_kg"], r.get("uncertainty_kg") or 0.0)
+        for x, r in zip(xs, data.results, strict=True)
+        if r.get("payload_kg") is not None
+    ]
+    tlf = [(x, r["tlf"]) for x, r in zip(xs, data.results, strict=True) if r.get("tlf") is not None]
+    if not pay and not tlf:
+        return None
+    fig = _figure(12.0, 3.4)
+    ax1 = fig.add_subplot(1, 2, 1)
+    if pay:
+        ax1.errorbar(
+            [p[0] for p in pay],
+            [p[1] for p in pay],
+            yerr=[p[2] for p in pay],
+            fmt="o",
+            markersize=3,
+            linewidth=0.8,
+            color="tab:blue",
+        )
+    ax1.set_ylabel("payload [kg] (± 1 σ)")
+    ax1.set_title("payload weighed from torque", fontsize=10)
+    _marks(ax1, data)
+    _time_axis(ax1, label)
+    ax2 = fig.add_subplot(1, 2, 2)
+    if tlf:
+        ax2.plot([t[0] for t in tlf], [t[1] for t in tlf], "o", markersize=3, color="tab:orange")
+    ax2.set_ylabel("transport loss factor [-]")
+    ax2.set_title("TLF: work at the sprocket / (payload weight x distance)", fontsize=10)
+    _marks(ax2, data)
+    _time_axis(ax2, label)
+    return _uri(fig)
+
+
+def residual_figure(data: ConveyorData) -> str | None:
+    """Residual statistics of the constant-speed phases over time (std, kurtosis, crest)."""
+    xs, label = _x(data)
+    keys = (
+        ("residual_std", "residual std [Nm]"),
+        ("residual_kurtosis", "kurtosis [-]"),
+        ("crest_factor", "crest factor [-]"),
+    )
+    series = []
+    for key, ylabel in keys:
+        pts = [
+            (x, float(r["features"][key]))
+            for x, r in zip(xs, data.results, strict=True)
+            if (r.get("features") or {}).get(key) is not None
+        ]
+        series.append((key, ylabel, pts))
+    if not any(pts for _k, _l, pts in series):
+        return None
+    fig = _figure(12.0, 3.2)
+    for k, (_key, ylabel, pts) in enumerate(series):
+        ax = fig.add_subplot(1, 3, k + 1)
+        ax.plot([p[0] for p in pts], [p[1] for p in pts], "o", markersize=3, color="tab:blue")
+        ax.set_ylabel(ylabel)
+        _marks(ax, data)
+        _time_axis(ax, label)
+    fig.suptitle("residual of measured against model torque, constant-speed phases", fontsize=10)
+    return _uri(fig)
+
+
+def _spectra(
+    recordings: Sequence[tuple[str, Recording]], kind: str
+) -> tuple[list[str], list[Spectrum]]:
+    labels, spectra = [], []
+    for label, rec in recordings:
+        try:
+            sp = order_spectrum(rec) if kind == "order" else welch_spectrum(rec, average="median")
+        except ChaintwinError:
+            continue  # too short or too slow for a spectrum: left out of the waterfall
+        labels.append(label)
+        spectra.append(sp)
+    return labels, spectra
+
+
+def _waterfall_panel(
+    ax: Axes, labels: list[str], spectra: list[Spectrum], lines: dict[str, float]
+) -> None:
+    top = min(float(sp.x[-1]) for sp in spectra)
+    edges = np.linspace(0.0, top, GRID_POINTS + 1)
+    grid = 0.5 * (edges[:-1] + edges[1:])
+    image = np.vstack([np.interp(grid, sp.x, sp.amplitude) for sp in spectra])
+    positive = image[image > 0]
+    lo = float(np.percentile(positive, 5)) if positive.size else 1e-6
+    hi = float(positive.max()) if positive.size else 1.0
+    mesh = ax.pcolormesh(
+        edges,
+        np.arange(len(spectra) + 1) - 0.5,
+        np.maximum(image, lo),
+        norm=LogNorm(vmin=lo, vmax=max(hi, lo * 10)),
+        cmap="viridis",
+    )
+    ax.figure.colorbar(mesh, ax=ax, label="torque amplitude [Nm]")
+    step = max(1, len(labels) // 8)
+    ax.set_yticks(range(0, len(labels), step))
+    ax.set_yticklabels([labels[k][:16] for k in range(0, len(labels), step)], fontsize=7)
+    for name, pos in lines.items():
+        if 0 < pos < top:
+            ax.axvline(pos, color="white", linewidth=0.6, linestyle="--", alpha=0.8)
+            ax.text(pos, len(spectra) - 0.6, name, rotation=90, fontsize=6, color="white", va="top")
+
+
+def _short(name: str) -> str:
+    return (
+        name.replace("sprocket_tooth_pass", "tooth pass")
+        .replace("_rotation", "")
+        .replace("_mesh", " mesh")
+        .replace("_", " ")
+    )
+
+
+def _main(line: str) -> bool:
+    """Not a harmonic (``..._h2``, ``..._h3``): marked lines stay readable."""
+    return not line.endswith(("_h2", "_h3"))
+
+
+def waterfall_figure(data: ConveyorData) -> str | None:
+    """Order and frequency spectra of the torque over time (one row per recording)."""
+    if not data.waterfall:
+        return None
+    labels_o, orders = _spectra(data.waterfall, "order")
+    labels_f, freqs = _spectra(data.waterfall, "frequency")
+    if not orders and not freqs:
+        return None
+    fig = _figure(12.0, 5.0)
+    known = line_orders(data.profile)
+    if orders:
+        ts = float(np.median([rec.sample_time_s for _l, rec in data.waterfall]))
+        rpm = float(np.median([sp.speed_rpm for sp in orders]))
+        ax = fig.add_subplot(1, 2, 1)
+        wanted = {_short(k): apparent_order(v, rpm, ts) for k, v in known.items() if _main(k)}
+        _waterfall_panel(ax, labels_o, orders, wanted)
+        ax.set_xlabel("order [1/motor revolution] (lines where they appear in the scope)")
+        ax.set_title("order spectrum of the torque, per recording", fontsize=10)
+    if freqs:
+        ax = fig.add_subplot(1, 2, 2)
+        rpm = float(np.median([sp.speed_rpm for sp in freqs]))
+        ts = float(np.median([rec.sample_time_s for _l, rec in data.waterfall]))
+        f_rot = rpm / 60.0
+        wanted = {
+            _short(k): apparent_order(v, rpm, ts) * f_rot for k, v in known.items() if _main(k)
+        }
+        _waterfall_panel(ax, labels_f, freqs, wanted)
+        ax.set_xlabel("frequency [Hz] (constant-speed plateau, Welch, median of segments)")
+        ax.set_title("torque spectrum at constant speed, per recording", fontsize=10)
+    return _uri(fig)
+
+
+def latest_figure(data: ConveyorData) -> str | None:
+    """The latest recording: speed, torque against the calibrated model, and the residual."""
+    rec = data.latest
+    if rec is None:
+        return None
+    t = rec.time
+    fig = _figure(12.0, 7.0)
+    ax1 = fig.add_subplot(3, 1, 1)
+    ax1.plot(t, rec.speed / RPM_TO_RAD_S, color="tab:blue", linewidth=0.9, label="speed")
+    if rec.speed_setpoint is not None:
+        ax1.plot(
+            t,
+            rec.speed_setpoint / RPM_TO_RAD_S,
+            color="0.3",
+            linewidth=0.8,
+            linestyle="--",
+            label="set point",
+        )
+    ax1.set_ylabel("motor speed [rpm]")
+    ax1.legend(fontsize=7, loc="upper right")
+    ax1.grid(True, alpha=0.3)
+    ax2 = fig.add_subplot(3, 1, 2, sharex=ax1)
+    ax2.plot(t, rec.torque, color="tab:blue", linewidth=0.8, label="measured")
+    model = _model(data)
+    if model is not None:
+        ax2.plot(t, model, color="tab:orange", linewidth=1.0, label="model (calibrated)")
+    if rec.torque_setpoint is not None:
+        ax2.plot(t, rec.torque_setpoint, color="0.5", linewidth=0.6, alpha=0.7, label="set point")
+    ax2.set_ylabel("motor torque [Nm]")
+    ax2.legend(fontsize=7, loc="upper right")
+    ax2.grid(True, alpha=0.3)
+    ax3 = fig.add_subplot(3, 1, 3, sharex=ax1)
+    if model is not None:
+        ax3.plot(t, rec.torque - model, color="tab:red", linewidth=0.7)
+        ax3.set_ylabel("measured − model [Nm]")
+    else:
+        ax3.text(0.5, 0.5, "no calibration: no model", transform=ax3.transAxes, ha="center")
+    ax3.set_xlabel("time since trigger [s]")
+    ax3.grid(True, alpha=0.3)
+    res = data.latest_result or {}
+    pay = res.get("payload_kg")
+    title = f"latest recording: {rec.source}"
+    if isinstance(pay, int | float):
+        title += f", payload {pay:.1f} kg"
+    ax1.set_title(title, fontsize=10)
+    return _uri(fig)
+
+
+def _model(data: ConveyorData) -> np.ndarray | None:
+    """The calibrated model's torque for the latest recording (None without calibration)."""
+    rec, cal = data.latest, data.calibration
+    pay = (data.latest_result or {}).get("payload_kg")
+    if rec is None or cal is None or not isinstance(pay, int | float) or not math.isfinite(pay):
+        return None
+    p = cal.parameters
+    try:
+        mot = motoring_mask(rec, drive_inertia_kgm2=p["J_d"], losses=(p["BmA"], p["BmB"], p["BmC"]))
+        return model_torque(rec, cal.id_profile, p, float(pay), motoring=mot)
+    except ChaintwinError:
+        return None
+
+
+def fleet_health_figure(names: Sequence[str], index: Sequence[float]) -> str | None:
+    """Health index per conveyor (0 baseline, 1 alarm limit)."""
+    if not names:
+        return None
+    fig = _figure(8.0, 0.5 + 0.4 * len(names))
+    ax = fig.add_subplot()
+    vals = [0.0 if not math.isfinite(v) else v for v in index]
+    colours = ["tab:red" if v >= 1 else "tab:orange" if v >= 0.7 else "tab:green" for v in vals]
+    ax.barh(list(names), vals, color=colours)
+    ax.axvline(1.0, color="tab:red", linestyle="--", linewidth=1.0)
+    ax.invert_yaxis()
+    ax.set_xlabel("health index: worst feature, 0 = baseline, 1 = alarm limit")
+    ax.grid(True, axis="x", alpha=0.3)
+    return _uri(fig)
+
+
+def fleet_tlf_figure(names: Sequence[str], tlf: Sequence[float]) -> str | None:
+    """Median TLF of the latest recordings per conveyor."""
+    if not names:
+        return None
+    fig = _figure(8.0, 0.5 + 0.4 * len(names))
+    ax = fig.add_subplot()
+    ax.barh(list(names), [0.0 if not math.isfinite(v) else v for v in tlf], color="tab:orange")
+    ax.invert_yaxis()
+    ax.set_xlabel("transport loss factor, median of the latest recordings [-]")
+    ax.grid(True, axis="x", alpha=0.3)
+    return _uri(fig)

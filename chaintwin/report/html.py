@@ -1,0 +1,317 @@
+"""Self-contained HTML reports: one page per conveyor and a fleet page.
+
+A page holds its plots as PNG data URIs and its style inline: it opens
+offline, from a mail attachment or a USB stick, with no network and no
+other file. Pages are rendered with Jinja2 (autoescaped: file names and
+maintenance notes come from users) and written atomically.
+
+Sections of a conveyor page (their HTML ids, which tests and links use):
+``summary``, ``alarms``, ``trends``, ``payload-tlf``, ``residuals``,
+``waterfall``, ``latest``. Of the fleet page: ``ranking-health``,
+``ranking-tlf``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from jinja2 import Environment, PackageLoader, StrictUndefined
+
+from chaintwin import __version__
+from chaintwin.diagnose.residuals import residual_analysis
+from chaintwin.errors import ChaintwinError, StoreError
+from chaintwin.store.store import Store
+
+from . import figures
+from .data import RECENT, STATUS_ORDER, ConveyorData, conveyor_data
+
+__all__ = [
+    "CONVEYOR_SECTIONS",
+    "FLEET_SECTIONS",
+    "conveyor_page",
+    "fleet_page",
+    "report_file_name",
+    "write_folder",
+    "write_page",
+]
+
+CONVEYOR_SECTIONS = (
+    "summary",
+    "alarms",
+    "trends",
+    "payload-tlf",
+    "residuals",
+    "waterfall",
+    "latest",
+)
+"""HTML ids of a conveyor page's sections, in page order."""
+
+FLEET_SECTIONS = ("ranking-health", "ranking-tlf")
+"""HTML ids of the fleet page's sections."""
+
+RESIDUAL_COLUMNS = ("mean", "std", "rms", "max_abs", "kurtosis", "skewness", "crest_factor")
+"""Residual statistics shown for the latest recording."""
+
+_ENV = Environment(
+    loader=PackageLoader("chaintwin.report", "templates"),
+    autoescape=True,
+    undefined=StrictUndefined,
+    trim_blocks=True,
+    lstrip_blocks=True,
+)
+
+
+def _fmt(x: Any, digits: int) -> str:
+    if not isinstance(x, int | float) or not math.isfinite(x):
+        return "-"
+    return f"{x:.{digits}f}"
+
+
+def _pct(x: Any) -> str:
+    if not isinstance(x, int | float) or not math.isfinite(x):
+        return "-"
+    return f"{x:+.0%}"
+
+
+_ENV.globals.update(fmt=_fmt, pct=_pct, version=__version__)
+
+
+def report_file_name(conveyor: str) -> str:
+    """File name of a conveyor's page in a report folder (``<id>.html``, safe characters)."""
+    safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in conveyor)
+    return f"{safe}.html"
+
+
+def _status_text(d: ConveyorData) -> str:
+    opened = d.open_alarms()
+    if opened:
+        causes = sorted({a["cause"] for a in opened})
+        return f"open alarm on {', '.join(causes)}"
+    status = d.status
+    if status == "learning":
+        return "baseline still being learned"
+    if status == "watch":
+        worst = d.worst_feature
+        name = worst.name if worst else "a feature"
+        return f"no alarm; {name} is near its limit or forecast to cross it"
+    return "no alarm, every feature inside its limits"
+
+
+def _description(d: ConveyorData) -> str:
+    p = d.profile
+    incline = f", {p.belt.incline_deg:g}° incline" if p.belt.incline_deg else ""
+    return (
+        f"chain belt conveyor, {p.belt.length_m:g} m belt{incline}, sprocket "
+        f"{p.sprocket.pitch_diameter_m * 1e3:.0f} mm, gear ratio {p.gear.ratio:g}"
+    )
+
+
+def _calibration_text(d: ConveyorData) -> str:
+    cal = d.calibration
+    if cal is None:
+        return "none yet"
+    src = d.summary.get("calibration") or "store"
+    mu, se = cal.parameters["mu"], cal.parameters.stderr("mu")
+    return f"{src}; case {cal.case}; μ = {mu:.4f} ± {se:.4f}, {len(cal.recordings)} recordings"
+
+
+def _baseline_text(d: ConveyorData) -> str:
+    b = d.summary.get("baseline", {})
+    if not b.get("complete"):
+        return f"being learned ({b.get('recordings', 0)} recordings so far)"
+    since = (b.get("since") or "")[:16]
+    return f"{b.get('recordings')} recordings since {since or 'the start'}"
+
+
+def _residual_table(d: ConveyorData) -> list[tuple[str, dict[str, Any]]]:
+    from .figures import _model
+
+    model = _model(d)
+    if model is None or d.latest is None:
+        return []
+    try:
+        rep = residual_analysis(d.latest, model)
+    except ChaintwinError:
+        return []
+    rows = [("whole movement", rep.whole.to_dict())]
+    rows += [(kind, s.to_dict()) for kind, s in rep.by_phase.items()]
+    return rows
+
+
+def conveyor_page(
+    store: Store, conveyor: str, *, fleet_link: str | None = None
+) -> tuple[str, ConveyorData]:
+    """A conveyor's report page.
+
+    Parameters
+    ----------
+    store : Store
+        The results store.
+    conveyor : str
+        Conveyor id.
+    fleet_link : str, optional
+        Relative link to the fleet page, shown in the header.
+
+    Returns
+    -------
+    (str, ConveyorData)
+        The HTML and the data it was made from.
+
+    Raises
+    ------
+    StoreError
+        When the store does not hold the conveyor.
+    """
+    d = conveyor_data(store, conveyor)
+    times = [t for t in d.times if t is not None]
+    trend_figures = []
+    for t in d.trends:
+        uri = figures.trend_figure(d, t)
+        if uri is not None:
+            trend_figures.append({"name": t.name, "uri": uri})
+    html = _ENV.get_template("conveyor.html.j2").render(
+        d=d,
+        made=datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        source=store.url.split("@")[-1],
+        fleet_link=fleet_link,
+        description=_description(d),
+        first=times[0].strftime("%Y-%m-%d %H:%M") if times else None,
+        last=times[-1].strftime("%Y-%m-%d %H:%M") if times else None,
+        status_text=_status_text(d),
+        calibration_text=_calibration_text(d),
+        baseline_text=_baseline_text(d),
+        recent=RECENT,
+        trend_figures=trend_figures,
+        payload_figure=figures.payload_tlf_figure(d),
+        residual_figure=figures.residual_figure(d),
+        residual_columns=RESIDUAL_COLUMNS,
+        residual_table=_residual_table(d),
+        waterfall_figure=figures.waterfall_figure(d),
+        waterfall_count=len(d.waterfall),
+        latest_figure=figures.latest_figure(d),
+    )
+    return html, d
+
+
+@dataclass(frozen=True)
+class FleetRow:
+    """One conveyor on the fleet page."""
+
+    id: str
+    link: str | None
+    status: str
+    alarms: str
+    health: float
+    worst: str
+    forecast: str
+    recordings: int
+    latest: str
+    tlf: float
+    payload: float
+
+
+def _rank(x: float) -> float:
+    return x if math.isfinite(x) else -math.inf
+
+
+def _forecast_text(fc: dict[str, Any]) -> str:
+    if fc.get("crossed"):
+        return f"{fc['feature']}: crossed"
+    return f"{fc['feature']}: {str(fc['crosses_at'])[:10]}"
+
+
+def _fleet_row(d: ConveyorData, links: bool) -> FleetRow:
+    opened = d.open_alarms()
+    worst = d.worst_feature
+    last = next((t for t in reversed(d.times) if t is not None), None)
+    fc = sorted(d.forecasts, key=lambda f: str(f["crosses_at"]))
+    alarms = ", ".join(
+        f"{a['cause']} ({a['feature']}{', ack.' if a.get('acknowledged') else ''})" for a in opened
+    )
+    return FleetRow(
+        id=d.profile.id,
+        link=report_file_name(d.profile.id) if links else None,
+        status=d.status,
+        alarms=alarms or "-",
+        health=d.health_index,
+        worst=worst.name if worst else "-",
+        forecast=_forecast_text(fc[0]) if fc else "-",
+        recordings=len(d.results),
+        latest=last.strftime("%Y-%m-%d %H:%M") if last else "-",
+        tlf=d.recent_tlf(),
+        payload=d.recent_payload(),
+    )
+
+
+def fleet_page(store: Store, data: list[ConveyorData] | None = None, *, links: bool = True) -> str:
+    """The fleet page: conveyors ranked by health and by TLF.
+
+    Parameters
+    ----------
+    store : Store
+        The results store.
+    data : list of ConveyorData, optional
+        Gathered already (by :func:`conveyor_page`); else gathered here.
+    links : bool
+        Link each conveyor to ``<id>.html`` beside the fleet page.
+    """
+    if data is None:
+        data = [conveyor_data(store, c, waterfall=0) for c in store.conveyors()]
+    rows = [_fleet_row(d, links) for d in data]
+    rows.sort(key=lambda r: (STATUS_ORDER.index(r.status), -_rank(r.health), r.id))
+    by_tlf = sorted(rows, key=lambda r: (-_rank(r.tlf), r.id))
+    return _ENV.get_template("fleet.html.j2").render(
+        rows=rows,
+        by_tlf=by_tlf,
+        made=datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        source=store.url.split("@")[-1],
+        recent=RECENT,
+        health_figure=figures.fleet_health_figure([r.id for r in rows], [r.health for r in rows]),
+        tlf_figure=figures.fleet_tlf_figure([r.id for r in by_tlf], [r.tlf for r in by_tlf]),
+    )
+
+
+def write_page(html: str, path: str | Path) -> Path:
+    """Write a page atomically (a reader never sees half a page).
+
+    Raises
+    ------
+    StoreError
+        When it cannot be written (an older page there is left as it was).
+    """
+    target = Path(path)
+    tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(html, encoding="utf-8")
+        tmp.replace(target)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise StoreError(f"--out {target}: cannot write the report ({exc.strerror})") from None
+    return target
+
+
+def write_folder(store: Store, folder: str | Path) -> list[Path]:
+    """Every conveyor's page and the fleet page (``fleet.html``, last in the list) into a folder.
+
+    Raises
+    ------
+    StoreError
+        When the store holds no conveyor, or a page cannot be written.
+    """
+    conveyors = store.conveyors()
+    if not conveyors:
+        raise StoreError(f"{store.url.split('@')[-1]}: the store holds no conveyor yet")
+    root = Path(folder)
+    written, data = [], []
+    for cid in conveyors:
+        html, d = conveyor_page(store, cid, fleet_link="fleet.html")
+        written.append(write_page(html, root / report_file_name(cid)))
+        data.append(d)
+    written.append(write_page(fleet_page(store, data), root / "fleet.html"))
+    return written

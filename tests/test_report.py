@@ -1,0 +1,153 @@
+"""HTML reports from the results store, and the end-to-end demo."""
+
+from __future__ import annotations
+
+import base64
+import io
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import EXAMPLES
+from matplotlib.image import imread
+
+from chaintwin.cli.app import main
+from chaintwin.read.profile import load_profile
+from chaintwin.report.html import CONVEYOR_SECTIONS, FLEET_SECTIONS
+from chaintwin.simulate.faults import Fault
+from chaintwin.simulate.fleet import generate
+
+HEALTHY = "white-belt-01"
+FAULTY = "short-fast-03"
+
+
+@pytest.fixture(scope="module")
+def plant_db(tmp_path_factory: pytest.TempPathFactory) -> str:
+    """Two conveyors ingested into a SQLite store: one healthy, one whose friction rises."""
+    root = tmp_path_factory.mktemp("reportplant")
+    (root / "profiles").mkdir()
+    files: list[str] = []
+    for k, (cid, faults) in enumerate(((HEALTHY, []), (FAULTY, [Fault("friction", 0.6)]))):
+        src = EXAMPLES / "profiles" / f"{cid}.yaml"
+        shutil.copy(src, root / "profiles" / src.name)
+        out = generate(
+            load_profile(src), root / cid, days=6, per_day=6, faults=faults, onset_day=3, seed=k
+        )
+        files += sorted(str(f) for f in out.folder.glob("*.csv"))
+        cal = sorted(str(f) for f in (out.folder / "calibration").glob("*.csv"))
+        db = f"sqlite:///{root / 'plant.db'}"
+        assert main(["calibrate", "--profile", str(src), *cal, "--db", db]) == 0
+    args = ["ingest", *files, "--profiles", str(root / "profiles"), "--db", db]
+    assert main([*args, "--workers", "1", "--json"]) == 0  # baseline: the default 20
+    return db
+
+
+def _section(html: str, ident: str) -> str:
+    m = re.search(rf'<section id="{ident}">(.*?)</section>', html, re.S)
+    assert m is not None, f"section {ident} missing"
+    return m.group(1)
+
+
+def _pngs(fragment: str) -> list[np.ndarray]:
+    """The PNG plots embedded in a fragment, decoded."""
+    out = []
+    for data in re.findall(r'src="data:image/png;base64,([^"]+)"', fragment):
+        out.append(imread(io.BytesIO(base64.b64decode(data)), format="png"))
+    return out
+
+
+def _self_contained(html: str) -> None:
+    # nothing fetched from elsewhere: no external scripts, styles, images or fonts
+    assert not re.search(r'(src|href)="(https?:)?//', html)
+    assert "<script" not in html
+    assert "@import" not in html and "url(" not in html
+
+
+def test_conveyor_page_has_every_section_with_real_plots(
+    plant_db: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "faulty.html"
+    assert main(["report", "--db", plant_db, "--conveyor", FAULTY, "--out", str(out)]) == 0
+    html = out.read_text(encoding="utf-8")
+    _self_contained(html)
+    found = re.findall(r'<section id="([a-z-]+)">', html)
+    assert found == list(CONVEYOR_SECTIONS)
+    for ident in ("trends", "payload-tlf", "residuals", "waterfall", "latest"):
+        plots = _pngs(_section(html, ident))
+        assert plots, f"no plot in {ident}"
+        for img in plots:
+            assert img.shape[0] > 150 and img.shape[1] > 300
+            assert float(img[..., :3].std()) > 0.02, f"a blank plot in {ident}"
+    # the friction rise: an open friction alarm, named in the summary and the alarm table
+    assert "open alarm on friction" in _section(html, "summary")
+    alarms = _section(html, "alarms")
+    assert re.search(r"<td>friction</td><td>friction</td>", alarms)
+    # one trend plot per tracked feature, friction among them
+    assert 'alt="trend of friction"' in _section(html, "trends")
+    # the residual table of the latest recording, per phase
+    assert "constant" in _section(html, "residuals")
+
+
+def test_fleet_page_ranks_the_faulty_conveyor_first(plant_db: str, tmp_path: Path) -> None:
+    assert main(["report", "--db", plant_db, "--all", "--out", str(tmp_path / "r")]) == 0
+    pages = sorted(p.name for p in (tmp_path / "r").iterdir())
+    assert pages == sorted(["fleet.html", f"{HEALTHY}.html", f"{FAULTY}.html"])
+    fleet = (tmp_path / "r" / "fleet.html").read_text(encoding="utf-8")
+    _self_contained(fleet)
+    assert re.findall(r'<section id="([a-z-]+)">', fleet) == list(FLEET_SECTIONS)
+    ranking = _section(fleet, "ranking-health")
+    order = re.findall(r'<a href="([a-z0-9-]+)\.html">', ranking)
+    assert order == [FAULTY, HEALTHY]
+    assert 'class="status alarm"' in ranking and 'class="status ok"' in ranking
+    assert _pngs(ranking) and _pngs(_section(fleet, "ranking-tlf"))
+    # conveyor pages link back to the fleet page
+    assert 'href="fleet.html"' in (tmp_path / "r" / f"{HEALTHY}.html").read_text(encoding="utf-8")
+
+
+def test_report_escapes_user_text_and_refuses_bad_requests(
+    plant_db: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    db = f"sqlite:///{tmp_path / 'copy.db'}"
+    shutil.copy(plant_db.removeprefix("sqlite:///"), tmp_path / "copy.db")
+    why = "<script>alert(1)</script> rails & rollers"
+    args = ["maintenance", "--db", db, "--conveyor", HEALTHY, "--kind", "cleaning"]
+    assert main([*args, "--by", "A. Fitter", "--why", why]) == 0
+    out = tmp_path / "h.html"
+    assert main(["report", "--db", db, "--conveyor", HEALTHY, "--out", str(out)]) == 0
+    html = out.read_text(encoding="utf-8")
+    assert "<script>" not in html
+    assert "&lt;script&gt;alert(1)&lt;/script&gt; rails &amp; rollers" in _section(html, "alarms")
+    capsys.readouterr()
+    assert main(["report", "--db", db, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--conveyor" in err and len(err.strip().splitlines()) == 1
+    assert main(["report", "--db", db, "--conveyor", "nope", "--out", str(out)]) == 2
+    assert "no conveyor 'nope'" in capsys.readouterr().err
+    assert out.read_text(encoding="utf-8") == html  # the page there is left as it was
+
+
+def test_demo_runs_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "demo"
+    args = ["demo", "--out", str(out), "--days", "4", "--per-day", "3", "--workers", "1"]
+    assert main(args) == 0
+    text = capsys.readouterr().out
+    assert "the plant after the demo" in text
+    pages = {p.name for p in (out / "reports").iterdir()}
+    assert pages == {
+        "fleet.html",
+        "white-belt-01.html",
+        "incline-line-02.html",
+        "short-fast-03.html",
+    }
+    assert (out / "plant.db").exists()
+    # a second run rebuilds the demo's own folder; a foreign folder is refused
+    assert main(args) == 0
+    foreign = tmp_path / "mine"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("keep me", encoding="utf-8")
+    capsys.readouterr()
+    assert main(["demo", "--out", str(foreign), "--days", "4"]) == 2
+    assert "not a previous demo's" in capsys.readouterr().err
+    assert (foreign / "notes.txt").read_text(encoding="utf-8") == "keep me"

@@ -101,6 +101,8 @@ def main() -> None:
     stats.sort_stats("cumulative").print_stats(lines)
     print("by own time")
     stats.sort_stats("tottime").print_stats(lines)
+    if os.environ.get("CALLERS"):
+        stats.print_callers(os.environ["CALLERS"])
 
 
 if __name__ == "__main__":

@@ -15,10 +15,11 @@ import tempfile
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
-from conftest import REFERENCE_PROFILE
+from conftest import EXAMPLES, REFERENCE_PROFILE
 
 from chaintwin.cli.app import main
 from chaintwin.diagnose.monitor import MonitorSettings
@@ -366,3 +367,25 @@ def test_dask_cluster_gives_the_same_results_as_the_local_pool(plant: Path, tmp_
                 assert fy[k] is None, k
             else:
                 assert fy[k] == pytest.approx(v, rel=1e-9), k
+
+
+def test_samples_round_trip_in_both_packings() -> None:
+    from chaintwin.store.store import load_samples, pack_samples
+
+    rec = load_recording(EXAMPLES / "recordings" / "white-belt-01-40kg.csv").recording
+    blob = pack_samples(rec)
+    raw = sum(np.asarray(v).nbytes for v in rec.channels.values())
+    assert len(blob) < 0.6 * raw  # compressed
+    for got in (load_samples(blob), _legacy(rec)):
+        assert set(got) == set(rec.channels)
+        for k, v in rec.channels.items():
+            np.testing.assert_array_equal(got[k], v)
+
+
+def _legacy(rec: Any) -> dict[str, np.ndarray]:
+    """Stores written before zlib packing hold numpy's compressed .npz."""
+    from chaintwin.store.store import load_samples
+
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **{k: np.asarray(v) for k, v in rec.channels.items()})
+    return load_samples(buf.getvalue())

@@ -65,7 +65,7 @@ def run_demo(out: Path, *, days: int, per_day: int, workers: int | None, console
 
     from chaintwin.identify.calibration import calibrate
     from chaintwin.report.data import conveyor_data
-    from chaintwin.report.html import report_file_name, write_folder
+    from chaintwin.report.html import write_folder
     from chaintwin.simulate.faults import parse_fault
     from chaintwin.simulate.fleet import generate
     from chaintwin.store.ingest import ingest
@@ -140,17 +140,16 @@ def run_demo(out: Path, *, days: int, per_day: int, workers: int | None, console
         console.print("[bold]4. reports[/]:")
         pages = write_folder(store, out / "reports")
         table = Table(title="the plant after the demo")
-        for col in (
-            "conveyor",
-            "recordings",
-            "status",
-            "open alarms (cause, since)",
-            "payload [kg]",
-            "TLF",
-            "health",
-            "report",
+        for col, justify in (
+            ("conveyor", "left"),
+            ("rec.", "right"),
+            ("status", "left"),
+            ("open alarm: cause (since)", "left"),
+            ("payload kg", "right"),
+            ("TLF", "right"),
+            ("health", "right"),
         ):
-            table.add_column(col)
+            table.add_column(col, justify=justify)  # type: ignore[arg-type]
         open_alarms = 0
         for cid in plant:
             d = conveyor_data(store, cid, waterfall=0)
@@ -160,19 +159,24 @@ def run_demo(out: Path, *, days: int, per_day: int, workers: int | None, console
                 cid,
                 str(len(d.results)),
                 d.status,
-                "; ".join(f"{a['cause']} ({(a.get('since') or '')[:10]})" for a in opened) or "-",
+                "; ".join(f"{a['cause']} ({(a.get('since') or '')[5:10]})" for a in opened) or "-",
                 f"{d.recent_payload():.1f}",
-                f"{d.recent_tlf():.3f}",
+                f"{d.recent_tlf():.2f}",
                 f"{d.health_index:.2f}",
-                str(out / "reports" / report_file_name(cid)),
             )
         console.print(table)
     finally:
         store.close()
     console.print(
-        f"open [bold]{pages[-1]}[/] in a browser (works offline); the store is "
-        f"{out / 'plant.db'} (try `chaintwin export --db sqlite:///{out / 'plant.db'}`). "
-        f"Demo took {time.perf_counter() - started:.0f} s.",
+        "payload and TLF: medians of the latest recordings; health: worst feature, "
+        "0 = baseline, 1 = alarm limit",
+        style="dim",
+        highlight=False,
+    )
+    console.print(
+        f"reports: {', '.join(str(p) for p in pages)}\nopen [bold]{pages[-1]}[/] in a browser "
+        f"(works offline); the store is {out / 'plant.db'}, e.g. `chaintwin export --db "
+        f"sqlite:///{out / 'plant.db'}`. The demo took {time.perf_counter() - started:.0f} s.",
         highlight=False,
         soft_wrap=True,
     )

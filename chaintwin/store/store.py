@@ -19,6 +19,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import zlib
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -108,17 +109,23 @@ def _safe_url(url: str) -> str:
     return f"{scheme}://{user}:***@{tail}"
 
 
+SAMPLES_ZLIB_LEVEL = 1
+"""zlib level of the stored samples: level 1 packs a recording's float64 channels to
+about a third in ~2 ms; numpy's default (6) gains 5 % more for twice the time."""
+
+
 def pack_samples(recording: Recording) -> bytes:
-    """The channels (SI) of a recording, compressed (``numpy.savez_compressed``)."""
+    """The channels (SI) of a recording, compressed: an ``.npz`` archive, zlib level 1."""
     buf = io.BytesIO()
     arrays: dict[str, Any] = {k: np.asarray(v) for k, v in recording.channels.items()}
-    np.savez_compressed(buf, **arrays)
-    return buf.getvalue()
+    np.savez(buf, **arrays)
+    return zlib.compress(buf.getvalue(), SAMPLES_ZLIB_LEVEL)
 
 
 def load_samples(blob: bytes) -> dict[str, np.ndarray]:
-    """The channels (SI) of a stored recording."""
-    with np.load(io.BytesIO(blob)) as data:
+    """The channels (SI) of a stored recording (either packing chaintwin has written)."""
+    raw = blob if blob[:2] == b"PK" else zlib.decompress(blob)  # PK: a compressed .npz
+    with np.load(io.BytesIO(raw)) as data:
         return {k: data[k] for k in data.files}
 
 

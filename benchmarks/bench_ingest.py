@@ -36,7 +36,7 @@ runs first). Every measurement is repeated in ``ROUNDS`` rounds, the
 configurations interleaved so that they see the same load on the machine,
 and the best round is kept. BLAS is pinned to one thread (DESIGN.md).
 
-Run: ``python benchmarks/bench_ingest.py`` (about 40 s on 2 cores).
+Run: ``python benchmarks/bench_ingest.py`` (about 60 s on 2 cores).
 """
 
 from __future__ import annotations
@@ -68,9 +68,9 @@ PROFILE = (
     / "profiles"
     / "white-belt-01.yaml"
 )
-DAYS = 5
+DAYS = 10
 PER_DAY = 16
-ONSET_DAY = 2
+ONSET_DAY = 4
 SEED = 3
 BASELINE_N = 20
 WORKERS = (1, 2)

@@ -149,7 +149,7 @@ def run_demo(out: Path, *, days: int, per_day: int, workers: int | None, console
             ("TLF", "right"),
             ("health", "right"),
         ):
-            table.add_column(col, justify=justify)  # type: ignore[arg-type]
+            table.add_column(col, justify=justify, no_wrap=col == "conveyor")  # type: ignore[arg-type]
         open_alarms = 0
         for cid in plant:
             d = conveyor_data(store, cid, waterfall=0)

@@ -26,6 +26,7 @@ from datetime import UTC, datetime
 from typing import Any, TypeVar
 
 import numpy as np
+import zstandard
 from sqlalchemy import create_engine, event, select, update
 from sqlalchemy.engine import Engine
 from sqlalchemy.exc import IntegrityError, OperationalError, SQLAlchemyError
@@ -109,24 +110,52 @@ def _safe_url(url: str) -> str:
     return f"{scheme}://{user}:***@{tail}"
 
 
-SAMPLES_ZLIB_LEVEL = 1
-"""zlib level of the stored samples: level 1 packs a recording's float64 channels to
-about a third in ~2 ms; numpy's default (6) gains 5 % more for twice the time."""
+SAMPLES_ZSTD_LEVEL = 3
+"""Zstandard level of the stored samples."""
+
+_ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
+_DTYPES_KEY = "__dtypes__"
 
 
 def pack_samples(recording: Recording) -> bytes:
-    """The channels (SI) of a recording, compressed: an ``.npz`` archive, zlib level 1."""
+    """The channels (SI) of a recording, packed losslessly for the store.
+
+    Each channel's bytes are regrouped by byte position (all first bytes of
+    the float64 values, then all second bytes, ...: the shuffle filter of
+    array compressors), kept in an ``.npz`` archive with the channels' dtypes,
+    and compressed with Zstandard. Float samples compress to about a sixth
+    that way in well under a millisecond, where numpy's compressed ``.npz``
+    reaches a third in several milliseconds.
+    """
+    arrays: dict[str, Any] = {}
+    dtypes: dict[str, str] = {}
+    for name, values in recording.channels.items():
+        a = np.ascontiguousarray(values)
+        if a.ndim == 1 and a.dtype.itemsize > 1:
+            arrays[name] = a.view(np.uint8).reshape(-1, a.dtype.itemsize).T
+            dtypes[name] = a.dtype.str
+        else:
+            arrays[name] = a
+    arrays[_DTYPES_KEY] = np.array(json.dumps(dtypes))
     buf = io.BytesIO()
-    arrays: dict[str, Any] = {k: np.asarray(v) for k, v in recording.channels.items()}
     np.savez(buf, **arrays)
-    return zlib.compress(buf.getvalue(), SAMPLES_ZLIB_LEVEL)
+    return zstandard.ZstdCompressor(level=SAMPLES_ZSTD_LEVEL).compress(buf.getvalue())
 
 
 def load_samples(blob: bytes) -> dict[str, np.ndarray]:
-    """The channels (SI) of a stored recording (either packing chaintwin has written)."""
-    raw = blob if blob[:2] == b"PK" else zlib.decompress(blob)  # PK: a compressed .npz
+    """The channels (SI) of a stored recording, as :func:`pack_samples` (or numpy) kept them."""
+    if blob[:4] == _ZSTD_MAGIC:
+        raw = zstandard.ZstdDecompressor().decompress(blob)
+    elif blob[:2] == b"PK":  # numpy's compressed .npz
+        raw = blob
+    else:  # zlib-compressed .npz
+        raw = zlib.decompress(blob)
     with np.load(io.BytesIO(raw)) as data:
-        return {k: data[k] for k in data.files}
+        stored = {k: data[k] for k in data.files}
+    dtypes = json.loads(str(stored.pop(_DTYPES_KEY))) if _DTYPES_KEY in stored else {}
+    for name, dtype in dtypes.items():
+        stored[name] = np.ascontiguousarray(stored[name].T).view(np.dtype(dtype)).ravel()
+    return stored
 
 
 class Store:

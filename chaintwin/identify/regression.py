@@ -164,6 +164,12 @@ class RigidModelRegression:
         Weight short and whole-ramp windows by their own residual noise rates
         (estimated from a first fit). The rates are estimated either way
         (``noise_rates_``) and serve weighing.
+    ramp_side : {"both", "accelerate", "decelerate"}
+        Which ramps' windows to use (plateau windows always). One side alone
+        serves as a check: with one load at one speed the ramps alone separate
+        friction from the speed-dependent losses, and the two sides disagree
+        by what the rigid model misses there (breakaway and wind-up at the
+        start, the power-flow change when braking).
     """
 
     def __init__(
@@ -176,7 +182,11 @@ class RigidModelRegression:
         fit_bmc: bool = True,
         ramp_windows: bool | None = None,
         variance_components: bool = False,
+        ramp_side: str = "both",
     ) -> None:
+        if ramp_side not in ("both", "accelerate", "decelerate"):
+            raise ValueError(f"ramp_side {ramp_side!r}: use both, accelerate or decelerate")
+        self.ramp_side = ramp_side
         self.variance_components = variance_components
         self.ramp_windows = ramp_windows
         self.window_s = window_s
@@ -302,6 +312,11 @@ class RigidModelRegression:
                 speeds.append(float(np.median(wi.mean_speed[wi.constant])))
             if not use_ramps:
                 keep = (wi.kind == 1) | wi.constant
+                wi = wi.select(keep) if keep.any() else wi
+            if self.ramp_side != "both":
+                speeding_up = wi.d_speed * wi.sign > 0
+                other = speeding_up if self.ramp_side == "decelerate" else ~speeding_up
+                keep = wi.constant | ~other
                 wi = wi.select(keep) if keep.any() else wi
             x, y = design_matrix(wi, profile, payload_kg=loads[k], tray_kg=trays[k])
             xs.append(x)

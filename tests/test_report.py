@@ -151,3 +151,68 @@ def test_demo_runs_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert main(["demo", "--out", str(foreign), "--days", "4"]) == 2
     assert "not a previous demo's" in capsys.readouterr().err
     assert (foreign / "notes.txt").read_text(encoding="utf-8") == "keep me"
+
+
+def test_trend_points_lie_above_the_drawn_limit_exactly_when_judged_so(plant_db: str) -> None:
+    from chaintwin.report.data import conveyor_data
+    from chaintwin.store.store import Store
+
+    store = Store(plant_db)
+    try:
+        judged = 0
+        for cid in (HEALTHY, FAULTY):
+            d = conveyor_data(store, cid, waterfall=0)
+            for t in d.trends:
+                assert t.limit is not None
+                for v, exc, early in zip(t.values, t.exceeded, t.before, strict=True):
+                    if early or not np.isfinite(v):
+                        continue
+                    assert (v > t.limit) == exc, (cid, t.name, v, t.limit)
+                    judged += 1
+        assert judged > 100
+        faulty = conveyor_data(store, FAULTY, waterfall=0)
+        assert any(any(t.exceeded) for t in faulty.trends)  # the check saw exceedances
+    finally:
+        store.close()
+
+
+def test_page_names_are_distinct_and_never_the_fleet_page() -> None:
+    from chaintwin.report.html import page_names
+
+    names = page_names(["a/b", "a_b", "fleet", "Fleet", "x"])
+    assert len(set(names.values())) == 5
+    assert "fleet.html" not in {n.lower() for n in names.values()}
+    assert names["x"] == "x.html"
+
+
+def test_report_refuses_a_missing_or_empty_store(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    missing = tmp_path / "typo.db"
+    assert main(["report", "--db", f"sqlite:///{missing}", "--fleet"]) == 2
+    assert "there is no store" in capsys.readouterr().err
+    assert not missing.exists()  # not created by the attempt
+    from chaintwin.store.store import Store
+
+    Store(f"sqlite:///{tmp_path / 'empty.db'}").close()
+    assert main(["report", "--db", f"sqlite:///{tmp_path / 'empty.db'}", "--fleet"]) == 2
+    assert "no conveyor yet" in capsys.readouterr().err
+
+
+def test_demo_refuses_a_file_or_a_link_as_its_folder(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    a_file = tmp_path / "notes.txt"
+    a_file.write_text("keep me", encoding="utf-8")
+    assert main(["demo", "--out", str(a_file), "--days", "4"]) == 2
+    assert "not a folder" in capsys.readouterr().err
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "keep.txt").write_text("keep me", encoding="utf-8")
+    fake = tmp_path / "fake-demo"
+    fake.mkdir()
+    (fake / ".chaintwin-demo").write_text("", encoding="utf-8")
+    (fake / "reports").symlink_to(mine)
+    assert main(["demo", "--out", str(fake), "--days", "4"]) == 2
+    assert "not the demo's own folder" in capsys.readouterr().err
+    assert (mine / "keep.txt").read_text(encoding="utf-8") == "keep me"

@@ -393,3 +393,64 @@ def _earlier_packings(rec: Any) -> list[dict[str, np.ndarray]]:
     np.savez_compressed(npz, **arrays)
     np.savez(plain, **arrays)
     return [load_samples(npz.getvalue()), load_samples(zlib.compress(plain.getvalue(), 1))]
+
+
+def test_a_learning_conveyor_goes_on_across_ingests(tmp_path: Path) -> None:
+    """Without a calibration the first 20 recordings wait: they are stored, not lost."""
+    root = tmp_path / "plant"
+    out = generate(PROFILE, root, days=6, per_day=6, seed=9, calibration=False)
+    files = sorted(str(f) for f in out.folder.glob("*.csv"))
+    assert len(files) == 36
+    store = Store(f"sqlite:///{tmp_path / 'plant.db'}")
+    profiles = {PROFILE.id: PROFILE}
+    settings = MonitorSettings(baseline_n=20)
+    try:
+        first = ingest(files[:10], profiles, store, settings=settings, workers=1)
+        assert (first.processed, first.waiting, first.refused) == (0, 10, 0)
+        assert store.counts()["recordings"] == 10 and store.counts()["results"] == 0
+        # the 20th recording completes the learning: the 10 stored ones get their results
+        second = ingest(files[:25], profiles, store, settings=settings, workers=1)
+        assert (second.processed, second.duplicates, second.waiting) == (25, 10, 0)
+        third = ingest(files, profiles, store, settings=settings, workers=1)
+        assert (third.processed, third.duplicates) == (11, 25)
+        assert store.counts()["recordings"] == store.counts()["results"] == 36
+        rows = store.results(PROFILE.id)
+        assert [r["file"] for r in rows] == files
+        assert {r["status"] for r in rows[:20]} == {"baseline"}
+        state = store.state(PROFILE.id)
+        assert state is not None and state["calibration_source"] == "learned"
+        assert not [n for n in state["notes"] if n["code"] == "pending_lost"]
+    finally:
+        store.close()
+
+
+def test_a_changed_profile_is_refused_and_changes_nothing(
+    plant: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    db = f"sqlite:///{tmp_path / 'p.db'}"
+    _calibrate(plant, db)
+    files = _recordings(plant)
+    args = ["ingest", *files[:8], "--profiles", str(plant / "profiles"), "--db", db, "--json"]
+    assert main([*args, "--baseline", "6"]) == 0
+    changed = tmp_path / "profiles"
+    changed.mkdir()
+    text = REFERENCE_PROFILE.read_text(encoding="utf-8").replace("length_m: 4.3", "length_m: 4.4")
+    (changed / "white-belt-01.yaml").write_text(text, encoding="utf-8")
+    store = Store(db)
+    try:
+        before = store.profile(PROFILE.id)
+        capsys.readouterr()
+        again = ["ingest", *files[8:], "--profiles", str(changed), "--db", db, "--json"]
+        assert main(again) == 0
+        summary = json.loads(capsys.readouterr().out)
+        assert summary["processed"] == 0 and summary["refused"] == len(files) - 8
+        assert "another version of its profile" in summary["refusals"][0]["error"]
+        assert store.profile(PROFILE.id) == before  # the stored profile is untouched
+        assert store.counts()["results"] == 8
+        cal = sorted(str(p) for p in (plant / "recs" / "wb" / "calibration").glob("*.csv"))
+        profile = str(changed / "white-belt-01.yaml")
+        assert main(["calibrate", "--profile", profile, *cal, "--db", db]) == 2
+        assert "another version of its profile" in capsys.readouterr().err
+        assert store.profile(PROFILE.id) == before
+    finally:
+        store.close()

@@ -36,15 +36,30 @@ DEMO_MARKER = ".chaintwin-demo"
 
 
 def _demo_folder(out: Path) -> None:
-    """Make ``out`` the demo's folder: new, empty, or a previous demo's (emptied)."""
+    """Make ``out`` the demo's folder: new, empty, or a previous demo's (emptied).
+
+    Raises
+    ------
+    StoreError
+        When ``out`` is a file, a link, or a folder that is not the demo's own.
+    """
+    if out.is_symlink() or (out.exists() and not out.is_dir()):
+        raise StoreError(f"--out {out}: not a folder; give a new or empty folder")
     if out.exists() and any(out.iterdir()):
-        if not (out / DEMO_MARKER).exists():
+        if not (out / DEMO_MARKER).is_file():
             raise StoreError(
                 f"--out {out}: the folder exists and is not a previous demo's; give a new "
                 "or empty folder"
             )
         for sub in ("recordings", "reports"):
-            shutil.rmtree(out / sub, ignore_errors=True)
+            target = out / sub
+            if target.is_symlink() or (target.exists() and not target.is_dir()):
+                raise StoreError(
+                    f"--out {out}: '{sub}' is not the demo's own folder; remove it or give "
+                    "another folder"
+                )
+            if target.exists():
+                shutil.rmtree(target)
         for f in out.glob("plant.db*"):
             f.unlink()
     out.mkdir(parents=True, exist_ok=True)

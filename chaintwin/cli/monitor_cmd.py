@@ -368,7 +368,7 @@ def _edit(
         return out
     from chaintwin.store.store import Store, store_url
 
-    store = Store(store_url(db))
+    store = Store(store_url(db), create=False)
     try:
         if conveyor is None:
             conveyor = store.alarm_conveyor(alarm or "")

@@ -55,7 +55,7 @@ def register(app: typer.Typer) -> None:
 
         if sum((conveyor is not None, fleet, every)) != 1:
             raise StoreError("give one of --conveyor ID, --fleet or --all")
-        store = Store(store_url(db))
+        store = Store(store_url(db), create=False)
         console = Console()
         try:
             if conveyor is not None:
@@ -63,7 +63,7 @@ def register(app: typer.Typer) -> None:
                 target = write_page(html, out or Path(report_file_name(conveyor)))
                 console.print(f"wrote {escape(str(target))}", highlight=False)
             elif fleet:
-                target = write_page(fleet_page(store, links=False), out or Path("fleet.html"))
+                target = write_page(fleet_page(store), out or Path("fleet.html"))
                 console.print(f"wrote {escape(str(target))}", highlight=False)
             else:
                 folder = out or Path("reports")

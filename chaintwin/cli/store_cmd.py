@@ -137,6 +137,13 @@ def register(app: typer.Typer) -> None:
             f"({summary.seconds:.1f} s)",
             highlight=False,
         )
+        if summary.waiting:
+            console.print(
+                f"{summary.waiting} recordings stored to wait for the calibration their "
+                "conveyor learns from its first recordings (or give one with `calibrate "
+                "--db`); the next ingest goes on from them",
+                highlight=False,
+            )
         for r in summary.refusals:
             print_refused(console, r["error"])
 
@@ -153,7 +160,7 @@ def register(app: typer.Typer) -> None:
 
         if fmt not in ("csv", "json"):
             raise StoreError(f"--format {fmt}: use csv or json")
-        store = Store(store_url(db))
+        store = Store(store_url(db), create=False)
         try:
             if conveyor is not None and conveyor not in store.conveyors():
                 raise StoreError(

@@ -474,6 +474,10 @@ class ConveyorMonitor:
             return self._learn()
         return [self._monitor(recording, sha256, extra, features)]
 
+    def waiting(self) -> list[tuple[Recording, str | None]]:
+        """The recordings held back until a calibration is learned, with their content hashes."""
+        return [(rec, sha) for rec, (sha, _x) in zip(self.pending, self._pending_meta, strict=True)]
+
     def _noted(self, code: str) -> bool:
         return any(n["code"] == code for n in self.notes)
 

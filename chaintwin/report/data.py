@@ -5,10 +5,11 @@ health model (baselines, alarms, forecasts), its maintenance events and a
 few of its stored recordings rebuilt from their samples (the latest one
 against the model; a spread of recordings for the spectrum waterfall).
 
-Trend values are shown as the health model judges them: a payload-dependent
-feature is moved to the baseline's mean payload
-(``value − slope·(payload − mean payload)``), so that one line and one limit
-hold for every recording.
+Trend values are shown as the health model judges them: each value is moved
+to the baseline's mean payload with its margin to the alarm limit kept in
+proportion (:func:`_at_mean_payload`), so that one line and one limit hold
+for every recording and a point lies above the drawn limit exactly when the
+health model found it above its own.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from chaintwin.diagnose.features import feature_spec
+from chaintwin.diagnose.features import FeatureSpec, feature_spec
 from chaintwin.diagnose.health import FeatureBaseline
 from chaintwin.diagnose.monitor import ConveyorMonitor
 from chaintwin.errors import ChaintwinError, StoreError
@@ -68,7 +69,7 @@ class FeatureTrend:
     values : list of float
         Values at the baseline's mean payload (NaN where unknown).
     exceeded : list of bool
-        Whether the recording exceeded on this feature.
+        Whether the recording exceeded on this feature (against the baseline of its time).
     expected, limit : float or None
         Baseline level and alarm limit at the mean payload (None before a baseline).
     """
@@ -81,6 +82,8 @@ class FeatureTrend:
     exceeded: list[bool]
     expected: float | None
     limit: float | None
+    before: list[bool] = field(default_factory=list)
+    """Whether the recording came before the current baseline (judged against an earlier one)."""
 
     def health_index(self, recent: int = RECENT) -> float:
         """Median of ``(value − expected)/(limit − expected)`` over the latest values.
@@ -89,7 +92,8 @@ class FeatureTrend:
         """
         if self.expected is None or self.limit is None or self.limit <= self.expected:
             return math.nan
-        vals = [v for v in self.values[-recent:] if math.isfinite(v)]
+        current = [v for v, b in zip(self.values, self.before, strict=False) if not b]
+        vals = [v for v in (current or self.values)[-recent:] if math.isfinite(v)]
         if not vals:
             return math.nan
         return (statistics.median(vals) - self.expected) / (self.limit - self.expected)
@@ -182,6 +186,7 @@ def _trends(
     results: list[dict[str, Any]],
     baselines: dict[str, FeatureBaseline],
     z_limit: float,
+    baseline_since: str | None,
 ) -> list[FeatureTrend]:
     names: list[str] = []
     for r in results:
@@ -192,17 +197,19 @@ def _trends(
     for name in names:
         spec = feature_spec(name)
         fb = baselines.get(name)
-        idx, vals, exc = [], [], []
+        idx, vals, exc, before = [], [], [], []
         for k, r in enumerate(results):
             feats = r.get("features") or {}
             if name not in feats:
                 continue
             v = _number(feats.get(name))
-            if fb is not None and fb.slope != 0.0:
-                v -= fb.slope * (_number(feats.get(spec.regressor)) - fb.mean_payload_kg)
+            if fb is not None:
+                v = _at_mean_payload(fb, v, _number(feats.get(spec.regressor)), z_limit, spec)
             idx.append(k)
             vals.append(v)
             exc.append(name in (r.get("exceeded") or []))
+            at = r.get("recorded_at")
+            before.append(bool(baseline_since and at and at < baseline_since))
         out.append(
             FeatureTrend(
                 name=name,
@@ -213,9 +220,30 @@ def _trends(
                 exceeded=exc,
                 expected=None if fb is None else fb.expected(fb.mean_payload_kg),
                 limit=None if fb is None else fb.limit(z_limit, spec.min_rel),
+                before=before,
             )
         )
     return out
+
+
+def _at_mean_payload(
+    fb: FeatureBaseline, value: float, payload_kg: float, z_limit: float, spec: FeatureSpec
+) -> float:
+    """A value moved to the baseline's mean payload, its margin to the limit kept in proportion.
+
+    The health model judges a value against the baseline line and limit at
+    the recording's own payload (the mean payload when its estimate is
+    missing). Mapping ``e(p) → e(p̄)`` and ``L(p) → L(p̄)`` linearly keeps
+    every point on the same side of the one drawn limit as it was judged.
+    """
+    p = payload_kg if math.isfinite(payload_kg) else fb.mean_payload_kg
+    e_p = fb.expected(p)
+    span_p = fb.limit(z_limit, spec.min_rel, payload_kg=p) - e_p
+    e_m = fb.expected(fb.mean_payload_kg)
+    span_m = fb.limit(z_limit, spec.min_rel) - e_m
+    if span_p <= 0.0:
+        return value - e_p + e_m
+    return e_m + (value - e_p) * span_m / span_p
 
 
 def _spread(n: int, k: int) -> list[int]:
@@ -280,7 +308,7 @@ def conveyor_data(
         events=store.events(conveyor),
         summary=summary,
         forecasts=forecasts,
-        trends=_trends(results, baselines, z_limit),
+        trends=_trends(results, baselines, z_limit, baseline_since),
         calibration=calibration,
         baseline_since=baseline_since,
         notes=notes,

@@ -127,16 +127,27 @@ def trend_figure(data: ConveyorData, trend: FeatureTrend) -> str | None:
     x = [xs[k] for k in trend.index]
     v = np.asarray(trend.values, dtype=float)
     exc = np.asarray(trend.exceeded, dtype=bool)
+    earlier = np.asarray(trend.before or [False] * len(x), dtype=bool)
     statuses = [data.results[k].get("status") for k in trend.index]
-    base = np.asarray([s in ("baseline", "learning") for s in statuses])
-    ok = ~exc & ~base
+    base = np.asarray([s in ("baseline", "learning") for s in statuses]) & ~earlier
+    exc &= ~earlier
+    ok = ~exc & ~base & ~earlier
     ax.plot(x, v, color="0.75", linewidth=0.6, zorder=1)
-    ax.scatter([x[k] for k in np.flatnonzero(base)], v[base], s=9, color="0.5", label="baseline")
-    ax.scatter([x[k] for k in np.flatnonzero(ok)], v[ok], s=9, color="tab:blue", label="monitored")
-    ax.scatter([x[k] for k in np.flatnonzero(exc)], v[exc], s=14, color="tab:red", label="exceeded")
+    groups = (
+        (earlier, 8, "0.85", "before the current baseline"),
+        (base, 9, "0.5", "baseline"),
+        (ok, 9, "tab:blue", "monitored"),
+        (exc, 14, "tab:red", "exceeded"),
+    )
+    for mask, size, colour, label in groups:
+        if mask.any():
+            pts = np.flatnonzero(mask)
+            ax.scatter([x[k] for k in pts], v[mask], s=size, color=colour, label=label)
     if trend.expected is not None and trend.limit is not None:
-        ax.axhline(trend.expected, color="tab:green", linewidth=1.0, label="baseline level")
-        ax.axhline(trend.limit, color="tab:red", linewidth=1.0, linestyle="--", label="alarm limit")
+        current = np.flatnonzero(~earlier)
+        start = x[int(current[0])] if current.size else x[0]
+        ax.hlines(trend.expected, start, x[-1], color="tab:green", label="baseline level")
+        ax.hlines(trend.limit, start, x[-1], color="tab:red", linestyle="--", label="alarm limit")
     _marks(ax, data, trend.name)
     unit = "" if trend.unit == "-" else f" [{trend.unit}]"
     ax.set_ylabel(f"{trend.name}{unit}")
@@ -343,7 +354,7 @@ def latest_figure(data: ConveyorData) -> str | None:
     title = f"latest recording: {rec.source}"
     if isinstance(pay, int | float):
         title += f", payload {pay:.1f} kg"
-    ax1.set_title(title, fontsize=10)
+    ax1.set_title(title, fontsize=10, parse_math=False)  # a file name may hold "$"
     return _uri(fig)
 
 

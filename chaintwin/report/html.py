@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -35,6 +36,7 @@ __all__ = [
     "FLEET_SECTIONS",
     "conveyor_page",
     "fleet_page",
+    "page_names",
     "report_file_name",
     "write_folder",
     "write_page",
@@ -82,9 +84,27 @@ _ENV.globals.update(fmt=_fmt, pct=_pct, version=__version__)
 
 
 def report_file_name(conveyor: str) -> str:
-    """File name of a conveyor's page in a report folder (``<id>.html``, safe characters)."""
+    """File name of a conveyor's page: ``<id>.html``, other characters than ``A-Za-z0-9-_.`` → _."""
     safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in conveyor)
     return f"{safe}.html"
+
+
+def page_names(conveyors: Sequence[str]) -> dict[str, str]:
+    """File names of the conveyors' pages in one folder: distinct, none ``fleet.html``.
+
+    Ids that map to the same file name (``a/b`` and ``a_b``) or to the fleet
+    page's get a suffix (``-2``, ``-3``, ...) in sorted order of the ids.
+    """
+    used = {"fleet.html"}
+    out: dict[str, str] = {}
+    for cid in sorted(conveyors):
+        name = report_file_name(cid)
+        stem, k = name[: -len(".html")], 2
+        while name.lower() in used:
+            name, k = f"{stem}-{k}.html", k + 1
+        used.add(name.lower())
+        out[cid] = name
+    return out
 
 
 def _status_text(d: ConveyorData) -> str:
@@ -225,7 +245,7 @@ def _forecast_text(fc: dict[str, Any]) -> str:
     return f"{fc['feature']}: {str(fc['crosses_at'])[:10]}"
 
 
-def _fleet_row(d: ConveyorData, links: bool) -> FleetRow:
+def _fleet_row(d: ConveyorData, links: Mapping[str, str] | None) -> FleetRow:
     opened = d.open_alarms()
     worst = d.worst_feature
     last = next((t for t in reversed(d.times) if t is not None), None)
@@ -235,7 +255,7 @@ def _fleet_row(d: ConveyorData, links: bool) -> FleetRow:
     )
     return FleetRow(
         id=d.profile.id,
-        link=report_file_name(d.profile.id) if links else None,
+        link=None if links is None else links.get(d.profile.id),
         status=d.status,
         alarms=alarms or "-",
         health=d.health_index,
@@ -248,7 +268,12 @@ def _fleet_row(d: ConveyorData, links: bool) -> FleetRow:
     )
 
 
-def fleet_page(store: Store, data: list[ConveyorData] | None = None, *, links: bool = True) -> str:
+def fleet_page(
+    store: Store,
+    data: list[ConveyorData] | None = None,
+    *,
+    links: Mapping[str, str] | None = None,
+) -> str:
     """The fleet page: conveyors ranked by health and by TLF.
 
     Parameters
@@ -257,11 +282,14 @@ def fleet_page(store: Store, data: list[ConveyorData] | None = None, *, links: b
         The results store.
     data : list of ConveyorData, optional
         Gathered already (by :func:`conveyor_page`); else gathered here.
-    links : bool
-        Link each conveyor to ``<id>.html`` beside the fleet page.
+    links : Mapping of str to str, optional
+        Conveyor id to the file name of its page beside the fleet page (no
+        links without).
     """
     if data is None:
         data = [conveyor_data(store, c, waterfall=0) for c in store.conveyors()]
+    if not data:
+        raise StoreError(f"{store.url.split('@')[-1]}: the store holds no conveyor yet")
     rows = [_fleet_row(d, links) for d in data]
     rows.sort(key=lambda r: (STATUS_ORDER.index(r.status), -_rank(r.health), r.id))
     by_tlf = sorted(rows, key=lambda r: (-_rank(r.tlf), r.id))
@@ -308,10 +336,11 @@ def write_folder(store: Store, folder: str | Path) -> list[Path]:
     if not conveyors:
         raise StoreError(f"{store.url.split('@')[-1]}: the store holds no conveyor yet")
     root = Path(folder)
+    names = page_names(conveyors)
     written, data = [], []
     for cid in conveyors:
         html, d = conveyor_page(store, cid, fleet_link="fleet.html")
-        written.append(write_page(html, root / report_file_name(cid)))
+        written.append(write_page(html, root / names[cid]))
         data.append(d)
-    written.append(write_page(fleet_page(store, data), root / "fleet.html"))
+    written.append(write_page(fleet_page(store, data, links=names), root / "fleet.html"))
     return written

@@ -44,7 +44,7 @@ from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
 from chaintwin.validate.checks import load_recording
 
-from .store import Finished, StateConflict, Store, pack_samples
+from .store import Finished, StateConflict, Store, Waiting, pack_samples
 
 __all__ = ["COMMIT_GROUP", "IngestSummary", "Prepared", "executor", "ingest", "prepare"]
 
@@ -58,6 +58,8 @@ class IngestSummary:
     refused: int = 0
     warnings: int = 0
     new_alarms: int = 0
+    waiting: int = 0
+    """Stored without a result: held back until the conveyor's calibration is learned."""
     refusals: list[dict[str, str]] = field(default_factory=list)
     seconds: float = 0.0
 
@@ -70,6 +72,7 @@ class IngestSummary:
             "warnings": self.warnings,
             "new_alarms": self.new_alarms,
             "refusals": self.refusals,
+            "waiting": self.waiting,
             "seconds": self.seconds,
         }
 
@@ -160,7 +163,7 @@ COMMIT_EVERY_S = 2.0
 
 
 class _Conveyor:
-    """One conveyor's part of an ingest: its health model and the group not yet stored."""
+    """One conveyor's part of an ingest: its health model and what is not yet stored."""
 
     def __init__(
         self,
@@ -171,26 +174,38 @@ class _Conveyor:
         group: int,
     ) -> None:
         self.store = store
-        self.group = group
         self.profile = profile
         self.settings = settings
         self.summary = summary
+        self.group = group
+        store.put_profile(profile)  # refused when the stored health model has another profile
         mon, self.version = store.monitor(profile, settings)
         self.monitor = mon or ConveyorMonitor(profile, settings, store.calibration(profile.id))
         self.opened = {a["id"] for a in self.monitor.alarms}
-        # taken by monitoring but not yet stored, in the order taken (file -> input)
-        self.waiting: dict[str, Prepared] = {}
+        # this run's recordings taken by monitoring but not yet stored (file -> input)
+        self.inputs: dict[str, Prepared] = {}
         self.digests: dict[str, str] = {}
+        # recordings stored while they wait for a learned calibration (file -> recording, sha)
+        self.carried: dict[str, tuple[Recording, str]] = {}
+        self._carry()
         self.finished: list[Finished] = []
         self.group_started = 0.0
+
+    def _carry(self) -> None:
+        """The waiting recordings the health model read back from the store."""
+        self.carried = {
+            rec.source: (rec, str(sha))
+            for rec, sha in self.monitor.waiting()
+            if rec.source not in self.inputs
+        }
 
     def take(self, item: Prepared, digest: str) -> None:
         """Monitor one recording; store the group when it is full or old."""
         rec = item.recording
         assert rec is not None
-        if not self.waiting:
+        if not self.inputs:
             self.group_started = time.monotonic()
-        self.waiting[rec.source] = item
+        self.inputs[rec.source] = item
         self.digests[rec.source] = digest
         self._process(item)
         if (
@@ -203,48 +218,70 @@ class _Conveyor:
         rec = item.recording
         assert rec is not None
         for res in self.monitor.process(rec, self.digests[rec.source], features=item.features):
-            done = self.waiting[res.file]
-            assert done.recording is not None
-            self.finished.append(
-                Finished(done.recording, self.digests[res.file], res, done.samples)
-            )
+            if res.file in self.inputs:
+                done = self.inputs[res.file]
+                assert done.recording is not None
+                fin = Finished(done.recording, self.digests[res.file], res, done.samples)
+            else:  # waited in the store for the learned calibration
+                old, sha = self.carried[res.file]
+                fin = Finished(old, sha, res, stored=True)
+            self.finished.append(fin)
 
     def flush(self) -> None:
-        """Store the finished recordings; after a lost race, go again from the newer model."""
-        while self.finished:
+        """Store the finished recordings and those waiting for a learned calibration.
+
+        After a lost race with another ingest, the recordings go again on the
+        newer health model.
+        """
+        while True:
+            done = {fin.result.file for fin in self.finished}
+            waiting = [
+                Waiting(item.recording, self.digests[f], item.samples)
+                for f, item in self.inputs.items()
+                if f not in done and item.recording is not None
+            ]
+            if not self.finished and not waiting:
+                return
             try:
                 self.version = self.store.commit_recordings(
-                    self.finished, self.monitor, self.version
+                    self.finished, self.monitor, self.version, waiting
                 )
             except StateConflict:
                 self._again()
                 continue
-            for fin in self.finished:
-                self.waiting.pop(fin.result.file, None)
-                res = fin.result
-                if res.error is not None:
-                    self.summary.refused += 1
-                    self.summary.refusals.append({"file": res.file, "error": res.error})
-                else:
-                    self.summary.processed += 1
-                    self.summary.warnings += len(res.warnings)
-            self.finished = []
+            break
+        for fin in self.finished:
+            res = fin.result
+            if res.error is not None:
+                self.summary.refused += 1
+                self.summary.refusals.append({"file": res.file, "error": res.error})
+            else:
+                self.summary.processed += 1
+                self.summary.warnings += len(res.warnings)
+            self.carried.pop(res.file, None)
+        for w in waiting:
+            self.carried[w.recording.source] = (w.recording, w.sha256)
+        self.summary.waiting += len(waiting)
+        self.inputs = {}
+        self.finished = []
 
     def _again(self) -> None:
-        """Another ingest advanced this conveyor: take the waiting recordings on its model."""
+        """Another ingest advanced this conveyor: take this run's recordings on its model."""
         mon, self.version = self.store.monitor(self.profile, self.settings)
         if mon is None:  # pragma: no cover - a row never disappears
             raise StoreError(f"the health model of '{self.profile.id}' vanished") from None
         self.monitor = mon
+        self.opened |= {a["id"] for a in mon.alarms}  # not this run's news
         self.finished = []
-        stored = self.store.known(self.digests[f] for f in self.waiting)
-        again = list(self.waiting.items())
-        self.waiting = {}
+        stored = self.store.known(self.digests[f] for f in self.inputs)
+        again = list(self.inputs.items())
+        self.inputs = {}
+        self._carry()
         for f, item in again:
             if self.digests[f] in stored:
                 self.summary.duplicates += 1
                 continue
-            self.waiting[f] = item
+            self.inputs[f] = item
             self._process(item)
 
     def close(self) -> None:
@@ -309,9 +346,6 @@ def ingest(
         if progress is not None:
             progress(done, total)
 
-    for prof in profiles.values():
-        if prof.id in groups:
-            store.put_profile(prof)
     with executor(workers, scheduler) as ex:
         for cid, items in groups.items():
             prof = profiles[cid]
@@ -326,7 +360,14 @@ def ingest(
             order, _missing = order_recordings(
                 [(item.path, item.recorded_at) for item in items if item.path in sha]
             )
-            conv = _Conveyor(store, prof, settings, summary, max(1, commit_group))
+            try:
+                conv = _Conveyor(store, prof, settings, summary, max(1, commit_group))
+            except StoreError as exc:  # e.g. monitored with another version of the profile
+                for f in order:
+                    tick()
+                    summary.refused += 1
+                    summary.refusals.append({"file": f, "error": str(exc)})
+                continue
             use = conv.monitor.calibration
             futures: list[Future[Prepared]] = [
                 ex.submit(prepare, f, prof, column_map, use) for f in order

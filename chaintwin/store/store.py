@@ -58,6 +58,7 @@ __all__ = [
     "Finished",
     "StateConflict",
     "Store",
+    "Waiting",
     "load_samples",
     "pack_samples",
     "recording_meta",
@@ -74,6 +75,15 @@ results are in the ``results`` table."""
 
 
 @dataclass(frozen=True, slots=True)
+class Waiting:
+    """A recording the health model holds back until it has learned a calibration."""
+
+    recording: Recording
+    sha256: str
+    samples: bytes | None = None
+
+
+@dataclass(frozen=True, slots=True)
 class Finished:
     """A recording that monitoring has taken, ready to be stored."""
 
@@ -82,9 +92,20 @@ class Finished:
     result: RecordingResult
     samples: bytes | None = None
     """The compressed channels (:func:`pack_samples`), when packed already (in a worker)."""
+    stored: bool = False
+    """Stored already (while it waited for a learned calibration): only its result is new."""
 
 
 T = TypeVar("T")
+
+_STORED = "store:"
+"""Path prefix by which the health model finds a waiting recording kept in the store."""
+
+
+def _iso_time(recording: Recording) -> str | None:
+    """``recorded_at`` in UTC, as monitoring writes it."""
+    at = recording.metadata.recorded_at
+    return None if at is None else at.astimezone(UTC).isoformat()
 
 
 class StateConflict(Exception):
@@ -165,6 +186,10 @@ class Store:
     ----------
     url : str
         SQLAlchemy URL (``sqlite:///file.db``, ``postgresql://...``).
+    create : bool
+        Create a SQLite store that does not exist yet (False for commands
+        that only read or change what is stored: a mistyped path is then an
+        error, not a new empty store).
 
     Raises
     ------
@@ -172,8 +197,15 @@ class Store:
         When it cannot be opened, or was written by a newer chaintwin.
     """
 
-    def __init__(self, url: str) -> None:
+    def __init__(self, url: str, *, create: bool = True) -> None:
         self.url = url
+        if not create and url.startswith("sqlite:///"):
+            path = url[len("sqlite:///") :]
+            if path not in ("", ":memory:") and not os.path.exists(path):
+                raise StoreError(
+                    f"--db {url}: there is no store at {path}; give the store's URL (--db or "
+                    "CHAINTWIN_DB), or ingest recordings into it first"
+                )
         if url.startswith("postgresql://"):
             url = "postgresql+psycopg://" + url[len("postgresql://") :]
         try:
@@ -209,8 +241,24 @@ class Store:
 
     # ------------------------------------------------------------ conveyors
     def put_profile(self, profile: ConveyorProfile) -> None:
-        """Add a conveyor, or update its profile."""
+        """Add a conveyor, or update its profile.
+
+        Raises
+        ------
+        StoreError
+            When the conveyor is monitored with another version of its
+            profile (its health model would no longer fit it); nothing is
+            changed then.
+        """
         with Session(self.engine) as s, s.begin():
+            state = s.get(MonitorStateRow, profile.id)
+            if state is not None and state.state.get("profile_sha256") != profile.content_hash():
+                raise StoreError(
+                    f"{_safe_url(self.url)}: conveyor '{profile.id}' is monitored with another "
+                    "version of its profile; give the profile it was monitored with (the "
+                    "store's copy: `chaintwin export`), or keep the changed conveyor in a new "
+                    "store"
+                )
             row = s.get(ConveyorRow, profile.id)
             content = profile.model_dump(mode="json")
             if row is None:
@@ -267,9 +315,26 @@ class Store:
             row = s.get(MonitorStateRow, profile.id)
             if row is None:
                 return None, 0
-            mon = ConveyorMonitor.from_state(row.state, profile, source=_safe_url(self.url))
-            mon.settings = settings
-            return mon, row.version
+            state, version = dict(row.state), row.version
+        # recordings waiting for a learned calibration are kept in the store
+        # (without a result): the health model reads them back from there
+        state["pending"] = [
+            dict(p) | {"path": _STORED + str(p["sha256"])} for p in state.get("pending", [])
+        ]
+        mon = ConveyorMonitor.from_state(
+            state, profile, loader=self._stored, source=_safe_url(self.url)
+        )
+        mon.settings = settings
+        return mon, version
+
+    def _stored(self, path: str) -> Recording:
+        """A stored recording by its ``store:<sha256>`` path (the health model's loader)."""
+        sha = path.removeprefix(_STORED)
+        with Session(self.engine) as s:
+            row = s.scalars(select(RecordingRow).where(RecordingRow.sha256 == sha)).first()
+            if row is None:
+                raise StoreError(f"{_safe_url(self.url)}: no stored recording {sha[:12]}")
+            return stored_recording(row.file, row.meta, row.warnings, row.samples)
 
     def commit_recording(
         self,
@@ -283,7 +348,11 @@ class Store:
         return self.commit_recordings([Finished(recording, sha256, result)], monitor, version)
 
     def commit_recordings(
-        self, items: Sequence[Finished], monitor: ConveyorMonitor, version: int
+        self,
+        items: Sequence[Finished],
+        monitor: ConveyorMonitor,
+        version: int,
+        waiting: Sequence[Waiting] = (),
     ) -> int:
         """Store recordings, their results and the health model, in one transaction.
 
@@ -295,11 +364,16 @@ class Store:
         ----------
         items : sequence of Finished
             Recordings of ``monitor``'s conveyor with their results, in the
-            order monitoring took them.
+            order monitoring took them; those stored earlier while they waited
+            (``stored``) get their result only.
         monitor : ConveyorMonitor
             The health model after the last of them.
         version : int
             The model's version when it was read from the store (0: new).
+        waiting : sequence of Waiting
+            Recordings the health model holds back until it has learned a
+            calibration: kept without a result, so that a later ingest finds
+            them in the store.
 
         Returns
         -------
@@ -312,10 +386,16 @@ class Store:
             When another writer advanced the model since ``version`` or stored
             one of the recordings meanwhile (nothing was stored; go again from
             the newer model).
+        StoreError
+            When the database stays locked or fails.
         """
         conveyor = monitor.profile.id
         state = monitor.to_state()
         state["history"] = state["history"][-HISTORY_IN_STATE:]
+        waiting_sha = {w.sha256 for w in waiting}
+        for p in state["pending"]:
+            if p["sha256"] in waiting_sha or str(p["path"]).startswith(_STORED):
+                p["path"] = _STORED + str(p["sha256"])
         state = json_ready(state)
         now = _now()
         try:
@@ -338,23 +418,35 @@ class Store:
                     )
                     if done.rowcount != 1:  # type: ignore[attr-defined]
                         raise StateConflict(conveyor)
-                recs = [
+                earlier = [item.sha256 for item in items if item.stored]
+                ids: dict[str, int] = {}
+                if earlier:
+                    q = select(RecordingRow.sha256, RecordingRow.id).where(
+                        RecordingRow.sha256.in_(earlier)
+                    )
+                    ids = {str(sha): int(rid) for sha, rid in s.execute(q)}
+                if len(ids) != len(earlier):
+                    raise StateConflict(conveyor)  # a waiting recording is gone: start over
+                new: list[Finished | Waiting] = [item for item in items if not item.stored]
+                new += waiting
+                rows = [
                     RecordingRow(
                         sha256=item.sha256,
                         conveyor_id=conveyor,
-                        file=item.result.file,
-                        recorded_at=item.result.recorded_at,
+                        file=item.recording.source,
+                        recorded_at=_iso_time(item.recording),
                         meta=recording_meta(item.recording),
                         warnings=[w.to_dict() for w in item.recording.warnings],
                         samples=item.samples or pack_samples(item.recording),
                     )
-                    for item in items
+                    for item in new
                 ]
-                s.add_all(recs)
+                s.add_all(rows)
                 s.flush()
+                ids.update({row.sha256: row.id for row in rows})
                 s.add_all(
                     ResultRow(
-                        recording_id=rec.id,
+                        recording_id=ids[item.sha256],
                         conveyor_id=conveyor,
                         recorded_at=item.result.recorded_at,
                         status=item.result.status,
@@ -363,12 +455,17 @@ class Store:
                         tlf=item.result.tlf,
                         content=json_ready(item.result.to_dict()),
                     )
-                    for rec, item in zip(recs, items, strict=True)
+                    for item in items
                 )
                 self._put_alarms_events(s, conveyor, monitor.alarms, monitor.events)
         except IntegrityError:
             # one of the recordings was stored by another writer in the meantime
             raise StateConflict(conveyor) from None
+        except OperationalError as exc:
+            raise StoreError(
+                f"{_safe_url(self.url)}: cannot write to the store ({exc.orig}); nothing of "
+                "this group was stored, run the command again"
+            ) from None
         return 1 if version == 0 else version + 1
 
     @staticmethod
@@ -409,9 +506,14 @@ class Store:
 
     # ------------------------------------------------------------ reading
     def results(self, conveyor: str | None = None) -> list[dict[str, Any]]:
-        """Stored results (``monitor --json`` objects), in recorded order."""
+        """Stored results (``monitor --json`` objects), per conveyor in the order monitored.
+
+        That is recorded order (ingest sorts by ``recorded_at``; a recording
+        without one follows its predecessor in the batch), the same on every
+        database.
+        """
         with Session(self.engine) as s:
-            q = select(ResultRow).order_by(ResultRow.recorded_at, ResultRow.id)
+            q = select(ResultRow).order_by(ResultRow.conveyor_id, ResultRow.id)
             if conveyor is not None:
                 q = q.where(ResultRow.conveyor_id == conveyor)
             return [dict(r.content) for r in s.scalars(q)]
@@ -449,12 +551,17 @@ class Store:
             return [dict(r.content) | {"conveyor": r.conveyor_id} for r in s.scalars(q)]
 
     def recording_index(self, conveyor: str) -> list[tuple[int, str, str | None]]:
-        """``(id, file, recorded_at)`` of a conveyor's stored recordings, in recorded order."""
+        """``(id, file, recorded_at)`` of a conveyor's monitored recordings, in the order monitored.
+
+        Recordings refused by monitoring or still waiting for a learned
+        calibration are left out.
+        """
         with Session(self.engine) as s:
             q = (
                 select(RecordingRow.id, RecordingRow.file, RecordingRow.recorded_at)
-                .where(RecordingRow.conveyor_id == conveyor)
-                .order_by(RecordingRow.recorded_at, RecordingRow.id)
+                .join(ResultRow, ResultRow.recording_id == RecordingRow.id)
+                .where(RecordingRow.conveyor_id == conveyor, ResultRow.status != "refused")
+                .order_by(ResultRow.id)
             )
             return [(int(i), str(f), t) for i, f, t in s.execute(q)]
 
@@ -495,6 +602,11 @@ class Store:
                 return self._edit_once(conveyor, edit)
             except StateConflict:
                 continue  # an ingest advanced the model meanwhile: edit the newer one
+            except OperationalError as exc:
+                raise StoreError(
+                    f"{_safe_url(self.url)}: cannot write to the store ({exc.orig}); nothing "
+                    "was changed, run the command again"
+                ) from None
         raise StoreError(f"the health model of '{conveyor}' kept changing; try again")
 
     def _edit_once(self, conveyor: str, edit: Callable[[dict[str, Any]], T]) -> T:

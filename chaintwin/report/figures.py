@@ -139,10 +139,10 @@ def trend_figure(data: ConveyorData, trend: FeatureTrend) -> str | None:
         (ok, 9, "tab:blue", "monitored"),
         (exc, 14, "tab:red", "exceeded"),
     )
-    for mask, size, colour, label in groups:
+    for mask, size, colour, what in groups:
         if mask.any():
             pts = np.flatnonzero(mask)
-            ax.scatter([x[k] for k in pts], v[mask], s=size, color=colour, label=label)
+            ax.scatter([x[k] for k in pts], v[mask], s=size, color=colour, label=what)
     if trend.expected is not None and trend.limit is not None:
         current = np.flatnonzero(~earlier)
         start = x[int(current[0])] if current.size else x[0]
@@ -152,7 +152,8 @@ def trend_figure(data: ConveyorData, trend: FeatureTrend) -> str | None:
     unit = "" if trend.unit == "-" else f" [{trend.unit}]"
     ax.set_ylabel(f"{trend.name}{unit}")
     ax.set_title(f"{trend.name} (rises with: {trend.cause})", fontsize=10)
-    ax.legend(fontsize=7, loc="upper left", ncols=3)
+    ax.margins(y=0.12)
+    ax.legend(fontsize=7, loc="best", ncols=3)
     _time_axis(ax, label)
     return _uri(fig)
 

@@ -27,6 +27,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 import time
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from contextlib import contextmanager
@@ -154,6 +155,12 @@ def prepare(
     except EstimationError:
         return Prepared(rec, None, None, samples)  # the monitor reports it in its own words
 
+
+IN_FLIGHT_PER_WORKER = 8
+"""Files submitted ahead per local worker process."""
+
+DASK_IN_FLIGHT = 256
+"""Files submitted ahead to a Dask cluster (its size is not known here)."""
 
 COMMIT_GROUP = 64
 """Most recordings stored in one transaction."""
@@ -346,6 +353,9 @@ def ingest(
         if progress is not None:
             progress(done, total)
 
+    window = IN_FLIGHT_PER_WORKER * (workers or os.cpu_count() or 1)
+    if scheduler is not None:
+        window = max(window, DASK_IN_FLIGHT)
     with executor(workers, scheduler) as ex:
         for cid, items in groups.items():
             prof = profiles[cid]
@@ -368,11 +378,21 @@ def ingest(
                     summary.refused += 1
                     summary.refusals.append({"file": f, "error": str(exc)})
                 continue
-            use = conv.monitor.calibration
-            futures: list[Future[Prepared]] = [
-                ex.submit(prepare, f, prof, column_map, use) for f in order
-            ]
-            for f, fut in zip(order, futures, strict=True):
+            # a window of files in flight rather than all at once: memory stays
+            # bounded, and once a calibration is learned the files submitted
+            # after it are weighed in the workers with it
+            pending: deque[tuple[str, Future[Prepared]]] = deque()
+            todo = iter(order)
+            while True:
+                while len(pending) < window:
+                    nxt = next(todo, None)
+                    if nxt is None:
+                        break
+                    cal = conv.monitor.calibration
+                    pending.append((nxt, ex.submit(prepare, nxt, prof, column_map, cal)))
+                if not pending:
+                    break
+                f, fut = pending.popleft()
                 prepared = fut.result()
                 tick()
                 if prepared.recording is None:

@@ -18,6 +18,7 @@ import math
 import statistics
 from dataclasses import dataclass, field
 from datetime import datetime
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -25,10 +26,12 @@ import numpy as np
 from chaintwin.diagnose.features import FeatureSpec, feature_spec
 from chaintwin.diagnose.health import FeatureBaseline
 from chaintwin.diagnose.monitor import ConveyorMonitor
+from chaintwin.diagnose.residuals import model_torque
 from chaintwin.errors import ChaintwinError, StoreError
 from chaintwin.identify.calibration import Calibration
+from chaintwin.identify.windows import motoring_mask
 from chaintwin.read.profile import ConveyorProfile
-from chaintwin.read.recording import Recording
+from chaintwin.read.recording import FloatArray, Recording
 from chaintwin.store.store import Store
 
 __all__ = [
@@ -117,6 +120,25 @@ class ConveyorData:
     latest_result: dict[str, Any] | None = None
     waterfall: list[tuple[str, Recording]] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+
+    @cached_property
+    def latest_model(self) -> FloatArray | None:
+        """The calibrated rigid model's motor torque for the latest recording, Nm.
+
+        None without a latest recording, a calibration or a payload estimate.
+        """
+        rec, cal = self.latest, self.calibration
+        pay = (self.latest_result or {}).get("payload_kg")
+        if rec is None or cal is None or not isinstance(pay, int | float) or not math.isfinite(pay):
+            return None
+        p = cal.parameters
+        try:
+            mot = motoring_mask(
+                rec, drive_inertia_kgm2=p["J_d"], losses=(p["BmA"], p["BmB"], p["BmC"])
+            )
+            return model_torque(rec, cal.id_profile, p, float(pay), motoring=mot)
+        except ChaintwinError:
+            return None
 
     @property
     def status(self) -> str:

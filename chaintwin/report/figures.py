@@ -21,7 +21,6 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
 
-from chaintwin.diagnose.residuals import model_torque
 from chaintwin.diagnose.spectra import (
     Spectrum,
     apparent_order,
@@ -30,7 +29,6 @@ from chaintwin.diagnose.spectra import (
     welch_spectrum,
 )
 from chaintwin.errors import ChaintwinError
-from chaintwin.identify.windows import motoring_mask
 from chaintwin.read.recording import Recording
 from chaintwin.units import RPM_TO_RAD_S
 
@@ -334,7 +332,7 @@ def latest_figure(data: ConveyorData) -> str | None:
     ax1.grid(True, alpha=0.3)
     ax2 = fig.add_subplot(3, 1, 2, sharex=ax1)
     ax2.plot(t, rec.torque, color="tab:blue", linewidth=0.8, label="measured")
-    model = _model(data)
+    model = data.latest_model
     if model is not None:
         ax2.plot(t, model, color="tab:orange", linewidth=1.0, label="model (calibrated)")
     if rec.torque_setpoint is not None:
@@ -357,20 +355,6 @@ def latest_figure(data: ConveyorData) -> str | None:
         title += f", payload {pay:.1f} kg"
     ax1.set_title(title, fontsize=10, parse_math=False)  # a file name may hold "$"
     return _uri(fig)
-
-
-def _model(data: ConveyorData) -> np.ndarray | None:
-    """The calibrated model's torque for the latest recording (None without calibration)."""
-    rec, cal = data.latest, data.calibration
-    pay = (data.latest_result or {}).get("payload_kg")
-    if rec is None or cal is None or not isinstance(pay, int | float) or not math.isfinite(pay):
-        return None
-    p = cal.parameters
-    try:
-        mot = motoring_mask(rec, drive_inertia_kgm2=p["J_d"], losses=(p["BmA"], p["BmB"], p["BmC"]))
-        return model_torque(rec, cal.id_profile, p, float(pay), motoring=mot)
-    except ChaintwinError:
-        return None
 
 
 def fleet_health_figure(names: Sequence[str], index: Sequence[float]) -> str | None:

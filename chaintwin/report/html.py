@@ -149,9 +149,7 @@ def _baseline_text(d: ConveyorData) -> str:
 
 
 def _residual_table(d: ConveyorData) -> list[tuple[str, dict[str, Any]]]:
-    from .figures import _model
-
-    model = _model(d)
+    model = d.latest_model
     if model is None or d.latest is None:
         return []
     try:

@@ -336,17 +336,6 @@ class Store:
                 raise StoreError(f"{_safe_url(self.url)}: no stored recording {sha[:12]}")
             return stored_recording(row.file, row.meta, row.warnings, row.samples)
 
-    def commit_recording(
-        self,
-        recording: Recording,
-        sha256: str,
-        result: RecordingResult,
-        monitor: ConveyorMonitor,
-        version: int,
-    ) -> int:
-        """Store one recording, its result and the health model (see :meth:`commit_recordings`)."""
-        return self.commit_recordings([Finished(recording, sha256, result)], monitor, version)
-
     def commit_recordings(
         self,
         items: Sequence[Finished],

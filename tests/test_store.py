@@ -330,7 +330,9 @@ def test_two_ingests_at_once_store_each_recording_once(plant: Path, db: str) -> 
         store.close()
 
 
-def test_dask_cluster_gives_the_same_results_as_the_local_pool(plant: Path, tmp_path: Path) -> None:
+def test_dask_cluster_and_this_process_give_the_same_results_as_the_local_pool(
+    plant: Path, tmp_path: Path
+) -> None:
     from distributed import LocalCluster
 
     files = _recordings(plant)
@@ -341,13 +343,17 @@ def test_dask_cluster_gives_the_same_results_as_the_local_pool(plant: Path, tmp_
         n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
     )
     try:
-        for kind, scheduler in (("local", None), ("dask", cluster.scheduler_address)):
+        for kind, scheduler, workers in (
+            ("local", None, 2),
+            ("dask", cluster.scheduler_address, 2),
+            ("inline", None, 1),  # one worker: the pipeline runs in this process
+        ):
             url = f"sqlite:///{tmp_path / kind}.db"
             _calibrate(plant, url)
             store = Store(url)
             try:
                 s = ingest(
-                    files, profiles, store, settings=settings, workers=2, scheduler=scheduler
+                    files, profiles, store, settings=settings, workers=workers, scheduler=scheduler
                 )
                 assert s.processed == len(files)
                 out[kind] = store.results()
@@ -355,7 +361,11 @@ def test_dask_cluster_gives_the_same_results_as_the_local_pool(plant: Path, tmp_
                 store.close()
     finally:
         cluster.close()
-    local, dask = out["local"], out["dask"]
+    for other in ("dask", "inline"):
+        _same_results(out["local"], out[other])
+
+
+def _same_results(local: list[dict[str, object]], dask: list[dict[str, object]]) -> None:
     assert [r["file"] for r in local] == [r["file"] for r in dask]
     for x, y in zip(local, dask, strict=True):
         assert x["payload_kg"] == pytest.approx(y["payload_kg"], rel=1e-9)
@@ -385,14 +395,24 @@ def test_samples_round_trip_in_every_packing() -> None:
 
 
 def _earlier_packings(rec: Any) -> list[dict[str, np.ndarray]]:
-    """Stores written before hold numpy's compressed .npz, or a zlib-compressed .npz."""
+    """Stores written before hold numpy's compressed .npz, a zlib-compressed .npz, or a
+    Zstandard-compressed .npz of transposed byte views with a dtypes entry."""
+    import zstandard
+
     from chaintwin.store.store import load_samples
 
     arrays = {k: np.asarray(v) for k, v in rec.channels.items()}
-    npz, plain = io.BytesIO(), io.BytesIO()
+    npz, plain, views = io.BytesIO(), io.BytesIO(), io.BytesIO()
     np.savez_compressed(npz, **arrays)
     np.savez(plain, **arrays)
-    return [load_samples(npz.getvalue()), load_samples(zlib.compress(plain.getvalue(), 1))]
+    byte_views = {k: a.view(np.uint8).reshape(-1, a.dtype.itemsize).T for k, a in arrays.items()}
+    dtypes = json.dumps({k: a.dtype.str for k, a in arrays.items()})
+    np.savez(views, **byte_views, __dtypes__=np.array(dtypes))
+    return [
+        load_samples(npz.getvalue()),
+        load_samples(zlib.compress(plain.getvalue(), 1)),
+        load_samples(zstandard.ZstdCompressor().compress(views.getvalue())),
+    ]
 
 
 def test_a_learning_conveyor_goes_on_across_ingests(tmp_path: Path) -> None:

@@ -457,7 +457,7 @@ class ConveyorMonitor:
         if stamp is not None:
             self.last_recorded_at = max(self.last_recorded_at or "", stamp)
         extra += self._apply_events(when)
-        if recording.position is None and not self._noted("no_position"):
+        if "position" not in recording.channels and not self._noted("no_position"):
             self.notes.append(
                 RecordingWarning(
                     "no_position",

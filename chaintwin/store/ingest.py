@@ -31,8 +31,9 @@ from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
+from itertools import islice
 from typing import Any, NamedTuple
 
 from chaintwin.diagnose.features import RecordingFeatures, recording_features
@@ -45,9 +46,19 @@ from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
 from chaintwin.validate.checks import load_recording
 
-from .store import Finished, StateConflict, Store, Waiting, pack_samples
+from .samples import PackedChannels
+from .store import Finished, StateConflict, Store, Waiting
 
-__all__ = ["COMMIT_GROUP", "IngestSummary", "Prepared", "executor", "ingest", "prepare"]
+__all__ = [
+    "COMMIT_GROUP",
+    "IngestSummary",
+    "InlineExecutor",
+    "Prepared",
+    "executor",
+    "ingest",
+    "prepare",
+    "prepare_many",
+]
 
 
 @dataclass
@@ -84,14 +95,37 @@ def _pin_threads() -> None:
         os.environ.setdefault(var, "1")
 
 
+class InlineExecutor(Executor):
+    """A ``concurrent.futures`` executor that runs each task in this process at once.
+
+    One worker needs no pool: the pipeline then runs on one core with
+    nothing sent between processes and no worker to start, by the same code
+    path as on a pool or a cluster (the futures are done when returned).
+    """
+
+    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future[Any]:
+        """Run ``fn(*args, **kwargs)`` now; its result (or exception) in a done future."""
+        fut: Future[Any] = Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except BaseException as exc:  # handed to the caller through the future
+            fut.set_exception(exc)
+        return fut
+
+
+PRELOAD = "chaintwin.store.warm"
+"""Module the fork server imports (and so runs) before it forks workers."""
+
+
 @contextmanager
 def executor(workers: int | None, scheduler: str | None) -> Iterator[Executor]:
-    """A ``concurrent.futures`` executor: a local process pool, or a Dask cluster.
+    """A ``concurrent.futures`` executor: this process, a local process pool, or a Dask cluster.
 
     Parameters
     ----------
     workers : int, optional
-        Local worker processes (default: the machine's cores).
+        Local worker processes (default: the machine's cores); 1 runs the
+        pipeline in this process (:class:`InlineExecutor`).
     scheduler : str, optional
         Address of a Dask scheduler (``tcp://host:8786``); the cluster's
         workers are used instead of local processes.
@@ -101,12 +135,17 @@ def executor(workers: int | None, scheduler: str | None) -> Iterator[Executor]:
     StoreError
         When the scheduler cannot be reached.
     """
+    if scheduler is None and workers == 1:
+        yield InlineExecutor()
+        return
     if scheduler is None:
         # workers come from a fork server started afresh, not forked from this
         # process: a forked worker would inherit the store's open database
         # connections and, outliving a killed ingest, hold its transaction open
         ctx = multiprocessing.get_context("forkserver")
-        ctx.set_forkserver_preload(["chaintwin.store.ingest"])
+        # the fork server imports the pipeline and runs it once (numba's
+        # compiled code loaded) before it forks: no worker pays for that
+        ctx.set_forkserver_preload([PRELOAD])
         with ProcessPoolExecutor(
             max_workers=workers, mp_context=ctx, initializer=_pin_threads
         ) as ex:
@@ -133,7 +172,7 @@ class Prepared(NamedTuple):
     features: RecordingFeatures | None
     error: str | None
     samples: bytes | None
-    """The compressed channels, packed in the worker (``store.pack_samples``)."""
+    """The packed channels (``recording.channels.blob``), as the store keeps them."""
 
 
 def prepare(
@@ -147,7 +186,11 @@ def prepare(
         rec = load_recording(path, profile=profile, column_map=column_map).recording
     except ChaintwinError as exc:
         return Prepared(None, None, str(exc), None)
-    samples = pack_samples(rec)
+    # the recording travels back packed (a third of its size), and the same
+    # bytes are what the store keeps
+    channels = PackedChannels.of(rec.channels)
+    rec = replace(rec, channels=channels)
+    samples = channels.blob
     if calibration is None:
         return Prepared(rec, None, None, samples)
     try:
@@ -156,11 +199,24 @@ def prepare(
         return Prepared(rec, None, None, samples)  # the monitor reports it in its own words
 
 
-IN_FLIGHT_PER_WORKER = 8
-"""Files submitted ahead per local worker process."""
+def prepare_many(
+    paths: Sequence[str],
+    profile: ConveyorProfile,
+    column_map: ColumnMap | None,
+    calibration: Calibration | None,
+) -> list[Prepared]:
+    """:func:`prepare` for several recordings: one task, one round trip to a worker."""
+    return [prepare(p, profile, column_map, calibration) for p in paths]
 
-DASK_IN_FLIGHT = 256
-"""Files submitted ahead to a Dask cluster (its size is not known here)."""
+
+CHUNK = 4
+"""Recordings per task sent to a worker (fewer, larger messages between processes)."""
+
+IN_FLIGHT_PER_WORKER = 4
+"""Tasks submitted ahead per local worker process."""
+
+DASK_IN_FLIGHT = 64
+"""Tasks submitted ahead to a Dask cluster (its size is not known here)."""
 
 COMMIT_GROUP = 64
 """Most recordings stored in one transaction."""
@@ -356,6 +412,9 @@ def ingest(
     window = IN_FLIGHT_PER_WORKER * (workers or os.cpu_count() or 1)
     if scheduler is not None:
         window = max(window, DASK_IN_FLIGHT)
+    # one recording per task in this process: nothing to save on messages, and
+    # a learned calibration is taken up by the very next recording
+    chunk_size = 1 if workers == 1 and scheduler is None else CHUNK
     with executor(workers, scheduler) as ex:
         for cid, items in groups.items():
             prof = profiles[cid]
@@ -381,25 +440,26 @@ def ingest(
             # a window of files in flight rather than all at once: memory stays
             # bounded, and once a calibration is learned the files submitted
             # after it are weighed in the workers with it
-            pending: deque[tuple[str, Future[Prepared]]] = deque()
+            pending: deque[tuple[list[str], Future[list[Prepared]]]] = deque()
             todo = iter(order)
             while True:
                 while len(pending) < window:
-                    nxt = next(todo, None)
-                    if nxt is None:
+                    chunk = list(islice(todo, chunk_size))
+                    if not chunk:
                         break
                     cal = conv.monitor.calibration
-                    pending.append((nxt, ex.submit(prepare, nxt, prof, column_map, cal)))
+                    fut = ex.submit(prepare_many, chunk, prof, column_map, cal)
+                    pending.append((chunk, fut))
                 if not pending:
                     break
-                f, fut = pending.popleft()
-                prepared = fut.result()
-                tick()
-                if prepared.recording is None:
-                    summary.refused += 1
-                    summary.refusals.append({"file": f, "error": prepared.error or "refused"})
-                    continue
-                conv.take(prepared, sha[f])
+                chunk, fut = pending.popleft()
+                for f, prepared in zip(chunk, fut.result(), strict=True):
+                    tick()
+                    if prepared.recording is None:
+                        summary.refused += 1
+                        summary.refusals.append({"file": f, "error": prepared.error or "refused"})
+                        continue
+                    conv.take(prepared, sha[f])
             conv.close()
     summary.seconds = (datetime.now(UTC) - started).total_seconds()
     return summary

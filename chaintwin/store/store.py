@@ -6,9 +6,9 @@
 The URL may come from the environment variable ``CHAINTWIN_DB`` so that
 credentials stay off the command line (:func:`store_url`).
 
-Writes are atomic per recording: :meth:`Store.commit_recording` stores the
-recording (with its samples), its result and the conveyor's health model in
-one transaction. A recording already stored (same content SHA-256) is not
+Writes are atomic per recording: :meth:`Store.commit_recordings` stores a
+group of recordings (with their samples), their results and the conveyor's
+health model in one transaction. A recording already stored (same content SHA-256) is not
 stored again. Two ingests may run at once: the health model carries a
 version, and a writer whose model was advanced by the other in the meantime
 gets :class:`StateConflict` and goes again from the newer model.
@@ -16,17 +16,14 @@ gets :class:`StateConflict` and goes again from the newer model.
 
 from __future__ import annotations
 
-import io
 import json
 import os
-import zlib
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any, TypeVar
 
 import numpy as np
-import zstandard
 from sqlalchemy import create_engine, event, select, update
 from sqlalchemy.engine import Engine
 from sqlalchemy.exc import IntegrityError, OperationalError, SQLAlchemyError
@@ -39,6 +36,7 @@ from chaintwin.identify.calibration import Calibration
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
 
+from .samples import PackedChannels, pack_channels, unpack_channels
 from .schema import (
     SCHEMA_VERSION,
     AlarmRow,
@@ -131,52 +129,17 @@ def _safe_url(url: str) -> str:
     return f"{scheme}://{user}:***@{tail}"
 
 
-SAMPLES_ZSTD_LEVEL = 3
-"""Zstandard level of the stored samples."""
-
-_ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
-_DTYPES_KEY = "__dtypes__"
-
-
 def pack_samples(recording: Recording) -> bytes:
-    """The channels (SI) of a recording, packed losslessly for the store.
-
-    Each channel's bytes are regrouped by byte position (all first bytes of
-    the float64 values, then all second bytes, ...: the shuffle filter of
-    array compressors), kept in an ``.npz`` archive with the channels' dtypes,
-    and compressed with Zstandard. Float samples compress to about a sixth
-    that way in well under a millisecond, where numpy's compressed ``.npz``
-    reaches a third in several milliseconds.
-    """
-    arrays: dict[str, Any] = {}
-    dtypes: dict[str, str] = {}
-    for name, values in recording.channels.items():
-        a = np.ascontiguousarray(values)
-        if a.ndim == 1 and a.dtype.itemsize > 1:
-            arrays[name] = a.view(np.uint8).reshape(-1, a.dtype.itemsize).T
-            dtypes[name] = a.dtype.str
-        else:
-            arrays[name] = a
-    arrays[_DTYPES_KEY] = np.array(json.dumps(dtypes))
-    buf = io.BytesIO()
-    np.savez(buf, **arrays)
-    return zstandard.ZstdCompressor(level=SAMPLES_ZSTD_LEVEL).compress(buf.getvalue())
+    """The channels (SI) of a recording, packed losslessly for the store (:mod:`.samples`)."""
+    channels = recording.channels
+    if isinstance(channels, PackedChannels):  # packed already (in a worker)
+        return channels.blob
+    return pack_channels(channels)
 
 
 def load_samples(blob: bytes) -> dict[str, np.ndarray]:
-    """The channels (SI) of a stored recording, as :func:`pack_samples` (or numpy) kept them."""
-    if blob[:4] == _ZSTD_MAGIC:
-        raw = zstandard.ZstdDecompressor().decompress(blob)
-    elif blob[:2] == b"PK":  # numpy's compressed .npz
-        raw = blob
-    else:  # zlib-compressed .npz
-        raw = zlib.decompress(blob)
-    with np.load(io.BytesIO(raw)) as data:
-        stored = {k: data[k] for k in data.files}
-    dtypes = json.loads(str(stored.pop(_DTYPES_KEY))) if _DTYPES_KEY in stored else {}
-    for name, dtype in dtypes.items():
-        stored[name] = np.ascontiguousarray(stored[name].T).view(np.dtype(dtype)).ravel()
-    return stored
+    """The channels (SI) of a stored recording, in any packing the store has used."""
+    return unpack_channels(blob)
 
 
 class Store:

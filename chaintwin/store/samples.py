@@ -1,0 +1,198 @@
+"""A recording's samples as the store keeps them and as workers send them.
+
+:func:`pack_channels` packs the channels losslessly: their bytes one
+channel after the other behind a small JSON header (names, dtypes,
+lengths), compressed with Zstandard. A 2048-sample scope of eight float64
+channels (131 kB) packs to about 40 kB in about 0.2 ms. The bytes are not
+shuffled by byte position (the filter of array compressors): samples
+converted to SI from quantised file units have noisy mantissas, what
+compresses is repeated values (set points, standstill), and shuffling
+measured worse (49 kB against 39 kB for the same scope).
+
+:class:`PackedChannels` is a recording's channel mapping that travels
+packed: a worker process packs the channels once for the store, and the
+recording it sends back carries only those bytes (about a third of the
+arrays); whoever reads a channel gets it unpacked on first use, exactly.
+The health model and the store need only a recording's metadata once its
+features are computed, so the ingest's coordinating process never unpacks.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import struct
+import zlib
+from collections.abc import Iterator, Mapping
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import zstandard
+
+from chaintwin.errors import StoreError
+
+__all__ = [
+    "SAMPLES_ZSTD_LEVEL",
+    "PackedChannels",
+    "pack_channels",
+    "unpack_channels",
+]
+
+SAMPLES_ZSTD_LEVEL = 3
+"""Zstandard level of the packed samples."""
+
+_ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
+_FORMAT = b"CTS1"
+"""First bytes of the (decompressed) packing of :func:`pack_channels`."""
+_HEAD = struct.Struct("<I")
+_DTYPES_KEY = "__dtypes__"
+"""The dtypes entry of an earlier ``.npz`` packing (transposed byte views in an archive)."""
+
+Array = npt.NDArray[Any]
+
+
+def pack_channels(channels: Mapping[str, npt.ArrayLike]) -> bytes:
+    """Channels (name -> 1-D array), packed losslessly for the store.
+
+    Parameters
+    ----------
+    channels : Mapping[str, array_like]
+        1-D arrays of any numeric dtype, any lengths.
+
+    Returns
+    -------
+    bytes
+        A Zstandard frame; :func:`unpack_channels` gives the arrays back,
+        bit for bit, with their dtypes.
+    """
+    arrays = [(name, np.ascontiguousarray(values)) for name, values in channels.items()]
+    for name, a in arrays:
+        if a.ndim != 1:
+            raise ValueError(f"channel '{name}' is not one-dimensional (shape {a.shape})")
+    header = json.dumps([[name, a.dtype.str, a.shape[0]] for name, a in arrays]).encode()
+    total = sum(a.nbytes for _n, a in arrays)
+    start = len(_FORMAT) + _HEAD.size + len(header)
+    out = np.empty(start + total, dtype=np.uint8)
+    out[:start] = np.frombuffer(_FORMAT + _HEAD.pack(len(header)) + header, dtype=np.uint8)
+    at = start
+    for _name, a in arrays:
+        out[at : at + a.nbytes] = a.view(np.uint8)
+        at += a.nbytes
+    compressed: bytes = zstandard.ZstdCompressor(level=SAMPLES_ZSTD_LEVEL).compress(out.data)
+    return compressed
+
+
+def unpack_channels(blob: bytes) -> dict[str, Array]:
+    """The channels packed by :func:`pack_channels`, or by earlier versions of the store.
+
+    Earlier stores hold an ``.npz`` archive: compressed by numpy, by zlib,
+    or byte-shuffled and compressed by Zstandard; all are read.
+
+    Raises
+    ------
+    StoreError
+        When the bytes are none of these (a damaged store).
+    """
+    try:
+        if blob[:4] == _ZSTD_MAGIC:
+            raw = zstandard.ZstdDecompressor().decompress(blob)
+        elif blob[:2] == b"PK":  # numpy's compressed .npz
+            raw = blob
+        else:  # zlib-compressed .npz
+            raw = zlib.decompress(blob)
+        if raw[: len(_FORMAT)] == _FORMAT:
+            return _unpack(raw)
+        return _unpack_npz(raw)
+    except (zstandard.ZstdError, zlib.error, ValueError, KeyError, OSError) as exc:
+        raise StoreError(
+            f"stored samples cannot be unpacked ({exc}); the store is damaged"
+        ) from None
+
+
+def _unpack(raw: bytes) -> dict[str, Array]:
+    (size,) = _HEAD.unpack_from(raw, len(_FORMAT))
+    at = len(_FORMAT) + _HEAD.size
+    header = json.loads(raw[at : at + size])
+    at += size
+    buf = np.frombuffer(raw, dtype=np.uint8)
+    out: dict[str, Array] = {}
+    for name, dtype_str, n in header:
+        dtype = np.dtype(dtype_str)
+        size = n * dtype.itemsize
+        block = buf[at : at + size]
+        if block.shape[0] != size:
+            raise ValueError(f"channel '{name}' is cut short")
+        out[str(name)] = block.copy().view(dtype)  # a copy: writable, owns its memory
+        at += size
+    return out
+
+
+def _unpack_npz(raw: bytes) -> dict[str, Array]:
+    with np.load(io.BytesIO(raw)) as data:
+        stored = {k: data[k] for k in data.files}
+    dtypes = json.loads(str(stored.pop(_DTYPES_KEY))) if _DTYPES_KEY in stored else {}
+    for name, dtype in dtypes.items():
+        stored[name] = np.ascontiguousarray(stored[name].T).view(np.dtype(dtype)).ravel()
+    return stored
+
+
+class PackedChannels(Mapping[str, Array]):
+    """A recording's channels that travel packed and unpack on first use.
+
+    Parameters
+    ----------
+    names : tuple of str
+        The channel names, in order.
+    blob : bytes
+        The channels packed by :func:`pack_channels`.
+    arrays : Mapping[str, ndarray], optional
+        The channels themselves, when at hand (the process that packed
+        them): nothing is unpacked then. Never pickled.
+
+    Notes
+    -----
+    Names, length and membership are answered without unpacking; reading a
+    channel unpacks all of them once. Pickling sends the names and the
+    packed bytes only, so a recording crosses to another process at about a
+    third of its size.
+    """
+
+    __slots__ = ("_arrays", "blob", "names")
+
+    def __init__(
+        self, names: tuple[str, ...], blob: bytes, arrays: Mapping[str, Array] | None = None
+    ) -> None:
+        self.names = names
+        self.blob = blob
+        self._arrays = None if arrays is None else dict(arrays)
+
+    @classmethod
+    def of(cls, channels: Mapping[str, npt.ArrayLike]) -> PackedChannels:
+        """Pack ``channels``, keeping the arrays at hand."""
+        arrays = {name: np.asarray(values) for name, values in channels.items()}
+        return cls(tuple(arrays), pack_channels(arrays), arrays)
+
+    @property
+    def unpacked(self) -> bool:
+        """Whether the arrays are at hand (given, or unpacked by a read)."""
+        return self._arrays is not None
+
+    def __getitem__(self, key: str) -> Array:
+        if key not in self.names:
+            raise KeyError(key)
+        if self._arrays is None:
+            self._arrays = unpack_channels(self.blob)
+        return self._arrays[key]
+
+    def __contains__(self, key: object) -> bool:
+        return key in self.names
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.names)
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def __reduce__(self) -> tuple[type[PackedChannels], tuple[tuple[str, ...], bytes]]:
+        return (PackedChannels, (self.names, self.blob))

@@ -14,13 +14,15 @@ Prints one table (recordings per second and ms per recording, with the ratio
 of the time per recording to the reference row measured in the same run):
 
 1. reference: ``load_recording`` (read + validate) alone, in this process;
-2. ingest with 1 local worker process;
-3. ingest with 2 local worker processes;
+2. ingest with 1 worker: the pipeline in this process (one core, nothing
+   sent between processes, no worker to start);
+3. ingest with 2 local worker processes (forked from the fork server) and
+   this process (health model and store) on the machine's 2 cores;
 4. worker start-up: an ingest of 2 recordings with 1 and with 2 workers,
    and from it an estimate of the throughput without start-up;
 5. for explanation: the part of an ingest that runs in this process, one
    recording after the other whatever the workers (``ConveyorMonitor.process``
-   with the features computed beforehand + ``Store.commit_recording``).
+   with the features computed beforehand + ``Store.commit_recordings``).
 
 Then the issue's targets: 2 workers at least 1.8x the throughput of 1 worker,
 and 200 recordings per second per core (5 ms per recording end to end).
@@ -28,15 +30,15 @@ and 200 recordings per second per core (5 ms per recording end to end).
 Included in each timed ingest: starting its worker processes (forked from the
 fork server) and shutting them down, reading the metadata and hashing every
 file, the duplicate check, reading + validating + weighing + features in the
-workers, sending the recordings back, the health model and one transaction
-per recording in this process. Not included: generating the data, the
+workers, sending the recordings back, the health model and the store's
+transactions (a group of recordings each) in this process. Not included: generating the data, the
 calibration, opening the store and putting the calibration, numba compilation
 and the start of the fork server (a warm-up ingest into a throwaway store
 runs first). Every measurement is repeated in ``ROUNDS`` rounds, the
 configurations interleaved so that they see the same load on the machine,
 and the best round is kept. BLAS is pinned to one thread (DESIGN.md).
 
-Run: ``python benchmarks/bench_ingest.py`` (about 60 s on 2 cores).
+Run: ``python benchmarks/bench_ingest.py`` (about 30 s on 2 cores).
 """
 
 from __future__ import annotations
@@ -68,7 +70,7 @@ PROFILE = (
     / "profiles"
     / "white-belt-01.yaml"
 )
-DAYS = 10
+DAYS = 25
 PER_DAY = 16
 ONSET_DAY = 4
 SEED = 3
@@ -308,15 +310,15 @@ def main() -> None:
     for w in WORKERS:
         per_core = rate[w] / w
         print(
-            f"per core, {w} worker{'s' * (w > 1)}: {per_core:.1f} rec/s per worker "
+            f"per core, {w} worker{'s' * (w > 1)}: {per_core:.1f} rec/s per core "
             f"({1e3 / per_core:.1f} ms per recording per core); target {TARGET_PER_CORE:.0f} "
             f"rec/s per core (5 ms): {'MET' if per_core >= TARGET_PER_CORE else 'NOT MET'} "
             f"({per_core / TARGET_PER_CORE:.2f} of it; without start-up, estimate: "
             f"{steady[w] / w:.1f} rec/s)"
         )
     print(
-        "  (per core = recordings/s / worker processes; the main process that runs the "
-        "health model and writes the store is not counted)"
+        "  (per core = recordings/s / cores used: 1 worker runs in this process on one core; "
+        "2 workers and this process share the machine's 2 cores)"
     )
     size = statistics.median(sizes)
     print(

@@ -14,6 +14,7 @@ from chaintwin.cli.app import main
 from chaintwin.diagnose.spectra import (
     Spectrum,
     apparent_order,
+    apparent_orders,
     band_amplitude,
     line_amplitudes,
     line_orders,
@@ -175,6 +176,18 @@ def test_order_spectrum_refuses_standstill_and_bad_options() -> None:
 
 
 # ------------------------------------------------------------------ folding
+def test_apparent_orders_equal_apparent_order_of_each() -> None:
+    rng = np.random.default_rng(7)
+    orders = np.concatenate(([0.0, 1.0, 3.57, 10.0], rng.uniform(0.0, 400.0, 500)))
+    for speed in (1415.0, -700.0, 37.5):
+        for ts in (0.001, 0.006, 0.012, 0.0123):
+            got = apparent_orders(orders, speed, ts)
+            want = [apparent_order(float(o), speed, ts) for o in orders]
+            assert got.tolist() == want  # the same arithmetic: equal to the last bit
+    with pytest.raises(EstimationError, match="rotation"):
+        apparent_orders(orders, 0.0, 0.006)
+
+
 def test_apparent_order_hand_case() -> None:
     # 3.57 × 1415/60 = 84.19 Hz; a 6 ms scope's Nyquist is 83.33 Hz: it shows at 82.47 Hz
     rot_hz = NOMINAL_RPM / 60.0

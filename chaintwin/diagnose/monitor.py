@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from chaintwin.errors import ChaintwinError, EstimationError, MonitorError, StoreError
 from chaintwin.identify.calibration import Calibration
@@ -44,7 +45,7 @@ from .features import recording_features as extract
 from .health import FeatureBaseline, fit_baseline, forecast_crossing, x_of_y
 from .learned import learn_calibration
 from .residuals import DEFAULT_BIN_WIDTH_M
-from .spectra import Spectrum, apparent_order, median_spectrum
+from .spectra import Spectrum, apparent_orders, median_spectrum
 from .state import close_alarms, new_event
 
 __all__ = [
@@ -317,6 +318,17 @@ class ConveyorMonitor:
         self.history: list[dict[str, Any]] = []
         self.processed: dict[str, int] = {}
         self.last_recorded_at: str | None = None
+        # derived once, not state: (the object they were derived from, values)
+        self._orders_cache: tuple[Calibration, npt.NDArray[np.float64]] | None = None
+        self._baseline_cache: (
+            tuple[
+                tuple[list[float], list[float], float],
+                npt.NDArray[np.float64],
+                npt.NDArray[np.float64],
+                float,
+            ]
+            | None
+        ) = None
 
     # ---------------------------------------------------------- calibration
     def set_calibration(self, calibration: Calibration) -> None:
@@ -529,23 +541,41 @@ class ConveyorMonitor:
         """Largest ratio to the baseline spectrum away from known lines, and its order."""
         if spectrum is None or self.baseline_spectrum is None or self.calibration is None:
             return float("nan"), float("nan")
-        bx, ba, _speed = self.baseline_spectrum
-        ref = np.interp(spectrum.x, np.asarray(bx), np.asarray(ba))
-        floor = float(np.median(ba))
+        bx, ba, floor = self._baseline_arrays(self.baseline_spectrum)
+        ref = np.interp(spectrum.x, bx, ba)
         ratio = spectrum.amplitude / np.maximum(ref, floor)
         speed_hz = spectrum.speed_rpm / 60.0
         if speed_hz <= 0:
             return float("nan"), float("nan")
-        ts = 1.0 / (2.0 * float(spectrum.x[-1])) if spectrum.x[-1] > 0 else float("nan")
-        guard = np.zeros(ratio.shape[0], dtype=bool)
+        if not spectrum.x[-1] > 0:
+            return float("nan"), float("nan")
+        ts = 1.0 / (2.0 * float(spectrum.x[-1]))
         res = spectrum.resolution
-        for order in known_line_orders(self.calibration):
-            x = apparent_order(order, spectrum.speed_rpm, ts) * speed_hz
-            guard |= np.abs(spectrum.x - x) <= SPECTRUM_GUARD_BINS * res
-        guard |= spectrum.x < 2.0 * res  # the trend left in the lowest bins
+        lines = apparent_orders(self._line_orders(self.calibration), spectrum.speed_rpm, ts)
+        near = np.abs(spectrum.x[:, None] - lines[None, :] * speed_hz) <= SPECTRUM_GUARD_BINS * res
+        guard = near.any(axis=1) | (spectrum.x < 2.0 * res)  # the trend left in the lowest bins
         ratio = np.where(guard, 0.0, ratio)
         k = int(np.argmax(ratio))
         return float(ratio[k]), float(spectrum.x[k] / speed_hz)
+
+    def _line_orders(self, calibration: Calibration) -> npt.NDArray[np.float64]:
+        """:func:`known_line_orders` of the calibration, computed once per calibration."""
+        cached = self._orders_cache
+        if cached is None or cached[0] is not calibration:
+            cached = (calibration, np.asarray(known_line_orders(calibration), dtype=np.float64))
+            self._orders_cache = cached
+        return cached[1]
+
+    def _baseline_arrays(
+        self, spectrum: tuple[list[float], list[float], float]
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], float]:
+        """The baseline spectrum as arrays and its median amplitude, once per baseline."""
+        cached = self._baseline_cache
+        if cached is None or cached[0] is not spectrum:
+            bx, ba = np.asarray(spectrum[0]), np.asarray(spectrum[1])
+            cached = (spectrum, bx, ba, float(np.median(ba)))
+            self._baseline_cache = cached
+        return cached[1], cached[2], cached[3]
 
     def _belt_bump(self, feats: RecordingFeatures) -> tuple[float, float | None]:
         """Update the belt map; its largest local rise and where, m.
@@ -564,12 +594,14 @@ class ConveyorMonitor:
         if len(self.belt_last) != nbins or len(self.belt_prev) != nbins:
             self.belt_last = [None] * nbins
             self.belt_prev = [None] * nbins
-        for b, v in zip(feats.bump_bins, feats.bump_values, strict=True):
-            if math.isfinite(float(v)):
+        bins = np.asarray(feats.bump_bins).tolist()
+        values = np.asarray(feats.bump_values, dtype=np.float64).tolist()
+        for b, v in zip(bins, values, strict=True):
+            if math.isfinite(v):
                 self.belt_prev[int(b)] = self.belt_last[int(b)]
-                self.belt_last[int(b)] = float(v)
-        last = np.array([np.nan if v is None else v for v in self.belt_last])
-        prev = np.array([np.nan if v is None else v for v in self.belt_prev])
+                self.belt_last[int(b)] = v
+        last = np.array(self.belt_last, dtype=np.float64)  # None -> NaN
+        prev = np.array(self.belt_prev, dtype=np.float64)
         both = np.where(np.isfinite(last) & np.isfinite(prev), np.minimum(last, prev), np.nan)
         if np.isfinite(both).sum() < MIN_MAP_SHARE * nbins:
             return float("nan"), None

@@ -48,7 +48,7 @@ from scipy.integrate import cumulative_trapezoid
 from scipy.signal import ShortTimeFFT, get_window
 from scipy.signal.windows import hann
 
-from chaintwin.errors import EstimationError, RecordingError
+from chaintwin.errors import EstimationError, ModelError, RecordingError
 from chaintwin.model.frequencies import characteristic_orders, fold_frequency
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import FloatArray, Recording
@@ -60,6 +60,7 @@ __all__ = [
     "Spectrum",
     "SpectrumKind",
     "apparent_order",
+    "apparent_orders",
     "band_amplitude",
     "band_amplitudes",
     "line_amplitudes",
@@ -587,6 +588,46 @@ def apparent_order(order: float, speed_rpm: float, sample_time_s: float) -> floa
     if not math.isfinite(rot_hz) or rot_hz == 0.0:
         raise EstimationError(f"motor speed {speed_rpm!r} rpm: no apparent order without rotation")
     return fold_frequency(order * rot_hz, sample_time_s) / rot_hz
+
+
+def apparent_orders(
+    orders: npt.ArrayLike, speed_rpm: float, sample_time_s: float
+) -> npt.NDArray[np.float64]:
+    """:func:`apparent_order` of many orders at once, with the same arithmetic.
+
+    Parameters
+    ----------
+    orders : array_like
+        True orders, cycles per motor revolution.
+    speed_rpm : float
+        Motor speed, rpm (the sign is ignored).
+    sample_time_s : float
+        The scope's sample time Ts, s.
+
+    Returns
+    -------
+    ndarray
+        The apparent orders, equal to ``apparent_order`` of each.
+
+    Raises
+    ------
+    EstimationError
+        When the speed is zero or not finite.
+    ModelError
+        When the sample time is not positive or an order not finite.
+    """
+    rot_hz = abs(float(speed_rpm)) / 60.0
+    if not math.isfinite(rot_hz) or rot_hz == 0.0:
+        raise EstimationError(f"motor speed {speed_rpm!r} rpm: no apparent order without rotation")
+    ts = float(sample_time_s)
+    if not math.isfinite(ts) or ts <= 0.0:
+        raise ModelError(f"sample time {sample_time_s!r} s is not positive; cannot fold")
+    f = np.abs(np.asarray(orders, dtype=np.float64) * rot_hz)
+    if not np.isfinite(f).all():
+        raise ModelError("an order is not finite; cannot fold it")
+    cycles = np.fmod(f * ts, 1.0)
+    folded = np.where(cycles > 0.5, 1.0 - cycles, cycles) / ts
+    return np.where(f <= 0.5 / ts, f, folded) / rot_hz
 
 
 def line_orders(profile: ConveyorProfile) -> dict[str, float]:

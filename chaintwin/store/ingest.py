@@ -135,7 +135,7 @@ def executor(workers: int | None, scheduler: str | None) -> Iterator[Executor]:
     StoreError
         When the scheduler cannot be reached.
     """
-    if scheduler is None and workers == 1:
+    if scheduler is None and (workers or os.cpu_count() or 1) == 1:
         yield InlineExecutor()
         return
     if scheduler is None:
@@ -414,7 +414,8 @@ def ingest(
         window = max(window, DASK_IN_FLIGHT)
     # one recording per task in this process: nothing to save on messages, and
     # a learned calibration is taken up by the very next recording
-    chunk_size = 1 if workers == 1 and scheduler is None else CHUNK
+    inline = scheduler is None and (workers or os.cpu_count() or 1) == 1
+    chunk_size = 1 if inline else CHUNK
     with executor(workers, scheduler) as ex:
         for cid, items in groups.items():
             prof = profiles[cid]

@@ -40,7 +40,7 @@ from chaintwin.diagnose.features import RecordingFeatures, recording_features
 from chaintwin.diagnose.monitor import ConveyorMonitor, MonitorSettings
 from chaintwin.errors import ChaintwinError, EstimationError, StoreError
 from chaintwin.identify.calibration import Calibration
-from chaintwin.read.batch import group_by_conveyor, order_recordings
+from chaintwin.read.batch import RecordingFile, group_by_conveyor, order_recordings
 from chaintwin.read.columns import ColumnMap
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
@@ -209,10 +209,10 @@ def prepare_many(
     return [prepare(p, profile, column_map, calibration) for p in paths]
 
 
-CHUNK = 4
+CHUNK = 8
 """Recordings per task sent to a worker (fewer, larger messages between processes)."""
 
-IN_FLIGHT_PER_WORKER = 4
+IN_FLIGHT_PER_WORKER = 3
 """Tasks submitted ahead per local worker process."""
 
 DASK_IN_FLIGHT = 64
@@ -353,6 +353,28 @@ class _Conveyor:
         self.summary.new_alarms += len({a["id"] for a in self.monitor.alarms} - self.opened)
 
 
+SCAN_CHUNK = 32
+"""Files per task of the first pass (conveyor, recorded time, content hash)."""
+
+
+def _scan(
+    ex: Executor, files: Sequence[str], conveyors: list[str], chunk: int
+) -> tuple[dict[str, list[RecordingFile]], list[tuple[str, str]]]:
+    """:func:`group_by_conveyor` over the executor, chunk by chunk, merged in the order given."""
+    futures = [
+        ex.submit(group_by_conveyor, files[k : k + chunk], conveyors)
+        for k in range(0, len(files), chunk)
+    ]
+    groups: dict[str, list[RecordingFile]] = {}
+    refused: list[tuple[str, str]] = []
+    for fut in futures:
+        part, bad = fut.result()
+        for cid, items in part.items():
+            groups.setdefault(cid, []).extend(items)
+        refused += bad
+    return groups, refused
+
+
 def ingest(
     files: Sequence[str],
     profiles: dict[str, ConveyorProfile],
@@ -395,28 +417,30 @@ def ingest(
     started = datetime.now(UTC)
     settings = settings or MonitorSettings()
     summary = IngestSummary()
-    groups, refused = group_by_conveyor(files, profiles)
-    for f, error in refused:
-        summary.refused += 1
-        summary.refusals.append({"file": f, "error": error})
-    known = store.known(item.sha256 for items in groups.values() for item in items)
-    total = sum(len(v) for v in groups.values())
-    done = 0
-
-    def tick() -> None:
-        nonlocal done
-        done += 1
-        if progress is not None:
-            progress(done, total)
-
-    window = IN_FLIGHT_PER_WORKER * (workers or os.cpu_count() or 1)
-    if scheduler is not None:
-        window = max(window, DASK_IN_FLIGHT)
-    # one recording per task in this process: nothing to save on messages, and
-    # a learned calibration is taken up by the very next recording
-    inline = scheduler is None and (workers or os.cpu_count() or 1) == 1
-    chunk_size = 1 if inline else CHUNK
     with executor(workers, scheduler) as ex:
+        # first pass, on the workers too: each file's conveyor, recorded time and
+        # content hash, so that duplicates are skipped before any work
+        groups, refused = _scan(ex, files, list(profiles), SCAN_CHUNK)
+        for f, error in refused:
+            summary.refused += 1
+            summary.refusals.append({"file": f, "error": error})
+        known = store.known(item.sha256 for items in groups.values() for item in items)
+        total = sum(len(v) for v in groups.values())
+        done = 0
+
+        def tick() -> None:
+            nonlocal done
+            done += 1
+            if progress is not None:
+                progress(done, total)
+
+        window = IN_FLIGHT_PER_WORKER * (workers or os.cpu_count() or 1)
+        if scheduler is not None:
+            window = max(window, DASK_IN_FLIGHT)
+        # one recording per task in this process: nothing to save on messages, and
+        # a learned calibration is taken up by the very next recording
+        inline = scheduler is None and (workers or os.cpu_count() or 1) == 1
+        chunk_size = 1 if inline else CHUNK
         for cid, items in groups.items():
             prof = profiles[cid]
             sha: dict[str, str] = {}

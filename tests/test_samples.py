@@ -42,6 +42,10 @@ def test_a_damaged_packing_is_a_store_error() -> None:
         unpack_channels(blob[:-5])
     with pytest.raises(StoreError, match="damaged"):
         unpack_channels(b"neither zstd nor zip")
+    import zstandard
+
+    with pytest.raises(StoreError, match="damaged"):  # the header cut inside its length
+        unpack_channels(zstandard.ZstdCompressor().compress(b"CTS1\x05"))
     with pytest.raises(ValueError, match="one-dimensional"):
         pack_channels({"x": np.zeros((2, 2))})
 

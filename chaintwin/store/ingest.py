@@ -108,7 +108,7 @@ class InlineExecutor(Executor):
         fut: Future[Any] = Future()
         try:
             fut.set_result(fn(*args, **kwargs))
-        except BaseException as exc:  # handed to the caller through the future
+        except Exception as exc:  # handed to the caller through the future
             fut.set_exception(exc)
         return fut
 
@@ -225,6 +225,13 @@ COMMIT_EVERY_S = 2.0
 """A group is stored at the latest this long after its first recording, s."""
 
 
+def _same(a: Calibration | None, b: Calibration | None) -> bool:
+    """Whether two calibrations are the same (the same object, or equal content)."""
+    if a is b:
+        return True
+    return a is not None and b is not None and a.to_dict() == b.to_dict()
+
+
 class _Conveyor:
     """One conveyor's part of an ingest: its health model and what is not yet stored."""
 
@@ -248,6 +255,8 @@ class _Conveyor:
         # this run's recordings taken by monitoring but not yet stored (file -> input)
         self.inputs: dict[str, Prepared] = {}
         self.digests: dict[str, str] = {}
+        # the calibration each recording's features were computed with
+        self.weighed_with: dict[str, Calibration | None] = {}
         # recordings stored while they wait for a learned calibration (file -> recording, sha)
         self.carried: dict[str, tuple[Recording, str]] = {}
         self._carry()
@@ -262,13 +271,14 @@ class _Conveyor:
             if rec.source not in self.inputs
         }
 
-    def take(self, item: Prepared, digest: str) -> None:
+    def take(self, item: Prepared, digest: str, calibration: Calibration | None) -> None:
         """Monitor one recording; store the group when it is full or old."""
         rec = item.recording
         assert rec is not None
         if not self.inputs:
             self.group_started = time.monotonic()
         self.inputs[rec.source] = item
+        self.weighed_with[rec.source] = calibration
         self.digests[rec.source] = digest
         self._process(item)
         if (
@@ -280,7 +290,12 @@ class _Conveyor:
     def _process(self, item: Prepared) -> None:
         rec = item.recording
         assert rec is not None
-        for res in self.monitor.process(rec, self.digests[rec.source], features=item.features):
+        features = item.features
+        if features is not None and not _same(
+            self.weighed_with.get(rec.source), self.monitor.calibration
+        ):
+            features = None  # computed with another calibration: the monitor computes them
+        for res in self.monitor.process(rec, self.digests[rec.source], features=features):
             if res.file in self.inputs:
                 done = self.inputs[res.file]
                 assert done.recording is not None
@@ -326,6 +341,7 @@ class _Conveyor:
             self.carried[w.recording.source] = (w.recording, w.sha256)
         self.summary.waiting += len(waiting)
         self.inputs = {}
+        self.weighed_with = {}
         self.finished = []
 
     def _again(self) -> None:
@@ -441,6 +457,8 @@ def ingest(
         # a learned calibration is taken up by the very next recording
         inline = scheduler is None and (workers or os.cpu_count() or 1) == 1
         chunk_size = 1 if inline else CHUNK
+        if inline:
+            window = 1
         for cid, items in groups.items():
             prof = profiles[cid]
             sha: dict[str, str] = {}
@@ -465,7 +483,7 @@ def ingest(
             # a window of files in flight rather than all at once: memory stays
             # bounded, and once a calibration is learned the files submitted
             # after it are weighed in the workers with it
-            pending: deque[tuple[list[str], Future[list[Prepared]]]] = deque()
+            pending: deque[tuple[list[str], Calibration | None, Future[list[Prepared]]]] = deque()
             todo = iter(order)
             while True:
                 while len(pending) < window:
@@ -474,17 +492,17 @@ def ingest(
                         break
                     cal = conv.monitor.calibration
                     fut = ex.submit(prepare_many, chunk, prof, column_map, cal)
-                    pending.append((chunk, fut))
+                    pending.append((chunk, cal, fut))
                 if not pending:
                     break
-                chunk, fut = pending.popleft()
+                chunk, cal, fut = pending.popleft()
                 for f, prepared in zip(chunk, fut.result(), strict=True):
                     tick()
                     if prepared.recording is None:
                         summary.refused += 1
                         summary.refusals.append({"file": f, "error": prepared.error or "refused"})
                         continue
-                    conv.take(prepared, sha[f])
+                    conv.take(prepared, sha[f], cal)
             conv.close()
     summary.seconds = (datetime.now(UTC) - started).total_seconds()
     return summary

@@ -104,7 +104,15 @@ def unpack_channels(blob: bytes) -> dict[str, Array]:
         if raw[: len(_FORMAT)] == _FORMAT:
             return _unpack(raw)
         return _unpack_npz(raw)
-    except (zstandard.ZstdError, zlib.error, ValueError, KeyError, OSError) as exc:
+    except (
+        zstandard.ZstdError,
+        zlib.error,
+        struct.error,
+        ValueError,
+        TypeError,
+        KeyError,
+        OSError,
+    ) as exc:
         raise StoreError(
             f"stored samples cannot be unpacked ({exc}); the store is damaged"
         ) from None

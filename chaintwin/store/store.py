@@ -381,14 +381,12 @@ class Store:
                     raise StateConflict(conveyor)  # a waiting recording is gone: start over
                 new: list[Finished | Waiting] = [item for item in items if not item.stored]
                 new += waiting
-                # bulk inserts (one statement each, RETURNING the new ids in
-                # the order given): a group of 64 costs what a few rows cost
-                # through the unit of work
+                # bulk inserts (one executemany each) instead of the unit of work;
+                # the new ids are read back by content hash (unique), which needs
+                # no RETURNING (SQLite before 3.35 has none)
                 if new:
-                    got = s.execute(
-                        insert(RecordingRow).returning(
-                            RecordingRow.sha256, RecordingRow.id, sort_by_parameter_order=True
-                        ),
+                    s.execute(
+                        insert(RecordingRow),
                         [
                             {
                                 "sha256": item.sha256,
@@ -402,7 +400,10 @@ class Store:
                             for item in new
                         ],
                     )
-                    ids.update({str(sha): int(rid) for sha, rid in got})
+                    q = select(RecordingRow.sha256, RecordingRow.id).where(
+                        RecordingRow.sha256.in_([item.sha256 for item in new])
+                    )
+                    ids.update({str(sha): int(rid) for sha, rid in s.execute(q)})
                 if items:
                     s.execute(
                         insert(ResultRow),
@@ -680,13 +681,16 @@ def stored_recording(
 def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
     """WAL journal (readers do not block the writer), a wait for the lock.
 
-    ``synchronous=NORMAL`` is SQLite's advice for WAL: a commit is durable
-    against a crash or kill of the process (what ingest promises); only a
-    power loss may take back the last commits, never half of one.
+    ``synchronous=NORMAL`` is SQLite's advice for WAL (and set only when WAL
+    took effect): a commit is durable against a crash or kill of the process
+    (what ingest promises); only a power loss may take back the last
+    commits, never half of one.
     """
     cur = dbapi_connection.cursor()
     cur.execute("PRAGMA journal_mode=WAL")
-    cur.execute("PRAGMA synchronous=NORMAL")
+    mode = cur.fetchone()
+    if mode is not None and str(mode[0]).lower() == "wal":  # not on every file system
+        cur.execute("PRAGMA synchronous=NORMAL")
     cur.execute("PRAGMA busy_timeout=30000")
     cur.execute("PRAGMA foreign_keys=ON")
     cur.close()

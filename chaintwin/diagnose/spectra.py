@@ -584,10 +584,22 @@ def apparent_order(order: float, speed_rpm: float, sample_time_s: float) -> floa
     >>> round(apparent_order(3.57, 1415.0, 0.006), 4)
     3.4971
     """
+    rot_hz = _rotation_hz(speed_rpm)
+    return fold_frequency(order * rot_hz, sample_time_s) / rot_hz
+
+
+def _rotation_hz(speed_rpm: float) -> float:
+    """Motor revolutions per second, Hz, of a speed in rpm (the sign ignored).
+
+    Raises
+    ------
+    EstimationError
+        When the speed is zero or not finite.
+    """
     rot_hz = abs(float(speed_rpm)) / 60.0
     if not math.isfinite(rot_hz) or rot_hz == 0.0:
         raise EstimationError(f"motor speed {speed_rpm!r} rpm: no apparent order without rotation")
-    return fold_frequency(order * rot_hz, sample_time_s) / rot_hz
+    return rot_hz
 
 
 def apparent_orders(
@@ -616,9 +628,7 @@ def apparent_orders(
     ModelError
         When the sample time is not positive or an order not finite.
     """
-    rot_hz = abs(float(speed_rpm)) / 60.0
-    if not math.isfinite(rot_hz) or rot_hz == 0.0:
-        raise EstimationError(f"motor speed {speed_rpm!r} rpm: no apparent order without rotation")
+    rot_hz = _rotation_hz(speed_rpm)
     ts = float(sample_time_s)
     if not math.isfinite(ts) or ts <= 0.0:
         raise ModelError(f"sample time {sample_time_s!r} s is not positive; cannot fold")

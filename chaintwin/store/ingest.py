@@ -117,6 +117,11 @@ PRELOAD = "chaintwin.store.warm"
 """Module the fork server imports (and so runs) before it forks workers."""
 
 
+def _inline(workers: int | None, scheduler: str | None) -> bool:
+    """Whether the pipeline runs in this process: one local worker (given, or one core)."""
+    return scheduler is None and (workers or os.cpu_count() or 1) == 1
+
+
 @contextmanager
 def executor(workers: int | None, scheduler: str | None) -> Iterator[Executor]:
     """A ``concurrent.futures`` executor: this process, a local process pool, or a Dask cluster.
@@ -135,7 +140,7 @@ def executor(workers: int | None, scheduler: str | None) -> Iterator[Executor]:
     StoreError
         When the scheduler cannot be reached.
     """
-    if scheduler is None and (workers or os.cpu_count() or 1) == 1:
+    if _inline(workers, scheduler):
         yield InlineExecutor()
         return
     if scheduler is None:
@@ -450,15 +455,15 @@ def ingest(
             if progress is not None:
                 progress(done, total)
 
-        window = IN_FLIGHT_PER_WORKER * (workers or os.cpu_count() or 1)
-        if scheduler is not None:
-            window = max(window, DASK_IN_FLIGHT)
-        # one recording per task in this process: nothing to save on messages, and
-        # a learned calibration is taken up by the very next recording
-        inline = scheduler is None and (workers or os.cpu_count() or 1) == 1
-        chunk_size = 1 if inline else CHUNK
-        if inline:
-            window = 1
+        if _inline(workers, scheduler):
+            # one recording at a time in this process: nothing to save on messages,
+            # and a learned calibration is taken up by the very next recording
+            window, chunk_size = 1, 1
+        else:
+            window = IN_FLIGHT_PER_WORKER * (workers or os.cpu_count() or 1)
+            if scheduler is not None:
+                window = max(window, DASK_IN_FLIGHT)
+            chunk_size = CHUNK
         for cid, items in groups.items():
             prof = profiles[cid]
             sha: dict[str, str] = {}

@@ -3,39 +3,85 @@
 Built only on what the frequency inverter records. Data flows one way:
 read → validate → identify/weigh → diagnose → store → report; each stage is
 a subpackage with plain typed inputs and outputs.
+
+The names below are imported on first use (PEP 562), so that importing one
+part (``chaintwin.errors``, the command line's entry point, the worker side of
+an ingest) does not load them all: the simulator, the validation filters and
+what they import cost most of a second. The subpackage ``chaintwin.simulate``
+holds the simulator (``chaintwin.simulate.simulate``, ``run_virtual``, ...).
 """
 
-from chaintwin.errors import (
-    ChaintwinError,
-    ColumnMapError,
-    ConnectorError,
-    DataError,
-    EstimationError,
-    ModelError,
-    NotFittedError,
-    ProfileError,
-    RecordingError,
-    StoreError,
-)
-from chaintwin.model import characteristic_table
-from chaintwin.read import (
-    ColumnMap,
-    ConveyorProfile,
-    Metadata,
-    Recording,
-    RecordingWarning,
-    format_recording,
-    load_column_map,
-    load_profile,
-    load_profiles,
-    parse_recording,
-    read_recording,
-    write_recording,
-)
-from chaintwin.simulate import Fault, PlantParameters, Realism, run_virtual, simulate
-from chaintwin.validate import Inspection, Phase, inspect_recording, load_recording, segment
+import importlib as _importlib
+import typing as _typing
+
+if _typing.TYPE_CHECKING:
+    from chaintwin.errors import (
+        ChaintwinError,
+        ColumnMapError,
+        ConnectorError,
+        DataError,
+        EstimationError,
+        ModelError,
+        NotFittedError,
+        ProfileError,
+        RecordingError,
+        StoreError,
+    )
+    from chaintwin.model import characteristic_table
+    from chaintwin.read import (
+        ColumnMap,
+        ConveyorProfile,
+        Metadata,
+        Recording,
+        RecordingWarning,
+        format_recording,
+        load_column_map,
+        load_profile,
+        load_profiles,
+        parse_recording,
+        read_recording,
+        write_recording,
+    )
+    from chaintwin.simulate import Fault, PlantParameters, Realism, run_virtual
+    from chaintwin.validate import Inspection, Phase, inspect_recording, load_recording, segment
 
 __version__ = "0.1.0"
+
+_LAZY: dict[str, str] = {
+    "ChaintwinError": "chaintwin.errors",
+    "ColumnMap": "chaintwin.read",
+    "ColumnMapError": "chaintwin.errors",
+    "ConnectorError": "chaintwin.errors",
+    "ConveyorProfile": "chaintwin.read",
+    "DataError": "chaintwin.errors",
+    "EstimationError": "chaintwin.errors",
+    "Fault": "chaintwin.simulate",
+    "Inspection": "chaintwin.validate",
+    "Metadata": "chaintwin.read",
+    "ModelError": "chaintwin.errors",
+    "NotFittedError": "chaintwin.errors",
+    "Phase": "chaintwin.validate",
+    "PlantParameters": "chaintwin.simulate",
+    "ProfileError": "chaintwin.errors",
+    "Realism": "chaintwin.simulate",
+    "Recording": "chaintwin.read",
+    "RecordingError": "chaintwin.errors",
+    "RecordingWarning": "chaintwin.read",
+    "StoreError": "chaintwin.errors",
+    "characteristic_table": "chaintwin.model",
+    "format_recording": "chaintwin.read",
+    "inspect_recording": "chaintwin.validate",
+    "load_column_map": "chaintwin.read",
+    "load_profile": "chaintwin.read",
+    "load_profiles": "chaintwin.read",
+    "load_recording": "chaintwin.validate",
+    "parse_recording": "chaintwin.read",
+    "read_recording": "chaintwin.read",
+    "run_virtual": "chaintwin.simulate",
+    "segment": "chaintwin.validate",
+    "write_recording": "chaintwin.read",
+}
+"""Module of each public name."""
 
 __all__ = [
     "ChaintwinError",
@@ -70,6 +116,21 @@ __all__ = [
     "read_recording",
     "run_virtual",
     "segment",
-    "simulate",
     "write_recording",
 ]
+
+
+def __getattr__(name: str) -> _typing.Any:
+    """Import a public name from its module on first use."""
+    try:
+        module = _LAZY[name]
+    except KeyError:
+        raise AttributeError(f"module 'chaintwin' has no attribute {name!r}") from None
+    value = getattr(_importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    """The public names, imported or not, and what the package holds."""
+    return sorted(set(globals()) | set(__all__))

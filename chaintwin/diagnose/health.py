@@ -34,7 +34,6 @@ from datetime import datetime, timedelta
 from typing import Any
 
 import numpy as np
-import statsmodels.api as sm
 
 from chaintwin.read.recording import FloatArray
 
@@ -308,6 +307,10 @@ def forecast_crossing(
     v = v[ok]
     if float(np.ptp(t)) <= 0.0:
         return None
+    # imported here: statsmodels (and pandas) cost about 0.3 s, which every
+    # command that imports the monitor would pay whether it forecasts or not
+    import statsmodels.api as sm
+
     x = sm.add_constant(t)
     fit = sm.OLS(v, x).fit()
     b = float(fit.params[1])

@@ -10,8 +10,8 @@ from conftest import EXAMPLES, REFERENCE_PROFILE
 
 from chaintwin.errors import StoreError
 from chaintwin.read.profile import load_profile
-from chaintwin.store.ingest import prepare
 from chaintwin.store.samples import PackedChannels, pack_channels, unpack_channels
+from chaintwin.store.worker import prepare
 from chaintwin.validate.checks import load_recording
 
 REC = EXAMPLES / "recordings" / "white-belt-01-40kg.csv"

@@ -24,30 +24,28 @@ kill finishes the job.
 
 from __future__ import annotations
 
-import multiprocessing
 import os
 import time
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from itertools import islice
-from typing import Any, NamedTuple
+from typing import Any
 
-from chaintwin.diagnose.features import RecordingFeatures, recording_features
 from chaintwin.diagnose.monitor import ConveyorMonitor, MonitorSettings
-from chaintwin.errors import ChaintwinError, EstimationError, StoreError
+from chaintwin.errors import StoreError
 from chaintwin.identify.calibration import Calibration
 from chaintwin.read.batch import RecordingFile, group_by_conveyor, order_recordings
 from chaintwin.read.columns import ColumnMap
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
-from chaintwin.validate.checks import load_recording
 
-from .samples import PackedChannels
+from . import forkserver
 from .store import Finished, StateConflict, Store, Waiting
+from .worker import Prepared, pin_threads, prepare, prepare_many
 
 __all__ = [
     "COMMIT_GROUP",
@@ -89,12 +87,6 @@ class IngestSummary:
         }
 
 
-def _pin_threads() -> None:
-    """One BLAS thread per worker process (DESIGN.md: small matrices oversubscribe)."""
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
-
-
 class InlineExecutor(Executor):
     """A ``concurrent.futures`` executor that runs each task in this process at once.
 
@@ -111,10 +103,6 @@ class InlineExecutor(Executor):
         except Exception as exc:  # handed to the caller through the future
             fut.set_exception(exc)
         return fut
-
-
-PRELOAD = "chaintwin.store.warm"
-"""Module the fork server imports (and so runs) before it forks workers."""
 
 
 def _inline(workers: int | None, scheduler: str | None) -> bool:
@@ -144,15 +132,10 @@ def executor(workers: int | None, scheduler: str | None) -> Iterator[Executor]:
         yield InlineExecutor()
         return
     if scheduler is None:
-        # workers come from a fork server started afresh, not forked from this
-        # process: a forked worker would inherit the store's open database
-        # connections and, outliving a killed ingest, hold its transaction open
-        ctx = multiprocessing.get_context("forkserver")
-        # the fork server imports the pipeline and runs it once (numba's
-        # compiled code loaded) before it forks: no worker pays for that
-        ctx.set_forkserver_preload([PRELOAD])
+        # forked from the fork server (forkserver.py says why), which may
+        # have been started already by the command (forkserver.start)
         with ProcessPoolExecutor(
-            max_workers=workers, mp_context=ctx, initializer=_pin_threads
+            max_workers=workers, mp_context=forkserver.context(), initializer=pin_threads
         ) as ex:
             yield ex
         return
@@ -168,50 +151,6 @@ def executor(workers: int | None, scheduler: str | None) -> Iterator[Executor]:
         yield client.get_executor()  # type: ignore[no-untyped-call]
     finally:
         client.close()  # type: ignore[no-untyped-call]
-
-
-class Prepared(NamedTuple):
-    """What a worker sends back for one recording."""
-
-    recording: Recording | None
-    features: RecordingFeatures | None
-    error: str | None
-    samples: bytes | None
-    """The packed channels (``recording.channels.blob``), as the store keeps them."""
-
-
-def prepare(
-    path: str,
-    profile: ConveyorProfile,
-    column_map: ColumnMap | None,
-    calibration: Calibration | None,
-) -> Prepared:
-    """Read, validate and (with a calibration) weigh one recording: the parallel part."""
-    try:
-        rec = load_recording(path, profile=profile, column_map=column_map).recording
-    except ChaintwinError as exc:
-        return Prepared(None, None, str(exc), None)
-    # the recording travels back packed (a third of its size), and the same
-    # bytes are what the store keeps
-    channels = PackedChannels.of(rec.channels)
-    rec = replace(rec, channels=channels)
-    samples = channels.blob
-    if calibration is None:
-        return Prepared(rec, None, None, samples)
-    try:
-        return Prepared(rec, recording_features(rec, calibration), None, samples)
-    except EstimationError:
-        return Prepared(rec, None, None, samples)  # the monitor reports it in its own words
-
-
-def prepare_many(
-    paths: Sequence[str],
-    profile: ConveyorProfile,
-    column_map: ColumnMap | None,
-    calibration: Calibration | None,
-) -> list[Prepared]:
-    """:func:`prepare` for several recordings: one task, one round trip to a worker."""
-    return [prepare(p, profile, column_map, calibration) for p in paths]
 
 
 CHUNK = 8

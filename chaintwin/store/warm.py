@@ -1,20 +1,28 @@
 """Warm-up of the fork server that starts ingest's local worker processes.
 
 The fork server imports this module before it forks any worker
-(``multiprocessing``'s preload). Importing it imports the pipeline and reads
-and validates one bundled example recording, so that numba's compiled
-parser is loaded from its cache here, once (about 0.1 s), and every forked
-worker starts with it in memory instead of loading it on its first
-recording.
+(``multiprocessing``'s preload). Importing it
+
+* imports the script that started the ingest, as each worker would
+  otherwise do on its own (:func:`chaintwin.store.forkserver.import_main`);
+* imports the pipeline and reads and validates one bundled example
+  recording, so that numba's compiled parser is loaded from its cache here,
+  once (about 0.1 s), and every forked worker starts with it in memory
+  instead of loading it on its first recording;
+* freezes the garbage collector's view of all that (:func:`gc.freeze`), so
+  that a worker's collections do not write to the pages it shares with the
+  fork server (each page written is copied first).
 """
 
 from __future__ import annotations
 
+import gc
 import warnings
 from importlib import resources
 
 from chaintwin.read.profile import load_profile
-from chaintwin.store.ingest import prepare
+from chaintwin.store.forkserver import import_main
+from chaintwin.store.worker import prepare
 
 __all__ = ["warm_up"]
 
@@ -49,4 +57,10 @@ def warm_up() -> bool:
         return False
 
 
+import_main()
 warm_up()
+# the fork server's objects are the workers' too: frozen, no collection in a
+# worker traverses them, so their pages stay shared instead of being copied
+# (gc.freeze's own advice for processes that fork)
+gc.collect()
+gc.freeze()

@@ -1,0 +1,96 @@
+"""Local workers: the fork server imports the main script once, and the entry point stays small."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from chaintwin.cli import starts_local_workers
+
+SCRIPT = textwrap.dedent(
+    """
+    import os
+    import sys
+    from concurrent.futures import ProcessPoolExecutor
+
+    # one line per import of this script, and by whom
+    with open(sys.argv[1] if __name__ == "__main__" else os.environ["IMPORTS_LOG"], "a") as f:
+        f.write(f"{__name__} {os.getpid()}\\n")
+
+
+    def task(k):
+        import sys
+
+        return os.getpid(), "chaintwin.store.worker" in sys.modules
+
+
+    if __name__ == "__main__":
+        os.environ["IMPORTS_LOG"] = sys.argv[1]
+        from chaintwin.store import forkserver
+
+        with ProcessPoolExecutor(2, mp_context=forkserver.context()) as ex:
+            out = list(ex.map(task, range(8)))
+        print(len({pid for pid, _ in out}), all(warm for _, warm in out))
+    """
+)
+
+
+def test_workers_do_not_import_the_main_script_again(tmp_path: Path) -> None:
+    script = tmp_path / "ingest_script.py"
+    script.write_text(SCRIPT)
+    log = tmp_path / "imports.log"
+    done = subprocess.run(
+        [sys.executable, str(script), str(log)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    )
+    workers, warm = done.stdout.split()
+    lines = log.read_text().splitlines()
+    # the script itself, then the fork server once (as __mp_main__); workers
+    # forked from it have it already and import nothing at start
+    assert [line.split()[0] for line in lines] == ["__main__", "__mp_main__"], lines
+    assert warm == "True"  # the pipeline was preloaded in the fork server
+    assert int(workers) >= 1
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (["ingest", "recs/", "--profiles", "p/"], None),  # one per core
+        (["ingest", "recs/", "--workers", "2"], True),
+        (["ingest", "recs/", "--workers=3"], True),
+        (["ingest", "recs/", "--workers", "1"], False),
+        (["ingest", "recs/", "--workers=1"], False),
+        (["ingest", "recs/", "--scheduler", "tcp://h:8786", "--workers", "4"], False),
+        (["ingest", "recs/", "--scheduler=tcp://h:8786"], False),
+        (["ingest", "--help"], False),
+        (["ingest", "recs/", "--workers", "two"], False),
+        (["report", "--fleet"], False),
+        ([], False),
+    ],
+)
+def test_the_entry_point_reads_whether_an_ingest_starts_local_workers(
+    args: list[str], expected: bool | None, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    for cores in (1, 2):
+        monkeypatch.setattr("os.cpu_count", lambda cores=cores: cores)
+        want = (cores > 1) if expected is None else expected
+        assert starts_local_workers(args) is want
+
+
+def test_the_entry_point_and_the_error_tree_import_nothing_heavy() -> None:
+    code = (
+        "import sys, chaintwin.cli, chaintwin.errors; "
+        "print(sorted(m for m in ('numba', 'scipy', 'sqlalchemy', 'statsmodels', 'typer') "
+        "if m in sys.modules))"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True
+    )
+    assert done.stdout.strip() == "[]"

@@ -2,6 +2,6 @@
 
 import sys
 
-from chaintwin.cli.app import main
+from chaintwin.cli import main
 
 sys.exit(main())

@@ -474,3 +474,124 @@ def test_a_changed_profile_is_refused_and_changes_nothing(
         assert store.profile(PROFILE.id) == before
     finally:
         store.close()
+
+
+def test_json_columns_write_standard_json_and_read_earlier_nan(tmp_path: Path) -> None:
+    """The store's JSON serializer (orjson) writes what json_ready + json.dumps wrote,
+    and values stored before it with NaN (the standard library's extension) still read."""
+    import sqlite3
+
+    from chaintwin.diagnose.state import json_ready
+    from chaintwin.store.store import _from_json, _to_json
+
+    value = {
+        "a": float("nan"),
+        "b": (1.5, float("inf"), -float("inf")),
+        "c": [np.float64(0.1), np.arange(3), {"d": None, "e": "x"}],
+        7: 1e16,
+    }
+    text = _to_json(value)
+    assert "NaN" not in text and "Infinity" not in text
+    expected = json.loads(json.dumps(json_ready({**value, "c": [0.1, [0, 1, 2], value["c"][2]]})))
+    assert _from_json(text) == expected
+    # earlier stores: a health model written with NaN reads as before
+    db = tmp_path / "old.db"
+    store = Store(f"sqlite:///{db}")
+    store.put_profile(PROFILE)
+    store.close()
+    with sqlite3.connect(db) as con:
+        con.execute(
+            "UPDATE conveyors SET profile = ? WHERE id = ?",
+            (json.dumps(PROFILE.model_dump(mode="json") | {"legacy": float("nan")}), PROFILE.id),
+        )
+    from sqlalchemy.orm import Session
+
+    from chaintwin.store.schema import ConveyorRow
+
+    store = Store(f"sqlite:///{db}")
+    try:
+        with Session(store.engine) as s:
+            row = s.get(ConveyorRow, PROFILE.id)
+            assert row is not None
+            assert np.isnan(row.profile["legacy"])
+    finally:
+        store.close()
+
+
+def test_guided_tasks_shrink_towards_the_end() -> None:
+    from chaintwin.store.ingest import _Window
+
+    w = _Window(tasks=6, biggest=8, lanes=2, left=400)
+    sizes = []
+    while w.left:
+        k = w.size()
+        sizes.append(k)
+        w.left -= k
+    assert sum(sizes) == 400
+    assert sizes[0] == 8 and set(sizes[:40]) == {8}  # full tasks while much is left
+    assert sizes[-4:] == [1, 1, 1, 1]  # the last ones one recording each
+    assert sizes == sorted(sizes, reverse=True)
+
+
+def test_a_fleet_ingest_on_workers_equals_each_conveyor_ingested_alone(tmp_path: Path) -> None:
+    """Three conveyors in one batch on two workers (tasks across conveyors, small commit
+    groups, one conveyor learning its calibration) against one conveyor at a time here."""
+    profs = {
+        p.id: p
+        for p in (
+            load_profile(EXAMPLES / "profiles" / f"{name}.yaml")
+            for name in ("white-belt-01", "incline-line-02", "short-fast-03")
+        )
+    }
+    files: dict[str, list[str]] = {}
+    for k, (cid, prof) in enumerate(profs.items()):
+        learning = cid == "short-fast-03"
+        out = generate(
+            prof,
+            tmp_path / "recs" / cid,
+            days=4 if learning else 2,
+            per_day=6,
+            seed=20 + k,
+            calibration=not learning,
+            faults=[Fault("friction", 0.5)] if cid == "incline-line-02" else (),
+            onset_day=1,
+        )
+        files[cid] = sorted(str(f) for f in out.folder.glob("*.csv"))
+    settings = MonitorSettings(baseline_n=6)
+    results: dict[str, list[dict[str, object]]] = {}
+    for kind in ("fleet", "alone"):
+        url = f"sqlite:///{tmp_path / kind}.db"
+        for cid in ("white-belt-01", "incline-line-02"):
+            cal = sorted(str(p) for p in (tmp_path / "recs" / cid / "calibration").glob("*.csv"))
+            prof_file = EXAMPLES / "profiles" / f"{cid}.yaml"
+            assert main(["calibrate", "--profile", str(prof_file), *cal, "--db", url]) == 0
+        store = Store(url)
+        try:
+            if kind == "fleet":
+                batch = [f for cid in sorted(files) for f in files[cid]]
+                s = ingest(batch, profs, store, settings=settings, workers=2, commit_group=5)
+                assert s.processed == len(batch) and s.refused == 0
+            else:
+                for cid, some in files.items():
+                    ingest(some, {cid: profs[cid]}, store, settings=settings, workers=1)
+            results[kind] = store.results()
+        finally:
+            store.close()
+    assert len(results["fleet"]) == sum(len(v) for v in files.values()) == 48
+    by_file = {r["file"]: r for r in results["alone"]}
+    _same_results(results["fleet"], [by_file[str(r["file"])] for r in results["fleet"]])
+    statuses: dict[tuple[object, object], int] = {}
+    for r in results["fleet"]:
+        statuses[r["conveyor"], r["status"]] = statuses.get((r["conveyor"], r["status"]), 0) + 1
+    assert statuses == {
+        ("white-belt-01", "baseline"): 6,
+        ("white-belt-01", "monitored"): 6,
+        ("incline-line-02", "baseline"): 6,
+        ("incline-line-02", "monitored"): 6,
+        ("short-fast-03", "baseline"): 6,
+        ("short-fast-03", "monitored"): 18,
+    }
+    # the one without a stored calibration learned one from its own recordings
+    for r in results["fleet"]:
+        codes = {w["code"] for w in r["warnings"]}  # type: ignore[attr-defined]
+        assert ("payload_uncalibrated" in codes) == (r["conveyor"] == "short-fast-03")

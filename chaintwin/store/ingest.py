@@ -32,7 +32,6 @@ from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
-from itertools import islice
 from typing import Any
 
 from chaintwin.diagnose.monitor import ConveyorMonitor, MonitorSettings
@@ -335,6 +334,107 @@ def _scan(
     return groups, refused
 
 
+@dataclass
+class _Window:
+    """How many recordings go to the workers, and in which pieces."""
+
+    tasks: int
+    """Most tasks in flight."""
+    biggest: int
+    """Most recordings in a task."""
+    lanes: int
+    """Workers that take tasks at once."""
+    left: int
+    """Recordings not yet submitted."""
+
+    def size(self) -> int:
+        """Recordings in the next task: :attr:`biggest`, smaller towards the end.
+
+        The last tasks shrink with what is left (guided self-scheduling) so
+        that the workers finish at about the same time instead of one
+        working through a whole task while the others wait.
+        """
+        return max(1, min(self.biggest, -(-self.left // (2 * self.lanes))))
+
+
+def _run(
+    ex: Executor,
+    plan: Sequence[tuple[ConveyorProfile, list[str]]],
+    sha: dict[str, str],
+    window: _Window,
+    open_conveyor: Callable[[ConveyorProfile], _Conveyor],
+    column_map: ColumnMap | None,
+    summary: IngestSummary,
+    tick: Callable[[], None],
+) -> None:
+    """Send the planned recordings to the workers and monitor what comes back.
+
+    One window of tasks runs across conveyors: the next conveyor's first
+    recordings are sent while the last ones of the one before are still
+    being read, so that the workers do not wait at each conveyor's end.
+    Results are taken in the order sent (each conveyor's in recorded
+    order). Once everything is sent, finished recordings are stored while
+    the workers read the last ones, so that little is left to store after
+    the last result.
+    """
+    pending: deque[tuple[_Conveyor, list[str], Calibration | None, Future[list[Prepared]]]]
+    pending = deque()
+    unread: dict[_Conveyor, int] = {}  # recordings not yet taken
+    todo = iter(plan)
+    conv: _Conveyor | None = None
+    files: list[str] = []
+    at = 0  # next of files to send
+    while True:
+        while len(pending) < window.tasks:
+            if at == len(files):  # the next conveyor
+                step = next(todo, None)
+                if step is None:
+                    break
+                prof, files = step
+                at = 0
+                try:
+                    conv = open_conveyor(prof)
+                except StoreError as exc:  # e.g. monitored with another version of the profile
+                    for f in files:
+                        tick()
+                        summary.refused += 1
+                        summary.refusals.append({"file": f, "error": str(exc)})
+                    window.left -= len(files)
+                    at = len(files)
+                    continue
+                unread[conv] = len(files)
+            assert conv is not None
+            chunk = files[at : at + window.size()]
+            at += len(chunk)
+            window.left -= len(chunk)
+            # a window of files in flight rather than all at once: memory stays
+            # bounded, and once a calibration is learned the files submitted
+            # after it are weighed in the workers with it
+            cal = conv.monitor.calibration
+            fut = ex.submit(prepare_many, chunk, conv.profile, column_map, cal)
+            pending.append((conv, chunk, cal, fut))
+        if not pending:
+            break
+        taker, chunk, cal, fut = pending.popleft()
+        for f, prepared in zip(chunk, fut.result(), strict=True):
+            tick()
+            if prepared.recording is None:
+                summary.refused += 1
+                summary.refusals.append({"file": f, "error": prepared.error or "refused"})
+                continue
+            taker.take(prepared, sha[f], cal)
+        unread[taker] -= len(chunk)
+        if unread[taker] == 0:
+            if not pending and isinstance(ex, ProcessPoolExecutor):
+                # nothing more for the workers: they exit while this stores
+                ex.shutdown(wait=False)
+            taker.close()
+        elif window.left == 0 and len(taker.finished) >= max(
+            window.biggest, sum(len(c) for _, c, _, _ in pending)
+        ):
+            taker.flush()  # while the workers read the last recordings
+
+
 def ingest(
     files: Sequence[str],
     profiles: dict[str, ConveyorProfile],
@@ -397,15 +497,19 @@ def ingest(
         if _inline(workers, scheduler):
             # one recording at a time in this process: nothing to save on messages,
             # and a learned calibration is taken up by the very next recording
-            window, chunk_size = 1, 1
+            window, biggest, lanes = 1, 1, 1
         else:
-            window = IN_FLIGHT_PER_WORKER * (workers or os.cpu_count() or 1)
+            lanes = workers or os.cpu_count() or 1
+            window = IN_FLIGHT_PER_WORKER * lanes
             if scheduler is not None:
                 window = max(window, DASK_IN_FLIGHT)
-            chunk_size = CHUNK
+                lanes = max(lanes, window // IN_FLIGHT_PER_WORKER)
+            biggest = CHUNK
+        # each conveyor's files in recorded order, duplicates left out
+        plan: list[tuple[ConveyorProfile, list[str]]] = []
+        sha: dict[str, str] = {}
         for cid, items in groups.items():
-            prof = profiles[cid]
-            sha: dict[str, str] = {}
+            fresh: list[tuple[str, datetime | None]] = []
             for item in items:
                 if item.sha256 in known:
                     summary.duplicates += 1
@@ -413,40 +517,19 @@ def ingest(
                 else:
                     known.add(item.sha256)  # the same content twice in one batch
                     sha[item.path] = item.sha256
-            order, _missing = order_recordings(
-                [(item.path, item.recorded_at) for item in items if item.path in sha]
-            )
-            try:
-                conv = _Conveyor(store, prof, settings, summary, max(1, commit_group))
-            except StoreError as exc:  # e.g. monitored with another version of the profile
-                for f in order:
-                    tick()
-                    summary.refused += 1
-                    summary.refusals.append({"file": f, "error": str(exc)})
-                continue
-            # a window of files in flight rather than all at once: memory stays
-            # bounded, and once a calibration is learned the files submitted
-            # after it are weighed in the workers with it
-            pending: deque[tuple[list[str], Calibration | None, Future[list[Prepared]]]] = deque()
-            todo = iter(order)
-            while True:
-                while len(pending) < window:
-                    chunk = list(islice(todo, chunk_size))
-                    if not chunk:
-                        break
-                    cal = conv.monitor.calibration
-                    fut = ex.submit(prepare_many, chunk, prof, column_map, cal)
-                    pending.append((chunk, cal, fut))
-                if not pending:
-                    break
-                chunk, cal, fut = pending.popleft()
-                for f, prepared in zip(chunk, fut.result(), strict=True):
-                    tick()
-                    if prepared.recording is None:
-                        summary.refused += 1
-                        summary.refusals.append({"file": f, "error": prepared.error or "refused"})
-                        continue
-                    conv.take(prepared, sha[f], cal)
-            conv.close()
+                    fresh.append((item.path, item.recorded_at))
+            order, _missing = order_recordings(fresh)
+            if order:
+                plan.append((profiles[cid], order))
+        _run(
+            ex,
+            plan,
+            sha,
+            _Window(window, biggest, lanes, sum(len(order) for _, order in plan)),
+            lambda prof: _Conveyor(store, prof, settings, summary, max(1, commit_group)),
+            column_map,
+            summary,
+            tick,
+        )
     summary.seconds = (datetime.now(UTC) - started).total_seconds()
     return summary

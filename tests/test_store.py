@@ -534,8 +534,8 @@ def test_guided_tasks_shrink_towards_the_end() -> None:
 
 
 def test_a_fleet_ingest_on_workers_equals_each_conveyor_ingested_alone(tmp_path: Path) -> None:
-    """Three conveyors in one batch on two workers (tasks across conveyors, small commit
-    groups, one conveyor learning its calibration) against one conveyor at a time here."""
+    """Three conveyors in one shuffled batch on two workers (tasks across conveyors, small
+    commit groups, one conveyor learning its calibration) against one conveyor at a time here."""
     profs = {
         p.id: p
         for p in (
@@ -568,7 +568,9 @@ def test_a_fleet_ingest_on_workers_equals_each_conveyor_ingested_alone(tmp_path:
         store = Store(url)
         try:
             if kind == "fleet":
+                # given out of recorded order: sent so while the scan runs, taken in order
                 batch = [f for cid in sorted(files) for f in files[cid]]
+                np.random.default_rng(3).shuffle(batch)
                 s = ingest(batch, profs, store, settings=settings, workers=2, commit_group=5)
                 assert s.processed == len(batch) and s.refused == 0
             else:
@@ -595,3 +597,16 @@ def test_a_fleet_ingest_on_workers_equals_each_conveyor_ingested_alone(tmp_path:
     for r in results["fleet"]:
         codes = {w["code"] for w in r["warnings"]}  # type: ignore[attr-defined]
         assert ("payload_uncalibrated" in codes) == (r["conveyor"] == "short-fast-03")
+
+
+def test_local_workers_run_with_a_short_thread_switch_interval() -> None:
+    import sys
+
+    from chaintwin.store.ingest import SWITCH_INTERVAL_S, executor
+
+    before = sys.getswitchinterval()
+    with executor(1, None):
+        assert sys.getswitchinterval() == before  # this process alone: nothing to hand over
+    with executor(2, None):
+        assert sys.getswitchinterval() == pytest.approx(SWITCH_INTERVAL_S)  # held in µs
+    assert sys.getswitchinterval() == before

@@ -25,10 +25,11 @@ kill finishes the job.
 from __future__ import annotations
 
 import os
+import sys
 import time
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import Executor, Future, ProcessPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -109,6 +110,29 @@ def _inline(workers: int | None, scheduler: str | None) -> bool:
     return scheduler is None and (workers or os.cpu_count() or 1) == 1
 
 
+SWITCH_INTERVAL_S = 0.0002
+"""The interpreter's thread switch interval while local workers run, s (default 0.005)."""
+
+
+@contextmanager
+def _responsive() -> Iterator[None]:
+    """A shorter thread switch interval for the time of the block.
+
+    The process pool's own threads in this process (one reads the workers'
+    results from a pipe, 64 kB at a time, another hands them their tasks;
+    a Dask client's event loop likewise) need the interpreter lock, which
+    the health model and the store hold while they work: at the default
+    interval (5 ms) a worker can wait that long to hand over each piece of
+    its results or to get its next task.
+    """
+    before = sys.getswitchinterval()
+    sys.setswitchinterval(min(before, SWITCH_INTERVAL_S))
+    try:
+        yield
+    finally:
+        sys.setswitchinterval(before)
+
+
 @contextmanager
 def executor(workers: int | None, scheduler: str | None) -> Iterator[Executor]:
     """A ``concurrent.futures`` executor: this process, a local process pool, or a Dask cluster.
@@ -130,29 +154,30 @@ def executor(workers: int | None, scheduler: str | None) -> Iterator[Executor]:
     if _inline(workers, scheduler):
         yield InlineExecutor()
         return
-    if scheduler is None:
-        # forked from the fork server (forkserver.py says why), which may
-        # have been started already by the command (forkserver.start)
-        with ProcessPoolExecutor(
-            max_workers=workers, mp_context=forkserver.context(), initializer=pin_threads
-        ) as ex:
-            yield ex
-        return
-    from distributed import Client
+    with _responsive():
+        if scheduler is None:
+            # forked from the fork server (forkserver.py says why), which may
+            # have been started already by the command (forkserver.start)
+            with ProcessPoolExecutor(
+                max_workers=workers, mp_context=forkserver.context(), initializer=pin_threads
+            ) as ex:
+                yield ex
+            return
+        from distributed import Client
 
-    try:
-        client = Client(scheduler, timeout="10s")  # type: ignore[no-untyped-call]
-    except (OSError, TimeoutError) as exc:
-        raise StoreError(
-            f"--scheduler {scheduler}: cannot reach the Dask scheduler ({exc})"
-        ) from None
-    try:
-        yield client.get_executor()  # type: ignore[no-untyped-call]
-    finally:
-        client.close()  # type: ignore[no-untyped-call]
+        try:
+            client = Client(scheduler, timeout="10s")  # type: ignore[no-untyped-call]
+        except (OSError, TimeoutError) as exc:
+            raise StoreError(
+                f"--scheduler {scheduler}: cannot reach the Dask scheduler ({exc})"
+            ) from None
+        try:
+            yield client.get_executor()  # type: ignore[no-untyped-call]
+        finally:
+            client.close()  # type: ignore[no-untyped-call]
 
 
-CHUNK = 8
+CHUNK = 16
 """Recordings per task sent to a worker (fewer, larger messages between processes)."""
 
 IN_FLIGHT_PER_WORKER = 3
@@ -312,26 +337,11 @@ class _Conveyor:
         self.summary.new_alarms += len({a["id"] for a in self.monitor.alarms} - self.opened)
 
 
-SCAN_CHUNK = 32
-"""Files per task of the first pass (conveyor, recorded time, content hash)."""
+SCAN_CHUNK = 128
+"""Most files per task of the first pass (conveyor, recorded time, content hash).
 
-
-def _scan(
-    ex: Executor, files: Sequence[str], conveyors: list[str], chunk: int
-) -> tuple[dict[str, list[RecordingFile]], list[tuple[str, str]]]:
-    """:func:`group_by_conveyor` over the executor, chunk by chunk, merged in the order given."""
-    futures = [
-        ex.submit(group_by_conveyor, files[k : k + chunk], conveyors)
-        for k in range(0, len(files), chunk)
-    ]
-    groups: dict[str, list[RecordingFile]] = {}
-    refused: list[tuple[str, str]] = []
-    for fut in futures:
-        part, bad = fut.result()
-        for cid, items in part.items():
-            groups.setdefault(cid, []).extend(items)
-        refused += bad
-    return groups, refused
+Such a task takes about 0.1 ms per file: small tasks would spend as long
+being handed to a worker as being done."""
 
 
 @dataclass
@@ -357,82 +367,178 @@ class _Window:
         return max(1, min(self.biggest, -(-self.left // (2 * self.lanes))))
 
 
-def _run(
-    ex: Executor,
-    plan: Sequence[tuple[ConveyorProfile, list[str]]],
-    sha: dict[str, str],
-    window: _Window,
-    open_conveyor: Callable[[ConveyorProfile], _Conveyor],
-    column_map: ColumnMap | None,
-    summary: IngestSummary,
-    tick: Callable[[], None],
-) -> None:
-    """Send the planned recordings to the workers and monitor what comes back.
+class _Batch:
+    """One ingest's recordings on their way: scanned, sent to the workers, taken in order.
 
-    One window of tasks runs across conveyors: the next conveyor's first
-    recordings are sent while the last ones of the one before are still
-    being read, so that the workers do not wait at each conveyor's end.
-    Results are taken in the order sent (each conveyor's in recorded
-    order). Once everything is sent, finished recordings are stored while
-    the workers read the last ones, so that little is left to store after
-    the last result.
+    The first pass (each file's conveyor, recorded time and content hash,
+    :func:`group_by_conveyor`) runs on the workers in tasks of
+    :data:`SCAN_CHUNK` files. While it runs, the new files it has found go
+    to the workers already, in the order given: they do not wait for the
+    whole batch to be scanned, which only the order of monitoring needs.
+    Once all is scanned, the rest goes in each conveyor's recorded order,
+    and the health models take their recordings in that order as results
+    come back (results that arrive early wait here).
+
+    One window of tasks runs across conveyors, so that the workers do not
+    wait at each conveyor's end; the last tasks shrink (:class:`_Window`);
+    once everything is sent, finished recordings are stored while the
+    workers read the last ones, and the local pool is told to shut down
+    before the last transaction.
     """
-    pending: deque[tuple[_Conveyor, list[str], Calibration | None, Future[list[Prepared]]]]
-    pending = deque()
-    unread: dict[_Conveyor, int] = {}  # recordings not yet taken
-    todo = iter(plan)
-    conv: _Conveyor | None = None
-    files: list[str] = []
-    at = 0  # next of files to send
-    while True:
-        while len(pending) < window.tasks:
-            if at == len(files):  # the next conveyor
-                step = next(todo, None)
-                if step is None:
-                    break
-                prof, files = step
-                at = 0
-                try:
-                    conv = open_conveyor(prof)
-                except StoreError as exc:  # e.g. monitored with another version of the profile
-                    for f in files:
-                        tick()
-                        summary.refused += 1
-                        summary.refusals.append({"file": f, "error": str(exc)})
-                    window.left -= len(files)
-                    at = len(files)
+
+    def __init__(
+        self,
+        ex: Executor,
+        files: Sequence[str],
+        profiles: dict[str, ConveyorProfile],
+        store: Store,
+        window: _Window,
+        open_conveyor: Callable[[ConveyorProfile], _Conveyor],
+        column_map: ColumnMap | None,
+        summary: IngestSummary,
+        tick: Callable[[], None],
+    ) -> None:
+        self.ex = ex
+        self.profiles = profiles
+        self.store = store
+        self.window = window
+        self.open_conveyor = open_conveyor
+        self.column_map = column_map
+        self.summary = summary
+        self.tick = tick
+        conveyors = list(profiles)
+        # at most SCAN_CHUNK files a task, and at least two tasks a worker
+        step = max(16, min(SCAN_CHUNK, -(-len(files) // (2 * window.lanes))))
+        self.scans: deque[Future[tuple[dict[str, list[RecordingFile]], list[tuple[str, str]]]]]
+        self.scans = deque(
+            ex.submit(group_by_conveyor, files[k : k + step], conveyors)
+            for k in range(0, len(files), step)
+        )
+        self.seen: set[str] = set()  # contents of this batch (sha256)
+        self.sha: dict[str, str] = {}  # file -> content hash
+        self.found: dict[str, list[RecordingFile]] = {}  # new files by conveyor, as given
+        self.conveyors: dict[str, _Conveyor | None] = {}  # None: refused by the store
+        self.why: dict[str, str] = {}  # why a conveyor was refused
+        self.unsent: deque[tuple[_Conveyor, str]] = deque()
+        self.pending: deque[
+            tuple[_Conveyor, list[str], Calibration | None, Future[list[Prepared]]]
+        ] = deque()
+        self.ready: dict[str, tuple[Prepared, Calibration | None]] = {}
+        self.untaken: dict[_Conveyor, deque[str]] = {}  # recorded order, once all is scanned
+
+    def run(self) -> None:
+        """Scan, send, take and store everything."""
+        while self.scans:
+            while self.scans and self.scans[0].done():
+                self._scanned(*self.scans.popleft().result())
+            if not self.scans:
+                break
+            self._send()
+            waiting: list[Future[Any]] = [self.scans[0]]
+            if self.pending:
+                waiting.append(self.pending[0][3])
+            wait(waiting, return_when=FIRST_COMPLETED)
+            while self.pending and self.pending[0][3].done():
+                self._receive()
+        self._plan()
+        for conv in list(self.untaken):
+            self._take(conv)  # what arrived while the scan ran
+        while True:
+            self._send()
+            if not self.pending:
+                break
+            conv = self._receive()
+            self._take(conv)
+
+    def _scanned(self, part: dict[str, list[RecordingFile]], bad: list[tuple[str, str]]) -> None:
+        """Take one task's scan: refusals, duplicates, and new files to send."""
+        for f, error in bad:
+            self.tick()
+            self.summary.refused += 1
+            self.summary.refusals.append({"file": f, "error": error})
+        known = self.store.known(item.sha256 for items in part.values() for item in items)
+        for cid, items in part.items():
+            for item in items:
+                if item.sha256 in known or item.sha256 in self.seen:
+                    self.summary.duplicates += 1  # stored, or twice in this batch
+                    self.tick()
                     continue
-                unread[conv] = len(files)
+                self.seen.add(item.sha256)
+                self.sha[item.path] = item.sha256
+                if cid not in self.conveyors:
+                    try:
+                        self.conveyors[cid] = self.open_conveyor(self.profiles[cid])
+                    except StoreError as exc:  # e.g. monitored with another version of the profile
+                        self.conveyors[cid] = None
+                        self.why[cid] = str(exc)
+                conv = self.conveyors[cid]
+                if conv is None:
+                    self.tick()
+                    self.summary.refused += 1
+                    self.summary.refusals.append({"file": item.path, "error": self.why[cid]})
+                    continue
+                self.found.setdefault(cid, []).append(item)
+                self.unsent.append((conv, item.path))
+
+    def _plan(self) -> None:
+        """All is scanned: each conveyor's recorded order; the rest is sent in it."""
+        unsent = {f for _, f in self.unsent}
+        self.unsent = deque()
+        for cid, items in self.found.items():
+            conv = self.conveyors[cid]
             assert conv is not None
-            chunk = files[at : at + window.size()]
-            at += len(chunk)
-            window.left -= len(chunk)
+            order, _missing = order_recordings([(item.path, item.recorded_at) for item in items])
+            self.untaken[conv] = deque(order)
+            self.unsent.extend((conv, f) for f in order if f in unsent)
+        self.window.left = len(self.unsent)
+
+    def _send(self) -> None:
+        """Fill the window: tasks of one conveyor's consecutive files each."""
+        while len(self.pending) < self.window.tasks and self.unsent:
+            conv = self.unsent[0][0]
+            chunk: list[str] = []
+            size = self.window.size()
+            while self.unsent and self.unsent[0][0] is conv and len(chunk) < size:
+                chunk.append(self.unsent.popleft()[1])
+            self.window.left = max(0, self.window.left - len(chunk))
             # a window of files in flight rather than all at once: memory stays
             # bounded, and once a calibration is learned the files submitted
             # after it are weighed in the workers with it
             cal = conv.monitor.calibration
-            fut = ex.submit(prepare_many, chunk, conv.profile, column_map, cal)
-            pending.append((conv, chunk, cal, fut))
-        if not pending:
-            break
-        taker, chunk, cal, fut = pending.popleft()
+            fut = self.ex.submit(prepare_many, chunk, conv.profile, self.column_map, cal)
+            self.pending.append((conv, chunk, cal, fut))
+
+    def _receive(self) -> _Conveyor:
+        """The first task's results (waited for): refusals counted, the rest kept to take."""
+        conv, chunk, cal, fut = self.pending.popleft()
         for f, prepared in zip(chunk, fut.result(), strict=True):
-            tick()
+            self.ready[f] = (prepared, cal)  # a refused one is counted in its turn
+        return conv
+
+    def _take(self, conv: _Conveyor) -> None:
+        """Monitor the conveyor's next recordings in recorded order, as far as they are here."""
+        order = self.untaken.get(conv)
+        if order is None:
+            return  # the scan is still running: nothing is taken before its order is known
+        while order and order[0] in self.ready:
+            f = order.popleft()
+            prepared, cal = self.ready.pop(f)
+            self.tick()
             if prepared.recording is None:
-                summary.refused += 1
-                summary.refusals.append({"file": f, "error": prepared.error or "refused"})
+                self.summary.refused += 1
+                self.summary.refusals.append({"file": f, "error": prepared.error or "refused"})
                 continue
-            taker.take(prepared, sha[f], cal)
-        unread[taker] -= len(chunk)
-        if unread[taker] == 0:
-            if not pending and isinstance(ex, ProcessPoolExecutor):
+            conv.take(prepared, self.sha[f], cal)
+        if not order:
+            del self.untaken[conv]
+            if not self.untaken and isinstance(self.ex, ProcessPoolExecutor):
                 # nothing more for the workers: they exit while this stores
-                ex.shutdown(wait=False)
-            taker.close()
-        elif window.left == 0 and len(taker.finished) >= max(
-            window.biggest, sum(len(c) for _, c, _, _ in pending)
+                self.ex.shutdown(wait=False)
+            conv.close()
+        elif not self.unsent and len(conv.finished) >= max(
+            self.window.biggest, sum(len(c) for _, c, _, _ in self.pending)
         ):
-            taker.flush()  # while the workers read the last recordings
+            conv.flush()  # while the workers read the last recordings
 
 
 def ingest(
@@ -477,59 +583,36 @@ def ingest(
     started = datetime.now(UTC)
     settings = settings or MonitorSettings()
     summary = IngestSummary()
+    total, done = len(files), 0
+
+    def tick() -> None:
+        nonlocal done
+        done += 1
+        if progress is not None:
+            progress(done, total)
+
+    if _inline(workers, scheduler):
+        # one recording at a time in this process: nothing to save on messages,
+        # and a learned calibration is taken up by the very next recording
+        window = _Window(tasks=1, biggest=1, lanes=1, left=total)
+    else:
+        lanes = workers or os.cpu_count() or 1
+        tasks = IN_FLIGHT_PER_WORKER * lanes
+        if scheduler is not None:
+            tasks = max(tasks, DASK_IN_FLIGHT)
+            lanes = max(lanes, tasks // IN_FLIGHT_PER_WORKER)
+        window = _Window(tasks=tasks, biggest=CHUNK, lanes=lanes, left=total)
     with executor(workers, scheduler) as ex:
-        # first pass, on the workers too: each file's conveyor, recorded time and
-        # content hash, so that duplicates are skipped before any work
-        groups, refused = _scan(ex, files, list(profiles), SCAN_CHUNK)
-        for f, error in refused:
-            summary.refused += 1
-            summary.refusals.append({"file": f, "error": error})
-        known = store.known(item.sha256 for items in groups.values() for item in items)
-        total = sum(len(v) for v in groups.values())
-        done = 0
-
-        def tick() -> None:
-            nonlocal done
-            done += 1
-            if progress is not None:
-                progress(done, total)
-
-        if _inline(workers, scheduler):
-            # one recording at a time in this process: nothing to save on messages,
-            # and a learned calibration is taken up by the very next recording
-            window, biggest, lanes = 1, 1, 1
-        else:
-            lanes = workers or os.cpu_count() or 1
-            window = IN_FLIGHT_PER_WORKER * lanes
-            if scheduler is not None:
-                window = max(window, DASK_IN_FLIGHT)
-                lanes = max(lanes, window // IN_FLIGHT_PER_WORKER)
-            biggest = CHUNK
-        # each conveyor's files in recorded order, duplicates left out
-        plan: list[tuple[ConveyorProfile, list[str]]] = []
-        sha: dict[str, str] = {}
-        for cid, items in groups.items():
-            fresh: list[tuple[str, datetime | None]] = []
-            for item in items:
-                if item.sha256 in known:
-                    summary.duplicates += 1
-                    tick()
-                else:
-                    known.add(item.sha256)  # the same content twice in one batch
-                    sha[item.path] = item.sha256
-                    fresh.append((item.path, item.recorded_at))
-            order, _missing = order_recordings(fresh)
-            if order:
-                plan.append((profiles[cid], order))
-        _run(
+        _Batch(
             ex,
-            plan,
-            sha,
-            _Window(window, biggest, lanes, sum(len(order) for _, order in plan)),
+            files,
+            profiles,
+            store,
+            window,
             lambda prof: _Conveyor(store, prof, settings, summary, max(1, commit_group)),
             column_map,
             summary,
             tick,
-        )
+        ).run()
     summary.seconds = (datetime.now(UTC) - started).total_seconds()
     return summary

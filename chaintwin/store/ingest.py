@@ -441,13 +441,12 @@ class _Batch:
             while self.pending and self.pending[0][3].done():
                 self._receive()
         self._plan()
+        self._send()
         for conv in list(self.untaken):
             self._take(conv)  # what arrived while the scan ran
-        while True:
-            self._send()
-            if not self.pending:
-                break
+        while self.pending:
             conv = self._receive()
+            self._send()  # the freed place first: monitoring may store a group now
             self._take(conv)
 
     def _scanned(self, part: dict[str, list[RecordingFile]], bad: list[tuple[str, str]]) -> None:

@@ -120,8 +120,17 @@ __all__ = [
 ]
 
 
+_SUBPACKAGES = frozenset(
+    {"cli", "diagnose", "errors", "identify", "model", "read", "report", "simulate", "store"}
+    | {"units", "validate", "weigh"}
+)
+"""Parts reachable as attributes (``chaintwin.read``) without importing them first."""
+
+
 def __getattr__(name: str) -> _typing.Any:
-    """Import a public name from its module on first use."""
+    """Import a public name, or a part of the package, on first use."""
+    if name in _SUBPACKAGES:
+        return _importlib.import_module(f"chaintwin.{name}")
     try:
         module = _LAZY[name]
     except KeyError:

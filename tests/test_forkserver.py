@@ -13,12 +13,19 @@ from chaintwin.cli import starts_local_workers
 
 SCRIPT = textwrap.dedent(
     """
+    import argparse
     import os
     import sys
     from concurrent.futures import ProcessPoolExecutor
 
+    # arguments read at import (argparse exits without them): the fork server
+    # and the workers see the ingest's own
+    parser = argparse.ArgumentParser()
+    parser.add_argument("log")
+    ARGS = parser.parse_args()
+
     # one line per import of this script, and by whom
-    with open(sys.argv[1] if __name__ == "__main__" else os.environ["IMPORTS_LOG"], "a") as f:
+    with open(ARGS.log, "a") as f:
         f.write(f"{__name__} {os.getpid()}\\n")
 
 
@@ -29,7 +36,6 @@ SCRIPT = textwrap.dedent(
 
 
     if __name__ == "__main__":
-        os.environ["IMPORTS_LOG"] = sys.argv[1]
         from chaintwin.store import forkserver
 
         with ProcessPoolExecutor(2, mp_context=forkserver.context()) as ex:
@@ -59,6 +65,31 @@ def test_workers_do_not_import_the_main_script_again(tmp_path: Path) -> None:
     assert int(workers) >= 1
 
 
+def test_a_main_script_that_fails_in_the_fork_server_changes_nothing(tmp_path: Path) -> None:
+    """import_main keeps the fork server alive when the script raises or exits at import."""
+    import json
+    import os
+
+    from chaintwin.store.forkserver import MAIN_ENV, import_main
+
+    bodies = (
+        "raise SystemExit(2)",
+        "raise RuntimeError('no')",
+        "import argparse\nargparse.ArgumentParser().parse_args(['--nope'])",
+    )
+    for body in bodies:
+        script = tmp_path / "bad_script.py"
+        script.write_text(body + "\n")
+        main, argv = sys.modules["__main__"], list(sys.argv)
+        os.environ[MAIN_ENV] = json.dumps(
+            {"init_main_from_path": str(script), "sys_argv": [str(script), "--x"]}
+        )
+        assert import_main() is False
+        assert MAIN_ENV not in os.environ  # taken, not left for the workers
+        assert sys.modules["__main__"] is main and sys.argv == argv
+        assert "__mp_main__" not in sys.modules
+
+
 @pytest.mark.parametrize(
     ("args", "expected"),
     [
@@ -72,6 +103,8 @@ def test_workers_do_not_import_the_main_script_again(tmp_path: Path) -> None:
         (["ingest", "--help"], False),
         (["ingest", "recs/", "--workers", "two"], False),
         (["report", "--fleet"], False),
+        (["demo"], None),
+        (["demo", "--workers", "1"], False),
         ([], False),
     ],
 )
@@ -82,6 +115,17 @@ def test_the_entry_point_reads_whether_an_ingest_starts_local_workers(
         monkeypatch.setattr("os.cpu_count", lambda cores=cores: cores)
         want = (cores > 1) if expected is None else expected
         assert starts_local_workers(args) is want
+
+
+def test_the_package_s_parts_are_reachable_as_attributes() -> None:
+    code = (
+        "import chaintwin; print(chaintwin.read.load_profile.__name__, "
+        "chaintwin.simulate.simulate.__name__, chaintwin.load_recording.__name__)"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True
+    )
+    assert done.stdout.split() == ["load_profile", "simulate", "load_recording"]
 
 
 def test_the_entry_point_and_the_error_tree_import_nothing_heavy() -> None:

@@ -610,3 +610,28 @@ def test_local_workers_run_with_a_short_thread_switch_interval() -> None:
     with executor(2, None):
         assert sys.getswitchinterval() == pytest.approx(SWITCH_INTERVAL_S)  # held in µs
     assert sys.getswitchinterval() == before
+
+
+def test_a_file_given_twice_is_read_once_and_the_health_model_stores_as_before(
+    plant: Path, tmp_path: Path
+) -> None:
+    from chaintwin.diagnose.state import json_ready
+    from chaintwin.store.store import _to_json
+
+    files = _recordings(plant)[:8]
+    url = f"sqlite:///{tmp_path / 'twice.db'}"
+    _calibrate(plant, url)
+    store = Store(url)
+    settings = MonitorSettings(baseline_n=6)
+    try:
+        s = ingest([files[0], *files, files[3]], {PROFILE.id: PROFILE}, store, settings=settings)
+        assert (s.processed, s.duplicates, s.refused) == (8, 2, 0)
+        assert store.counts()["recordings"] == store.counts()["results"] == 8
+        # the health model as orjson writes it reads back as json_ready + json wrote it
+        mon, _version = store.monitor(PROFILE, settings)
+        assert mon is not None
+        state = mon.to_state()
+        assert json.loads(_to_json(state)) == json.loads(json.dumps(json_ready(state)))
+        assert json.loads(_to_json({"big": 2**70})) == {"big": 2**70}  # beyond orjson
+    finally:
+        store.close()

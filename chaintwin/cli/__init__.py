@@ -10,7 +10,7 @@ __all__ = ["main"]
 
 
 def starts_local_workers(args: Sequence[str]) -> bool:
-    """Whether a command line runs ``ingest`` on local worker processes.
+    """Whether a command line runs an ingest (``ingest``, ``demo``) on local worker processes.
 
     Read off the arguments before the command line is parsed (a guess: a
     wrong one only starts the fork server for nothing, or late). The rule is
@@ -22,7 +22,7 @@ def starts_local_workers(args: Sequence[str]) -> bool:
     args : sequence of str
         Arguments without the program name.
     """
-    if not args or args[0] != "ingest" or "--help" in args:
+    if not args or args[0] not in ("ingest", "demo") or "--help" in args:
         return False
     workers: str | None = None
     for k, arg in enumerate(args):

@@ -17,33 +17,61 @@ running. This module imports nothing of the pipeline itself.
 
 from __future__ import annotations
 
+import json
 import multiprocessing
 import os
+import sys
 from multiprocessing import forkserver, process, spawn
 from multiprocessing.context import ForkServerContext
 from typing import Any
 
-__all__ = ["MAIN_ENV", "PRELOAD", "context", "import_main", "start"]
+__all__ = ["MAIN_ENV", "PRELOAD", "context", "import_main", "pin_threads", "start"]
 
-PRELOAD = ("__main__", "chaintwin.store.warm")
-"""Modules the fork server imports (and so runs) before it forks workers."""
+PRELOAD = ("chaintwin.store.warm",)
+"""Module the fork server imports (and so runs) before it forks workers.
+
+It imports the main script (:func:`import_main`), then warms the pipeline
+up. ``"__main__"`` is not in the list: Python 3.11 to 3.13.7 ignore it (the
+fork server's start-up looks for the key ``main_path`` among preparation
+data that name it ``init_main_from_path``), and the releases that honour it
+let an error of the script stop the fork server, and with it the ingest.
+"""
 
 MAIN_ENV = "CHAINTWIN_FORKSERVER_MAIN"
-"""Environment variable that tells the fork server the main script's path.
+"""Environment variable that hands the fork server the main script, while it starts.
 
 A worker process imports the script that started the ingest (``__main__``:
 the ``chaintwin`` command, or a user's script) before its first task, unless
-its fork server has imported it already. ``"__main__"`` in the preload list
-is meant to do that, but Python 3.11 to 3.13 never pass the script's path to
-the fork server (its start-up looks for the key ``main_path`` among
-preparation data that name it ``init_main_from_path``), so every worker
-imports the script on its own: 0.15 s for a script that imports the store.
-:func:`import_main` does it in the fork server instead, from this variable.
+its fork server has imported it already: 0.15 s a worker for a script that
+imports the store. The variable holds what each worker would be told (JSON:
+the script's path or module name, and ``sys.argv``), so that the fork
+server imports it once, the same way (:func:`import_main`). It is set only
+while the fork server starts, and the fork server removes it.
 """
+
+BLAS_THREADS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def pin_threads() -> None:
+    """One BLAS thread per worker process (DESIGN.md: small matrices oversubscribe).
+
+    Effective in a process that has not loaded numpy yet (the fork server,
+    before its warm-up); a worker initializer calls it too, for Dask's and
+    for workers of a fork server started by someone else.
+    """
+    for var in BLAS_THREADS:
+        os.environ.setdefault(var, "1")
+
+
+def _main() -> dict[str, Any] | None:
+    """How a worker would be told to import the main script (None: nothing to import)."""
+    data = spawn.get_preparation_data("chaintwin")
+    found = {k: data[k] for k in ("init_main_from_path", "init_main_from_name") if k in data}
+    return found | {"sys_argv": list(data.get("sys_argv", []))} if found else None
 
 
 def context() -> ForkServerContext:
-    """The ``forkserver`` context of ingest's local workers, its preload set.
+    """The ``forkserver`` context of ingest's local workers, its fork server running.
 
     Returns
     -------
@@ -52,32 +80,51 @@ def context() -> ForkServerContext:
     ctx = multiprocessing.get_context("forkserver")
     assert isinstance(ctx, ForkServerContext)
     ctx.set_forkserver_preload(list(PRELOAD))
-    # the path exactly as each worker will be told it (and compare it)
-    main_path = spawn.get_preparation_data("chaintwin").get("init_main_from_path")
-    if main_path is not None:
-        os.environ[MAIN_ENV] = str(main_path)
-    else:  # run as a module (python -m ...): workers do not import it again
+    main = _main()
+    before = os.environ.pop(MAIN_ENV, None)
+    if main is not None:
+        os.environ[MAIN_ENV] = json.dumps(main)
+    try:
+        forkserver.ensure_running()  # one per process: a running one is kept
+    finally:
         os.environ.pop(MAIN_ENV, None)
+        if before is not None:
+            os.environ[MAIN_ENV] = before
     return ctx
 
 
 def import_main() -> bool:
-    """In the fork server: import the main script as multiprocessing's workers would.
+    """In the fork server: import the main script as each worker would.
+
+    The script runs as ``__mp_main__`` with the ingest's ``sys.argv``
+    (``multiprocessing.spawn.prepare``, what a worker runs at start). Like
+    any script that starts worker processes, it must keep its work under
+    ``if __name__ == "__main__":``; what its top does (a database
+    connection, a thread) is done once here and inherited by every worker.
 
     Returns
     -------
     bool
         True when a script was imported; False without one, or when its
-        import failed (each worker then imports it, and says why).
+        import failed or exited (each worker then imports it itself, and
+        says why).
     """
-    path = os.environ.get(MAIN_ENV)
-    if not path:
+    raw = os.environ.pop(MAIN_ENV, None)  # not for the workers
+    if not raw:
+        return False
+    try:
+        data = json.loads(raw)
+    except ValueError:
         return False
     proc: Any = process.current_process()
+    main, argv = sys.modules["__main__"], sys.argv
     proc._inheriting = True  # as multiprocessing's own preload of __main__ does
     try:
-        spawn.import_main_path(path)
-    except Exception:  # the workers import it again, with its error
+        spawn.prepare(data)
+    except BaseException:  # a script may raise anything at import, or exit (argparse)
+        sys.modules["__main__"] = main
+        sys.modules.pop("__mp_main__", None)
+        sys.argv = argv
         return False
     finally:
         del proc._inheriting
@@ -91,4 +138,3 @@ def start() -> None:
     first worker started afterwards waits for it to be ready.
     """
     context()
-    forkserver.ensure_running()

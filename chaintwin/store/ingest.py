@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
@@ -44,8 +45,9 @@ from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
 
 from . import forkserver
+from .forkserver import pin_threads
 from .store import Finished, StateConflict, Store, Waiting
-from .worker import Prepared, pin_threads, prepare, prepare_many
+from .worker import Prepared, prepare, prepare_many
 
 __all__ = [
     "COMMIT_GROUP",
@@ -113,6 +115,10 @@ def _inline(workers: int | None, scheduler: str | None) -> bool:
 SWITCH_INTERVAL_S = 0.0002
 """The interpreter's thread switch interval while local workers run, s (default 0.005)."""
 
+_responsive_lock = threading.Lock()
+_responsive_users = 0
+_responsive_before = 0.005
+
 
 @contextmanager
 def _responsive() -> Iterator[None]:
@@ -125,12 +131,19 @@ def _responsive() -> Iterator[None]:
     interval (5 ms) a worker can wait that long to hand over each piece of
     its results or to get its next task.
     """
-    before = sys.getswitchinterval()
-    sys.setswitchinterval(min(before, SWITCH_INTERVAL_S))
+    global _responsive_users, _responsive_before
+    with _responsive_lock:  # ingests may run in threads: the first sets, the last restores
+        if _responsive_users == 0:
+            _responsive_before = sys.getswitchinterval()
+            sys.setswitchinterval(min(_responsive_before, SWITCH_INTERVAL_S))
+        _responsive_users += 1
     try:
         yield
     finally:
-        sys.setswitchinterval(before)
+        with _responsive_lock:
+            _responsive_users -= 1
+            if _responsive_users == 0:
+                sys.setswitchinterval(_responsive_before)
 
 
 @contextmanager
@@ -249,11 +262,12 @@ class _Conveyor:
         self.weighed_with[rec.source] = calibration
         self.digests[rec.source] = digest
         self._process(item)
-        if (
-            len(self.finished) >= self.group
-            or time.monotonic() - self.group_started > COMMIT_EVERY_S
-        ):
+        if len(self.finished) >= self.group or self.stale():
             self.flush()
+
+    def stale(self) -> bool:
+        """Whether the group not yet stored began more than :data:`COMMIT_EVERY_S` ago."""
+        return bool(self.inputs) and time.monotonic() - self.group_started > COMMIT_EVERY_S
 
     def _process(self, item: Prepared) -> None:
         rec = item.recording
@@ -406,6 +420,7 @@ class _Batch:
         self.column_map = column_map
         self.summary = summary
         self.tick = tick
+        self.here = isinstance(ex, InlineExecutor)
         conveyors = list(profiles)
         # at most SCAN_CHUNK files a task, and at least two tasks a worker
         step = max(16, min(SCAN_CHUNK, -(-len(files) // (2 * window.lanes))))
@@ -417,17 +432,26 @@ class _Batch:
         self.seen: set[str] = set()  # contents of this batch (sha256)
         self.sha: dict[str, str] = {}  # file -> content hash
         self.found: dict[str, list[RecordingFile]] = {}  # new files by conveyor, as given
-        self.conveyors: dict[str, _Conveyor | None] = {}  # None: refused by the store
-        self.why: dict[str, str] = {}  # why a conveyor was refused
-        self.unsent: deque[tuple[_Conveyor, str]] = deque()
-        self.pending: deque[
-            tuple[_Conveyor, list[str], Calibration | None, Future[list[Prepared]]]
-        ] = deque()
+        # health models are opened when their first recording is sent and let go
+        # when their last is taken: a fleet's are not all in memory at once
+        self.open: dict[str, _Conveyor] = {}
+        self.why: dict[str, str] = {}  # conveyors the store refused, and why
+        self.unsent: deque[tuple[str, str]] = deque()  # (conveyor, file)
+        self.pending: deque[tuple[str, list[str], Calibration | None, Future[list[Prepared]]]] = (
+            deque()
+        )
         self.ready: dict[str, tuple[Prepared, Calibration | None]] = {}
-        self.untaken: dict[_Conveyor, deque[str]] = {}  # recorded order, once all is scanned
+        self.untaken: dict[str, deque[str]] = {}  # recorded order, once all is scanned
 
     def run(self) -> None:
-        """Scan, send, take and store everything."""
+        """Scan, send, take and store everything.
+
+        Raises
+        ------
+        StoreError
+            When a recording was left neither stored nor counted (a fault of
+            this code, said rather than passed over; ingest again).
+        """
         while self.scans:
             while self.scans and self.scans[0].done():
                 self._scanned(*self.scans.popleft().result())
@@ -441,20 +465,33 @@ class _Batch:
             while self.pending and self.pending[0][3].done():
                 self._receive()
         self._plan()
-        self._send()
-        for conv in list(self.untaken):
-            self._take(conv)  # what arrived while the scan ran
-        while self.pending:
-            conv = self._receive()
-            self._send()  # the freed place first: monitoring may store a group now
-            self._take(conv)
+        if not self.here:
+            self._send()
+        for cid in list(self.untaken):
+            self._take(cid)  # what arrived while the scan ran
+        while True:
+            if self.here:  # one at a time: a calibration learned is used by the next one
+                self._send()
+            if not self.pending:
+                break
+            cid = self._receive()
+            if not self.here:
+                self._send()  # the freed place first: monitoring may store a group now
+            self._take(cid)
+            for conv in self.open.values():
+                if conv.stale():
+                    conv.flush()
+        left = len(self.ready) + sum(len(v) for v in self.untaken.values())
+        if left:
+            raise StoreError(
+                f"ingest: {left} recording(s) were neither stored nor counted (a fault of "
+                "chaintwin; what was stored is whole): ingest the same files again"
+            )
 
     def _scanned(self, part: dict[str, list[RecordingFile]], bad: list[tuple[str, str]]) -> None:
         """Take one task's scan: refusals, duplicates, and new files to send."""
         for f, error in bad:
-            self.tick()
-            self.summary.refused += 1
-            self.summary.refusals.append({"file": f, "error": error})
+            self._refuse(f, error)
         known = self.store.known(item.sha256 for items in part.values() for item in items)
         for cid, items in part.items():
             for item in items:
@@ -464,40 +501,57 @@ class _Batch:
                     continue
                 self.seen.add(item.sha256)
                 self.sha[item.path] = item.sha256
-                if cid not in self.conveyors:
-                    try:
-                        self.conveyors[cid] = self.open_conveyor(self.profiles[cid])
-                    except StoreError as exc:  # e.g. monitored with another version of the profile
-                        self.conveyors[cid] = None
-                        self.why[cid] = str(exc)
-                conv = self.conveyors[cid]
-                if conv is None:
-                    self.tick()
-                    self.summary.refused += 1
-                    self.summary.refusals.append({"file": item.path, "error": self.why[cid]})
+                if cid in self.why:
+                    self._refuse(item.path, self.why[cid])
                     continue
                 self.found.setdefault(cid, []).append(item)
-                self.unsent.append((conv, item.path))
+                self.unsent.append((cid, item.path))
+
+    def _refuse(self, f: str, error: str) -> None:
+        self.tick()
+        self.summary.refused += 1
+        self.summary.refusals.append({"file": f, "error": error})
 
     def _plan(self) -> None:
         """All is scanned: each conveyor's recorded order; the rest is sent in it."""
         unsent = {f for _, f in self.unsent}
         self.unsent = deque()
         for cid, items in self.found.items():
-            conv = self.conveyors[cid]
-            assert conv is not None
             order, _missing = order_recordings([(item.path, item.recorded_at) for item in items])
-            self.untaken[conv] = deque(order)
-            self.unsent.extend((conv, f) for f in order if f in unsent)
+            self.untaken[cid] = deque(order)
+            self.unsent.extend((cid, f) for f in order if f in unsent)
         self.window.left = len(self.unsent)
+
+    def _conveyor(self, cid: str) -> _Conveyor | None:
+        """The conveyor's health model, opened now if need be (None: the store refused it)."""
+        conv = self.open.get(cid)
+        if conv is not None:
+            return conv
+        try:
+            conv = self.open[cid] = self.open_conveyor(self.profiles[cid])
+            return conv
+        except StoreError as exc:  # e.g. monitored with another version of the profile
+            self.why[cid] = str(exc)
+        # nothing of it was sent yet: all its files are refused
+        for _, f in (x for x in self.unsent if x[0] == cid):
+            self._refuse(f, self.why[cid])
+        self.unsent = deque(x for x in self.unsent if x[0] != cid)
+        if self.untaken:  # planned: what is left to send is known
+            self.window.left = len(self.unsent)
+        self.found.pop(cid, None)
+        self.untaken.pop(cid, None)
+        return None
 
     def _send(self) -> None:
         """Fill the window: tasks of one conveyor's consecutive files each."""
         while len(self.pending) < self.window.tasks and self.unsent:
-            conv = self.unsent[0][0]
+            cid = self.unsent[0][0]
+            conv = self._conveyor(cid)
+            if conv is None:
+                continue
             chunk: list[str] = []
             size = self.window.size()
-            while self.unsent and self.unsent[0][0] is conv and len(chunk) < size:
+            while self.unsent and self.unsent[0][0] == cid and len(chunk) < size:
                 chunk.append(self.unsent.popleft()[1])
             self.window.left = max(0, self.window.left - len(chunk))
             # a window of files in flight rather than all at once: memory stays
@@ -505,33 +559,35 @@ class _Batch:
             # after it are weighed in the workers with it
             cal = conv.monitor.calibration
             fut = self.ex.submit(prepare_many, chunk, conv.profile, self.column_map, cal)
-            self.pending.append((conv, chunk, cal, fut))
+            self.pending.append((cid, chunk, cal, fut))
 
-    def _receive(self) -> _Conveyor:
-        """The first task's results (waited for): refusals counted, the rest kept to take."""
-        conv, chunk, cal, fut = self.pending.popleft()
+    def _receive(self) -> str:
+        """The first task's results (waited for), kept to be taken in their turn."""
+        cid, chunk, cal, fut = self.pending.popleft()
         for f, prepared in zip(chunk, fut.result(), strict=True):
             self.ready[f] = (prepared, cal)  # a refused one is counted in its turn
-        return conv
+        return cid
 
-    def _take(self, conv: _Conveyor) -> None:
+    def _take(self, cid: str) -> None:
         """Monitor the conveyor's next recordings in recorded order, as far as they are here."""
-        order = self.untaken.get(conv)
-        if order is None:
-            return  # the scan is still running: nothing is taken before its order is known
+        order = self.untaken.get(cid)
+        conv = self.open.get(cid)
+        if order is None or conv is None:
+            return  # the scan is still running, or nothing of it was sent yet
         while order and order[0] in self.ready:
             f = order.popleft()
             prepared, cal = self.ready.pop(f)
-            self.tick()
             if prepared.recording is None:
-                self.summary.refused += 1
-                self.summary.refusals.append({"file": f, "error": prepared.error or "refused"})
+                self._refuse(f, prepared.error or "refused")
                 continue
+            self.tick()
             conv.take(prepared, self.sha[f], cal)
         if not order:
-            del self.untaken[conv]
+            del self.untaken[cid]
+            del self.open[cid]
             if not self.untaken and isinstance(self.ex, ProcessPoolExecutor):
-                # nothing more for the workers: they exit while this stores
+                # nothing more for the workers: they exit while this stores (the
+                # pool's own shut-down at the end of ingest then waits for nothing)
                 self.ex.shutdown(wait=False)
             conv.close()
         elif not self.unsent and len(conv.finished) >= max(
@@ -601,10 +657,15 @@ def ingest(
             tasks = max(tasks, DASK_IN_FLIGHT)
             lanes = max(lanes, tasks // IN_FLIGHT_PER_WORKER)
         window = _Window(tasks=tasks, biggest=CHUNK, lanes=lanes, left=total)
+    # a file given twice is read once (its content could change in between)
+    unique = list(dict.fromkeys(files))
+    for _ in range(len(files) - len(unique)):
+        summary.duplicates += 1
+        tick()
     with executor(workers, scheduler) as ex:
         _Batch(
             ex,
-            files,
+            unique,
             profiles,
             store,
             window,

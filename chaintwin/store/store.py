@@ -125,7 +125,12 @@ def _to_json(value: Any) -> str:
     it writes non-finite floats as null (standard JSON); numpy numbers and
     arrays are written as numbers and lists, other keys than strings as strings.
     """
-    return orjson.dumps(value, option=orjson.OPT_NON_STR_KEYS | orjson.OPT_SERIALIZE_NUMPY).decode()
+    try:
+        return orjson.dumps(
+            value, option=orjson.OPT_NON_STR_KEYS | orjson.OPT_SERIALIZE_NUMPY
+        ).decode()
+    except orjson.JSONEncodeError:  # what orjson does not take (an int over 64 bits, ...)
+        return json.dumps(json_ready(value), allow_nan=False)
 
 
 def _from_json(text: str | bytes) -> Any:

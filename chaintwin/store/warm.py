@@ -20,9 +20,12 @@ import gc
 import warnings
 from importlib import resources
 
-from chaintwin.read.profile import load_profile
-from chaintwin.store.forkserver import import_main
-from chaintwin.store.worker import prepare
+from chaintwin.store.forkserver import import_main, pin_threads
+
+pin_threads()  # before numpy is loaded here: the workers inherit its BLAS
+
+from chaintwin.read.profile import load_profile  # noqa: E402
+from chaintwin.store.worker import prepare  # noqa: E402
 
 __all__ = ["warm_up"]
 

@@ -10,7 +10,6 @@ same module.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
 from dataclasses import replace
 from typing import NamedTuple
@@ -25,13 +24,7 @@ from chaintwin.validate.checks import load_recording
 
 from .samples import PackedChannels
 
-__all__ = ["Prepared", "pin_threads", "prepare", "prepare_many"]
-
-
-def pin_threads() -> None:
-    """One BLAS thread per worker process (DESIGN.md: small matrices oversubscribe)."""
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
+__all__ = ["Prepared", "prepare", "prepare_many"]
 
 
 class Prepared(NamedTuple):

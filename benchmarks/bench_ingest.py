@@ -25,7 +25,12 @@ of the time per recording to the reference row measured in the same run):
    with the features computed beforehand + ``Store.commit_recordings``);
 6. what a user waits for: ``chaintwin ingest <files> --workers N`` as a new
    process (interpreter start, imports, opening the store, for 2 workers the
-   fork server's start; ``CLI_ROUNDS`` rounds, best kept).
+   fork server's start; ``CLI_ROUNDS`` rounds, best kept);
+7. for comparison, the workers' part alone as a bare map over the same
+   executor (scan, then read + validate + weigh + features, results sent
+   back and dropped; no monitoring, no store): with 1 and 2 workers in the
+   same rounds. It pays the same worker start-up, exchange and two processes
+   side by side as row 3, over less work, while this process waits idle.
 
 Then the issue's targets: 2 workers at least 1.8x the throughput of 1 worker,
 and 200 recordings per second per core (5 ms per recording end to end). The
@@ -67,10 +72,20 @@ from pathlib import Path  # noqa: E402
 
 from chaintwin.diagnose.monitor import ConveyorMonitor, MonitorSettings  # noqa: E402
 from chaintwin.identify.calibration import calibrate  # noqa: E402
+from chaintwin.read.batch import group_by_conveyor  # noqa: E402
 from chaintwin.read.profile import load_profile  # noqa: E402
 from chaintwin.simulate.faults import Fault  # noqa: E402
 from chaintwin.simulate.fleet import generate  # noqa: E402
-from chaintwin.store.ingest import COMMIT_GROUP, IngestSummary, ingest, prepare  # noqa: E402
+from chaintwin.store.ingest import (  # noqa: E402
+    CHUNK,
+    COMMIT_GROUP,
+    SCAN_CHUNK,
+    IngestSummary,
+    executor,
+    ingest,
+    prepare,
+    prepare_many,
+)
 from chaintwin.store.store import Finished, Store  # noqa: E402
 from chaintwin.validate.checks import load_recording  # noqa: E402
 
@@ -169,7 +184,28 @@ def main() -> None:
         sizes: list[int] = []
         checks: list[str] = []
         cpu0, wall0 = time.process_time(), time.perf_counter()
+
+        def bare(workers: int) -> float:
+            """The workers' part alone: scan, then read + validate + weigh + features of
+            every file sent back and dropped; no monitoring, no store (seconds)."""
+            t0 = time.perf_counter()
+            with executor(workers, None) as ex:
+                scans = [
+                    ex.submit(group_by_conveyor, files[k : k + SCAN_CHUNK], [prof.id])
+                    for k in range(0, n, SCAN_CHUNK)
+                ]
+                tasks = [
+                    ex.submit(prepare_many, files[k : k + CHUNK], prof, None, cal)
+                    for k in range(0, n, CHUNK)
+                ]
+                for fut in (*scans, *tasks):
+                    fut.result()
+            return time.perf_counter() - t0
+
+        t_bare: dict[int, list[float]] = {w: [] for w in WORKERS}
         for _rnd in range(ROUNDS):
+            for w in WORKERS:
+                t_bare[w].append(bare(w))
             times = []
             for p in files:
                 t0 = time.perf_counter()
@@ -321,6 +357,17 @@ def main() -> None:
             )
         )
 
+    bare_best = {w: min(v) for w, v in t_bare.items()}
+    for k, w in enumerate(WORKERS):
+        rows.append(
+            (
+                f"{7 if k == 0 else '  7a'}. workers' part alone, bare map, {w} worker"
+                + "s" * (w > 1),
+                n,
+                bare_best[w],
+                bare_best[w] / n,
+            )
+        )
     print(
         f"chaintwin ingest pipeline, {prof.id}: {n} recordings ({DAYS} days x {PER_DAY}), "
         f"{size_kb:.0f} kB per file, into a fresh SQLite store each time"
@@ -365,6 +412,13 @@ def main() -> None:
         f"against best: {rate[2] / rate[1]:.2f}x, {rate[2]:.1f} / {rate[1]:.1f} rec/s); "
         f"target at least {TARGET_SCALING}x: {'MET' if scaling >= TARGET_SCALING else 'NOT MET'}"
         f" (without start-up, best against best, estimate: {steady[2] / steady[1]:.2f}x)"
+    )
+    bare_paired = sorted(a / b for a, b in zip(t_bare[1], t_bare[2], strict=True))
+    print(
+        f"  for comparison, the workers' part alone (row 7: no monitoring, no store), 2 "
+        f"workers / 1 in the same rounds: median {statistics.median(bare_paired):.2f}x "
+        f"(rounds: {', '.join(f'{r:.2f}' for r in bare_paired)}): the same worker start-up, "
+        "exchange and two processes side by side, over less work and with this process idle"
     )
     inner = {w: min(v) for w, v in t_cli_inner.items()}
     print(

@@ -31,8 +31,8 @@ _WORKERS_HELP = "Local worker processes (default: one per core)."
 _JSON_HELP = "Print one JSON summary object."
 _BASELINE_HELP = "Recordings in a baseline (new conveyors) [20]."
 _GROUP_HELP = (
-    "Most recordings stored in one transaction [64]; a kill loses at most the group being "
-    "written (ingest again to finish it)."
+    "Most recordings stored in one transaction [64]; a kill loses at most the groups not yet "
+    "written, one per conveyor being worked on (ingest again to finish them)."
 )
 
 EXPORT_COLUMNS: tuple[str, ...] = (

@@ -385,7 +385,7 @@ class _Batch:
     """One ingest's recordings on their way: scanned, sent to the workers, taken in order.
 
     The first pass (each file's conveyor, recorded time and content hash,
-    :func:`group_by_conveyor`) runs on the workers in tasks of
+    :func:`group_by_conveyor`) runs on the workers in tasks of up to
     :data:`SCAN_CHUNK` files. While it runs, the new files it has found go
     to the workers already, in the order given: they do not wait for the
     whole batch to be scanned, which only the order of monitoring needs.

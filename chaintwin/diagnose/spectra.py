@@ -48,8 +48,12 @@ from scipy.integrate import cumulative_trapezoid
 from scipy.signal import ShortTimeFFT, get_window
 from scipy.signal.windows import hann
 
-from chaintwin.errors import EstimationError, ModelError, RecordingError
-from chaintwin.model.frequencies import characteristic_orders, fold_frequency
+from chaintwin.errors import EstimationError, RecordingError
+from chaintwin.model.frequencies import (
+    characteristic_orders,
+    fold_frequencies,
+    fold_frequency,
+)
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import FloatArray, Recording
 from chaintwin.units import RPM_TO_RAD_S
@@ -629,15 +633,7 @@ def apparent_orders(
         When the sample time is not positive or an order not finite.
     """
     rot_hz = _rotation_hz(speed_rpm)
-    ts = float(sample_time_s)
-    if not math.isfinite(ts) or ts <= 0.0:
-        raise ModelError(f"sample time {sample_time_s!r} s is not positive; cannot fold")
-    f = np.abs(np.asarray(orders, dtype=np.float64) * rot_hz)
-    if not np.isfinite(f).all():
-        raise ModelError("an order is not finite; cannot fold it")
-    cycles = np.fmod(f * ts, 1.0)
-    folded = np.where(cycles > 0.5, 1.0 - cycles, cycles) / ts
-    return np.where(f <= 0.5 / ts, f, folded) / rot_hz
+    return fold_frequencies(np.asarray(orders, dtype=np.float64) * rot_hz, sample_time_s) / rot_hz
 
 
 def line_orders(profile: ConveyorProfile) -> dict[str, float]:

@@ -68,6 +68,9 @@ import math
 from dataclasses import dataclass
 from typing import Literal
 
+import numpy as np
+import numpy.typing as npt
+
 from chaintwin.errors import ModelError
 from chaintwin.read.profile import ConveyorProfile
 
@@ -77,6 +80,7 @@ __all__ = [
     "characteristic_lines",
     "characteristic_orders",
     "characteristic_table",
+    "fold_frequencies",
     "fold_frequency",
 ]
 
@@ -131,13 +135,37 @@ def fold_frequency(f_hz: float, sample_time_s: float) -> float:
     f = abs(float(f_hz))
     if not math.isfinite(f):
         raise ModelError(f"frequency {f_hz!r} Hz is not finite; cannot fold it")
-    if f <= 0.5 / ts:
-        return f
-    # Work in cycles per sample so that the result is exactly within [0, 0.5]/Ts.
-    cycles = math.fmod(f * ts, 1.0)
-    if cycles > 0.5:
-        cycles = 1.0 - cycles
-    return cycles / ts
+    return float(fold_frequencies(f, ts))
+
+
+def fold_frequencies(f_hz: npt.ArrayLike, sample_time_s: float) -> npt.NDArray[np.float64]:
+    """:func:`fold_frequency` of many frequencies at once (the same arithmetic).
+
+    Parameters
+    ----------
+    f_hz : array_like
+        True frequencies, Hz (the sign is ignored).
+    sample_time_s : float
+        The scope's sample time Ts, s.
+
+    Returns
+    -------
+    ndarray
+        The apparent frequencies, Hz, each in ``[0, 0.5/Ts]``.
+
+    Raises
+    ------
+    ModelError
+        When a frequency is not finite or the sample time is not positive.
+    """
+    ts = _check_sample_time(sample_time_s)
+    f = np.abs(np.asarray(f_hz, dtype=np.float64))
+    if not np.isfinite(f).all():
+        raise ModelError("a frequency is not finite; cannot fold it")
+    # in cycles per sample, so that the result is exactly within [0, 0.5]/Ts
+    cycles = np.fmod(f * ts, 1.0)
+    folded = np.where(cycles > 0.5, 1.0 - cycles, cycles) / ts
+    return np.where(f <= 0.5 / ts, f, folded)
 
 
 @dataclass(frozen=True, slots=True)

@@ -454,7 +454,7 @@ class Store:
                                 "alarm": item.result.alarm,
                                 "payload_kg": item.result.payload_kg,
                                 "tlf": item.result.tlf,
-                                "content": json_ready(item.result.to_dict()),
+                                "content": item.result.to_dict(),  # null for NaN: _to_json
                             }
                             for item in items
                         ],

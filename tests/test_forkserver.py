@@ -138,3 +138,32 @@ def test_the_entry_point_and_the_error_tree_import_nothing_heavy() -> None:
         [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True
     )
     assert done.stdout.strip() == "[]"
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="pipe sizes are Linux's")
+def test_the_ingest_pool_s_results_pipe_holds_a_whole_task_s_results(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import fcntl
+    import os
+
+    from chaintwin.store import forkserver
+    from chaintwin.store.ingest import executor
+
+    def pipe_size(ex: object) -> int:
+        reader = ex._result_queue._reader  # type: ignore[attr-defined]
+        size: int = fcntl.fcntl(reader.fileno(), fcntl.F_GETPIPE_SZ)
+        return size
+
+    r, w = os.pipe()
+    default = fcntl.fcntl(r, fcntl.F_GETPIPE_SZ)
+    os.close(r)
+    os.close(w)
+    limit = int(Path("/proc/sys/fs/pipe-max-size").read_text())
+    wanted = max(default, min(forkserver.RESULT_PIPE_BYTES, limit))
+    with executor(2, None) as ex:  # the pool an ingest uses
+        assert pipe_size(ex) >= wanted
+        assert ex.submit(divmod, 7, 2).result() == (3, 1)  # and it works
+    monkeypatch.setattr(forkserver, "RESULT_PIPE_BYTES", 0)  # 0: left as the system makes it
+    with executor(2, None) as ex:
+        assert pipe_size(ex) == default

@@ -45,7 +45,6 @@ from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
 
 from . import forkserver
-from .forkserver import pin_threads
 from .store import Finished, StateConflict, Store, Waiting
 from .worker import Prepared, prepare, prepare_many
 
@@ -125,7 +124,7 @@ def _responsive() -> Iterator[None]:
     """A shorter thread switch interval for the time of the block.
 
     The process pool's own threads in this process (one reads the workers'
-    results from a pipe, 64 kB at a time, another hands them their tasks;
+    results from a pipe, another hands them their tasks;
     a Dask client's event loop likewise) need the interpreter lock, which
     the health model and the store hold while they work: at the default
     interval (5 ms) a worker can wait that long to hand over each piece of
@@ -171,9 +170,7 @@ def executor(workers: int | None, scheduler: str | None) -> Iterator[Executor]:
         if scheduler is None:
             # forked from the fork server (forkserver.py says why), which may
             # have been started already by the command (forkserver.start)
-            with ProcessPoolExecutor(
-                max_workers=workers, mp_context=forkserver.context(), initializer=pin_threads
-            ) as ex:
+            with forkserver.pool(workers) as ex:
                 yield ex
             return
         from distributed import Client

@@ -167,3 +167,15 @@ def test_the_ingest_pool_s_results_pipe_holds_a_whole_task_s_results(
     monkeypatch.setattr(forkserver, "RESULT_PIPE_BYTES", 0)  # 0: left as the system makes it
     with executor(2, None) as ex:
         assert pipe_size(ex) == default
+
+
+def test_the_fork_server_s_warm_up_runs_a_worker_s_whole_part() -> None:
+    # in a new interpreter: importing the warm-up freezes the garbage collector
+    done = subprocess.run(
+        [sys.executable, "-c", "import chaintwin.store.warm as w; print(w.warm_up())"],
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=300,
+    )
+    assert done.stdout.split() == ["True"]  # calibrated, and features computed

@@ -68,7 +68,7 @@ from chaintwin.validate.phases import segment
 from chaintwin.weigh.weigh import WeighResult, weigh
 
 from .residuals import belt_position_m, model_torque, position_profile, residual_analysis
-from .spectra import Spectrum, apparent_order, band_amplitudes, welch_spectrum
+from .spectra import Spectrum, apparent_orders, band_amplitudes, welch_spectrum
 
 __all__ = [
     "COMB_HARMONICS",
@@ -226,11 +226,12 @@ def _line_centres(
     """
     speed_hz = spec.speed_rpm / 60.0
     guard = GUARD_BINS * spec.resolution
-    others = [apparent_order(o, spec.speed_rpm, ts) * speed_hz for o in avoid]
+    if not orders:
+        return []
+    others = (apparent_orders(list(avoid), spec.speed_rpm, ts) * speed_hz).tolist()
     top = float(spec.x[-1])
     out: list[float] = []
-    for o in orders:
-        x = apparent_order(o, spec.speed_rpm, ts) * speed_hz
+    for x in (apparent_orders(orders, spec.speed_rpm, ts) * speed_hz).tolist():
         if any(abs(x - y) <= guard for y in others):
             continue
         if LOW_FREQUENCY_HZ < x < top:

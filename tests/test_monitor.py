@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import pickle
 from datetime import UTC, datetime, timedelta, timezone
 from pathlib import Path
 
@@ -12,6 +13,7 @@ from conftest import REFERENCE_PROFILE
 
 from chaintwin.cli.app import EXIT_ALARM, main
 from chaintwin.cli.monitor_cmd import order_recordings
+from chaintwin.diagnose.features import recording_features
 from chaintwin.diagnose.health import fit_baseline, forecast_crossing, x_of_y
 from chaintwin.diagnose.monitor import (
     ConveyorMonitor,
@@ -27,6 +29,7 @@ from chaintwin.read.writer import write_recording
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate
 from chaintwin.simulate.virtual import run_virtual
+from chaintwin.store.worker import prepare
 from chaintwin.validate.checks import load_recording
 
 PROFILE = load_profile(REFERENCE_PROFILE)
@@ -441,3 +444,15 @@ def test_maintenance_in_the_state_closes_alarms_at_once(
         acknowledge_alarm(data, alarms[0]["id"], "me", "late")
     with pytest.raises(StoreError, match="kind"):
         add_maintenance(data, PROFILE.id, "magic", "me", "")
+
+
+def test_a_worker_s_features_equal_those_made_from_the_file_alone(
+    series: dict[str, Path], cal: Calibration
+) -> None:
+    # the worker hands validation's segmentation on and sends the samples
+    # packed; the features must be those of the recording read on its own
+    for f in _files(series["friction"])[-3:]:
+        item = prepare(str(f), PROFILE, None, cal)
+        assert item.features is not None and item.recording is not None
+        alone = recording_features(load_recording(f, profile=PROFILE).recording, cal)
+        assert pickle.dumps(item.features) == pickle.dumps(alone)

@@ -64,7 +64,7 @@ from chaintwin.identify.signatures import fit_condition
 from chaintwin.identify.windows import WindowIntegrals, motoring_mask, window_integrals
 from chaintwin.model.frequencies import characteristic_orders
 from chaintwin.read.recording import FloatArray, Recording, RecordingWarning
-from chaintwin.validate.phases import segment
+from chaintwin.validate.phases import Phase, segment
 from chaintwin.weigh.weigh import WeighResult, weigh
 
 from .residuals import belt_position_m, model_torque, position_profile, residual_analysis
@@ -301,7 +301,12 @@ def _bump(
     return seen.astype(np.float64), sums[seen] / counts[seen]
 
 
-def recording_features(recording: Recording, calibration: Calibration) -> RecordingFeatures:
+def recording_features(
+    recording: Recording,
+    calibration: Calibration,
+    *,
+    phases: Sequence[Phase] | None = None,
+) -> RecordingFeatures:
     """Weigh a recording and extract its condition features.
 
     Parameters
@@ -310,6 +315,10 @@ def recording_features(recording: Recording, calibration: Calibration) -> Record
         A validated recording of the calibrated conveyor.
     calibration : Calibration
         The conveyor's calibration (from a file or learned).
+    phases : sequence of Phase, optional
+        The recording's segmentation when at hand (validation made it:
+        :attr:`~chaintwin.validate.checks.Inspection.phases`); made here
+        otherwise, the same.
 
     Returns
     -------
@@ -330,7 +339,7 @@ def recording_features(recording: Recording, calibration: Calibration) -> Record
     )
     # the window integrals serve weighing and the condition fit alike; when
     # there are none, weighing refuses the recording in its own words
-    phases = segment(recording)
+    phases = segment(recording) if phases is None else list(phases)
     every: WindowIntegrals | None
     try:
         every = window_integrals(recording, prof, motoring=mot, phases=phases)

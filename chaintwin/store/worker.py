@@ -62,9 +62,10 @@ def prepare(
         The recording (its channels packed), its features, or why it was refused.
     """
     try:
-        rec = load_recording(path, profile=profile, column_map=column_map).recording
+        inspection = load_recording(path, profile=profile, column_map=column_map)
     except ChaintwinError as exc:
         return Prepared(None, None, str(exc), None)
+    rec = inspection.recording
     # the recording travels back packed (a third of its size), and the same
     # bytes are what the store keeps
     channels = PackedChannels.of(rec.channels)
@@ -73,7 +74,8 @@ def prepare(
     if calibration is None:
         return Prepared(rec, None, None, samples)
     try:
-        return Prepared(rec, recording_features(rec, calibration), None, samples)
+        features = recording_features(rec, calibration, phases=inspection.phases)
+        return Prepared(rec, features, None, samples)
     except EstimationError:
         return Prepared(rec, None, None, samples)  # the monitor reports it in its own words
 

@@ -139,25 +139,17 @@ def main() -> None:
         folder = tmp / "recordings"
         # ------------------------------------------------------------ setup
         t0 = time.perf_counter()
-        generate(
-            prof,
-            folder,
-            days=DAYS,
-            per_day=PER_DAY,
-            faults=[Fault("friction", 0.3)],
-            onset_day=ONSET_DAY,
-            seed=SEED,
-        )
         long_folder = tmp / "long"
-        generate(
-            prof,
-            long_folder,
-            days=LONG_DAYS,
-            per_day=PER_DAY,
-            faults=[Fault("friction", 0.3)],
-            onset_day=ONSET_DAY,
-            seed=SEED + 1,
-        )
+        for where, days, seed in ((folder, DAYS, SEED), (long_folder, LONG_DAYS, SEED + 1)):
+            generate(
+                prof,
+                where,
+                days=days,
+                per_day=PER_DAY,
+                faults=[Fault("friction", 0.3)],
+                onset_day=ONSET_DAY,
+                seed=seed,
+            )
         long_files = [str(p) for p in sorted(long_folder.glob("*.csv"))]
         n_long = len(long_files)
         t_gen = time.perf_counter() - t0

@@ -185,14 +185,14 @@ def _widen_results(ex: ProcessPoolExecutor) -> int | None:
     if setsize is None or getsize is None or reader is None or RESULT_PIPE_BYTES <= 0:
         return None
     try:
-        limit = int(Path("/proc/sys/fs/pipe-max-size").read_text())
+        wanted = min(RESULT_PIPE_BYTES, int(Path("/proc/sys/fs/pipe-max-size").read_text()))
     except (OSError, ValueError):
-        limit = RESULT_PIPE_BYTES
+        wanted = RESULT_PIPE_BYTES
     try:
         fd = reader.fileno()
         size: int = fcntl.fcntl(fd, getsize)
-        if size < min(RESULT_PIPE_BYTES, limit):  # only ever grown
-            size = fcntl.fcntl(fd, setsize, min(RESULT_PIPE_BYTES, limit))
+        if size < wanted:  # only ever grown
+            size = fcntl.fcntl(fd, setsize, wanted)
     except (OSError, AttributeError):  # over a per-user limit of pipe memory, or no pipe
         return None
     return size

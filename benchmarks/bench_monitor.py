@@ -112,7 +112,8 @@ def main() -> None:
         n = len(files)
         shas = [hashlib.sha256(p.read_bytes()).hexdigest() for p in files]
         size_kb = statistics.median(p.stat().st_size for p in files) / 1e3
-        recs = [load_recording(p, profile=prof).recording for p in files]
+        inspections = [load_recording(p, profile=prof) for p in files]
+        recs = [ins.recording for ins in inspections]
         samples = statistics.median(r.samples for r in recs)
 
         # ------------------------------------------------------------ warm-up
@@ -126,9 +127,9 @@ def main() -> None:
         warm_learned = ConveyorMonitor(prof, MonitorSettings(baseline_n=5))
         for p in files[:6]:
             warm_learned.process(load_recording(p, profile=prof).recording)
-        for r in recs[:3]:
-            weigh(r, cal)
-            recording_features(r, cal)
+        for ins in inspections[:3]:
+            weigh(ins, cal)
+            recording_features(ins, cal)
         t_warm = time.perf_counter() - t_warm0
 
         # ------------------------------------------------------------ rounds
@@ -161,15 +162,15 @@ def main() -> None:
             counts: list[int] = []
             results = []
             alarms = 0
-            for p, rec, sha in zip(files, recs, shas, strict=True):
+            for p, ins, sha in zip(files, inspections, shas, strict=True):
                 t0 = clock()
                 load_recording(p, profile=prof)  # 1: reference
                 t1.append(clock() - t0)
                 t0 = clock()
-                weigh(rec, cal)  # 2
+                weigh(ins, cal)  # 2
                 t2.append(clock() - t0)
                 t0 = clock()
-                recording_features(rec, cal)  # 3
+                recording_features(ins, cal)  # 3
                 t3.append(clock() - t0)
                 t0 = clock()
                 res = mon.process(load_recording(p, profile=prof).recording, sha)  # 4
@@ -250,8 +251,8 @@ def main() -> None:
             rows.append((label + " (none)", 0, float("nan"), None, None))
 
     series("1. read + validate: load_recording [reference]", t_load)
-    series("2. weigh(rec, cal), pre-loaded", t_weigh)
-    series("3. recording_features(rec, cal), pre-loaded", t_feat)
+    series("2. weigh(inspection, cal), pre-loaded", t_weigh)
+    series("3. recording_features(inspection, cal), pre-loaded", t_feat)
     series("4. whole step, calibration from file", t_step)
     series("   4a. baseline phase (status baseline)", by_status.get("baseline", []))
     series("   4b. monitored phase (status monitored)", by_status.get("monitored", []))

@@ -31,7 +31,7 @@ from chaintwin.read.profile import ConveyorProfile, load_profile
 from chaintwin.read.recording import Recording
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.virtual import run_virtual
-from chaintwin.validate import inspect_recording
+from chaintwin.validate import Inspection, inspect_recording
 from chaintwin.weigh import weigh
 
 PROFILES = Path(__file__).resolve().parents[1] / "chaintwin" / "examples" / "profiles"
@@ -39,11 +39,17 @@ NAMES = ("white-belt-01", "incline-line-02", "short-fast-03")
 PAYLOADS = tuple(range(0, 101, 10))
 
 
+def inspected(
+    profile: ConveyorProfile, payload: float, seed: int, ts: float, **kw: object
+) -> Inspection:
+    run = run_virtual(profile, payload_kg=payload, seed=seed, sample_time_s=ts, **kw)  # type: ignore[arg-type]
+    return inspect_recording(run.recording, profile)
+
+
 def record(
     profile: ConveyorProfile, payload: float, seed: int, ts: float, **kw: object
 ) -> Recording:
-    run = run_virtual(profile, payload_kg=payload, seed=seed, sample_time_s=ts, **kw)  # type: ignore[arg-type]
-    return inspect_recording(run.recording, profile).recording
+    return inspected(profile, payload, seed, ts, **kw).recording
 
 
 def main() -> None:
@@ -55,7 +61,7 @@ def main() -> None:
         for ts in (0.006, 0.012):
             empty = [record(prof, 0.0, 100 + k, ts, calibration=True) for k in range(3)]
             ref = record(prof, 50.0, 110, ts, calibration=True)
-            tests = [record(prof, float(p), 1000 + p, ts) for p in PAYLOADS]
+            tests = [inspected(prof, float(p), 1000 + p, ts) for p in PAYLOADS]
             for proto, cal_recs in (("P1", empty), ("P2", [*empty, ref])):
                 t0 = time.perf_counter()
                 cal = calibrate(cal_recs, prof)
@@ -135,7 +141,7 @@ def main() -> None:
         )
         for rise in (0.1, 0.3):
             for payload in (20.0, 60.0):
-                rec = record(prof, payload, 400, 0.006, faults=[Fault("friction", rise)])
+                rec = inspected(prof, payload, 400, 0.006, faults=[Fault("friction", rise)])
                 res = weigh(rec, cal)
                 inertia = res.payload_inertia_kg if res.payload_inertia_kg is not None else np.nan
                 print(

@@ -69,15 +69,15 @@ def main() -> None:
         cal_files = sorted((folder / "calibration").glob("*.csv"))
         cal = calibrate([load_recording(p, profile=prof).recording for p in cal_files], prof)
         files = sorted(folder.glob("*.csv"))
-        recs = [load_recording(p, profile=prof).recording for p in files]
+        inspections = [load_recording(p, profile=prof) for p in files]
         for p in files[:3]:  # warm-up: imports, numba compilation, caches
             prepare(str(p), prof, None, cal)
 
         # plain timings per stage (best of ROUNDS per recording)
         stages = {
             "load_recording": lambda k: load_recording(files[k], profile=prof),
-            "weigh": lambda k: weigh(recs[k], cal),
-            "recording_features": lambda k: recording_features(recs[k], cal),
+            "weigh": lambda k: weigh(inspections[k], cal),
+            "recording_features": lambda k: recording_features(inspections[k], cal),
             "prepare": lambda k: prepare(str(files[k]), prof, None, cal),
         }
         best: dict[str, list[float]] = {name: [float("inf")] * len(files) for name in stages}

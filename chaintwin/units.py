@@ -19,6 +19,7 @@ __all__ = [
     "RPM_TO_RAD_S",
     "SI_UNITS",
     "ChannelSpec",
+    "G",
     "UnitContext",
     "accepted_units",
     "from_si_factor",
@@ -26,6 +27,9 @@ __all__ = [
 ]
 
 RPM_TO_RAD_S: Final = 2.0 * math.pi / 60.0
+
+G: Final = 9.81
+"""Gravitational acceleration, m/s² (the one value every module uses)."""
 
 
 @dataclass(frozen=True, slots=True)

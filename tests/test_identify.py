@@ -24,7 +24,7 @@ from chaintwin.read.recording import Recording
 from chaintwin.read.writer import write_recording
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.virtual import Realism, run_virtual
-from chaintwin.validate import inspect_recording
+from chaintwin.validate import Inspection, inspect_recording
 from chaintwin.weigh import transport_loss_factor, weigh
 
 PROFILE = load_profile(REFERENCE_PROFILE)
@@ -33,9 +33,9 @@ assert MODEL is not None
 J_D = PROFILE.motor.inertia_kgm2 + PROFILE.gear.inertia_kgm2
 
 
-def virtual(
+def inspected(
     payload: float, seed: int, *, realism: Realism | None = None, known: bool = True, **kw: object
-) -> Recording:
+) -> Inspection:
     run = run_virtual(
         PROFILE,
         payload_kg=payload,
@@ -44,7 +44,13 @@ def virtual(
         calibration=known,
         **kw,  # type: ignore[arg-type]
     )
-    return inspect_recording(run.recording, PROFILE).recording
+    return inspect_recording(run.recording, PROFILE)
+
+
+def virtual(
+    payload: float, seed: int, *, realism: Realism | None = None, known: bool = True, **kw: object
+) -> Recording:
+    return inspected(payload, seed, realism=realism, known=known, **kw).recording
 
 
 SEVERAL = [(0, 1.0), (30, 1.0), (60, 1.0), (90, 1.0), (0, 0.5), (60, 0.6)]
@@ -180,7 +186,7 @@ def test_calibration_file_round_trip_and_tamper(cal_p2: Calibration, tmp_path: P
 
 def test_weigh_p2_belt_scale_class(cal_p2: Calibration) -> None:
     for payload, seed in ((0.0, 501), (40.0, 502), (100.0, 503)):
-        res = weigh(virtual(payload, seed, known=False), cal_p2)
+        res = weigh(inspected(payload, seed, known=False), cal_p2)
         assert res.payload_kg == pytest.approx(payload, abs=0.5), res
         assert res.consistent
         assert res.segments == ()
@@ -190,7 +196,7 @@ def test_weigh_p2_belt_scale_class(cal_p2: Calibration) -> None:
 
 def test_friction_rise_is_flagged_not_weighed(cal_p2: Calibration) -> None:
     """Issue target on the reference conveyor: a 10 % rise at 20 kg is flagged."""
-    res = weigh(virtual(20.0, 510, known=False, faults=[Fault("friction", 0.1)]), cal_p2)
+    res = weigh(inspected(20.0, 510, known=False, faults=[Fault("friction", 0.1)]), cal_p2)
     assert not res.consistent
     assert res.payload_friction_kg > 24.0  # friction alone reads the rise as load
     assert res.payload_kg == pytest.approx(20.0, abs=3 * res.uncertainty_kg)
@@ -199,7 +205,7 @@ def test_friction_rise_is_flagged_not_weighed(cal_p2: Calibration) -> None:
 
 def test_payload_step_is_found_and_weighed_per_segment(cal_p2: Calibration) -> None:
     run = run_virtual(PROFILE, payload_kg=15.0, seed=520, faults=[Fault("payload_step", 1.0)])
-    res = weigh(inspect_recording(run.recording, PROFILE).recording, cal_p2)
+    res = weigh(inspect_recording(run.recording, PROFILE), cal_p2)
     assert len(res.segments) == 2
     t_step = run.truth["payload_step_time_s"]
     assert res.segments[0].end_s == pytest.approx(t_step, abs=0.3)
@@ -210,9 +216,9 @@ def test_payload_step_is_found_and_weighed_per_segment(cal_p2: Calibration) -> N
 
 
 def test_incomplete_cycle_weighed_with_warning(cal_p2: Calibration) -> None:
-    rec = virtual(30.0, 530, known=False, sample_time_s=0.001)
-    assert rec.has_warning("incomplete_cycle")
-    res = weigh(rec, cal_p2)
+    ins = inspected(30.0, 530, known=False, sample_time_s=0.001)
+    assert ins.recording.has_warning("incomplete_cycle")
+    res = weigh(ins, cal_p2)
     codes = [w.code for w in res.warnings]
     assert "weighed_incomplete_cycle" in codes
     assert "incomplete_cycle" in codes
@@ -223,10 +229,10 @@ def test_no_motion_is_refused(cal_p2: Calibration) -> None:
     from chaintwin.simulate.setpoints import trapezoid
 
     still = trapezoid(speed_rad_s=0.0, accel_rad_s2=1.0, hold_s=1.0)
-    rec = virtual(0.0, 540, setpoints=still)
-    assert rec.has_warning("no_motion")
+    ins = inspected(0.0, 540, setpoints=still)
+    assert ins.recording.has_warning("no_motion")
     with pytest.raises(EstimationError, match="does not move"):
-        weigh(rec, cal_p2)
+        weigh(ins, cal_p2)
 
 
 def test_transport_loss_factor_hand_case(cal_p2: Calibration) -> None:
@@ -346,7 +352,7 @@ def test_weigh_short_slices_are_weighed_or_refused_never_crash(cal_p2: Calibrati
             warnings=(),
         )
         try:
-            res = weigh(inspect_recording(short, PROFILE).recording, cal_p2)
+            res = weigh(inspect_recording(short, PROFILE), cal_p2)
         except EstimationError:
             outcomes.add("refused")
         else:
@@ -355,23 +361,25 @@ def test_weigh_short_slices_are_weighed_or_refused_never_crash(cal_p2: Calibrati
     assert outcomes == {"refused", "weighed"}
 
 
-def _without_setpoints(rec: Recording) -> Recording:
+def _without_setpoints(rec: Recording) -> Inspection:
     """The same recording as a drive that scopes actual values only would write it."""
     keep = {k: v for k, v in rec.channels.items() if not k.endswith("_setpoint")}
     bare = dataclasses.replace(rec, channels=keep, warnings=())
-    return inspect_recording(bare, PROFILE).recording
+    return inspect_recording(bare, PROFILE)
 
 
 def test_recordings_without_set_points_are_calibrated_and_weighed(cal_p2: Calibration) -> None:
     """Steady phases come from the segmented actual speed when no set point is scoped."""
-    recs = [_without_setpoints(virtual(load, 300 + k)) for k, load in enumerate([0, 0, 0, 50])]
+    recs = [
+        _without_setpoints(virtual(load, 300 + k)).recording for k, load in enumerate([0, 0, 0, 50])
+    ]
     cal = calibrate(recs, PROFILE)
     assert cal.case == cal_p2.case
     assert cal.parameters["mu"] == pytest.approx(cal_p2.parameters["mu"], rel=0.01)
-    rec = virtual(40.0, 502, known=False)
-    bare = _without_setpoints(rec)
-    assert bare.speed_setpoint is None
-    with_sp, without = weigh(rec, cal_p2), weigh(bare, cal)
+    ins = inspected(40.0, 502, known=False)
+    bare = _without_setpoints(ins.recording)
+    assert bare.recording.speed_setpoint is None
+    with_sp, without = weigh(ins, cal_p2), weigh(bare, cal)
     assert without.payload_kg == pytest.approx(40.0, abs=0.5)
     assert without.payload_kg == pytest.approx(with_sp.payload_kg, abs=0.3)
     assert without.consistent

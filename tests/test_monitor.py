@@ -454,5 +454,5 @@ def test_a_worker_s_features_equal_those_made_from_the_file_alone(
     for f in _files(series["friction"])[-3:]:
         item = prepare(str(f), PROFILE, None, cal)
         assert item.features is not None and item.recording is not None
-        alone = recording_features(load_recording(f, profile=PROFILE).recording, cal)
+        alone = recording_features(load_recording(f, profile=PROFILE), cal)
         assert pickle.dumps(item.features) == pickle.dumps(alone)

@@ -15,15 +15,14 @@ from scipy.integrate import cumulative_trapezoid
 from chaintwin.diagnose.residuals import (
     ResidualReport,
     belt_position_m,
-    model_torque,
     position_profile,
     residual_analysis,
     residual_stats,
 )
 from chaintwin.errors import EstimationError
-from chaintwin.identify.regression import PARAMETER_NAMES, RigidParameters
 from chaintwin.model.frequencies import _kinematic_ratio
 from chaintwin.model.physics import G
+from chaintwin.model.rigid import PARAMETER_NAMES, RigidParameters, model_torque
 from chaintwin.read.profile import load_profile
 from chaintwin.read.recording import Metadata, Recording
 from chaintwin.simulate.virtual import Realism, run_virtual

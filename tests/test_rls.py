@@ -8,7 +8,8 @@ from conftest import REFERENCE_PROFILE
 
 from chaintwin.errors import EstimationError, NotFittedError
 from chaintwin.identify.rls import RecursiveLeastSquares
-from chaintwin.identify.windows import incline_terms, window_integrals
+from chaintwin.model.rigid import incline_terms
+from chaintwin.model.windows import window_integrals
 from chaintwin.read.profile import ConveyorProfile, load_profile
 from chaintwin.read.recording import Recording
 from chaintwin.simulate import Realism, run_virtual

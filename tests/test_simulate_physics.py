@@ -68,17 +68,17 @@ def test_physics_functions_match_hand_calculation(profile: ConveyorProfile) -> N
     assert physics.chordal_radius_m(h["R"], None) == h["R"]
     assert physics.chordal_radius_m(h["R"], 0) == h["R"]
     # belt force, flat: μ g m sign(v)
-    f = physics.belt_force_n(friction=h["mu"], moving_mass_kg=h["m"], carried_mass_kg=50.0)
+    f = physics.belt_force_n(mu=h["mu"], moving_mass_kg=h["m"], carried_mass_kg=50.0)
     assert f == pytest.approx(h["mu"] * G * h["m"], rel=1e-14)
     assert f == pytest.approx(195.89, abs=0.01)
     backward = physics.belt_force_n(
-        friction=h["mu"], moving_mass_kg=h["m"], carried_mass_kg=50.0, direction=-1.0
+        mu=h["mu"], moving_mass_kg=h["m"], carried_mass_kg=50.0, direction=-1.0
     )
     assert backward == -f
     # incline: only the carried mass climbs
     beta = math.radians(6.0)
     f_inc = physics.belt_force_n(
-        friction=0.2, moving_mass_kg=100.0, carried_mass_kg=30.0, incline_rad=beta
+        mu=0.2, moving_mass_kg=100.0, carried_mass_kg=30.0, incline_rad=beta
     )
     assert f_inc == pytest.approx(0.2 * G * math.cos(beta) * 100.0 + G * math.sin(beta) * 30.0)
     # load torque: F r/(i η) motoring, F r η/i generating
@@ -96,7 +96,7 @@ def test_physics_functions_match_hand_calculation(profile: ConveyorProfile) -> N
     # steady torque
     steady = physics.steady_torque_nm(
         speed_rad_s=w,
-        friction=h["mu"],
+        mu=h["mu"],
         moving_mass_kg=h["m"],
         carried_mass_kg=50.0,
         incline_rad=0.0,
@@ -110,7 +110,7 @@ def test_physics_functions_match_hand_calculation(profile: ConveyorProfile) -> N
     assert steady == pytest.approx(t_load + loss, rel=1e-14)
     # payload sensitivity, flat: g μ r/(i η) per kg
     sens = physics.payload_sensitivity_nm_kg(
-        friction=h["mu"], incline_rad=0.0, radius_m=h["r"], ratio=h["i"], efficiency=h["eta"]
+        mu=h["mu"], incline_rad=0.0, radius_m=h["r"], ratio=h["i"], efficiency=h["eta"]
     )
     assert sens == pytest.approx(G * h["mu"] * h["r"] / (h["i"] * h["eta"]), rel=1e-14)
     # power-flow side
@@ -357,7 +357,7 @@ def test_downhill_belt_drives_the_motor() -> None:
         friction=0.05,
     )
     f = physics.belt_force_n(
-        friction=p.friction,
+        mu=p.friction,
         moving_mass_kg=p.moving_mass_kg,
         carried_mass_kg=p.carried_mass_kg,
         incline_rad=p.incline_rad,

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from conftest import REFERENCE_PROFILE
 
+from chaintwin._types import FloatArray
 from chaintwin.cli.app import main
 from chaintwin.diagnose.spectra import (
     Spectrum,
@@ -28,7 +29,7 @@ from chaintwin.diagnose.spectra import (
 from chaintwin.errors import EstimationError, RecordingError
 from chaintwin.model.frequencies import characteristic_orders
 from chaintwin.read.profile import ConveyorProfile, load_profile
-from chaintwin.read.recording import FloatArray, Metadata, Recording
+from chaintwin.read.recording import Metadata, Recording
 from chaintwin.read.writer import write_recording
 from chaintwin.simulate.faults import BEARING_ORDER, Fault
 from chaintwin.simulate.virtual import run_virtual

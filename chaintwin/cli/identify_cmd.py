@@ -23,14 +23,19 @@ from chaintwin.identify.calibration import Calibration, calibrate, load_calibrat
 from chaintwin.read.columns import ColumnMap, load_column_map
 from chaintwin.read.profile import ConveyorProfile, load_profile
 from chaintwin.read.recording import Recording
-from chaintwin.validate.checks import load_recording
+from chaintwin.validate.checks import Inspection, load_recording
 from chaintwin.weigh.weigh import weigh
 
 __all__ = ["identify_dict", "register"]
 
 
 def _load(file: str, profile: ConveyorProfile, column_map: ColumnMap | None) -> Recording:
-    """Read and validate one recording of this conveyor.
+    """Read and validate one recording of this conveyor (see :func:`_inspect`)."""
+    return _inspect(file, profile, column_map).recording
+
+
+def _inspect(file: str, profile: ConveyorProfile, column_map: ColumnMap | None) -> Inspection:
+    """Read and validate one recording of this conveyor: the recording and its phases.
 
     Raises
     ------
@@ -38,7 +43,8 @@ def _load(file: str, profile: ConveyorProfile, column_map: ColumnMap | None) -> 
         When it cannot be read, or is a recording of another conveyor (profiles
         are matched to recordings by id).
     """
-    rec = load_recording(file, profile=profile, column_map=column_map).recording
+    ins = load_recording(file, profile=profile, column_map=column_map)
+    rec = ins.recording
     conveyor = rec.metadata.conveyor
     if conveyor is not None and conveyor != profile.id:
         raise RecordingError(
@@ -46,7 +52,7 @@ def _load(file: str, profile: ConveyorProfile, column_map: ColumnMap | None) -> 
             f"is a recording of conveyor '{conveyor}', not of '{profile.id}'; "
             "give the matching profile or calibration",
         )
-    return rec
+    return ins
 
 
 def _read_all(
@@ -252,8 +258,8 @@ def register(app: typer.Typer) -> None:
         results: list[dict[str, Any]] = []
         for f in expand_recordings(files):
             try:
-                rec = _load(f, cal.profile, cmap)
-                results.append(weigh(rec, cal, source=f).to_dict())
+                ins = _inspect(f, cal.profile, cmap)
+                results.append(weigh(ins, cal, source=f).to_dict())
             except EstimationError as exc:
                 message = str(exc)
                 if not message.startswith(f):

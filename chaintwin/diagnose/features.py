@@ -58,16 +58,19 @@ from typing import Any
 
 import numpy as np
 
+from chaintwin._types import FloatArray
 from chaintwin.errors import EstimationError
 from chaintwin.identify.calibration import Calibration
 from chaintwin.identify.signatures import fit_condition
-from chaintwin.identify.windows import WindowIntegrals, motoring_mask, window_integrals
 from chaintwin.model.frequencies import characteristic_orders
-from chaintwin.read.recording import FloatArray, Recording, RecordingWarning
-from chaintwin.validate.phases import Phase, segment
+from chaintwin.model.physics import loss_torque_nm
+from chaintwin.model.rigid import model_torque, motoring_mask
+from chaintwin.model.windows import WindowIntegrals, window_integrals
+from chaintwin.read.recording import Recording, RecordingWarning
+from chaintwin.validate.checks import Inspection
 from chaintwin.weigh.weigh import WeighResult, weigh
 
-from .residuals import belt_position_m, model_torque, position_profile, residual_analysis
+from .residuals import belt_position_m, position_profile, residual_analysis
 from .spectra import Spectrum, apparent_orders, band_amplitudes, welch_spectrum
 
 __all__ = [
@@ -301,24 +304,16 @@ def _bump(
     return seen.astype(np.float64), sums[seen] / counts[seen]
 
 
-def recording_features(
-    recording: Recording,
-    calibration: Calibration,
-    *,
-    phases: Sequence[Phase] | None = None,
-) -> RecordingFeatures:
+def recording_features(inspection: Inspection, calibration: Calibration) -> RecordingFeatures:
     """Weigh a recording and extract its condition features.
 
     Parameters
     ----------
-    recording : Recording
-        A validated recording of the calibrated conveyor.
+    inspection : Inspection
+        A validated recording of the calibrated conveyor with its movement
+        phases (validation's segmentation, used as it is).
     calibration : Calibration
         The conveyor's calibration (from a file or learned).
-    phases : sequence of Phase, optional
-        The recording's segmentation when at hand (validation made it:
-        :attr:`~chaintwin.validate.checks.Inspection.phases`); made here
-        otherwise, the same.
 
     Returns
     -------
@@ -329,23 +324,24 @@ def recording_features(
     EstimationError
         When the recording cannot be weighed (no motion, no usable window).
     """
+    recording = inspection.recording
+    phases = list(inspection.phases)
     prof = calibration.id_profile
     params = calibration.parameters
     warnings: list[RecordingWarning] = []
     mot = motoring_mask(
         recording,
         drive_inertia_kgm2=params["J_d"],
-        losses=(params["BmA"], params["BmB"], params["BmC"]),
+        losses=params.losses,
     )
     # the window integrals serve weighing and the condition fit alike; when
     # there are none, weighing refuses the recording in its own words
-    phases = segment(recording) if phases is None else list(phases)
     every: WindowIntegrals | None
     try:
         every = window_integrals(recording, prof, motoring=mot, phases=phases)
     except EstimationError:
         every = None
-    w = weigh(recording, calibration, motoring=mot, windows=every)
+    w = weigh(inspection, calibration, motoring=mot, windows=every)
     tray = recording.metadata.tray_kg
     tray = prof.tray_mass_kg if tray is None else tray
     m0 = prof.belt_mass_kg + tray
@@ -368,7 +364,7 @@ def recording_features(
         values["friction"] = (m0 + p_f) / (m0 + p_i) if m0 + p_i > 0.5 * m0 else nan
         wi = cond.windows
         omega = float(np.median(wi.mean_speed[wi.constant])) if wi.constant.any() else nan
-        loss = params["BmA"] + params["BmB"] * omega + params["BmC"] * omega * omega
+        loss = loss_torque_nm(omega, *params.losses)
         values["speed_loss"] = (
             1.0 + float(cond.estimate[2]) * omega / loss if loss > 0 and omega > 0 else nan
         )

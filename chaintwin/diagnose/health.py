@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from chaintwin.read.recording import FloatArray
+from chaintwin._types import FloatArray
 
 __all__ = [
     "MIN_PAYLOAD_SPREAD_KG",

@@ -39,6 +39,8 @@ from chaintwin.errors import ChaintwinError, EstimationError, MonitorError, Stor
 from chaintwin.identify.calibration import Calibration
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording, RecordingWarning
+from chaintwin.validate.checks import Inspection
+from chaintwin.validate.phases import segment
 
 from .features import FEATURES, RecordingFeatures, feature_spec, known_line_orders
 from .features import recording_features as extract
@@ -635,7 +637,18 @@ class ConveyorMonitor:
             status="monitored",
         )
         try:
-            feats = features if features is not None else extract(recording, self.calibration)
+            feats = (
+                features
+                if features is not None
+                else extract(
+                    Inspection(
+                        recording,
+                        tuple(segment(recording)),
+                        not recording.has_warning("incomplete_cycle"),
+                    ),
+                    self.calibration,
+                )
+            )
         except EstimationError as exc:
             base.status = "refused"
             text = str(exc)

@@ -1,16 +1,7 @@
 """Residuals of the rigid model: measured minus model motor torque (DESIGN.md, section 3).
 
-The rigid model (DESIGN.md, section 2; the same equation the identification
-windows integrate, :mod:`chaintwin.identify.windows`) gives the motor torque
-per sample from the measured speed and identified parameters::
-
-    T_model = J_d·α
-            + g_f·(F + M·a)                       belt resistance and belt inertia
-            + BmA·sign(ω) + BmB·ω + BmC·ω·|ω|     gear and motor losses
-
-with ``F = μ·g·cosβ·M·sign(ω) + g·sinβ·(m_t + m_p)`` (N), M = m_b + m_t + m_p
-(kg), a = α·r/i the belt's acceleration (m/s²) and ``g_f = r/(i·η)`` while
-power flows motor → belt, ``r·η/i`` while the belt drives the motor (m).
+The rigid model's torque per sample comes from
+:func:`chaintwin.model.rigid.model_torque` (the one rigid model).
 
 The residual ``e = T_measured − T_model`` (Nm) is what the rigid model does
 not explain: belt ringing after the ramp corners, the polygon effect, gear and
@@ -29,44 +20,30 @@ residuals (or anything else) over belt-position bins, recording by recording.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass, fields
 
 import numpy as np
 from scipy.integrate import cumulative_trapezoid
 
+from chaintwin._types import FloatArray
 from chaintwin.errors import EstimationError
-from chaintwin.identify.regression import RigidParameters
-from chaintwin.identify.windows import motoring_mask
 from chaintwin.model.frequencies import _kinematic_ratio
-from chaintwin.model.physics import belt_force_n, gear_factor, loss_torque_nm
 from chaintwin.read.profile import ConveyorProfile
-from chaintwin.read.recording import FloatArray, Recording
-from chaintwin.validate.filters import savgol
+from chaintwin.read.recording import Recording
 from chaintwin.validate.phases import Phase, segment
 
 __all__ = [
     "CORNER_SAMPLES",
     "DEFAULT_BIN_WIDTH_M",
-    "DERIVATIVE_WINDOW_S",
     "MIN_SAMPLES",
-    "PARAMETER_KEYS",
     "PHASE_KINDS",
-    "STANDSTILL_SHARE",
     "ResidualReport",
     "ResidualStats",
     "belt_position_m",
-    "model_torque",
     "position_profile",
     "residual_analysis",
     "residual_stats",
 ]
-
-DERIVATIVE_WINDOW_S = 0.025
-"""Savitzky-Golay window for the acceleration, s (at least 5 samples, odd)."""
-
-STANDSTILL_SHARE = 0.02
-"""Below this share of the peak |ω| the friction and sign terms are set to zero."""
 
 MIN_SAMPLES = 4
 """Fewest samples :func:`residual_stats` accepts."""
@@ -79,158 +56,6 @@ PHASE_KINDS: tuple[str, ...] = ("accelerate", "constant", "decelerate")
 
 DEFAULT_BIN_WIDTH_M = 0.025
 """Default belt-position bin width of :func:`position_profile`, m."""
-
-PARAMETER_KEYS: tuple[str, ...] = ("mu", "BmA", "BmB", "BmC", "J_d")
-"""Parameters :func:`model_torque` reads."""
-
-
-# --------------------------------------------------------------------- model torque
-def _acceleration(recording: Recording) -> FloatArray:
-    """Motor acceleration α, rad/s², Savitzky-Golay derivative of the measured speed.
-
-    Window about :data:`DERIVATIVE_WINDOW_S` (25 ms), at least 5 samples, odd,
-    at most the recording's length; polynomial order 2; ``mode="interp"`` at
-    the ends (the end samples get the derivative of the fit to the first and
-    last window).
-    """
-    n = recording.samples
-    if n < 3:
-        raise EstimationError(
-            f"{recording.source}: {n} samples; at least 3 are needed to differentiate the speed"
-        )
-    dt = recording.sample_time_s
-    win = max(5, round(DERIVATIVE_WINDOW_S / dt))
-    win += 1 - win % 2  # odd
-    win = min(win, n if n % 2 else n - 1)
-    out: FloatArray = savgol(recording.speed, win, 2, deriv=1, delta=dt)
-    return out
-
-
-def _parameter(parameters: Mapping[str, float] | RigidParameters, name: str) -> float:
-    try:
-        return float(parameters[name])
-    except (KeyError, ValueError) as exc:
-        raise EstimationError(
-            f"model_torque needs the parameters {', '.join(PARAMETER_KEYS)}; '{name}' is missing"
-        ) from exc
-
-
-def model_torque(
-    recording: Recording,
-    profile: ConveyorProfile,
-    parameters: Mapping[str, float] | RigidParameters,
-    payload_kg: float,
-    *,
-    tray_kg: float | None = None,
-    motoring: np.ndarray | None = None,
-) -> FloatArray:
-    """Motor torque of the rigid model per sample, Nm.
-
-    ``T = J_d·α + g_f·(F + M·a) + BmA·sign(ω) + BmB·ω + BmC·ω·|ω|``, the
-    equation :mod:`chaintwin.identify.windows` integrates, evaluated sample by
-    sample (see the module notes for the symbols).
-
-    * α (rad/s²): Savitzky-Golay derivative of the measured speed, polynomial
-      order 2, window about 25 ms (:data:`DERIVATIVE_WINDOW_S`) but at least
-      5 samples (odd; 5 samples at 6 ms, 25 at 1 ms). The belt's acceleration
-      is ``a = α·r/i`` with r the chordal mean radius and i the gear ratio.
-    * Power flow: ``g_f = r/(i·η)`` where ``motoring`` is True, ``r·η/i``
-      elsewhere (:func:`~chaintwin.model.physics.gear_factor`); by default
-      from :func:`~chaintwin.identify.windows.motoring_mask` with the given
-      J_d and losses, i.e. from the measured torque that reaches the gear.
-    * F from :func:`~chaintwin.model.physics.belt_force_n` with the belt's
-      moving mass ``M = m_b + m_t + m_p`` (belt loop from the profile) and the
-      carried mass ``m_t + m_p`` (only it climbs an incline).
-    * Standstill: where ``|ω|`` is below 2 % of the recording's peak ``|ω|``
-      (:data:`STANDSTILL_SHARE`), the friction term ``μ·g·cosβ·M·sign(ω)``
-      and ``BmA·sign(ω)`` are set to zero. At standstill Coulomb friction
-      takes any value between its limits (it holds whatever the motor
-      applies), so the model cannot say what it is; a sign of a speed that
-      is only noise would put ± the full friction torque there. The incline,
-      inertia and speed-proportional terms stay (they are continuous).
-
-    Parameters
-    ----------
-    recording : Recording
-        Measured speed (rad/s, motor side) and, for the default power-flow
-        mask, torque (Nm).
-    profile : ConveyorProfile
-        Sprocket, gear (i, η), belt mass and incline; its ``model:`` section
-        is not read.
-    parameters : Mapping[str, float] or RigidParameters
-        ``mu`` (μ, dimensionless), ``BmA`` (Nm), ``BmB`` (Nm·s/rad), ``BmC``
-        (Nm·s²/rad²), ``J_d`` (motor + gear inertia at the motor, kg·m²), e.g.
-        a :class:`~chaintwin.identify.calibration.Calibration`'s
-        ``parameters``.
-    payload_kg : float
-        Payload on the belt, kg.
-    tray_kg : float, optional
-        Tray mass, kg; default the recording's ``metadata.tray_kg``, else the
-        profile's ``tray_mass_kg``.
-    motoring : np.ndarray of bool, optional
-        Power-flow direction per sample (True: motor → belt).
-
-    Returns
-    -------
-    FloatArray
-        Model motor torque, Nm, one value per sample.
-
-    Raises
-    ------
-    EstimationError
-        When a parameter is missing, the mask has the wrong length or the
-        recording has fewer than 3 samples.
-    """
-    mu = _parameter(parameters, "mu")
-    bma = _parameter(parameters, "BmA")
-    bmb = _parameter(parameters, "BmB")
-    bmc = _parameter(parameters, "BmC")
-    j_d = _parameter(parameters, "J_d")
-    if tray_kg is None:
-        tray_kg = recording.metadata.tray_kg
-    if tray_kg is None:
-        tray_kg = profile.tray_mass_kg
-
-    w = recording.speed
-    alpha = _acceleration(recording)
-    if motoring is None:
-        motoring = motoring_mask(recording, drive_inertia_kgm2=j_d, losses=(bma, bmb, bmc))
-    motoring = np.asarray(motoring, dtype=bool)
-    if motoring.shape != w.shape:
-        raise EstimationError(
-            f"{recording.source}: motoring mask has shape {motoring.shape}, the recording {w.shape}"
-        )
-
-    r = profile.chordal_radius_m
-    i = profile.kinematic_ratio
-    eta = profile.gear.efficiency
-    carried = tray_kg + payload_kg
-    moving_mass = profile.belt_mass_kg + carried
-    peak = float(np.max(np.abs(w))) if w.size else 0.0
-    still = np.abs(w) < STANDSTILL_SHARE * peak
-    direction = np.where(still, 0.0, np.sign(w))
-
-    # F is linear in sign(v): split into its incline part (direction 0) and
-    # its friction part per unit of direction
-    def force(d: float) -> float:
-        return belt_force_n(
-            friction=mu,
-            moving_mass_kg=moving_mass,
-            carried_mass_kg=carried,
-            incline_rad=profile.incline_rad,
-            direction=d,
-        )
-
-    f_incline = force(0.0)
-    f_friction = force(1.0) - f_incline
-    belt_force = f_friction * direction + f_incline
-    g_f = (r / i) * np.where(
-        motoring, gear_factor(eta, motoring=True), gear_factor(eta, motoring=False)
-    )
-    belt_accel = alpha * (r / i)
-    loss = loss_torque_nm(w, 0.0, bmb, bmc) + bma * direction
-    out: FloatArray = j_d * alpha + g_f * (belt_force + moving_mass * belt_accel) + loss
-    return out
 
 
 # --------------------------------------------------------------------- statistics
@@ -430,7 +255,7 @@ def residual_analysis(
     recording : Recording
         Measured torque (``recording.torque``, Nm).
     model : FloatArray
-        Model torque per sample, Nm (e.g. from :func:`model_torque`).
+        Model torque per sample, Nm (e.g. from :func:`chaintwin.model.rigid.model_torque`).
     phases : list of Phase, optional
         Movement phases; default :func:`~chaintwin.validate.phases.segment`.
         Each moving phase contributes its samples ``[start + 3, stop − 3)``

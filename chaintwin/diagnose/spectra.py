@@ -48,6 +48,7 @@ from scipy.integrate import cumulative_trapezoid
 from scipy.signal import ShortTimeFFT, get_window
 from scipy.signal.windows import hann
 
+from chaintwin._types import FloatArray
 from chaintwin.errors import EstimationError, RecordingError
 from chaintwin.model.frequencies import (
     characteristic_orders,
@@ -55,7 +56,7 @@ from chaintwin.model.frequencies import (
     fold_frequency,
 )
 from chaintwin.read.profile import ConveyorProfile
-from chaintwin.read.recording import FloatArray, Recording
+from chaintwin.read.recording import Recording
 from chaintwin.units import RPM_TO_RAD_S
 from chaintwin.validate.phases import segment
 

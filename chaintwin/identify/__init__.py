@@ -13,12 +13,7 @@ from chaintwin.identify.calibration import (
     sensitivity_nm_per_kg,
 )
 from chaintwin.identify.output_error import OutputErrorFit
-from chaintwin.identify.regression import (
-    PARAMETER_NAMES,
-    RigidModelRegression,
-    RigidParameters,
-    model_torque,
-)
+from chaintwin.identify.regression import RigidModelRegression
 from chaintwin.identify.rls import RecursiveLeastSquares
 from chaintwin.identify.signatures import SignatureFit, fit_signatures
 from chaintwin.identify.torque_lag import (
@@ -29,29 +24,22 @@ from chaintwin.identify.torque_lag import (
     lag_gain,
     simulate_torque_lag,
 )
-from chaintwin.identify.windows import WindowIntegrals, motoring_mask, window_integrals
 
 __all__ = [
     "MAX_DELAY_CYCLES",
-    "PARAMETER_NAMES",
     "Calibration",
     "OutputErrorFit",
     "RecursiveLeastSquares",
     "RigidModelRegression",
-    "RigidParameters",
     "SignatureFit",
     "TorqueLagEstimator",
     "TorqueLagResult",
-    "WindowIntegrals",
     "calibrate",
     "fit_signatures",
     "identification_profile",
     "identify_torque_lag",
     "lag_gain",
     "load_calibration",
-    "model_torque",
-    "motoring_mask",
     "sensitivity_nm_per_kg",
     "simulate_torque_lag",
-    "window_integrals",
 ]

@@ -41,14 +41,16 @@ from typing import Any
 import numpy as np
 
 from chaintwin.errors import CalibrationError, EstimationError
-from chaintwin.identify.regression import (
-    PARAMETER_NAMES,
-    RigidModelRegression,
-    RigidParameters,
-    speed_clusters,
-)
+from chaintwin.identify.regression import RigidModelRegression, speed_clusters
 from chaintwin.identify.torque_lag import identify_torque_lag
-from chaintwin.identify.windows import incline_terms, window_integrals
+from chaintwin.model.physics import payload_sensitivity_nm_kg
+from chaintwin.model.rigid import (
+    PARAMETER_NAMES,
+    RigidParameters,
+    drive_inertia_at,
+    incline_terms,
+)
+from chaintwin.model.windows import window_integrals
 from chaintwin.read.profile import ConveyorProfile, parse_profile
 from chaintwin.read.recording import Recording, RecordingWarning
 from chaintwin.units import RPM_TO_RAD_S
@@ -86,10 +88,18 @@ def identification_profile(profile: ConveyorProfile) -> ConveyorProfile:
 
 
 def sensitivity_nm_per_kg(profile: ConveyorProfile, mu: float) -> float:
-    """Payload sensitivity while motoring: ``g·(μ·cosβ + sinβ)·r/(i·η)``, Nm/kg."""
-    g_cos, g_sin = incline_terms(profile)
-    gf = profile.chordal_radius_m / (profile.kinematic_ratio * profile.gear.efficiency)
-    return (g_cos * mu + g_sin) * gf
+    """Payload sensitivity while motoring: ``g·(μ·cosβ + sinβ)·r/(i·η)``, Nm/kg.
+
+    :func:`~chaintwin.model.physics.payload_sensitivity_nm_kg` with the
+    profile's incline, chordal radius, gear ratio and efficiency.
+    """
+    return payload_sensitivity_nm_kg(
+        mu=mu,
+        incline_rad=profile.incline_rad,
+        radius_m=profile.chordal_radius_m,
+        ratio=profile.kinematic_ratio,
+        efficiency=profile.gear.efficiency,
+    )
 
 
 @dataclass(frozen=True)
@@ -176,11 +186,7 @@ class Calibration:
     def inertia_kgm2(self) -> float:
         """Reflected inertia at zero payload, tray included (motoring), kg·m²."""
         p = self.profile
-        ratio = p.chordal_radius_m / p.kinematic_ratio
-        return float(
-            self.parameters["J_d"]
-            + (p.belt_mass_kg + p.tray_mass_kg) * ratio * ratio / p.gear.efficiency
-        )
+        return drive_inertia_at(p, self.parameters["J_d"], p.belt_mass_kg + p.tray_mass_kg)
 
     @property
     def plateau_speeds_rpm(self) -> list[float]:

@@ -103,9 +103,10 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 from scipy.stats import qmc
 
+from chaintwin._types import FloatArray
 from chaintwin.errors import ChaintwinError, ConvergenceWarning, EstimationError, NotFittedError
 from chaintwin.read.profile import ConveyorProfile, ModelSpec
-from chaintwin.read.recording import FloatArray, Recording
+from chaintwin.read.recording import Recording
 from chaintwin.simulate.engine import SimulationResult, simulate
 from chaintwin.simulate.plant import PlantParameters
 from chaintwin.simulate.setpoints import Setpoints, from_arrays
@@ -331,6 +332,9 @@ class OutputErrorFit:
         bound, or the starts disagree.
     """
 
+    # set by fit(); __init__ only stores settings
+    _fit: _Fitted | None = None
+
     def __init__(
         self,
         *,
@@ -351,7 +355,6 @@ class OutputErrorFit:
         self.fixed = fixed
         self.skip_start_s = skip_start_s
         self.min_speed_share = min_speed_share
-        self._fit: _Fitted | None = None
 
     def __repr__(self) -> str:
         return (

@@ -2,9 +2,10 @@
 
 :class:`RigidModelRegression` identifies the drive inertia J_d, the rail
 friction coefficient μ and the losses BmA, BmB, BmC from recordings with a
-known payload (see :mod:`chaintwin.identify.windows` for the model and the
-integral form). It follows the scikit-learn estimator contract: settings in
-``__init__``, ``fit`` returns ``self``, fitted values end in ``_``.
+known payload (see :mod:`chaintwin.model.rigid` for the model and
+:mod:`chaintwin.model.windows` for the integral form). It follows the
+scikit-learn estimator contract: settings in ``__init__``, ``fit`` returns
+``self``, fitted values end in ``_``.
 
 Identifiability (DESIGN.md): with one known load, μ·M and BmA both multiply
 ``sign(ω)`` and cannot be told apart; the fit then fixes BmA to
@@ -26,60 +27,26 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from chaintwin._types import FloatArray
 from chaintwin.errors import EstimationError, NotFittedError
-from chaintwin.identify.windows import (
-    DEFAULT_WINDOW_S,
-    WindowIntegrals,
-    acceleration,
+from chaintwin.model.rigid import (
+    PARAMETER_NAMES,
+    RigidParameters,
+    drive_inertia_at,
     incline_terms,
+    model_torque,
     motoring_mask,
-    window_integrals,
 )
+from chaintwin.model.windows import DEFAULT_WINDOW_S, WindowIntegrals, window_integrals
 from chaintwin.read.profile import ConveyorProfile
-from chaintwin.read.recording import FloatArray, Recording, RecordingWarning
+from chaintwin.read.recording import Recording, RecordingWarning
 
 __all__ = [
-    "PARAMETER_NAMES",
     "RigidModelRegression",
-    "RigidParameters",
     "design_matrix",
     "serial_correlation_factor",
     "speed_clusters",
 ]
-
-PARAMETER_NAMES = ("J_d", "mu", "BmA", "BmB", "BmC")
-"""Order of the regression parameters: drive inertia kg·m², μ, Nm, Nm·s/rad, Nm·s²/rad²."""
-
-
-@dataclass(frozen=True, slots=True)
-class RigidParameters:
-    """Identified rigid-model parameters with their covariance.
-
-    Parameters
-    ----------
-    values : FloatArray
-        In the order of :data:`PARAMETER_NAMES`.
-    covariance : FloatArray
-        5 × 5 covariance (zero rows/columns for fixed parameters).
-    fixed : tuple of str
-        Parameters that were not fitted but set to a prior value.
-    """
-
-    values: FloatArray
-    covariance: FloatArray
-    fixed: tuple[str, ...] = ()
-
-    def __getitem__(self, name: str) -> float:
-        return float(self.values[PARAMETER_NAMES.index(name)])
-
-    def stderr(self, name: str) -> float:
-        """Standard error of a parameter (0 for a fixed one)."""
-        k = PARAMETER_NAMES.index(name)
-        return float(np.sqrt(max(self.covariance[k, k], 0.0)))
-
-    def as_dict(self) -> dict[str, float]:
-        """Name → value."""
-        return {n: float(v) for n, v in zip(PARAMETER_NAMES, self.values, strict=True)}
 
 
 @dataclass(frozen=True, slots=True)
@@ -184,8 +151,6 @@ class RigidModelRegression:
         variance_components: bool = False,
         ramp_side: str = "both",
     ) -> None:
-        if ramp_side not in ("both", "accelerate", "decelerate"):
-            raise ValueError(f"ramp_side {ramp_side!r}: use both, accelerate or decelerate")
         self.ramp_side = ramp_side
         self.variance_components = variance_components
         self.ramp_windows = ramp_windows
@@ -227,7 +192,11 @@ class RigidModelRegression:
         ------
         EstimationError
             When a payload is missing or the data cannot determine the model.
+        ValueError
+            When ``ramp_side`` is not one of its values (a programming error).
         """
+        if self.ramp_side not in ("both", "accelerate", "decelerate"):
+            raise ValueError(f"ramp_side {self.ramp_side!r}: use both, accelerate or decelerate")
         if not recordings:
             raise EstimationError("no recordings to fit")
         loads: list[float] = []
@@ -431,69 +400,21 @@ class RigidModelRegression:
         self._check()
         p = self.profile_
         tray = p.tray_mass_kg if tray_kg is None else tray_kg
-        ratio = p.chordal_radius_m / p.kinematic_ratio
-        return float(
-            self.parameters_["J_d"]
-            + (p.belt_mass_kg + tray + payload_kg) * ratio * ratio / p.gear.efficiency
-        )
+        return drive_inertia_at(p, self.parameters_["J_d"], p.belt_mass_kg + tray + payload_kg)
 
     def predict(
         self, recording: Recording, *, payload_kg: float, tray_kg: float | None = None
     ) -> FloatArray:
         """Model torque at every sample of a recording, Nm.
 
-        The acceleration is the Savitzky-Golay derivative of the measured speed.
+        Evaluates :func:`chaintwin.model.rigid.model_torque` with the fitted
+        parameters.
         """
         self._check()
         return model_torque(
             recording,
             self.profile_,
             self.parameters_,
-            payload_kg=payload_kg,
+            payload_kg,
             tray_kg=self.profile_.tray_mass_kg if tray_kg is None else tray_kg,
         )
-
-
-def model_torque(
-    recording: Recording,
-    profile: ConveyorProfile,
-    params: RigidParameters,
-    *,
-    payload_kg: float,
-    tray_kg: float,
-) -> FloatArray:
-    """Rigid-model motor torque at every sample, Nm.
-
-    Parameters
-    ----------
-    recording : Recording
-        Supplies speed (and its derivative) and the power-flow direction.
-    profile : ConveyorProfile
-        r, i, η, belt mass, incline.
-    params : RigidParameters
-        J_d, μ, BmA, BmB, BmC.
-    payload_kg, tray_kg : float
-        Carried masses, kg.
-    """
-    w = recording.speed
-    alpha = acceleration(recording)
-    r = profile.chordal_radius_m
-    i = profile.kinematic_ratio
-    eta = profile.gear.efficiency
-    g_cos, g_sin = incline_terms(profile)
-    mass = profile.belt_mass_kg + tray_kg + payload_kg
-    sgn = np.sign(w)
-    # power flows motor → belt while the gear's output load Q = F·r/i + M·(r/i)²·α
-    # moves with the belt
-    belt_force = g_cos * params["mu"] * mass * sgn + g_sin * (tray_kg + payload_kg)
-    q = belt_force * (r / i) + mass * (r / i) ** 2 * alpha
-    gf = np.where(q * w >= 0.0, r / (i * eta), r * eta / i)
-    out: FloatArray = (
-        params["J_d"] * alpha
-        + mass * (r / i) * gf * alpha
-        + belt_force * gf
-        + params["BmA"] * sgn
-        + params["BmB"] * w
-        + params["BmC"] * w * np.abs(w)
-    )
-    return out

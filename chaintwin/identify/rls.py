@@ -1,6 +1,6 @@
 """Recursive least squares with directional forgetting, for the online twin.
 
-The rigid model is linear in its unknowns (see :mod:`chaintwin.identify.windows`),
+The rigid model is linear in its unknowns (see :mod:`chaintwin.model.rigid`),
 ``y = φᵀθ + e``, one row ``φ`` per window (or per sample, or per cycle). The
 online twin updates the estimate θ with every row instead of solving the
 batch problem again (DESIGN.md, section 3).
@@ -11,7 +11,7 @@ With ``P`` the (unscaled) covariance, ``r = φᵀPφ`` and the a-priori error
 ``e = y − φᵀθ``::
 
     θ ← θ + P·φ·e/(1 + r)
-    P ← P − ε·Pφφᵀ P/(1 + ε·r),       ε = μ − (1 − μ)/r
+    P ← P − ε·Pφφᵀ P/(1 + ε·r),       ε = λ − (1 − λ)/r
 
 This is the **directional forgetting** of Kulhavý (R. Kulhavý, "Restricted
 exponential forgetting in real-time identification", Automatica 23(5),
@@ -19,36 +19,36 @@ exponential forgetting in real-time identification", Automatica 23(5),
 "Convergence and exponential convergence of identification algorithms with
 directional forgetting factor", Automatica 26(5), 1990). In
 information form ``R = P⁻¹`` it reads ``R ← R + ε·φφᵀ``: the old information
-is discounted by the forgetting factor μ **only in the direction φ that the
+is discounted by the forgetting factor λ **only in the direction φ that the
 new row excites** (in that direction the information becomes
-``μ·(old + new)``), and left alone in every other direction. With μ = 1,
+``λ·(old + new)``), and left alone in every other direction. With λ = 1,
 ε = 1 and the update is ordinary recursive least squares, which equals the
 batch least-squares solution regularised by ``‖θ‖²/delta`` (the prior
 ``θ₀ = 0``, ``P₀ = delta·I``) to rounding.
 
 Why not plain exponential forgetting
 ------------------------------------
-``P ← P/μ`` after each update forgets in all directions. When the regressor
+``P ← P/λ`` after each update forgets in all directions. When the regressor
 carries no information (standstill: φ = 0; constant speed: φ always along
 the same direction) nothing replaces what is forgotten and P grows like
-``μ⁻ᵏ`` ("covariance wind-up", 10 000 rows at μ = 0.95 overflow): the next
+``λ⁻ᵏ`` ("covariance wind-up", 10 000 rows at λ = 0.95 overflow): the next
 informative row then throws the estimate about. Directional forgetting
 cannot wind up:
 
 * φ = 0 (or ``r ≤ dead_zone``): the row is skipped, P and θ stay as they are;
 * φ always along one direction ``v``: the information along ``v`` converges
-  to ``μ·|φ|²/(1 − μ)`` (bounded below, so P is bounded above) and the
+  to ``λ·|φ|²/(1 − λ)`` (bounded below, so P is bounded above) and the
   information in the other directions is kept.
 
 The price: with rows spread over all p directions, each direction is
-discounted about once every p rows, so the memory is about ``p/(1 − μ)``
-rows instead of ``1/(1 − μ)``; choose μ for that (p = 2, μ = 0.98 tracks a
+discounted about once every p rows, so the memory is about ``p/(1 − λ)``
+rows instead of ``1/(1 − λ)``; choose λ for that (p = 2, λ = 0.98 tracks a
 parameter step to 2 % in some 360 rows).
 
 A caveat: a row with a tiny but non-zero φ (noise at standstill) still
-triggers the full discount ``μ`` in its direction, so P can grow there up to
-about ``(1 − μ)/(μ·|φ|²)``. Leave standstill out of the rows (as
-:func:`~chaintwin.identify.windows.window_integrals` does), raise
+triggers the full discount ``λ`` in its direction, so P can grow there up to
+about ``(1 − λ)/(λ·|φ|²)``. Leave standstill out of the rows (as
+:func:`~chaintwin.model.windows.window_integrals` does), raise
 ``dead_zone`` (``r = φᵀPφ`` is the share of new against existing information
 along φ), or bound the trace with ``max_trace``.
 
@@ -56,17 +56,17 @@ Numerics
 --------
 P is kept as a square-root factor ``P = S·Sᵀ`` updated as in Potter's
 square-root filter, ``S ← S·(I − γ·f·fᵀ)`` with ``f = Sᵀφ`` and
-``γ = ε/(s·(1 + s))``, ``s = √(μ·(1 + r))``: P stays symmetric and positive
+``γ = ε/(s·(1 + s))``, ``s = √(λ·(1 + r))``: P stays symmetric and positive
 definite by construction (``det(I − γ·f·fᵀ) = 1/s > 0``), and the step is
 exact in exact arithmetic. The update loop is compiled with numba.
 
 Parameter covariance
 --------------------
 ``covariance_ = σ²·P`` with σ² the running residual variance estimate
-``Σ μ^(k−j)·e_j²/(1 + r_j)`` over ``Σ μ^(k−j) − p`` (for μ = 1 exactly the
+``Σ λ^(k−j)·e_j²/(1 + r_j)`` over ``Σ λ^(k−j) − p`` (for λ = 1 exactly the
 regularised residual sum of squares over ``n − p``, as in batch least
 squares). It assumes white residuals; with forgetting σ² is an average over
-about the last ``1/(1 − μ)`` informative rows.
+about the last ``1/(1 − λ)`` informative rows.
 """
 
 from __future__ import annotations
@@ -78,11 +78,11 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit
 
+from chaintwin._types import FloatArray
 from chaintwin.errors import EstimationError, NotFittedError
 
 __all__ = ["RecursiveLeastSquares"]
 
-FloatArray = npt.NDArray[np.float64]
 
 # stats vector of the compiled loop
 _S_RES = 0  # discounted sum of a-posteriori squared errors
@@ -98,7 +98,7 @@ def _update(
     theta: np.ndarray,
     s: np.ndarray,
     stats: np.ndarray,
-    mu: float,
+    lam: float,
     dead_zone: float,
     max_trace: float,
 ) -> None:  # pragma: no cover - compiled; tested through RecursiveLeastSquares
@@ -131,15 +131,15 @@ def _update(
         c = e / one_r
         for i in range(p):
             theta[i] += g[i] * c
-        eps = 1.0 if mu == 1.0 else mu - (1.0 - mu) / r
-        root = math.sqrt(mu * one_r)  # √(1 + ε·r)
+        eps = 1.0 if lam == 1.0 else lam - (1.0 - lam) / r
+        root = math.sqrt(lam * one_r)  # √(1 + ε·r)
         gamma = eps / (root * (1.0 + root))
         for i in range(p):
             gi = gamma * g[i]
             for j in range(p):
                 s[i, j] -= gi * f[j]
-        stats[_S_RES] = mu * stats[_S_RES] + e * c
-        stats[_N_EFF] = mu * stats[_N_EFF] + 1.0
+        stats[_S_RES] = lam * stats[_S_RES] + e * c
+        stats[_N_EFF] = lam * stats[_N_EFF] + 1.0
         if max_trace > 0.0:
             tr = 0.0
             for i in range(p):
@@ -152,6 +152,12 @@ def _update(
                         s[i, j] *= scale
 
 
+def _no_stats() -> FloatArray:
+    out = np.zeros(4, dtype=np.float64)
+    out.flags.writeable = False
+    return out
+
+
 class RecursiveLeastSquares:
     """Recursive least squares with Kulhavý's directional forgetting.
 
@@ -161,19 +167,19 @@ class RecursiveLeastSquares:
     Parameters
     ----------
     forgetting : float
-        Forgetting factor μ in (0, 1]; 1 keeps every row (equals batch least
+        Forgetting factor λ in (0, 1]; 1 keeps every row (equals batch least
         squares). Below 1, each row discounts the information only along its
         own direction, so with rows spread over all p directions the memory
-        is about ``p/(1 − μ)`` rows (plain exponential forgetting:
-        ``1/(1 − μ)``); along a direction that is never excited it is kept.
+        is about ``p/(1 − λ)`` rows (plain exponential forgetting:
+        ``1/(1 − λ)``); along a direction that is never excited it is kept.
     delta : float
         Initial covariance ``P₀ = delta·I`` (θ₀ = 0): a prior of standard
-        deviation ``√delta`` in the units of θ. With μ = 1 the estimate equals
+        deviation ``√delta`` in the units of θ. With λ = 1 the estimate equals
         ridge regression with penalty ``1/delta``.
     max_trace : float, optional
         When given, P is scaled down whenever its trace exceeds this bound
         (a hard bound on top of directional forgetting; off by default, so
-        that μ = 1 stays exact least squares).
+        that λ = 1 stays exact least squares).
     dead_zone : float
         Rows with ``φᵀPφ ≤ dead_zone`` carry no information and are skipped
         (no forgetting, no update, no residual). ``φᵀPφ`` is dimensionless:
@@ -206,6 +212,11 @@ class RecursiveLeastSquares:
     [2.0, -1.0]
     """
 
+    # state of a fit, set by fit()/partial_fit(); __init__ only stores settings
+    _theta: FloatArray | None = None
+    _sqrt_p: FloatArray | None = None
+    _stats: FloatArray = _no_stats()
+
     def __init__(
         self,
         *,
@@ -218,9 +229,6 @@ class RecursiveLeastSquares:
         self.delta = delta
         self.max_trace = max_trace
         self.dead_zone = dead_zone
-        self._theta: FloatArray | None = None
-        self._sqrt_p: FloatArray | None = None
-        self._stats: FloatArray = np.zeros(4, dtype=np.float64)
 
     def __repr__(self) -> str:
         return (
@@ -230,9 +238,9 @@ class RecursiveLeastSquares:
 
     # ------------------------------------------------------------ checks
     def _check_settings(self) -> None:
-        mu = self.forgetting
-        if not (isinstance(mu, int | float) and math.isfinite(mu) and 0.0 < mu <= 1.0):
-            raise EstimationError(f"forgetting={mu!r} must lie in (0, 1]; 1 means no forgetting")
+        lam = self.forgetting
+        if not (isinstance(lam, int | float) and math.isfinite(lam) and 0.0 < lam <= 1.0):
+            raise EstimationError(f"forgetting={lam!r} must lie in (0, 1]; 1 means no forgetting")
         if not (math.isfinite(self.delta) and self.delta > 0.0):
             raise EstimationError(f"delta={self.delta!r} must be a positive number")
         if self.max_trace is not None and not (
@@ -381,7 +389,7 @@ class RecursiveLeastSquares:
     def residual_variance_(self) -> float:
         """Running residual variance σ², units of ``y`` squared (NaN before any informative row).
 
-        ``Σ μ^(k−j)·e_j²/(1 + r_j)`` over ``max(Σ μ^(k−j) − p, 1)``.
+        ``Σ λ^(k−j)·e_j²/(1 + r_j)`` over ``max(Σ λ^(k−j) − p, 1)``.
         """
         theta = self._fitted()[0]
         n_eff = float(self._stats[_N_EFF])

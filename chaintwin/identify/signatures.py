@@ -7,20 +7,19 @@ how the inertia signature behaves on this conveyor) and weighing. See
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 
+from chaintwin._types import FloatArray
 from chaintwin.errors import EstimationError
-from chaintwin.identify.regression import RigidParameters, serial_correlation_factor
-from chaintwin.identify.windows import (
-    WindowIntegrals,
-    incline_terms,
-    motoring_mask,
-    window_integrals,
-)
+from chaintwin.identify.regression import serial_correlation_factor
+from chaintwin.model.rigid import RigidParameters, incline_terms, motoring_mask
+from chaintwin.model.windows import WindowIntegrals, window_integrals
 from chaintwin.read.profile import ConveyorProfile
-from chaintwin.read.recording import FloatArray, Recording
+from chaintwin.read.recording import Recording
+from chaintwin.validate.phases import Phase
 
 __all__ = ["SignatureFit", "fit_condition", "fit_signatures"]
 
@@ -258,6 +257,7 @@ def fit_signatures(
     motoring: np.ndarray | None = None,
     ramp_rate: float | None = None,
     windows: WindowIntegrals | None = None,
+    phases: Sequence[Phase] | None = None,
 ) -> tuple[SignatureFit, FloatArray]:
     """Fit the payload signatures against a calibrated empty-conveyor model.
 
@@ -281,6 +281,9 @@ def fit_signatures(
     windows : WindowIntegrals, optional
         The recording's window integrals, when already computed with this
         ``motoring`` (ignored with a ``span``).
+    phases : sequence of Phase, optional
+        The recording's movement phases (validation's segmentation), passed
+        to :func:`~chaintwin.model.windows.window_integrals`.
 
     Returns
     -------
@@ -292,12 +295,14 @@ def fit_signatures(
         motoring = motoring_mask(
             rec,
             drive_inertia_kgm2=params["J_d"],
-            losses=(params["BmA"], params["BmB"], params["BmC"]),
+            losses=params.losses,
         )
     if windows is not None and span is None:
         every = windows
     else:
-        every = window_integrals(rec, prof, motoring=motoring, span=span)
+        every = window_integrals(
+            rec, prof, motoring=motoring, span=span, phases=None if phases is None else list(phases)
+        )
     # primary: plateau windows and whole-ramp windows; the short windows inside
     # ramps see the belt's ringing against the motor's acceleration and bias the
     # inertia signature of a lightly damped belt
@@ -374,7 +379,7 @@ def fit_condition(
         motoring = motoring_mask(
             rec,
             drive_inertia_kgm2=params["J_d"],
-            losses=(params["BmA"], params["BmB"], params["BmC"]),
+            losses=params.losses,
         )
     every = windows if windows is not None else window_integrals(rec, prof, motoring=motoring)
     return _fit(every, prof, params.values, tray, ramp_rate, loss_term=True)

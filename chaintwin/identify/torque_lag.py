@@ -55,6 +55,7 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 from scipy.signal import lfilter
 
+from chaintwin._types import FloatArray
 from chaintwin.errors import EstimationError, NotFittedError
 
 __all__ = [
@@ -66,7 +67,6 @@ __all__ = [
     "simulate_torque_lag",
 ]
 
-FloatArray = npt.NDArray[np.float64]
 
 MAX_DELAY_CYCLES = 3
 """Largest delay, in controller cycles, tried when the delay is searched."""
@@ -453,6 +453,9 @@ class TorqueLagEstimator:
     0.98
     """
 
+    # set by fit(); __init__ only stores settings
+    _result: TorqueLagResult | None = None
+
     def __init__(
         self,
         *,
@@ -463,7 +466,6 @@ class TorqueLagEstimator:
         self.delay_cycles = delay_cycles
         self.cycle_s = cycle_s
         self.max_sample_time_s = max_sample_time_s
-        self._result: TorqueLagResult | None = None
 
     def __repr__(self) -> str:
         return (

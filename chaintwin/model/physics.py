@@ -24,7 +24,8 @@ from typing import overload
 
 import numpy as np
 
-from chaintwin.read.recording import FloatArray
+from chaintwin._types import FloatArray
+from chaintwin.units import G
 
 __all__ = [
     "G",
@@ -40,9 +41,6 @@ __all__ = [
     "steady_torque_nm",
     "two_mass_frequency_hz",
 ]
-
-G = 9.81
-"""Gravitational acceleration, m/s² (as in DESIGN.md)."""
 
 
 def chordal_radius_m(pitch_radius_m: float, teeth: int | None) -> float:
@@ -97,7 +95,7 @@ def polygon_radius_m(pitch_radius_m: float, teeth: int, sprocket_angle_rad: floa
 
 def belt_force_n(
     *,
-    friction: float,
+    mu: float,
     moving_mass_kg: float,
     carried_mass_kg: float,
     incline_rad: float = 0.0,
@@ -111,7 +109,7 @@ def belt_force_n(
 
     Parameters
     ----------
-    friction : float
+    mu : float
         Kinetic friction coefficient μ.
     moving_mass_kg : float
         Belt + tray + payload, kg.
@@ -130,7 +128,7 @@ def belt_force_n(
     """
     sign = float(np.sign(direction))
     return (
-        friction * G * math.cos(incline_rad) * moving_mass_kg * sign
+        mu * G * math.cos(incline_rad) * moving_mass_kg * sign
         + G * math.sin(incline_rad) * carried_mass_kg
     )
 
@@ -294,7 +292,7 @@ def reflected_inertia_kgm2(
 def steady_torque_nm(
     *,
     speed_rad_s: float,
-    friction: float,
+    mu: float,
     moving_mass_kg: float,
     carried_mass_kg: float,
     incline_rad: float,
@@ -315,8 +313,8 @@ def steady_torque_nm(
     ----------
     speed_rad_s : float
         Motor speed ω, rad/s (non-zero).
-    friction : float
-        μ.
+    mu : float
+        Friction coefficient μ.
     moving_mass_kg, carried_mass_kg : float
         Belt + tray + payload and tray + payload, kg.
     incline_rad : float
@@ -334,7 +332,7 @@ def steady_torque_nm(
         Motor torque, Nm.
     """
     force = belt_force_n(
-        friction=friction,
+        mu=mu,
         moving_mass_kg=moving_mass_kg,
         carried_mass_kg=carried_mass_kg,
         incline_rad=incline_rad,
@@ -349,14 +347,14 @@ def steady_torque_nm(
 
 
 def payload_sensitivity_nm_kg(
-    *, friction: float, incline_rad: float, radius_m: float, ratio: float, efficiency: float
+    *, mu: float, incline_rad: float, radius_m: float, ratio: float, efficiency: float
 ) -> float:
     """Steady torque per kg of payload while motoring, ``g·(μ·cosβ + sinβ)·r/(i·η)``, Nm/kg.
 
     Parameters
     ----------
-    friction : float
-        μ.
+    mu : float
+        Friction coefficient μ.
     incline_rad : float
         β, rad.
     radius_m : float
@@ -370,10 +368,7 @@ def payload_sensitivity_nm_kg(
         Nm per kg.
     """
     return (
-        G
-        * (friction * math.cos(incline_rad) + math.sin(incline_rad))
-        * radius_m
-        / (ratio * efficiency)
+        G * (mu * math.cos(incline_rad) + math.sin(incline_rad)) * radius_m / (ratio * efficiency)
     )
 
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from chaintwin.read.recording import FloatArray
+from chaintwin._types import FloatArray
 
 __all__ = ["parse_grid"]
 

@@ -59,9 +59,6 @@ __all__ = [
     "parse_profile",
 ]
 
-G = 9.81
-"""Gravitational acceleration in m/s², as in DESIGN.md."""
-
 Positive = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
 NonNegative = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
 
@@ -197,13 +194,12 @@ class ConveyorProfile(_Spec):
     def chordal_radius_m(self) -> float:
         """Chordal mean radius r = R·sin(π/z)/(π/z), m (R when z is unknown).
 
-        A chain advances r per sprocket radian on average.
+        A chain advances r per sprocket radian on average
+        (:func:`chaintwin.model.physics.chordal_radius_m`).
         """
-        z = self.sprocket.teeth
-        if z is None:
-            return self.pitch_radius_m
-        x = math.pi / z
-        return self.pitch_radius_m * math.sin(x) / x
+        from chaintwin.model import physics  # the formula's one place; model sits above read
+
+        return physics.chordal_radius_m(self.pitch_radius_m, self.sprocket.teeth)
 
     @property
     def kinematic_ratio(self) -> float:
@@ -271,13 +267,16 @@ class ConveyorProfile(_Spec):
         motoring : bool
             True while power flows from the motor to the belt.
         """
-        eta = self.gear.efficiency
-        factor = 1.0 / eta if motoring else eta
-        ratio = self.chordal_radius_m / self.kinematic_ratio
-        return (
-            self.motor.inertia_kgm2
-            + self.gear.inertia_kgm2
-            + self.moving_mass_kg(payload_kg) * ratio * ratio * factor
+        from chaintwin.model import physics  # the formula's one place; model sits above read
+
+        return physics.reflected_inertia_kgm2(
+            motor_inertia_kgm2=self.motor.inertia_kgm2,
+            gear_inertia_kgm2=self.gear.inertia_kgm2,
+            moving_mass_kg=self.moving_mass_kg(payload_kg),
+            radius_m=self.chordal_radius_m,
+            ratio=self.kinematic_ratio,
+            efficiency=self.gear.efficiency,
+            motoring=motoring,
         )
 
     def belt_stiffness_n_m(self) -> float | None:

@@ -28,10 +28,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from chaintwin._types import FloatArray
 from chaintwin.errors import RecordingError
 from chaintwin.read.columns import ColumnMap
 from chaintwin.read.fastparse import parse_grid
-from chaintwin.read.recording import FloatArray, Metadata, Recording
+from chaintwin.read.recording import Metadata, Recording
 from chaintwin.units import CANONICAL_CHANNELS, REQUIRED_CHANNELS, UnitContext, to_si_factor
 
 if TYPE_CHECKING:

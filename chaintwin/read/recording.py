@@ -15,15 +15,15 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
+from chaintwin._types import FloatArray
+
 __all__ = [
     "WARNING_CODES",
-    "FloatArray",
     "Metadata",
     "Recording",
     "RecordingWarning",
 ]
 
-FloatArray = npt.NDArray[np.float64]
 
 WarningCode = Literal[
     "incomplete_cycle",

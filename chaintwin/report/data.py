@@ -23,15 +23,15 @@ from typing import Any
 
 import numpy as np
 
+from chaintwin._types import FloatArray
 from chaintwin.diagnose.features import FeatureSpec, feature_spec
 from chaintwin.diagnose.health import FeatureBaseline
 from chaintwin.diagnose.monitor import ConveyorMonitor
-from chaintwin.diagnose.residuals import model_torque
 from chaintwin.errors import ChaintwinError, StoreError
 from chaintwin.identify.calibration import Calibration
-from chaintwin.identify.windows import motoring_mask
+from chaintwin.model.rigid import model_torque, motoring_mask
 from chaintwin.read.profile import ConveyorProfile
-from chaintwin.read.recording import FloatArray, Recording
+from chaintwin.read.recording import Recording
 from chaintwin.store.store import Store
 
 __all__ = [

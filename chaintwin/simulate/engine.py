@@ -38,9 +38,9 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from chaintwin._types import FloatArray
 from chaintwin.errors import ModelError
 from chaintwin.model.physics import G, chordal_radius_m
-from chaintwin.read.recording import FloatArray
 from chaintwin.simulate import kernel as _k
 from chaintwin.simulate.plant import PlantParameters
 from chaintwin.simulate.setpoints import Setpoints

@@ -394,7 +394,7 @@ class PlantParameters:
         """Rigid-model motor torque at a constant speed, Nm."""
         return physics.steady_torque_nm(
             speed_rad_s=speed_rad_s,
-            friction=self.friction,
+            mu=self.friction,
             moving_mass_kg=self.moving_mass_kg,
             carried_mass_kg=self.carried_mass_kg,
             incline_rad=self.incline_rad,

@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from chaintwin._types import FloatArray
 from chaintwin.errors import ModelError
-from chaintwin.read.recording import FloatArray
 
 __all__ = [
     "Setpoints",

@@ -31,9 +31,10 @@ from typing import Any
 
 import numpy as np
 
+from chaintwin._types import FloatArray
 from chaintwin.errors import ModelError
 from chaintwin.read.profile import ConveyorProfile, ModelSpec
-from chaintwin.read.recording import FloatArray, Metadata, Recording
+from chaintwin.read.recording import Metadata, Recording
 from chaintwin.simulate.engine import SimulationResult, simulate
 from chaintwin.simulate.faults import (
     BEARING_AMPLITUDE,

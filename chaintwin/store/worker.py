@@ -74,7 +74,7 @@ def prepare(
     if calibration is None:
         return Prepared(rec, None, None, samples)
     try:
-        features = recording_features(rec, calibration, phases=inspection.phases)
+        features = recording_features(replace(inspection, recording=rec), calibration)
         return Prepared(rec, features, None, samples)
     except EstimationError:
         return Prepared(rec, None, None, samples)  # the monitor reports it in its own words

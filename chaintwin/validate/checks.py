@@ -13,10 +13,11 @@ from pathlib import Path
 
 import numpy as np
 
+from chaintwin._types import FloatArray
 from chaintwin.read.columns import ColumnMap
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.reader import read_recording
-from chaintwin.read.recording import FloatArray, Recording, RecordingWarning
+from chaintwin.read.recording import Recording, RecordingWarning
 from chaintwin.units import RPM_TO_RAD_S
 from chaintwin.validate.phases import Phase, segment
 

@@ -28,7 +28,7 @@ import numpy as np
 from scipy.ndimage import convolve1d
 from scipy.signal import savgol_coeffs
 
-from chaintwin.read.recording import FloatArray
+from chaintwin._types import FloatArray
 
 __all__ = ["gradient", "savgol"]
 

@@ -17,7 +17,8 @@ from typing import Literal
 
 import numpy as np
 
-from chaintwin.read.recording import FloatArray, Recording
+from chaintwin._types import FloatArray
+from chaintwin.read.recording import Recording
 from chaintwin.units import RPM_TO_RAD_S
 from chaintwin.validate.filters import gradient, savgol
 

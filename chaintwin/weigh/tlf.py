@@ -29,11 +29,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from chaintwin.identify.regression import RigidParameters
-from chaintwin.identify.windows import acceleration
-from chaintwin.model.physics import G
+from chaintwin.model.physics import gear_factor
+from chaintwin.model.rigid import RigidParameters, gear_input_torque_nm
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
+from chaintwin.units import G
 
 __all__ = ["MIN_PAYLOAD_KG", "sprocket_work_and_distance", "transport_loss_factor"]
 
@@ -57,12 +57,13 @@ def sprocket_work_and_distance(
     """
     t = recording.time
     w = recording.speed
-    alpha = acceleration(recording)
-    loss = params["BmA"] * np.sign(w) + params["BmB"] * w + params["BmC"] * w * np.abs(w)
-    q = recording.torque - params["J_d"] * alpha - loss
+    q = gear_input_torque_nm(recording, drive_inertia_kgm2=params["J_d"], losses=params.losses)
     p_in = q * w
     eta = profile.gear.efficiency
-    p_out = np.where(p_in >= 0.0, eta * p_in, p_in / eta)
+    # the gear passes η of the power on while motoring, 1/η of it when the belt drives
+    p_out = p_in / np.where(
+        p_in >= 0.0, gear_factor(eta, motoring=True), gear_factor(eta, motoring=False)
+    )
     h = np.diff(t)
     work = float(np.sum(0.5 * (p_out[1:] + p_out[:-1]) * h))
     speed = np.abs(w) * profile.chordal_radius_m / profile.kinematic_ratio

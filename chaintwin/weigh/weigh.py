@@ -8,7 +8,7 @@ The payload shows up twice in a recording (DESIGN.md, identifiability):
   It does not depend on μ or the losses.
 
 :func:`weigh` subtracts the calibrated empty-conveyor model from the
-measured torque (window integrals, see :mod:`chaintwin.identify.windows`)
+measured torque (window integrals, see :mod:`chaintwin.model.windows`)
 and fits what is left with the two signatures as separate unknowns, plus
 the polygon effect's tooth-pass ripple as nuisance terms. The two estimates
 are reported separately; when they disagree beyond their combined
@@ -38,9 +38,11 @@ import numpy as np
 from chaintwin.errors import EstimationError
 from chaintwin.identify.calibration import INERTIA_MODEL_REL, Calibration
 from chaintwin.identify.signatures import SignatureFit, fit_signatures
-from chaintwin.identify.windows import WindowIntegrals, motoring_mask
-from chaintwin.read.recording import Recording, RecordingWarning
+from chaintwin.model.rigid import motoring_mask
+from chaintwin.model.windows import WindowIntegrals
+from chaintwin.read.recording import RecordingWarning
 from chaintwin.units import RPM_TO_RAD_S
+from chaintwin.validate.checks import Inspection
 from chaintwin.weigh.tlf import transport_loss_factor
 
 __all__ = ["CONSISTENCY_SIGMA", "Segment", "WeighResult", "weigh"]
@@ -154,7 +156,7 @@ def _step(fit: SignatureFit) -> tuple[float, float, float] | None:
 
 
 def weigh(
-    recording: Recording,
+    inspection: Inspection,
     calibration: Calibration,
     *,
     source: str | None = None,
@@ -165,19 +167,21 @@ def weigh(
 
     Parameters
     ----------
-    recording : Recording
-        A validated recording of the calibrated conveyor (its warnings are
-        carried into the result).
+    inspection : Inspection
+        A validated recording of the calibrated conveyor with its movement
+        phases (:func:`~chaintwin.validate.checks.inspect_recording`); its
+        warnings are carried into the result and its phases are used as
+        they are, not segmented again.
     calibration : Calibration
         The conveyor's calibration.
     source : str, optional
         File name to report (default ``recording.source``).
     motoring : np.ndarray of bool, optional
         Power-flow direction per sample, when already computed with the
-        calibration's parameters (:func:`~chaintwin.identify.windows.motoring_mask`).
+        calibration's parameters (:func:`~chaintwin.model.rigid.motoring_mask`).
     windows : WindowIntegrals, optional
         The recording's window integrals with that ``motoring``, when already
-        computed (:func:`~chaintwin.identify.windows.window_integrals`).
+        computed (:func:`~chaintwin.model.windows.window_integrals`).
 
     Returns
     -------
@@ -188,6 +192,8 @@ def weigh(
     EstimationError
         When the recording cannot be weighed (no motion, no usable window).
     """
+    recording = inspection.recording
+    phases = list(inspection.phases)
     name = source if source is not None else recording.source
     prof = calibration.id_profile
     params = calibration.parameters
@@ -202,12 +208,19 @@ def weigh(
         else motoring_mask(
             recording,
             drive_inertia_kgm2=params["J_d"],
-            losses=(params["BmA"], params["BmB"], params["BmC"]),
+            losses=params.losses,
         )
     )
     rate = calibration.ramp_noise_rate
     fit, cov = fit_signatures(
-        recording, prof, params, tray, motoring=mot, ramp_rate=rate, windows=windows
+        recording,
+        prof,
+        params,
+        tray,
+        motoring=mot,
+        ramp_rate=rate,
+        windows=windows,
+        phases=phases,
     )
 
     segments: tuple[Segment, ...] = ()
@@ -217,10 +230,10 @@ def weigh(
         t = recording.time
         try:
             first, _cov_first = fit_signatures(
-                recording, prof, params, tray, (float(t[0]), t_step), mot, rate
+                recording, prof, params, tray, (float(t[0]), t_step), mot, rate, phases=phases
             )
             last, cov_last = fit_signatures(
-                recording, prof, params, tray, (t_step, float(t[-1])), mot, rate
+                recording, prof, params, tray, (t_step, float(t[-1])), mot, rate, phases=phases
             )
         except EstimationError:
             # too little on one side to weigh it: keep the whole-recording fit

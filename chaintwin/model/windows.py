@@ -13,13 +13,10 @@ speed, each term is integrated over short windows (the integral form
 ``J·(ω(t₂) − ω(t₁)) = ∫(T_m − ...)dt``): the inertia regressor becomes a
 speed difference, everything else a time integral of measured quantities.
 
-Which side the power flows from is decided per sample from the torque that
-reaches the gear input, ``Q = T_m − J_d·α − T_loss``: motoring while
-``Q·ω ≥ 0`` (:func:`motoring_mask`). The motor torque alone would not do: in
-a deceleration it is negative (the drive brakes its own rotor) while the
-gear still pushes the belt against its friction. Q needs J_d and the losses,
-so estimators start from the profile's motor + gear inertia with zero losses
-and repeat with their own estimates.
+Which side the power flows from is decided per sample by the one power-flow
+rule, :func:`chaintwin.model.rigid.motoring_mask`. It needs J_d and the
+losses, so estimators start from the profile's motor + gear inertia with zero
+losses and repeat with their own estimates.
 
 Windows lie inside the moving part of the recording, away from standstill
 (the Coulomb sign terms and stiction make standstill samples useless), and
@@ -29,26 +26,24 @@ nearly independent).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
 import numpy.typing as npt
 
+from chaintwin._types import FloatArray
 from chaintwin.errors import EstimationError
-from chaintwin.model.physics import G
+from chaintwin.model.physics import gear_factor
+from chaintwin.model.rigid import motoring_mask
 from chaintwin.read.profile import ConveyorProfile
-from chaintwin.read.recording import FloatArray, Recording
-from chaintwin.validate.filters import gradient, savgol
+from chaintwin.read.recording import Recording
+from chaintwin.validate.filters import gradient
 from chaintwin.validate.phases import Phase, segment
 
 __all__ = [
     "DEFAULT_WINDOW_S",
     "WindowIntegrals",
-    "acceleration",
-    "incline_terms",
-    "motoring_mask",
     "window_integrals",
 ]
 
@@ -129,48 +124,6 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     padded = np.concatenate(([False], mask, [False])).astype(np.int8)
     edges = np.flatnonzero(np.diff(padded))
     return [(int(a), int(b)) for a, b in zip(edges[0::2], edges[1::2], strict=True)]
-
-
-def acceleration(recording: Recording) -> FloatArray:
-    """Motor acceleration, rad/s²: Savitzky-Golay derivative of the speed (9 points)."""
-    w = recording.speed
-    n = w.shape[0]
-    dt = float(np.median(np.diff(recording.time)))
-    win = min(n if n % 2 else n - 1, 9)
-    out: FloatArray = savgol(w, win, 2, deriv=1, delta=dt)
-    return out
-
-
-def motoring_mask(
-    recording: Recording,
-    *,
-    drive_inertia_kgm2: float,
-    losses: tuple[float, float, float] = (0.0, 0.0, 0.0),
-    torque_channel: str = "torque",
-) -> np.ndarray:
-    """True where power flows motor → belt: ``(T_m − J_d·α − T_loss)·ω ≥ 0``.
-
-    Parameters
-    ----------
-    recording : Recording
-        The recording.
-    drive_inertia_kgm2 : float
-        Motor + gear inertia J_d, kg·m².
-    losses : (float, float, float)
-        BmA (Nm), BmB (Nm·s/rad), BmC (Nm·s²/rad²).
-    torque_channel : str
-        Torque used.
-    """
-    w = recording.speed
-    torque = recording.channels[torque_channel]
-    bma, bmb, bmc = losses
-    q = (
-        torque
-        - drive_inertia_kgm2 * acceleration(recording)
-        - (bma * np.sign(w) + bmb * w + bmc * w * np.abs(w))
-    )
-    mask: np.ndarray = q * w >= 0.0
-    return mask
 
 
 def _misses(mask: np.ndarray) -> npt.NDArray[np.int64]:
@@ -335,7 +288,9 @@ def window_integrals(
     r = profile.chordal_radius_m
     i = profile.kinematic_ratio
     eta = profile.gear.efficiency
-    gf = np.where(motoring, r / (i * eta), r * eta / i)
+    gf = (r / i) * np.where(
+        motoring, gear_factor(eta, motoring=True), gear_factor(eta, motoring=False)
+    )
     sgn = np.sign(w)
 
     wsp = recording.speed_setpoint
@@ -434,9 +389,3 @@ def window_integrals(
         kind=kind,
         ripple=integral[:, 6:m],
     )
-
-
-def incline_terms(profile: ConveyorProfile) -> tuple[float, float]:
-    """Return (g·cosβ, g·sinβ) for the profile's incline, m/s²."""
-    beta = math.radians(profile.belt.incline_deg)
-    return G * math.cos(beta), G * math.sin(beta)

@@ -25,14 +25,15 @@ $(VENV)/.installed-dev: pyproject.toml | $(BIN)/python
 demo: $(VENV)/.installed-run
 	$(BIN)/chaintwin demo
 
-## test: formatter check, linter, type checker, tests (warnings as errors); installs
-## PostgreSQL's binaries if missing (the store's tests start a server of their own)
+## test: formatter check, linter, type checker, tests and doctests (warnings as errors)
+## with a coverage floor; installs PostgreSQL's binaries if missing (the store's tests
+## start a server of their own)
 test: $(VENV)/.installed-dev
 	bash scripts/ensure_postgres.sh
 	$(BIN)/ruff format --check $(SOURCES)
 	$(BIN)/ruff check $(SOURCES)
 	$(BIN)/mypy chaintwin
-	$(BIN)/pytest -q
+	$(BIN)/pytest -q --cov --cov-report=term:skip-covered
 
 format: $(VENV)/.installed-dev
 	$(BIN)/ruff format $(SOURCES)

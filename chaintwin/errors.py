@@ -20,7 +20,10 @@ them into a one-line message and exit code 2; a traceback means a bug.
     └── ConnectorError          a live data source cannot be used
 
 Each message names the file and the place (line, column, field path) and
-says what to do.
+says what to do. The library names its own settings (``days``, ``url``), not
+the command line's options: an error about one setting carries its name in
+``field`` and mentions it, and the command line puts the option's name in
+its place (``days`` → ``--days``).
 
 Beside the tree, :class:`ConvergenceWarning` (a ``UserWarning``) tells that an
 estimator's result is usable but poorly determined, as in scikit-learn.
@@ -46,7 +49,24 @@ __all__ = [
 
 
 class ChaintwinError(Exception):
-    """Base of every error chaintwin raises for a user's mistake."""
+    """Base of every error chaintwin raises for a user's mistake.
+
+    Parameters
+    ----------
+    message : str
+        What is wrong and what to do; when ``field`` is given it mentions the
+        field by that name.
+    field : str, optional
+        The setting or argument the error is about, by its name in the
+        library (a keyword argument, a profile or calibration key).
+    """
+
+    field: str | None = None
+
+    def __init__(self, *args: object, field: str | None = None) -> None:
+        super().__init__(*args)
+        if field is not None:
+            self.field = field
 
 
 class DataError(ChaintwinError):
@@ -66,6 +86,8 @@ class RecordingError(DataError):
         1-based line number in the file, when the problem sits on a line.
     column : str, optional
         The column header (as written), when the problem sits in a column.
+    field : str, optional
+        The reading setting the message names (see :class:`ChaintwinError`).
     """
 
     def __init__(
@@ -75,7 +97,10 @@ class RecordingError(DataError):
         *,
         line: int | None = None,
         column: str | None = None,
+        field: str | None = None,
     ) -> None:
+        if field is not None:
+            self.field = field
         self.source = source
         self.line = line
         self.column = column

@@ -6,6 +6,7 @@ import pytest
 from conftest import make_text
 
 from chaintwin import RecordingError, parse_recording, read_recording
+from chaintwin.cli.common import error_message
 
 N = 40
 OK_HEAD = "time [s],speed [rpm],torque [Nm]"
@@ -33,7 +34,8 @@ def test_missing_required_column() -> None:
     err = refuse(text_of("time [s],speed [rpm]", [f"{k * 0.006:.3f},1" for k in range(N)]))
     assert "missing required column 'torque'" in str(err)
     assert err.line == 1
-    assert "--columns" in str(err)
+    assert err.field == "column_map"
+    assert "--columns" in error_message(err)  # the command line names its option
 
 
 def test_unknown_unit_names_column() -> None:
@@ -186,3 +188,17 @@ def test_error_in_semicolon_dialect_names_line() -> None:
     lines[20] = lines[20].split(";")[0] + ";x" * 7
     err = refuse("\n".join(lines))
     assert err.line == 21
+
+
+def test_cli_names_the_option_where_the_library_names_the_field() -> None:
+    from chaintwin.errors import ModelError
+
+    assert error_message(ModelError("days 0: must be at least 1", field="days")) == (
+        "--days 0: must be at least 1"
+    )
+    # only the field as a whole word, only its first mention
+    err = ModelError("per_day 0 (days 3, per_day below 1)", field="per_day")
+    assert error_message(err) == "--per-day 0 (days 3, per_day below 1)"
+    # no field, or a field no option sets: the library's words stand
+    assert error_message(ModelError("days 0")) == "days 0"
+    assert error_message(ModelError("speed_rpm 0", field="speed_rpm")) == "speed_rpm 0"

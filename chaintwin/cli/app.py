@@ -11,7 +11,7 @@ import sys
 
 import typer
 
-from chaintwin.cli.common import EXIT_ALARM, EXIT_USAGE
+from chaintwin.cli.common import EXIT_ALARM, EXIT_USAGE, error_message
 from chaintwin.errors import ChaintwinError
 
 __all__ = ["EXIT_ALARM", "EXIT_USAGE", "app", "main"]
@@ -69,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         return code if isinstance(code, int) else EXIT_USAGE
     except ChaintwinError as exc:
-        print(f"chaintwin: error: {exc}", file=sys.stderr)
+        print(f"chaintwin: error: {error_message(exc)}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
         print("chaintwin: interrupted", file=sys.stderr)

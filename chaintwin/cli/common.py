@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import sys
 from collections.abc import Iterable
 from pathlib import Path
@@ -12,14 +13,16 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
-from chaintwin.errors import RecordingError
+from chaintwin.errors import ChaintwinError, RecordingError
 from chaintwin.read.columns import ColumnMap, load_column_map
 from chaintwin.read.profile import ConveyorProfile, load_profile
 
 __all__ = [
     "EXIT_ALARM",
     "EXIT_USAGE",
+    "OPTION_OF_FIELD",
     "ColumnsOption",
+    "error_message",
     "expand_recordings",
     "load_options",
     "print_json",
@@ -31,6 +34,40 @@ EXIT_USAGE = 2
 """Exit code for bad input or usage."""
 EXIT_ALARM = 3
 """Exit code for ``--fail-on-alarm`` when an alarm is open."""
+
+OPTION_OF_FIELD: dict[str, str] = {
+    "alarm_rule": "--alarm-rule",
+    "baseline_n": "--baseline",
+    "by": "--by",
+    "column_map": "--columns",
+    "days": "--days",
+    "drift": "--drift",
+    "onset_day": "--onset",
+    "out": "--out",
+    "per_day": "--per-day",
+    "scheduler": "--scheduler",
+    "state": "--state",
+    "url": "--db",
+    "z_limit": "--z-limit",
+}
+"""The command-line option that sets each library field an error may name."""
+
+
+def error_message(exc: ChaintwinError) -> str:
+    """A library error in the command line's words: its field's name becomes the option's.
+
+    An error about one setting names it (:attr:`ChaintwinError.field`); where
+    an option sets it, the first mention of the field becomes the option
+    (``days 0: ...`` → ``--days 0: ...``; ``a column map (column_map)`` →
+    ``a column map (--columns)``).
+    """
+    message = str(exc)
+    option = OPTION_OF_FIELD.get(exc.field or "")
+    if option is None or exc.field is None:
+        return message
+    word = re.compile(rf"(?<![\w-]){re.escape(exc.field)}(?![\w-])")
+    return word.sub(option, message, count=1)
+
 
 #: The ``--columns`` option every command that reads recordings takes.
 ColumnsOption = Annotated[

@@ -13,6 +13,7 @@ from rich.table import Table
 from chaintwin import __version__
 from chaintwin.cli.common import (
     ColumnsOption,
+    error_message,
     expand_recordings,
     print_json,
     print_refused,
@@ -76,7 +77,7 @@ def _read_all(
                 raise RecordingError(f, "the conveyor does not move; nothing to identify")
             recs.append(rec)
         except ChaintwinError as exc:
-            refused.append({"file": f, "error": str(exc)})
+            refused.append({"file": f, "error": error_message(exc)})
     return recs, refused
 
 
@@ -261,12 +262,12 @@ def register(app: typer.Typer) -> None:
                 ins = _inspect(f, cal.profile, cmap)
                 results.append(weigh(ins, cal, source=f).to_dict())
             except EstimationError as exc:
-                message = str(exc)
+                message = error_message(exc)
                 if not message.startswith(f):
                     message = f"{f}: {message}"
                 results.append({"file": f, "error": message})
             except ChaintwinError as exc:
-                results.append({"file": f, "error": str(exc)})
+                results.append({"file": f, "error": error_message(exc)})
         if as_json:
             print_json(results)
         else:

@@ -12,6 +12,7 @@ from rich.table import Table
 
 from chaintwin.cli.common import (
     ColumnsOption,
+    error_message,
     expand_recordings,
     load_options,
     print_json,
@@ -59,7 +60,7 @@ def inspect_files(
         try:
             ins = load_recording(f, profile=profile, column_map=column_map)
         except RecordingError as exc:
-            results.append({"file": f, "error": str(exc)})
+            results.append({"file": f, "error": error_message(exc)})
             continue
         results.append(inspection_to_dict(f, ins, profile))
     return results

@@ -233,8 +233,9 @@ def _parse_header(
                 raise RecordingError(
                     source,
                     f"header of column {idx} is '{cell}', not 'name [unit]'; "
-                    "rename it or map it with a column map (--columns)",
+                    "rename it or map it with a column map (column_map)",
                     line=lineno,
+                    field="column_map",
                 )
             name, unit = match["name"], match["unit"].strip()
             spec = CANONICAL_CHANNELS.get(name)
@@ -260,8 +261,9 @@ def _parse_header(
         raise RecordingError(
             source,
             f"missing required column '{missing[0]}' (header has: {found}); "
-            "add it, or map the exported header to it with --columns",
+            "add it, or map the exported header to it with a column map (column_map)",
             line=lineno,
+            field="column_map",
         )
     return cells, names, units
 

@@ -16,18 +16,30 @@ import typing as _typing
 
 if _typing.TYPE_CHECKING:
     from chaintwin.errors import (
+        CalibrationError,
         ChaintwinError,
         ColumnMapError,
         ConnectorError,
+        ConvergenceWarning,
         DataError,
         EstimationError,
         ModelError,
+        MonitorError,
         NotFittedError,
         ProfileError,
         RecordingError,
         StoreError,
     )
-    from chaintwin.model import characteristic_table
+    from chaintwin.identify import (
+        Calibration,
+        OutputErrorFit,
+        RecursiveLeastSquares,
+        RigidModelRegression,
+        TorqueLagEstimator,
+        calibrate,
+        load_calibration,
+    )
+    from chaintwin.model import RigidParameters, characteristic_table, model_torque
     from chaintwin.read import (
         ColumnMap,
         ConveyorProfile,
@@ -44,14 +56,18 @@ if _typing.TYPE_CHECKING:
     )
     from chaintwin.simulate import Fault, PlantParameters, Realism, run_virtual
     from chaintwin.validate import Inspection, Phase, inspect_recording, load_recording, segment
+    from chaintwin.weigh import WeighResult, transport_loss_factor
 
 __version__ = "0.1.0"
 
 _LAZY: dict[str, str] = {
+    "Calibration": "chaintwin.identify",
+    "CalibrationError": "chaintwin.errors",
     "ChaintwinError": "chaintwin.errors",
     "ColumnMap": "chaintwin.read",
     "ColumnMapError": "chaintwin.errors",
     "ConnectorError": "chaintwin.errors",
+    "ConvergenceWarning": "chaintwin.errors",
     "ConveyorProfile": "chaintwin.read",
     "DataError": "chaintwin.errors",
     "EstimationError": "chaintwin.errors",
@@ -59,7 +75,9 @@ _LAZY: dict[str, str] = {
     "Inspection": "chaintwin.validate",
     "Metadata": "chaintwin.read",
     "ModelError": "chaintwin.errors",
+    "MonitorError": "chaintwin.errors",
     "NotFittedError": "chaintwin.errors",
+    "OutputErrorFit": "chaintwin.identify",
     "Phase": "chaintwin.validate",
     "PlantParameters": "chaintwin.simulate",
     "ProfileError": "chaintwin.errors",
@@ -67,27 +85,39 @@ _LAZY: dict[str, str] = {
     "Recording": "chaintwin.read",
     "RecordingError": "chaintwin.errors",
     "RecordingWarning": "chaintwin.read",
+    "RecursiveLeastSquares": "chaintwin.identify",
+    "RigidModelRegression": "chaintwin.identify",
+    "RigidParameters": "chaintwin.model",
     "StoreError": "chaintwin.errors",
+    "TorqueLagEstimator": "chaintwin.identify",
+    "WeighResult": "chaintwin.weigh",
+    "calibrate": "chaintwin.identify",
     "characteristic_table": "chaintwin.model",
     "format_recording": "chaintwin.read",
     "inspect_recording": "chaintwin.validate",
+    "load_calibration": "chaintwin.identify",
     "load_column_map": "chaintwin.read",
     "load_profile": "chaintwin.read",
     "load_profiles": "chaintwin.read",
     "load_recording": "chaintwin.validate",
+    "model_torque": "chaintwin.model",
     "parse_recording": "chaintwin.read",
     "read_recording": "chaintwin.read",
     "run_virtual": "chaintwin.simulate",
     "segment": "chaintwin.validate",
+    "transport_loss_factor": "chaintwin.weigh",
     "write_recording": "chaintwin.read",
 }
 """Module of each public name."""
 
 __all__ = [
+    "Calibration",
+    "CalibrationError",
     "ChaintwinError",
     "ColumnMap",
     "ColumnMapError",
     "ConnectorError",
+    "ConvergenceWarning",
     "ConveyorProfile",
     "DataError",
     "EstimationError",
@@ -95,7 +125,9 @@ __all__ = [
     "Inspection",
     "Metadata",
     "ModelError",
+    "MonitorError",
     "NotFittedError",
+    "OutputErrorFit",
     "Phase",
     "PlantParameters",
     "ProfileError",
@@ -103,19 +135,28 @@ __all__ = [
     "Recording",
     "RecordingError",
     "RecordingWarning",
+    "RecursiveLeastSquares",
+    "RigidModelRegression",
+    "RigidParameters",
     "StoreError",
+    "TorqueLagEstimator",
+    "WeighResult",
     "__version__",
+    "calibrate",
     "characteristic_table",
     "format_recording",
     "inspect_recording",
+    "load_calibration",
     "load_column_map",
     "load_profile",
     "load_profiles",
     "load_recording",
+    "model_torque",
     "parse_recording",
     "read_recording",
     "run_virtual",
     "segment",
+    "transport_loss_factor",
     "write_recording",
 ]
 

@@ -27,3 +27,35 @@ def test_error_tree_has_one_root() -> None:
         assert issubclass(cls, errors.ChaintwinError)
     assert issubclass(errors.RecordingError, errors.DataError)
     assert issubclass(errors.NotFittedError, errors.EstimationError)
+
+
+SUBPACKAGES = ("identify", "model", "read", "report", "simulate", "validate", "weigh")
+
+
+def isort_key(name: str) -> tuple[int, str]:
+    """The order ruff keeps ``__all__`` in: CONSTANTS, then Classes, then functions."""
+    if name.isupper() and len(name) > 1:
+        return 0, name
+    return (1 if name[0].isupper() else 2), name
+
+
+def test_every_subpackage_exports_a_sorted_existing_all() -> None:
+    import importlib
+
+    for name in SUBPACKAGES:
+        module = importlib.import_module(f"chaintwin.{name}")
+        exported = module.__all__
+        assert exported, name
+        assert list(exported) == sorted(exported, key=isort_key), name
+        for item in exported:
+            assert hasattr(module, item), f"chaintwin.{name}.{item}"
+
+
+def test_the_workflow_is_importable_from_the_top() -> None:
+    # read → validate → calibrate → weigh, each step one import away; ``weigh``
+    # is the subpackage, its function is chaintwin.weigh.weigh
+    for name in ("load_profile", "load_recording", "calibrate", "load_calibration"):
+        assert callable(getattr(chaintwin, name)), name
+    assert chaintwin.calibrate is chaintwin.identify.calibrate
+    assert callable(chaintwin.weigh.weigh)
+    assert chaintwin.WeighResult is chaintwin.weigh.WeighResult

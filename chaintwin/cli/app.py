@@ -30,6 +30,7 @@ app = typer.Typer(
 def _register() -> None:
     # imported here so that `chaintwin --help` stays fast and modules stay small
     from chaintwin.cli import (
+        db_cmd,
         demo_cmd,
         identify_cmd,
         inspect_cmd,
@@ -48,6 +49,7 @@ def _register() -> None:
     monitor_cmd.register(app)
     store_cmd.register(app)
     report_cmd.register(app)
+    db_cmd.register(app)
 
 
 _register()

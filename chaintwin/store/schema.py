@@ -3,8 +3,9 @@
 =================  =============================================================
 table              what a row holds
 =================  =============================================================
-``schema``         the schema version (one row); a store written by a newer
-                   chaintwin is refused, an older one is migrated
+``schema``         the schema version before Alembic (one row): 2 from revision
+                   0002 on, so that chaintwin 0.1.0 refuses newer stores
+``alembic_version`` the Alembic revision of the tables (:mod:`.migrate`)
 ``conveyors``      a conveyor: id, its profile (YAML as JSON) and the profile's
                    SHA-256
 ``calibrations``   a calibration file's content, per conveyor, newest used
@@ -34,6 +35,7 @@ from sqlalchemy import (
     Boolean,
     Float,
     ForeignKey,
+    Index,
     Integer,
     LargeBinary,
     String,
@@ -54,8 +56,11 @@ __all__ = [
     "SchemaRow",
 ]
 
-SCHEMA_VERSION = 1
-"""Version of the tables this chaintwin writes."""
+SCHEMA_VERSION = 2
+"""The ``schema`` table's version at the head revision (0.1.0 wrote 1).
+
+The tables' version proper is the Alembic revision (:mod:`chaintwin.store.migrate`);
+this number only makes chaintwin 0.1.0 refuse a store it cannot read."""
 
 
 class Base(DeclarativeBase):
@@ -116,6 +121,8 @@ class ResultRow(Base):
     payload_kg: Mapped[float | None] = mapped_column(Float)
     tlf: Mapped[float | None] = mapped_column(Float)
     content: Mapped[dict[str, Any]] = mapped_column(JSON)
+
+    __table_args__ = (Index("ix_results_conveyor_recorded", "conveyor_id", "recorded_at"),)
 
 
 class MonitorStateRow(Base):

@@ -37,18 +37,16 @@ from chaintwin.identify.calibration import Calibration
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
 
+from . import migrate
 from .samples import PackedChannels, pack_channels, unpack_channels
 from .schema import (
-    SCHEMA_VERSION,
     AlarmRow,
-    Base,
     CalibrationRow,
     ConveyorRow,
     EventRow,
     MonitorStateRow,
     RecordingRow,
     ResultRow,
-    SchemaRow,
 )
 
 __all__ = [
@@ -58,9 +56,11 @@ __all__ = [
     "StateConflict",
     "Store",
     "Waiting",
+    "engine_for",
     "load_samples",
     "pack_samples",
     "recording_meta",
+    "safe_url",
     "store_url",
     "stored_recording",
 ]
@@ -150,14 +150,46 @@ def _now() -> str:
     return datetime.now(UTC).isoformat()
 
 
-def _safe_url(url: str) -> str:
+def safe_url(url: str) -> str:
     """The URL without its password, for messages."""
     head, sep, tail = url.partition("@")
     if not sep or "://" not in head:
         return url
     scheme, _, cred = head.partition("://")
-    user = cred.split(":", 1)[0]
+    user, colon, _password = cred.partition(":")
+    if not colon:  # no password to hide
+        return url
     return f"{scheme}://{user}:***@{tail}"
+
+
+def engine_for(url: str) -> Engine:
+    """The SQLAlchemy engine of a store URL (psycopg 3 for PostgreSQL; SQLite's pragmas).
+
+    Raises
+    ------
+    StoreError
+        When the URL is not a usable database URL.
+    """
+    target = url
+    if target.startswith("postgresql://"):
+        target = "postgresql+psycopg://" + target[len("postgresql://") :]
+    try:
+        engine = create_engine(
+            target,
+            future=True,
+            pool_pre_ping=True,
+            json_serializer=_to_json,
+            json_deserializer=_from_json,
+        )
+    except (SQLAlchemyError, ImportError, ValueError) as exc:
+        raise StoreError(
+            f"url {safe_url(url)}: not a usable database URL ({exc}); use "
+            "sqlite:///file.db or postgresql://user:password@host/database",
+            field="url",
+        ) from None
+    if engine.dialect.name == "sqlite":
+        event.listen(engine, "connect", _sqlite_pragmas)
+    return engine
 
 
 def pack_samples(recording: Recording) -> bytes:
@@ -188,7 +220,8 @@ class Store:
     Raises
     ------
     StoreError
-        When it cannot be opened, or was written by a newer chaintwin.
+        When it cannot be opened, is not a chaintwin store, or its schema is
+        not this chaintwin's (older: ``chaintwin db upgrade``; newer).
     """
 
     def __init__(self, url: str, *, create: bool = True) -> None:
@@ -197,43 +230,25 @@ class Store:
             path = url[len("sqlite:///") :]
             if path not in ("", ":memory:") and not os.path.exists(path):
                 raise StoreError(
-                    f"--db {url}: there is no store at {path}; give the store's URL (--db or "
-                    "CHAINTWIN_DB), or ingest recordings into it first"
+                    f"url {url}: there is no store at {path}; give the store's URL (url, or "
+                    "the environment variable CHAINTWIN_DB), or ingest recordings into it first",
+                    field="url",
                 )
-        if url.startswith("postgresql://"):
-            url = "postgresql+psycopg://" + url[len("postgresql://") :]
+        self.engine: Engine = engine_for(url)
         try:
-            self.engine: Engine = create_engine(
-                url,
-                future=True,
-                pool_pre_ping=True,
-                json_serializer=_to_json,
-                json_deserializer=_from_json,
-            )
-        except (SQLAlchemyError, ImportError, ValueError) as exc:
-            raise StoreError(
-                f"--db {_safe_url(self.url)}: not a usable database URL ({exc}); use "
-                "sqlite:///file.db or postgresql://user:password@host/database"
-            ) from None
-        if self.engine.dialect.name == "sqlite":
-            event.listen(self.engine, "connect", _sqlite_pragmas)
-        try:
-            Base.metadata.create_all(self.engine)
-            with Session(self.engine) as s, s.begin():
-                row = s.get(SchemaRow, 1)
-                if row is None:
-                    s.add(SchemaRow(id=1, version=SCHEMA_VERSION))
-                elif row.version > SCHEMA_VERSION:
-                    raise StoreError(
-                        f"--db {_safe_url(self.url)}: the store has schema version "
-                        f"{row.version}, written by a newer chaintwin (this one knows "
-                        f"{SCHEMA_VERSION}); upgrade chaintwin"
-                    )
+            if migrate.check(self.engine, safe_url(self.url)) is None:
+                # a new store (create=False was refused above where it matters)
+                migrate.upgrade(self.engine, safe_url(self.url))
         except OperationalError as exc:
+            self.engine.dispose()
             raise StoreError(
-                f"--db {_safe_url(self.url)}: cannot open the store ({exc.orig}); check the "
-                "path or server"
+                f"url {safe_url(self.url)}: cannot open the store ({exc.orig}); check the "
+                "path or server",
+                field="url",
             ) from None
+        except BaseException:
+            self.engine.dispose()  # refused: no connection left open
+            raise
 
     def close(self) -> None:
         """Release the connections."""
@@ -254,7 +269,7 @@ class Store:
             state = s.get(MonitorStateRow, profile.id)
             if state is not None and state.state.get("profile_sha256") != profile.content_hash():
                 raise StoreError(
-                    f"{_safe_url(self.url)}: conveyor '{profile.id}' is monitored with another "
+                    f"{safe_url(self.url)}: conveyor '{profile.id}' is monitored with another "
                     "version of its profile; give the profile it was monitored with (the "
                     "store's copy: `chaintwin export`), or keep the changed conveyor in a new "
                     "store"
@@ -322,7 +337,7 @@ class Store:
             dict(p) | {"path": _STORED + str(p["sha256"])} for p in state.get("pending", [])
         ]
         mon = ConveyorMonitor.from_state(
-            state, profile, loader=self._stored, source=_safe_url(self.url)
+            state, profile, loader=self._stored, source=safe_url(self.url)
         )
         mon.settings = settings
         return mon, version
@@ -333,7 +348,7 @@ class Store:
         with Session(self.engine) as s:
             row = s.scalars(select(RecordingRow).where(RecordingRow.sha256 == sha)).first()
             if row is None:
-                raise StoreError(f"{_safe_url(self.url)}: no stored recording {sha[:12]}")
+                raise StoreError(f"{safe_url(self.url)}: no stored recording {sha[:12]}")
             return stored_recording(row.file, row.meta, row.warnings, row.samples)
 
     def commit_recordings(
@@ -465,7 +480,7 @@ class Store:
             raise StateConflict(conveyor) from None
         except OperationalError as exc:
             raise StoreError(
-                f"{_safe_url(self.url)}: cannot write to the store ({exc.orig}); nothing of "
+                f"{safe_url(self.url)}: cannot write to the store ({exc.orig}); nothing of "
                 "this group was stored, run the command again"
             ) from None
         return 1 if version == 0 else version + 1
@@ -528,7 +543,7 @@ class Store:
             row = s.get(ConveyorRow, conveyor)
             if row is None:
                 return None
-            return parse_profile(row.profile, f"{_safe_url(self.url)} conveyor {conveyor}")
+            return parse_profile(row.profile, f"{safe_url(self.url)} conveyor {conveyor}")
 
     def state(self, conveyor: str) -> dict[str, Any] | None:
         """A conveyor's stored health model (:meth:`ConveyorMonitor.to_state` JSON)."""
@@ -578,7 +593,7 @@ class Store:
         with Session(self.engine) as s:
             row = s.get(RecordingRow, recording_id)
             if row is None:
-                raise StoreError(f"{_safe_url(self.url)}: no recording with id {recording_id}")
+                raise StoreError(f"{safe_url(self.url)}: no recording with id {recording_id}")
             return stored_recording(row.file, row.meta, row.warnings, row.samples)
 
     def edit_state(self, conveyor: str, edit: Callable[[dict[str, Any]], T]) -> T:
@@ -606,7 +621,7 @@ class Store:
                 continue  # an ingest advanced the model meanwhile: edit the newer one
             except OperationalError as exc:
                 raise StoreError(
-                    f"{_safe_url(self.url)}: cannot write to the store ({exc.orig}); nothing "
+                    f"{safe_url(self.url)}: cannot write to the store ({exc.orig}); nothing "
                     "was changed, run the command again"
                 ) from None
         raise StoreError(f"the health model of '{conveyor}' kept changing; try again")
@@ -616,7 +631,7 @@ class Store:
             row = s.get(MonitorStateRow, conveyor)
             if row is None:
                 raise StoreError(
-                    f"{_safe_url(self.url)}: no health model of conveyor '{conveyor}' "
+                    f"{safe_url(self.url)}: no health model of conveyor '{conveyor}' "
                     f"(stored: {', '.join(self._monitored(s)) or 'none'}); ingest its "
                     "recordings first"
                 )
@@ -647,7 +662,7 @@ class Store:
             row = s.get(AlarmRow, alarm_id)
             if row is None:
                 raise StoreError(
-                    f"{_safe_url(self.url)}: no alarm '{alarm_id}'; the ids are in "
+                    f"{safe_url(self.url)}: no alarm '{alarm_id}'; the ids are in "
                     "`chaintwin export --format json` and in the reports"
                 )
             return row.conveyor_id

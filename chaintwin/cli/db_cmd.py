@@ -1,0 +1,67 @@
+"""``chaintwin db upgrade``: bring a results store's schema to this chaintwin's."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import typer
+
+from chaintwin.cli.common import print_json
+from chaintwin.errors import StoreError
+
+__all__ = ["register"]
+
+_DB_HELP = (
+    "Results store URL (sqlite:///file.db, postgresql://...); default CHAINTWIN_DB, "
+    "else sqlite:///chaintwin.db."
+)
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``db`` command group to the application."""
+    db = typer.Typer(
+        name="db",
+        help="The results store's schema: upgrade it to this chaintwin's.",
+        no_args_is_help=True,
+    )
+
+    @db.command("upgrade")
+    def upgrade(
+        url: Annotated[str | None, typer.Option("--db", help=_DB_HELP)] = None,
+        as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    ) -> None:
+        """Upgrade a store's tables to this chaintwin's revision (creates an empty store).
+
+        Back up the store first (SQLite: copy the file while nothing writes to
+        it; PostgreSQL: pg_dump). Running it again on an upgraded store
+        changes nothing.
+        """
+        from sqlalchemy.exc import OperationalError
+
+        from chaintwin.store import migrate
+        from chaintwin.store.store import engine_for, safe_url, store_url
+
+        given = store_url(url)
+        engine = engine_for(given)
+        try:
+            before, after = migrate.upgrade(engine, safe_url(given))
+        except OperationalError as exc:
+            raise StoreError(
+                f"url {safe_url(given)}: cannot open the store ({exc.orig}); check the path "
+                "or server",
+                field="url",
+            ) from None
+        finally:
+            engine.dispose()
+        if as_json:
+            print_json({"store": safe_url(given), "from": before, "to": after})
+        elif before == after:
+            typer.echo(f"{safe_url(given)}: schema at revision {after} already; nothing to do")
+        else:
+            typer.echo(
+                f"{safe_url(given)}: schema upgraded from "
+                f"{'an empty database' if before is None else 'revision ' + before} "
+                f"to revision {after}"
+            )
+
+    app.add_typer(db)

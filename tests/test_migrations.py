@@ -1,0 +1,161 @@
+"""Schema migrations: the store of chaintwin 0.1.0 upgraded on SQLite and PostgreSQL.
+
+``tests/fixtures/store-c909904.sqlite`` was written by chaintwin 0.1.0 (commit
+c909904, before migrations): 36 recordings of white-belt-01 with a friction
+rise, a calibration, a maintenance event and the alarm it closed.
+``store-c909904.export.json`` is what that chaintwin's ``export --format json``
+printed for it. On PostgreSQL the same store is rebuilt from the baseline
+revision and the fixture's rows.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+from conftest import EXAMPLES
+from sqlalchemy import MetaData, inspect, select, text
+
+from chaintwin.cli.app import main
+from chaintwin.errors import StoreError
+from chaintwin.store import migrate
+from chaintwin.store.schema import Base
+from chaintwin.store.store import Store, engine_for
+
+FIXTURES = Path(__file__).parent / "fixtures"
+LEGACY = FIXTURES / "store-c909904.sqlite"
+LEGACY_EXPORT = json.loads((FIXTURES / "store-c909904.export.json").read_text())
+
+
+def _legacy_store(url: str, tmp_path: Path) -> None:
+    """Put the 0.1.0 store at ``url``: the file itself on SQLite, its rows on PostgreSQL."""
+    if url.startswith("sqlite:///"):
+        shutil.copyfile(LEGACY, url[len("sqlite:///") :])
+        return
+    source = engine_for(f"sqlite:///{LEGACY}")
+    target = engine_for(url)
+    from alembic import command
+
+    with target.begin() as connection:
+        command.upgrade(migrate._config(connection), migrate.BASELINE_REVISION)
+        connection.execute(text("DROP TABLE alembic_version"))  # 0.1.0 had no Alembic
+    tables = MetaData()
+    tables.reflect(source)
+    with source.connect() as read, target.begin() as write:
+        write.execute(text("DELETE FROM schema"))
+        for table in tables.sorted_tables:
+            rows = [dict(r._mapping) for r in read.execute(select(table))]
+            if rows:
+                write.execute(Base.metadata.tables[table.name].insert(), rows)
+    source.dispose()
+    target.dispose()
+
+
+def _run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    code = main(args)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_head_revision_is_the_scripts_head() -> None:
+    assert migrate.head_from_scripts() == migrate.HEAD_REVISION
+    assert migrate._order()[0] == migrate.BASELINE_REVISION
+    assert migrate._order()[-1] == migrate.HEAD_REVISION
+
+
+def test_a_new_store_is_created_at_the_head_with_the_models_tables(db: str) -> None:
+    from alembic.autogenerate import compare_metadata
+    from alembic.migration import MigrationContext
+
+    Store(db).close()
+    engine = engine_for(db)
+    with engine.connect() as connection:
+        assert migrate.revision_of(connection) == migrate.HEAD_REVISION
+        differences = compare_metadata(MigrationContext.configure(connection), Base.metadata)
+        assert connection.execute(text("SELECT version FROM schema")).scalar() == 2
+    engine.dispose()
+    assert differences == []
+
+
+def test_the_store_of_0_1_0_is_refused_then_upgraded_and_reads_the_same(
+    db: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _legacy_store(db, tmp_path)
+    before = LEGACY.read_bytes() if db.startswith("sqlite") else None
+    code, out, err = _run(["export", "--db", db, "--format", "json"], capsys)
+    assert code == 2
+    assert out == ""
+    assert len(err.strip().splitlines()) == 1
+    assert "revision 0001" in err and f"needs {migrate.HEAD_REVISION}" in err
+    assert f"run `chaintwin db upgrade --db {db}`" in err
+    if before is not None:  # refused untouched
+        assert Path(db[len("sqlite:///") :]).read_bytes() == before
+
+    code, out, _ = _run(["db", "upgrade", "--db", db], capsys)
+    assert code == 0
+    assert f"from revision 0001 to revision {migrate.HEAD_REVISION}" in out
+    code, out, _ = _run(["db", "upgrade", "--db", db, "--json"], capsys)
+    assert code == 0
+    assert json.loads(out) == {
+        "store": db,
+        "from": migrate.HEAD_REVISION,
+        "to": migrate.HEAD_REVISION,
+    }
+
+    code, out, _ = _run(["export", "--db", db, "--format", "json"], capsys)
+    assert code == 0
+    assert json.loads(out) == LEGACY_EXPORT
+    # and the upgraded store takes new work: a maintenance event
+    code, _, _ = _run(
+        [
+            "maintenance",
+            "--db",
+            db,
+            "--conveyor",
+            "white-belt-01",
+            "--kind",
+            "cleaning",
+            "--by",
+            "A",
+        ],
+        capsys,
+    )
+    assert code == 0
+
+
+def test_a_store_newer_than_the_code_is_refused(tmp_path: Path) -> None:
+    url = f"sqlite:///{tmp_path / 'new.db'}"
+    Store(url).close()
+    engine = engine_for(url)
+    with engine.begin() as connection:
+        connection.execute(text("UPDATE alembic_version SET version_num = '9999'"))
+    with pytest.raises(StoreError, match="revision 9999, which this chaintwin does not know"):
+        Store(url)
+    with pytest.raises(StoreError, match="newer than this chaintwin knows"):
+        migrate.upgrade(engine)
+    engine.dispose()
+
+
+def test_another_programs_database_is_refused_and_left_alone(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "other.db"
+    engine = engine_for(f"sqlite:///{path}")
+    with engine.begin() as connection:
+        connection.execute(text("CREATE TABLE users (id INTEGER PRIMARY KEY, name TEXT)"))
+    engine.dispose()
+    before = path.read_bytes()
+    recordings = tmp_path / "recordings"
+    recordings.mkdir()
+    shutil.copy(EXAMPLES / "recordings" / "white-belt-01-40kg.csv", recordings)
+    ingest = ["ingest", str(recordings), "--profiles", str(EXAMPLES / "profiles"), "--workers", "1"]
+    for args in (["export"], ["db", "upgrade"], ingest):
+        code, _, err = _run([*args, "--db", f"sqlite:///{path}"], capsys)
+        assert code == 2, args
+        assert "other tables than a chaintwin store's (users)" in err
+    assert path.read_bytes() == before
+    engine = engine_for(f"sqlite:///{path}")
+    assert inspect(engine).get_table_names() == ["users"]
+    engine.dispose()

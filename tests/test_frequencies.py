@@ -252,3 +252,33 @@ def test_speed_sign_zero_and_modes(white_belt: ConveyorProfile) -> None:
 def test_bad_inputs_raise_model_error(white_belt: ConveyorProfile, call: Any) -> None:
     with pytest.raises(ModelError):
         call(white_belt)
+
+
+def test_the_line_catalogue_is_the_one_source_of_the_features_lines() -> None:
+    """Features, monitor and report read their lines from model.frequencies alone."""
+    from conftest import EXAMPLES
+
+    from chaintwin.diagnose.features import recording_features
+    from chaintwin.identify.calibration import calibrate
+    from chaintwin.model.frequencies import (
+        SHAFT_HARMONICS,
+        known_line_orders,
+        line_orders,
+        shaft_orders,
+    )
+    from chaintwin.read.profile import load_profile
+    from chaintwin.validate.checks import load_recording
+
+    profile = load_profile(EXAMPLES / "profiles" / "white-belt-01.yaml")
+    cal_files = sorted((EXAMPLES / "recordings").glob("white-belt-01-cal-*.csv"))
+    cal = calibrate([load_recording(f, profile=profile).recording for f in cal_files], profile)
+    ins = load_recording(EXAMPLES / "recordings" / "white-belt-01-40kg.csv", profile=profile)
+    combs = {k for k in recording_features(ins, cal).values if k.startswith("comb_")}
+    assert combs == {f"comb_{name}" for name in shaft_orders(profile)}
+    catalogue = line_orders(profile)
+    orders = known_line_orders(profile)
+    for name, order in shaft_orders(profile).items():
+        assert catalogue[name] == order
+        assert SHAFT_HARMONICS * order in orders
+    assert catalogue["sprocket_tooth_pass_h3"] == 3 * catalogue["sprocket_tooth_pass"]
+    assert 3 * catalogue["sprocket_tooth_pass"] in orders

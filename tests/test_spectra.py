@@ -12,25 +12,20 @@ from conftest import REFERENCE_PROFILE
 
 from chaintwin._types import FloatArray
 from chaintwin.cli.app import main
-from chaintwin.diagnose.spectra import (
-    Spectrum,
+from chaintwin.diagnose.lines import band_amplitude, line_amplitudes
+from chaintwin.diagnose.peaks import median_spectrum, novel_peaks, strongest_peaks
+from chaintwin.diagnose.spectra import Spectrum, order_spectrum, welch_spectrum
+from chaintwin.errors import EstimationError, RecordingError
+from chaintwin.model.frequencies import (
     apparent_order,
     apparent_orders,
-    band_amplitude,
-    line_amplitudes,
+    characteristic_orders,
     line_orders,
-    median_spectrum,
-    novel_peaks,
-    order_spectrum,
-    plot_spectrum,
-    strongest_peaks,
-    welch_spectrum,
 )
-from chaintwin.errors import EstimationError, RecordingError
-from chaintwin.model.frequencies import characteristic_orders
 from chaintwin.read.profile import ConveyorProfile, load_profile
 from chaintwin.read.recording import Metadata, Recording
 from chaintwin.read.writer import write_recording
+from chaintwin.report.spectrum_plot import plot_spectrum
 from chaintwin.simulate.faults import BEARING_ORDER, Fault
 from chaintwin.simulate.virtual import run_virtual
 from chaintwin.units import RPM_TO_RAD_S

@@ -11,19 +11,13 @@ from rich.markup import escape
 from rich.table import Table
 
 from chaintwin.cli.common import ColumnsOption, load_options, print_json, print_warning
-from chaintwin.diagnose.spectra import (
-    MIN_SPEED_RPM,
-    Spectrum,
-    apparent_order,
-    band_amplitude,
-    line_orders,
-    order_spectrum,
-    plot_spectrum,
-    strongest_peaks,
-    welch_spectrum,
-)
+from chaintwin.diagnose.lines import band_amplitude
+from chaintwin.diagnose.peaks import strongest_peaks
+from chaintwin.diagnose.spectra import MIN_SPEED_RPM, Spectrum, order_spectrum, welch_spectrum
 from chaintwin.errors import EstimationError, RecordingError
+from chaintwin.model.frequencies import apparent_order, line_orders
 from chaintwin.read.profile import ConveyorProfile
+from chaintwin.report.spectrum_plot import plot_spectrum
 from chaintwin.validate.checks import load_recording
 
 __all__ = ["line_rows", "register", "spectrum_dict"]
@@ -46,7 +40,7 @@ def line_rows(
 ) -> list[dict[str, Any]]:
     """The characteristic lines: where the scope shows them and the amplitude there.
 
-    One row per line of :func:`~chaintwin.diagnose.spectra.line_orders` with
+    One row per line of :func:`~chaintwin.model.frequencies.line_orders` with
     ``name``, ``order``, ``frequency_hz`` (at the spectrum's mean speed),
     ``apparent`` (folded; Hz for a frequency spectrum, orders for an order
     spectrum), ``amplitude`` (Nm, ±2 bins) and ``aliased``; none without a profile.

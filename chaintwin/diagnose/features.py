@@ -46,7 +46,7 @@ The spectral features come from a Welch spectrum of the plateau's residual
 averaged with the median over segments, so that a transient seen in one
 segment only (an obstruction passed once) does not read as a line. Lines
 above the Nyquist frequency of the scope are looked for where they fold
-(:func:`~chaintwin.diagnose.spectra.apparent_order`).
+(:func:`~chaintwin.model.frequencies.apparent_order`).
 """
 
 from __future__ import annotations
@@ -62,7 +62,12 @@ from chaintwin._types import FloatArray
 from chaintwin.errors import EstimationError
 from chaintwin.identify.calibration import Calibration
 from chaintwin.identify.signatures import fit_condition
-from chaintwin.model.frequencies import characteristic_orders
+from chaintwin.model.frequencies import (
+    SHAFT_HARMONICS,
+    apparent_orders,
+    characteristic_orders,
+    shaft_orders,
+)
 from chaintwin.model.physics import loss_torque_nm
 from chaintwin.model.rigid import model_torque, motoring_mask
 from chaintwin.model.windows import WindowIntegrals, window_integrals
@@ -70,19 +75,19 @@ from chaintwin.read.recording import Recording, RecordingWarning
 from chaintwin.validate.checks import Inspection
 from chaintwin.weigh.weigh import WeighResult, weigh
 
+from .lines import band_amplitudes
 from .residuals import belt_position_m, position_profile, residual_analysis
-from .spectra import Spectrum, apparent_orders, band_amplitudes, welch_spectrum
+from .spectra import Spectrum, welch_spectrum
 
 __all__ = [
     "COMB_HARMONICS",
     "FEATURES",
     "FeatureSpec",
     "RecordingFeatures",
-    "known_line_orders",
     "recording_features",
 ]
 
-COMB_HARMONICS = 8
+COMB_HARMONICS = SHAFT_HARMONICS
 """Harmonics of a shaft order summed into its ``comb_<shaft>`` feature."""
 
 TOOTH_PASS_HARMONICS = 3
@@ -189,30 +194,6 @@ class RecordingFeatures:
     bump_values: FloatArray = field(default_factory=lambda: np.empty(0))
     residuals: dict[str, Any] = field(default_factory=dict)
     warnings: tuple[RecordingWarning, ...] = ()
-
-
-def known_line_orders(calibration: Calibration) -> list[float]:
-    """Orders of every characteristic line and its harmonics a spectrum may hold.
-
-    Shaft orders with :data:`COMB_HARMONICS` harmonics, meshes and the
-    tooth pass with three; the output shaft and the belt revolution are too
-    low to matter at a scope's resolution.
-    """
-    out: list[float] = []
-    for name, order in characteristic_orders(calibration.id_profile).items():
-        if name in ("output_shaft", "belt_revolution"):
-            continue
-        harmonics = COMB_HARMONICS if name == "rotor" or name.endswith("_shaft") else 3
-        out += [h * order for h in range(1, harmonics + 1)]
-    return out
-
-
-def _shaft_orders(calibration: Calibration) -> dict[str, float]:
-    return {
-        name: order
-        for name, order in characteristic_orders(calibration.id_profile).items()
-        if name == "rotor" or (name.startswith("stage") and name.endswith("_shaft"))
-    }
 
 
 def _line_centres(
@@ -401,13 +382,13 @@ def recording_features(inspection: Inspection, calibration: Calibration) -> Reco
         centres: dict[str, list[float]] = {}
         if tp:
             centres["tooth_pass"] = _line_centres(spectrum, tp_orders, ts)
-        for name, order in _shaft_orders(calibration).items():
+        for name, order in shaft_orders(calibration.id_profile).items():
             centres[f"comb_{name}"] = _line_centres(
                 spectrum, [h * order for h in range(1, COMB_HARMONICS + 1)], ts, tp_orders
             )
         sums = _line_sums(spectrum, centres)
         values["tooth_pass"] = sums["tooth_pass"] if tp else nan
-        for name in _shaft_orders(calibration):
+        for name in shaft_orders(calibration.id_profile):
             values[f"comb_{name}"] = sums[f"comb_{name}"]
     else:
         values["tooth_pass"] = nan

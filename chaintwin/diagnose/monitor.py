@@ -37,17 +37,19 @@ import numpy.typing as npt
 
 from chaintwin.errors import ChaintwinError, EstimationError, MonitorError, StoreError
 from chaintwin.identify.calibration import Calibration
+from chaintwin.model.frequencies import apparent_orders, known_line_orders
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording, RecordingWarning
 from chaintwin.validate.checks import Inspection
 from chaintwin.validate.phases import segment
 
-from .features import FEATURES, RecordingFeatures, feature_spec, known_line_orders
+from .features import FEATURES, RecordingFeatures, feature_spec
 from .features import recording_features as extract
 from .health import FeatureBaseline, fit_baseline, forecast_crossing, x_of_y
 from .learned import learn_calibration
+from .peaks import median_spectrum
 from .residuals import DEFAULT_BIN_WIDTH_M
-from .spectra import Spectrum, apparent_orders, median_spectrum
+from .spectra import Spectrum
 from .state import close_alarms, new_event
 
 __all__ = [
@@ -564,7 +566,10 @@ class ConveyorMonitor:
         """:func:`known_line_orders` of the calibration, computed once per calibration."""
         cached = self._orders_cache
         if cached is None or cached[0] is not calibration:
-            cached = (calibration, np.asarray(known_line_orders(calibration), dtype=np.float64))
+            cached = (
+                calibration,
+                np.asarray(known_line_orders(calibration.id_profile), dtype=np.float64),
+            )
             self._orders_cache = cached
         return cached[1]
 

@@ -71,18 +71,27 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
-from chaintwin.errors import ModelError
+from chaintwin.errors import EstimationError, ModelError
 from chaintwin.read.profile import ConveyorProfile
 
 __all__ = [
+    "SHAFT_HARMONICS",
     "CharacteristicLine",
     "LineKind",
+    "apparent_order",
+    "apparent_orders",
     "characteristic_lines",
     "characteristic_orders",
     "characteristic_table",
     "fold_frequencies",
     "fold_frequency",
+    "known_line_orders",
+    "line_orders",
+    "shaft_orders",
 ]
+
+SHAFT_HARMONICS = 8
+"""Harmonics of a shaft order a spectrum is looked at for (the ``comb_`` features)."""
 
 LineKind = Literal["shaft", "mesh", "tooth_pass", "belt", "structural"]
 
@@ -373,3 +382,139 @@ def characteristic_table(
             profile, motor_speed_rpm, payload_kg=payload_kg, belt_modes=belt_modes
         )
     ]
+
+
+# ------------------------------------------------------------------ where lines appear
+def apparent_order(order: float, speed_rpm: float, sample_time_s: float) -> float:
+    """Where a line at ``order`` appears in a scope's spectrum, as an order.
+
+    ``fold_frequency(order·f_rot, Ts) / f_rot`` with ``f_rot = |speed_rpm|/60``:
+    a line above the Nyquist frequency ``0.5/Ts`` folds back (drive scopes
+    have no anti-alias filter). Multiplied by ``f_rot`` it is the apparent
+    frequency, Hz.
+
+    Parameters
+    ----------
+    order : float
+        The line's true order, cycles per motor revolution.
+    speed_rpm : float
+        Motor speed, rpm (the sign is ignored).
+    sample_time_s : float
+        The scope's sample time Ts, s.
+
+    Returns
+    -------
+    float
+        The apparent order, in ``[0, 30/(|speed_rpm|·Ts)]``.
+
+    Raises
+    ------
+    EstimationError
+        When the speed is zero or not finite.
+    ModelError
+        When the sample time is not positive or the order not finite.
+
+    Examples
+    --------
+    A bearing line at order 3.57 and 1415 rpm is at 84.19 Hz, above the
+    83.33 Hz Nyquist frequency of a 6 ms scope; it appears at 82.47 Hz:
+
+    >>> round(apparent_order(3.57, 1415.0, 0.006), 4)
+    3.4971
+    """
+    rot_hz = _rotation_hz(speed_rpm)
+    return fold_frequency(order * rot_hz, sample_time_s) / rot_hz
+
+
+def _rotation_hz(speed_rpm: float) -> float:
+    """Motor revolutions per second, Hz, of a speed in rpm (the sign ignored).
+
+    Raises
+    ------
+    EstimationError
+        When the speed is zero or not finite.
+    """
+    rot_hz = abs(float(speed_rpm)) / 60.0
+    if not math.isfinite(rot_hz) or rot_hz == 0.0:
+        raise EstimationError(f"motor speed {speed_rpm!r} rpm: no apparent order without rotation")
+    return rot_hz
+
+
+def apparent_orders(
+    orders: npt.ArrayLike, speed_rpm: float, sample_time_s: float
+) -> npt.NDArray[np.float64]:
+    """:func:`apparent_order` of many orders at once, with the same arithmetic.
+
+    Parameters
+    ----------
+    orders : array_like
+        True orders, cycles per motor revolution.
+    speed_rpm : float
+        Motor speed, rpm (the sign is ignored).
+    sample_time_s : float
+        The scope's sample time Ts, s.
+
+    Returns
+    -------
+    ndarray
+        The apparent orders, equal to ``apparent_order`` of each.
+
+    Raises
+    ------
+    EstimationError
+        When the speed is zero or not finite.
+    ModelError
+        When the sample time is not positive or an order not finite.
+    """
+    rot_hz = _rotation_hz(speed_rpm)
+    return fold_frequencies(np.asarray(orders, dtype=np.float64) * rot_hz, sample_time_s) / rot_hz
+
+
+def line_orders(profile: ConveyorProfile) -> dict[str, float]:
+    """The speed-locked lines looked at, by name: orders per motor revolution.
+
+    :func:`~chaintwin.model.frequencies.characteristic_orders` plus the 2nd
+    and 3rd harmonics of the sprocket tooth pass (the polygon effect is not
+    sinusoidal) as ``sprocket_tooth_pass_h2`` and ``sprocket_tooth_pass_h3``.
+
+    Parameters
+    ----------
+    profile : ConveyorProfile
+        The conveyor.
+
+    Returns
+    -------
+    dict of str to float
+        Line name to order.
+    """
+    orders = characteristic_orders(profile)
+    tooth_pass = orders.get("sprocket_tooth_pass")
+    if tooth_pass is not None:
+        orders["sprocket_tooth_pass_h2"] = 2.0 * tooth_pass
+        orders["sprocket_tooth_pass_h3"] = 3.0 * tooth_pass
+    return orders
+
+
+def shaft_orders(profile: ConveyorProfile) -> dict[str, float]:
+    """The rotor's and each gear stage's shaft order, by name (cycles per motor revolution)."""
+    return {
+        name: order
+        for name, order in characteristic_orders(profile).items()
+        if name == "rotor" or (name.startswith("stage") and name.endswith("_shaft"))
+    }
+
+
+def known_line_orders(profile: ConveyorProfile) -> list[float]:
+    """Orders of every characteristic line and its harmonics a spectrum may hold.
+
+    Shaft orders with :data:`SHAFT_HARMONICS` harmonics, meshes and the
+    tooth pass with three; the output shaft and the belt revolution are too
+    low to matter at a scope's resolution.
+    """
+    out: list[float] = []
+    for name, order in characteristic_orders(profile).items():
+        if name in ("output_shaft", "belt_revolution"):
+            continue
+        harmonics = SHAFT_HARMONICS if name == "rotor" or name.endswith("_shaft") else 3
+        out += [h * order for h in range(1, harmonics + 1)]
+    return out

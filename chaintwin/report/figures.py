@@ -21,14 +21,9 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
 
-from chaintwin.diagnose.spectra import (
-    Spectrum,
-    apparent_order,
-    line_orders,
-    order_spectrum,
-    welch_spectrum,
-)
+from chaintwin.diagnose.spectra import Spectrum, order_spectrum, welch_spectrum
 from chaintwin.errors import ChaintwinError
+from chaintwin.model.frequencies import apparent_order, line_orders
 from chaintwin.read.recording import Recording
 from chaintwin.units import RPM_TO_RAD_S
 

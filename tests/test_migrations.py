@@ -21,8 +21,9 @@ from sqlalchemy import MetaData, inspect, select, text
 from chaintwin.cli.app import main
 from chaintwin.errors import StoreError
 from chaintwin.store import migrate
+from chaintwin.store.engine import engine_for
 from chaintwin.store.schema import Base
-from chaintwin.store.store import Store, engine_for
+from chaintwin.store.store import Store
 
 FIXTURES = Path(__file__).parent / "fixtures"
 LEGACY = FIXTURES / "store-c909904.sqlite"

@@ -298,7 +298,7 @@ def _same_results(local: list[dict[str, object]], dask: list[dict[str, object]])
 
 
 def test_samples_round_trip_in_every_packing() -> None:
-    from chaintwin.store.store import load_samples, pack_samples
+    from chaintwin.store.samples import load_samples, pack_samples
 
     rec = load_recording(EXAMPLES / "recordings" / "white-belt-01-40kg.csv").recording
     blob = pack_samples(rec)
@@ -316,7 +316,7 @@ def _earlier_packings(rec: Any) -> list[dict[str, np.ndarray]]:
     Zstandard-compressed .npz of transposed byte views with a dtypes entry."""
     import zstandard
 
-    from chaintwin.store.store import load_samples
+    from chaintwin.store.samples import load_samples
 
     arrays = {k: np.asarray(v) for k, v in rec.channels.items()}
     npz, plain, views = io.BytesIO(), io.BytesIO(), io.BytesIO()
@@ -399,7 +399,7 @@ def test_json_columns_write_standard_json_and_read_earlier_nan(tmp_path: Path) -
     import sqlite3
 
     from chaintwin.diagnose.state import json_ready
-    from chaintwin.store.store import _from_json, _to_json
+    from chaintwin.store.engine import _from_json, _to_json
 
     value = {
         "a": float("nan"),
@@ -533,7 +533,7 @@ def test_a_file_given_twice_is_read_once_and_the_health_model_stores_as_before(
     plant: Path, tmp_path: Path
 ) -> None:
     from chaintwin.diagnose.state import json_ready
-    from chaintwin.store.store import _to_json
+    from chaintwin.store.engine import _to_json
 
     files = _recordings(plant)[:8]
     url = f"sqlite:///{tmp_path / 'twice.db'}"

@@ -39,7 +39,7 @@ def register(app: typer.Typer) -> None:
         from sqlalchemy.exc import OperationalError
 
         from chaintwin.store import migrate
-        from chaintwin.store.store import engine_for, safe_url, store_url
+        from chaintwin.store.engine import engine_for, safe_url, store_url
 
         given = store_url(url)
         engine = engine_for(given)

@@ -215,7 +215,8 @@ def register(app: typer.Typer) -> None:
         if out is not None:
             _save(cal, out)
         if db is not None:
-            from chaintwin.store.store import Store, store_url
+            from chaintwin.store.engine import store_url
+            from chaintwin.store.store import Store
 
             store = Store(store_url(db))
             try:

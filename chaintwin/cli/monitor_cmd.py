@@ -366,7 +366,8 @@ def _edit(
         out = edit(data)
         save_state(state, data)
         return out
-    from chaintwin.store.store import Store, store_url
+    from chaintwin.store.engine import store_url
+    from chaintwin.store.store import Store
 
     store = Store(store_url(db), create=False)
     try:

@@ -51,7 +51,8 @@ def register(app: typer.Typer) -> None:
             write_folder,
             write_page,
         )
-        from chaintwin.store.store import Store, store_url
+        from chaintwin.store.engine import store_url
+        from chaintwin.store.store import Store
 
         if sum((conveyor is not None, fleet, every)) != 1:
             raise StoreError("give one of --conveyor ID, --fleet or --all")

@@ -98,8 +98,9 @@ def register(app: typer.Typer) -> None:
         Idempotent: a recording already stored is skipped. Refused files never
         stop the batch; the exit code is 0 when the batch ran.
         """
+        from chaintwin.store.engine import store_url
         from chaintwin.store.ingest import ingest
-        from chaintwin.store.store import Store, store_url
+        from chaintwin.store.store import Store
 
         profs = load_profiles(profile, profiles)
         if workers is not None and workers < 1:
@@ -156,7 +157,8 @@ def register(app: typer.Typer) -> None:
         fmt: Annotated[str, typer.Option("--format", help="csv or json.")] = "csv",
     ) -> None:
         """Write stored results (one row per recording) to standard output as CSV or JSON."""
-        from chaintwin.store.store import Store, store_url
+        from chaintwin.store.engine import store_url
+        from chaintwin.store.store import Store
 
         if fmt not in ("csv", "json"):
             raise StoreError(f"--format {fmt}: use csv or json")

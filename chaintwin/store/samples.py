@@ -24,18 +24,25 @@ import json
 import struct
 import zlib
 from collections.abc import Iterator, Mapping
+from datetime import datetime
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 import zstandard
 
+from chaintwin.diagnose.state import json_ready
 from chaintwin.errors import StoreError
+from chaintwin.read.recording import Metadata, Recording, RecordingWarning
 
 __all__ = [
     "SAMPLES_ZSTD_LEVEL",
     "PackedChannels",
+    "load_samples",
     "pack_channels",
+    "pack_samples",
+    "recording_meta",
+    "stored_recording",
     "unpack_channels",
 ]
 
@@ -204,3 +211,57 @@ class PackedChannels(Mapping[str, Array]):
 
     def __reduce__(self) -> tuple[type[PackedChannels], tuple[tuple[str, ...], bytes]]:
         return (PackedChannels, (self.names, self.blob))
+
+
+# ---------------------------------------------------------------- recordings
+def pack_samples(recording: Recording) -> bytes:
+    """The channels (SI) of a recording, packed losslessly for the store (:mod:`.samples`)."""
+    channels = recording.channels
+    if isinstance(channels, PackedChannels):  # packed already (in a worker)
+        return channels.blob
+    return pack_channels(channels)
+
+
+def load_samples(blob: bytes) -> dict[str, np.ndarray]:
+    """The channels (SI) of a stored recording, in any packing the store has used."""
+    return unpack_channels(blob)
+
+
+def recording_meta(recording: Recording) -> dict[str, Any]:
+    """A recording's metadata and channel units, JSON-ready, as stored."""
+    m = recording.metadata
+    out: dict[str, Any] = {
+        k: getattr(m, k)
+        for k in ("conveyor", "sample_time_s", "payload_kg", "tray_kg")
+        if getattr(m, k, None) is not None
+    }
+    if m.recorded_at is not None:
+        out["recorded_at"] = m.recorded_at.isoformat()
+    out["extra"] = dict(m.extra)
+    out["units"] = dict(recording.si_units())
+    return json_ready(out)  # type: ignore[no-any-return]
+
+
+def stored_recording(
+    file: str, meta: dict[str, Any], warnings: list[Any], samples: bytes
+) -> Recording:
+    """Rebuild a :class:`Recording` from what the store keeps of it."""
+    at = meta.get("recorded_at")
+    metadata = Metadata(
+        conveyor=meta.get("conveyor"),
+        recorded_at=None if at is None else datetime.fromisoformat(at),
+        sample_time_s=meta.get("sample_time_s"),
+        payload_kg=meta.get("payload_kg"),
+        tray_kg=meta.get("tray_kg"),
+        extra=dict(meta.get("extra", {})),
+    )
+    channels = load_samples(samples)
+    units = dict(meta.get("units", {}))
+    return Recording(
+        source=file,
+        channels=channels,
+        units={k: units.get(k, "") for k in channels},
+        headers={k: k for k in channels},
+        metadata=metadata,
+        warnings=tuple(RecordingWarning(str(w["code"]), str(w["message"])) for w in warnings),
+    )

@@ -23,11 +23,9 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any, TypeVar
 
-import numpy as np
-import orjson
-from sqlalchemy import create_engine, event, insert, select, update
+from sqlalchemy import insert, select, update
 from sqlalchemy.engine import Engine
-from sqlalchemy.exc import IntegrityError, OperationalError, SQLAlchemyError
+from sqlalchemy.exc import IntegrityError, OperationalError
 from sqlalchemy.orm import Session
 
 from chaintwin.diagnose.monitor import ConveyorMonitor, MonitorSettings, RecordingResult
@@ -38,7 +36,8 @@ from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
 
 from . import migrate
-from .samples import PackedChannels, pack_channels, unpack_channels
+from .engine import engine_for, safe_url
+from .samples import pack_samples, recording_meta, stored_recording
 from .schema import (
     AlarmRow,
     CalibrationRow,
@@ -50,23 +49,12 @@ from .schema import (
 )
 
 __all__ = [
-    "DEFAULT_URL",
     "HISTORY_IN_STATE",
     "Finished",
     "StateConflict",
     "Store",
     "Waiting",
-    "engine_for",
-    "load_samples",
-    "pack_samples",
-    "recording_meta",
-    "safe_url",
-    "store_url",
-    "stored_recording",
 ]
-
-DEFAULT_URL = "sqlite:///chaintwin.db"
-"""The embedded default: a SQLite file in the working folder."""
 
 HISTORY_IN_STATE = 300
 """Recent results kept inside a stored health model (for trend forecasts); all
@@ -111,98 +99,8 @@ class StateConflict(Exception):
     """Another writer advanced a conveyor's health model first (not a user error)."""
 
 
-def store_url(given: str | None) -> str:
-    """The store URL: as given, else ``CHAINTWIN_DB``, else :data:`DEFAULT_URL`."""
-    return given or os.environ.get("CHAINTWIN_DB") or DEFAULT_URL
-
-
-def _to_json(value: Any) -> str:
-    """The JSON text of a column's value (the engine's serializer).
-
-    orjson, about 20 times faster than the standard library on the health
-    model (0.3 ms against 5.5 ms for 400 kB), which is stored with every
-    group of recordings. Like :func:`chaintwin.diagnose.state.json_ready`,
-    it writes non-finite floats as null (standard JSON); numpy numbers and
-    arrays are written as numbers and lists, other keys than strings as strings.
-    """
-    try:
-        return orjson.dumps(
-            value, option=orjson.OPT_NON_STR_KEYS | orjson.OPT_SERIALIZE_NUMPY
-        ).decode()
-    except orjson.JSONEncodeError:  # what orjson does not take (an int over 64 bits, ...)
-        return json.dumps(json_ready(value), allow_nan=False)
-
-
-def _from_json(text: str | bytes) -> Any:
-    """A column's value from its JSON text (the engine's deserializer).
-
-    Stores written before :func:`_to_json` may hold ``NaN`` (the standard
-    library's extension, which orjson refuses): those values are read by the
-    standard library.
-    """
-    try:
-        return orjson.loads(text)
-    except orjson.JSONDecodeError:
-        return json.loads(text)
-
-
 def _now() -> str:
     return datetime.now(UTC).isoformat()
-
-
-def safe_url(url: str) -> str:
-    """The URL without its password, for messages."""
-    head, sep, tail = url.partition("@")
-    if not sep or "://" not in head:
-        return url
-    scheme, _, cred = head.partition("://")
-    user, colon, _password = cred.partition(":")
-    if not colon:  # no password to hide
-        return url
-    return f"{scheme}://{user}:***@{tail}"
-
-
-def engine_for(url: str) -> Engine:
-    """The SQLAlchemy engine of a store URL (psycopg 3 for PostgreSQL; SQLite's pragmas).
-
-    Raises
-    ------
-    StoreError
-        When the URL is not a usable database URL.
-    """
-    target = url
-    if target.startswith("postgresql://"):
-        target = "postgresql+psycopg://" + target[len("postgresql://") :]
-    try:
-        engine = create_engine(
-            target,
-            future=True,
-            pool_pre_ping=True,
-            json_serializer=_to_json,
-            json_deserializer=_from_json,
-        )
-    except (SQLAlchemyError, ImportError, ValueError) as exc:
-        raise StoreError(
-            f"url {safe_url(url)}: not a usable database URL ({exc}); use "
-            "sqlite:///file.db or postgresql://user:password@host/database",
-            field="url",
-        ) from None
-    if engine.dialect.name == "sqlite":
-        event.listen(engine, "connect", _sqlite_pragmas)
-    return engine
-
-
-def pack_samples(recording: Recording) -> bytes:
-    """The channels (SI) of a recording, packed losslessly for the store (:mod:`.samples`)."""
-    channels = recording.channels
-    if isinstance(channels, PackedChannels):  # packed already (in a worker)
-        return channels.blob
-    return pack_channels(channels)
-
-
-def load_samples(blob: bytes) -> dict[str, np.ndarray]:
-    """The channels (SI) of a stored recording, in any packing the store has used."""
-    return unpack_channels(blob)
 
 
 class Store:
@@ -687,63 +585,3 @@ class Store:
                 "alarms": s.scalar(select(func.count()).select_from(AlarmRow)) or 0,
                 "calibrations": s.scalar(select(func.count()).select_from(CalibrationRow)) or 0,
             }
-
-
-def recording_meta(recording: Recording) -> dict[str, Any]:
-    """A recording's metadata and channel units, JSON-ready, as stored."""
-    m = recording.metadata
-    out: dict[str, Any] = {
-        k: getattr(m, k)
-        for k in ("conveyor", "sample_time_s", "payload_kg", "tray_kg")
-        if getattr(m, k, None) is not None
-    }
-    if m.recorded_at is not None:
-        out["recorded_at"] = m.recorded_at.isoformat()
-    out["extra"] = dict(m.extra)
-    out["units"] = dict(recording.si_units())
-    return json_ready(out)  # type: ignore[no-any-return]
-
-
-def stored_recording(
-    file: str, meta: dict[str, Any], warnings: list[Any], samples: bytes
-) -> Recording:
-    """Rebuild a :class:`Recording` from what the store keeps of it."""
-    from chaintwin.read.recording import Metadata, RecordingWarning
-
-    at = meta.get("recorded_at")
-    metadata = Metadata(
-        conveyor=meta.get("conveyor"),
-        recorded_at=None if at is None else datetime.fromisoformat(at),
-        sample_time_s=meta.get("sample_time_s"),
-        payload_kg=meta.get("payload_kg"),
-        tray_kg=meta.get("tray_kg"),
-        extra=dict(meta.get("extra", {})),
-    )
-    channels = load_samples(samples)
-    units = dict(meta.get("units", {}))
-    return Recording(
-        source=file,
-        channels=channels,
-        units={k: units.get(k, "") for k in channels},
-        headers={k: k for k in channels},
-        metadata=metadata,
-        warnings=tuple(RecordingWarning(str(w["code"]), str(w["message"])) for w in warnings),
-    )
-
-
-def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
-    """WAL journal (readers do not block the writer), a wait for the lock.
-
-    ``synchronous=NORMAL`` is SQLite's advice for WAL (and set only when WAL
-    took effect): a commit is durable against a crash or kill of the process
-    (what ingest promises); only a power loss may take back the last
-    commits, never half of one.
-    """
-    cur = dbapi_connection.cursor()
-    cur.execute("PRAGMA journal_mode=WAL")
-    mode = cur.fetchone()
-    if mode is not None and str(mode[0]).lower() == "wal":  # not on every file system
-        cur.execute("PRAGMA synchronous=NORMAL")
-    cur.execute("PRAGMA busy_timeout=30000")
-    cur.execute("PRAGMA foreign_keys=ON")
-    cur.close()

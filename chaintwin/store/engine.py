@@ -1,0 +1,115 @@
+"""Opening a store's database: the URL, the engine, JSON columns and SQLite's settings."""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Any
+
+import orjson
+from sqlalchemy import create_engine, event
+from sqlalchemy.engine import Engine
+from sqlalchemy.exc import SQLAlchemyError
+
+from chaintwin.diagnose.state import json_ready
+from chaintwin.errors import StoreError
+
+__all__ = ["DEFAULT_URL", "engine_for", "safe_url", "store_url"]
+
+DEFAULT_URL = "sqlite:///chaintwin.db"
+"""The embedded default: a SQLite file in the working folder."""
+
+
+def store_url(given: str | None) -> str:
+    """The store URL: as given, else ``CHAINTWIN_DB``, else :data:`DEFAULT_URL`."""
+    return given or os.environ.get("CHAINTWIN_DB") or DEFAULT_URL
+
+
+def _to_json(value: Any) -> str:
+    """The JSON text of a column's value (the engine's serializer).
+
+    orjson, about 20 times faster than the standard library on the health
+    model (0.3 ms against 5.5 ms for 400 kB), which is stored with every
+    group of recordings. Like :func:`chaintwin.diagnose.state.json_ready`,
+    it writes non-finite floats as null (standard JSON); numpy numbers and
+    arrays are written as numbers and lists, other keys than strings as strings.
+    """
+    try:
+        return orjson.dumps(
+            value, option=orjson.OPT_NON_STR_KEYS | orjson.OPT_SERIALIZE_NUMPY
+        ).decode()
+    except orjson.JSONEncodeError:  # what orjson does not take (an int over 64 bits, ...)
+        return json.dumps(json_ready(value), allow_nan=False)
+
+
+def _from_json(text: str | bytes) -> Any:
+    """A column's value from its JSON text (the engine's deserializer).
+
+    Stores written before :func:`_to_json` may hold ``NaN`` (the standard
+    library's extension, which orjson refuses): those values are read by the
+    standard library.
+    """
+    try:
+        return orjson.loads(text)
+    except orjson.JSONDecodeError:
+        return json.loads(text)
+
+
+def safe_url(url: str) -> str:
+    """The URL without its password, for messages."""
+    head, sep, tail = url.partition("@")
+    if not sep or "://" not in head:
+        return url
+    scheme, _, cred = head.partition("://")
+    user, colon, _password = cred.partition(":")
+    if not colon:  # no password to hide
+        return url
+    return f"{scheme}://{user}:***@{tail}"
+
+
+def engine_for(url: str) -> Engine:
+    """The SQLAlchemy engine of a store URL (psycopg 3 for PostgreSQL; SQLite's pragmas).
+
+    Raises
+    ------
+    StoreError
+        When the URL is not a usable database URL.
+    """
+    target = url
+    if target.startswith("postgresql://"):
+        target = "postgresql+psycopg://" + target[len("postgresql://") :]
+    try:
+        engine = create_engine(
+            target,
+            future=True,
+            pool_pre_ping=True,
+            json_serializer=_to_json,
+            json_deserializer=_from_json,
+        )
+    except (SQLAlchemyError, ImportError, ValueError) as exc:
+        raise StoreError(
+            f"url {safe_url(url)}: not a usable database URL ({exc}); use "
+            "sqlite:///file.db or postgresql://user:password@host/database",
+            field="url",
+        ) from None
+    if engine.dialect.name == "sqlite":
+        event.listen(engine, "connect", _sqlite_pragmas)
+    return engine
+
+
+def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
+    """WAL journal (readers do not block the writer), a wait for the lock.
+
+    ``synchronous=NORMAL`` is SQLite's advice for WAL (and set only when WAL
+    took effect): a commit is durable against a crash or kill of the process
+    (what ingest promises); only a power loss may take back the last
+    commits, never half of one.
+    """
+    cur = dbapi_connection.cursor()
+    cur.execute("PRAGMA journal_mode=WAL")
+    mode = cur.fetchone()
+    if mode is not None and str(mode[0]).lower() == "wal":  # not on every file system
+        cur.execute("PRAGMA synchronous=NORMAL")
+    cur.execute("PRAGMA busy_timeout=30000")
+    cur.execute("PRAGMA foreign_keys=ON")
+    cur.close()

@@ -125,7 +125,7 @@ def test_yaml_errors_and_duplicate_ids(tmp_path: Path) -> None:
     (tmp_path / "b.yaml").write_text(REFERENCE_PROFILE.read_text())
     with pytest.raises(ProfileError, match="also the id of"):
         load_profiles(tmp_path)
-    with pytest.raises(ProfileError, match="cannot read"):
+    with pytest.raises(ProfileError, match="cannot be read"):
         load_profile(tmp_path / "missing.yaml")
     with pytest.raises(ProfileError, match="must be a YAML mapping"):
         parse_profile([1, 2], "list.yaml")

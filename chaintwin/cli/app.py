@@ -7,12 +7,15 @@ user never sees a traceback for bad input.
 
 from __future__ import annotations
 
+import os
 import sys
+from typing import Annotated
 
 import typer
 
 from chaintwin.cli.common import EXIT_ALARM, EXIT_USAGE, error_message
 from chaintwin.errors import ChaintwinError
+from chaintwin.read.files import MAX_FILE_MB_ENV
 
 __all__ = ["EXIT_ALARM", "EXIT_USAGE", "app", "main"]
 
@@ -25,6 +28,23 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     add_completion=False,
 )
+
+
+@app.callback()
+def _options(
+    max_file_mb: Annotated[
+        float | None,
+        typer.Option(
+            "--max-file-mb",
+            help="Largest input file read, MB [64]; also CHAINTWIN_MAX_FILE_MB.",
+            min=0.001,
+        ),
+    ] = None,
+) -> None:
+    """Options for every command."""
+    if max_file_mb is not None:
+        # through the environment, so that worker processes read with the same limit
+        os.environ[MAX_FILE_MB_ENV] = repr(max_file_mb)
 
 
 def _register() -> None:

@@ -41,6 +41,7 @@ OPTION_OF_FIELD: dict[str, str] = {
     "by": "--by",
     "column_map": "--columns",
     "days": "--days",
+    "max_file_mb": "--max-file-mb",
     "drift": "--drift",
     "onset_day": "--onset",
     "out": "--out",

@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from chaintwin.errors import CalibrationError, EstimationError
+from chaintwin.errors import CalibrationError, ChaintwinError, EstimationError
 from chaintwin.identify.regression import RigidModelRegression, speed_clusters
 from chaintwin.identify.torque_lag import identify_torque_lag
 from chaintwin.model.physics import payload_sensitivity_nm_kg
@@ -51,6 +51,7 @@ from chaintwin.model.rigid import (
     incline_terms,
 )
 from chaintwin.model.windows import window_integrals
+from chaintwin.read.files import read_limited
 from chaintwin.read.profile import ConveyorProfile, parse_profile
 from chaintwin.read.recording import Recording, RecordingWarning
 from chaintwin.units import RPM_TO_RAD_S
@@ -340,20 +341,24 @@ def load_calibration(path: str | Path) -> Calibration:
         When it cannot be read or is not a valid calibration.
     """
     source = str(path)
+    raw = read_limited(path, what="calibration", error=lambda s, m: CalibrationError(f"{s}: {m}"))
     try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as exc:
+        data = json.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError as exc:
         raise CalibrationError(f"{source}: cannot read the calibration ({exc})") from None
     except json.JSONDecodeError as exc:
         raise CalibrationError(f"{source}, line {exc.lineno}: not valid JSON") from None
+    except RecursionError:
+        raise CalibrationError(f"{source}: nested too deeply to be a calibration") from None
     return Calibration.from_dict(data, source)
 
 
 def _sha256(recording: Recording) -> str | None:
     try:
-        return hashlib.sha256(Path(recording.source).read_bytes()).hexdigest()
-    except OSError:
+        raw = read_limited(recording.source, what="recording", error=CalibrationError)
+    except ChaintwinError:
         return None
+    return hashlib.sha256(raw).hexdigest()
 
 
 def _torque_lag(

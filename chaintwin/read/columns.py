@@ -19,6 +19,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from chaintwin.errors import ColumnMapError
+from chaintwin.read.files import read_limited
 from chaintwin.units import CANONICAL_CHANNELS
 
 __all__ = ["ColumnMap", "ColumnTarget", "load_column_map"]
@@ -76,12 +77,15 @@ def load_column_map(path: str | Path) -> ColumnMap:
         Naming the file and the offending entry.
     """
     source = str(path)
+    raw = read_limited(path, what="column map", error=lambda s, m: ColumnMapError(f"{s}: {m}"))
     try:
-        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as exc:
+        data = yaml.safe_load(raw.decode("utf-8"))
+    except UnicodeDecodeError as exc:
         raise ColumnMapError(f"{source}: cannot read the column map ({exc})") from None
     except yaml.YAMLError:
         raise ColumnMapError(f"{source}: not valid YAML; fix the syntax") from None
+    except RecursionError:
+        raise ColumnMapError(f"{source}: nested too deeply to be a column map") from None
     if not isinstance(data, dict):
         raise ColumnMapError(
             f"{source}: a column map is a mapping with one key 'columns' (header → {{name, unit}})"

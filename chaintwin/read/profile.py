@@ -45,6 +45,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from chaintwin.errors import ProfileError
+from chaintwin.read.files import read_limited
 
 __all__ = [
     "BeltSpec",
@@ -348,12 +349,15 @@ def load_profile(path: str | Path) -> ConveyorProfile:
         When the file cannot be read, is not YAML, or fails validation.
     """
     source = str(path)
+    raw = read_limited(path, what="profile", error=lambda s, m: ProfileError(f"{s}: {m}"))
     try:
-        text = Path(path).read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ProfileError(f"{source}: cannot read the profile ({exc}); check the path") from None
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ProfileError(f"{source}: cannot read the profile ({exc}); save it as UTF-8") from None
     try:
         data = yaml.safe_load(text)
+    except RecursionError:
+        raise ProfileError(f"{source}: nested too deeply to be a profile") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f", line {mark.line + 1}" if mark is not None else ""

@@ -32,6 +32,7 @@ from chaintwin._types import FloatArray
 from chaintwin.errors import RecordingError
 from chaintwin.read.columns import ColumnMap
 from chaintwin.read.fastparse import parse_grid
+from chaintwin.read.files import read_limited
 from chaintwin.read.recording import Metadata, Recording
 from chaintwin.units import CANONICAL_CHANNELS, REQUIRED_CHANNELS, UnitContext, to_si_factor
 
@@ -101,22 +102,15 @@ def read_metadata(path: str | Path) -> Metadata:
 
 
 def read_bytes(path: str | Path) -> bytes:
-    """A recording file's bytes.
+    """A recording file's bytes (:func:`~chaintwin.read.files.read_limited`).
 
     Raises
     ------
     RecordingError
-        When it is a folder or cannot be read.
+        When it cannot be read, is a folder or not a regular file, or is
+        larger than the input file limit.
     """
-    source = str(path)
-    try:
-        return Path(path).read_bytes()
-    except IsADirectoryError:
-        raise RecordingError(source, "is a folder, not a recording file") from None
-    except OSError as exc:
-        raise RecordingError(
-            source, f"cannot be read ({exc.strerror or exc}); check the path"
-        ) from None
+    return read_limited(path, what="recording", error=RecordingError)
 
 
 def parse_metadata(raw: bytes, source: str) -> Metadata:

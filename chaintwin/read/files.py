@@ -1,0 +1,118 @@
+"""Reading an input file safely: regular files only, and none larger than the limit.
+
+Every loader (recordings, profiles, column maps, calibrations, state files)
+reads through :func:`read_limited`, so that a named pipe, a device or a
+socket given as a file is refused instead of blocking forever, and an
+oversized file is refused before it is read (memory stays bounded by the
+limit). Symbolic links are followed to the file they name; a loop of links
+is refused.
+
+The limit is :data:`DEFAULT_MAX_FILE_MB` (64 MB) unless the environment
+variable ``CHAINTWIN_MAX_FILE_MB`` says otherwise (the command line's
+``--max-file-mb`` sets it, so worker processes see the same limit).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import stat
+from collections.abc import Callable
+from pathlib import Path
+
+from chaintwin.errors import ChaintwinError
+
+__all__ = ["DEFAULT_MAX_FILE_MB", "MAX_FILE_MB_ENV", "max_file_bytes", "read_limited"]
+
+DEFAULT_MAX_FILE_MB = 64.0
+"""Largest input file read, MB (10⁶ bytes), unless set otherwise."""
+
+MAX_FILE_MB_ENV = "CHAINTWIN_MAX_FILE_MB"
+"""The environment variable that sets the limit, MB."""
+
+_MB = 1_000_000
+
+
+def max_file_bytes() -> int:
+    """The largest input file read, bytes (``CHAINTWIN_MAX_FILE_MB``, else 64 MB).
+
+    Raises
+    ------
+    ChaintwinError
+        When the environment variable is not a positive number.
+    """
+    given = os.environ.get(MAX_FILE_MB_ENV)
+    if given is None or given.strip() == "":
+        return int(DEFAULT_MAX_FILE_MB * _MB)
+    try:
+        mb = float(given)
+    except ValueError:
+        mb = math.nan
+    if not (math.isfinite(mb) and mb > 0.0):
+        raise ChaintwinError(
+            f"max_file_mb {given!r} (from {MAX_FILE_MB_ENV}) must be a positive number of MB",
+            field="max_file_mb",
+        )
+    return int(mb * _MB)
+
+
+def read_limited(
+    path: str | Path, *, what: str, error: Callable[[str, str], ChaintwinError]
+) -> bytes:
+    """The bytes of a regular file no larger than :func:`max_file_bytes`.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file (a symbolic link is followed).
+    what : str
+        What the file should be, for messages (``"recording"``, ``"profile"``).
+    error : callable
+        Makes the loader's own error from ``(source, message)``.
+
+    Raises
+    ------
+    ChaintwinError
+        Of the loader's type: the file is missing or unreadable, a folder, not
+        a regular file, or larger than the limit (``field`` ``max_file_mb``).
+    """
+    source = str(path)
+    limit = max_file_bytes()
+    try:
+        info = os.stat(path)  # follows links; a loop raises ELOOP
+    except OSError as exc:
+        raise error(source, f"cannot be read ({exc.strerror or exc}); check the path") from None
+    if stat.S_ISDIR(info.st_mode):
+        raise error(source, f"is a folder, not a {what} file")
+    if not stat.S_ISREG(info.st_mode):
+        raise error(
+            source,
+            f"is not a regular file (a pipe, device or socket); give a {what} file",
+        )
+    if info.st_size > limit:
+        raise _too_large(error, source, info.st_size, limit, what)
+    try:
+        # O_NONBLOCK: should the path have become a pipe since the check, open
+        # must not wait for a writer
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except OSError as exc:
+        raise error(source, f"cannot be read ({exc.strerror or exc}); check the path") from None
+    with os.fdopen(fd, "rb") as handle:
+        if not stat.S_ISREG(os.fstat(handle.fileno()).st_mode):
+            raise error(source, f"is not a regular file; give a {what} file")
+        data = handle.read(limit + 1)
+    if len(data) > limit:  # it grew while being read
+        raise _too_large(error, source, len(data), limit, what)
+    return data
+
+
+def _too_large(
+    error: Callable[[str, str], ChaintwinError], source: str, size: int, limit: int, what: str
+) -> ChaintwinError:
+    exc = error(
+        source,
+        f"{size / _MB:.1f} MB is more than a {what} file may hold (max_file_mb "
+        f"{limit / _MB:g} MB); raise the limit if the file is right",
+    )
+    exc.field = "max_file_mb"
+    return exc

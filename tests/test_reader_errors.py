@@ -202,3 +202,44 @@ def test_cli_names_the_option_where_the_library_names_the_field() -> None:
     # no field, or a field no option sets: the library's words stand
     assert error_message(ModelError("days 0")) == "days 0"
     assert error_message(ModelError("speed_rpm 0", field="speed_rpm")) == "speed_rpm 0"
+
+
+def test_values_no_drive_records_are_refused_at_their_line_and_column() -> None:
+    from conftest import REFERENCE_PROFILE
+
+    from chaintwin.read.profile import load_profile
+
+    profile = load_profile(REFERENCE_PROFILE)  # nominal 1415 rpm, 2.5 Nm
+    body = rows()
+    # torque 30 Nm: over ten times the 2.5 Nm nominal torque (from the metadata)
+    bad = [*body[:7], "0.042,7.0,30.0", *body[8:]]
+    err = refuse(text_of(OK_HEAD, bad, "# nominal_torque_nm: 2.5\n"))
+    assert (err.line, err.column) == (10, "torque [Nm]")
+    assert "more than 10 times the nominal torque" in str(err)
+    # the same sample without a nominal torque anywhere: nothing to compare with
+    assert parse_recording(text_of(OK_HEAD, bad), "x.csv").samples == N
+    # a percent torque of 1e300 %: refused (too large to convert, or implausible)
+    huge = [*body[:3], "0.018,3.0,1e300", *body[4:]]
+    err = refuse(text_of("time [s],speed [rpm],torque [%]", huge, "# nominal_torque_nm: 2.5\n"))
+    assert (err.line, err.column) == (6, "torque [%]")
+    # speed 5000 rpm: over three times the profile's 1415 rpm
+    fast = [*body[:10], "0.060,5000.0,0.5", *body[11:]]
+    with pytest.raises(RecordingError) as info:
+        parse_recording(text_of(OK_HEAD, fast), "bad.csv", profile=profile)
+    assert (info.value.line, info.value.column) == (12, "speed [rpm]")
+    assert "3 times the nominal speed" in str(info.value)
+
+
+def test_sample_times_and_dates_out_of_range_are_refused() -> None:
+    # 6 µs apart: the time column was exported in ms, read as s
+    micro = [f"{k * 0.000006:.6f},{k}.0,0.5" for k in range(N)]
+    err = refuse(text_of(OK_HEAD, micro))
+    assert err.column == "time [s]"
+    assert "0.1 to 100 ms" in str(err)
+    err = refuse(text_of(OK_HEAD, rows(), "# sample_time_s: 6\n"))
+    assert err.line == 1
+    assert "sample_time_s" in str(err)
+    for stamp in ("0001-01-01T00:30:00+01:00", "1969-12-31T23:59:59Z", "2201-01-01T00:00:00Z"):
+        err = refuse(text_of(OK_HEAD, rows(), f"# recorded_at: {stamp}\n"))
+        assert err.line == 1
+        assert "between 1970 and 2200" in str(err), stamp

@@ -22,6 +22,7 @@ line.
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -34,7 +35,13 @@ from chaintwin.read.columns import ColumnMap
 from chaintwin.read.fastparse import parse_grid
 from chaintwin.read.files import read_limited
 from chaintwin.read.recording import Metadata, Recording
-from chaintwin.units import CANONICAL_CHANNELS, REQUIRED_CHANNELS, UnitContext, to_si_factor
+from chaintwin.units import (
+    CANONICAL_CHANNELS,
+    REQUIRED_CHANNELS,
+    RPM_TO_RAD_S,
+    UnitContext,
+    to_si_factor,
+)
 
 if TYPE_CHECKING:
     from chaintwin.read.profile import ConveyorProfile
@@ -50,6 +57,18 @@ __all__ = [
 
 MIN_SAMPLES = 32
 """Fewest samples a recording may hold."""
+
+SAMPLE_TIME_RANGE_S = (1e-4, 0.1)
+"""Sample times a drive scope can have, s (0.1 to 100 ms); others are refused."""
+
+YEAR_RANGE = (1970, 2200)
+"""Years a recording may be dated in; others are refused."""
+
+MAX_TORQUE_NOMINALS = 10.0
+"""|torque| above this many nominal torques is no drive's recording: refused."""
+
+MAX_SPEED_NOMINALS = 3.0
+"""|speed| above this many nominal speeds is no drive's recording: refused."""
 
 _HEADER_RE = re.compile(r"^\s*(?P<name>[^\[\]]*?)\s*\[(?P<unit>[^\[\]]*)\]\s*$")
 _NUMBER_KEYS = ("sample_time_s", "nominal_torque_nm", "increments_per_rev", "payload_kg", "tray_kg")
@@ -161,6 +180,14 @@ def _parse_metadata(source: str, items: list[tuple[int, str, str]]) -> Metadata:
                     f"metadata '{key}' is {value}; it must be a positive number",
                     line=lineno,
                 )
+            low, high = SAMPLE_TIME_RANGE_S
+            if key == "sample_time_s" and not low <= number <= high:
+                raise RecordingError(
+                    source,
+                    f"metadata 'sample_time_s' is {value} s; a drive scope samples every "
+                    f"{low * 1e3:g} to {high * 1e3:g} ms (is the unit s?)",
+                    line=lineno,
+                )
             values[key] = number
         elif key == "recorded_at":
             try:
@@ -172,6 +199,13 @@ def _parse_metadata(source: str, items: list[tuple[int, str, str]]) -> Metadata:
                     "(e.g. 2026-11-21T10:15:00Z)",
                     line=lineno,
                 ) from None
+            if not YEAR_RANGE[0] <= stamp.year <= YEAR_RANGE[1]:
+                raise RecordingError(
+                    source,
+                    f"metadata 'recorded_at' is '{value}'; a recording is dated between "
+                    f"{YEAR_RANGE[0]} and {YEAR_RANGE[1]} (check the drive's clock)",
+                    line=lineno,
+                )
             values[key] = stamp if stamp.tzinfo else stamp.replace(tzinfo=UTC)
         elif key == "conveyor":
             if not value:
@@ -426,6 +460,58 @@ def parse_recording(
         channels[name] = column
         unit_of[name] = unit
         header_of[name] = cell
+    _check_plausible(source, channels, header_of, line_of, nominal, profile)
     return Recording(
         source=source, channels=channels, units=unit_of, headers=header_of, metadata=metadata
     )
+
+
+def _check_plausible(
+    source: str,
+    channels: dict[str, FloatArray],
+    header_of: dict[str, str],
+    line_of: Callable[[int], int],
+    nominal_torque_nm: float | None,
+    profile: ConveyorProfile | None,
+) -> None:
+    """Refuse values no drive records: sample time, torque and speed far out of range.
+
+    Suspect but possible values are left to validation's warnings; these are
+    the impossible ones (a unit or export error), named by line and column.
+    """
+    time = channels["time"]
+    dt = float(np.median(np.diff(time)))
+    low, high = SAMPLE_TIME_RANGE_S
+    if not low <= dt <= high:
+        raise RecordingError(
+            source,
+            f"samples are {dt * 1e3:g} ms apart; a drive scope samples every "
+            f"{low * 1e3:g} to {high * 1e3:g} ms (is the time column in s?)",
+            line=line_of(1),
+            column=header_of["time"],
+        )
+    nominal_speed = (
+        profile.motor.nominal_speed_rpm * RPM_TO_RAD_S
+        if profile is not None and profile.motor.nominal_speed_rpm is not None
+        else None
+    )
+    limits = (
+        ("torque", nominal_torque_nm, MAX_TORQUE_NOMINALS, "nominal torque"),
+        ("torque_setpoint", nominal_torque_nm, MAX_TORQUE_NOMINALS, "nominal torque"),
+        ("speed", nominal_speed, MAX_SPEED_NOMINALS, "nominal speed"),
+        ("speed_setpoint", nominal_speed, MAX_SPEED_NOMINALS, "nominal speed"),
+    )
+    for name, nominal, times, what in limits:
+        values = channels.get(name)
+        if values is None or nominal is None:
+            continue
+        over = np.abs(values) > times * nominal
+        if over.any():
+            row = int(np.flatnonzero(over)[0])
+            raise RecordingError(
+                source,
+                f"{name} {values[row]:.6g} (SI) is more than {times:g} times the {what} "
+                f"({nominal:.6g}); no drive records that: check the value and the unit",
+                line=line_of(row),
+                column=header_of[name],
+            )

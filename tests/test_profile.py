@@ -6,10 +6,10 @@ import math
 from pathlib import Path
 
 import pytest
-import yaml
 from conftest import EXAMPLES, REFERENCE_PROFILE
 
 from chaintwin import ProfileError, load_profile, load_profiles
+from chaintwin.read.files import yaml_load
 from chaintwin.read.profile import ConveyorProfile, parse_profile
 
 I_TEETH = (43 / 12) * (75 / 23) * (61 / 23)
@@ -17,7 +17,7 @@ I_TEETH = (43 / 12) * (75 / 23) * (61 / 23)
 
 
 def reference_dict() -> dict:  # type: ignore[type-arg]
-    return yaml.safe_load(REFERENCE_PROFILE.read_text())
+    return yaml_load(REFERENCE_PROFILE.read_text())  # YAML 1.2 numbers, as load_profile
 
 
 def test_examples_load_and_have_three_conveyors() -> None:
@@ -136,3 +136,16 @@ def test_content_hash_changes_with_content(reference_profile: ConveyorProfile) -
     assert parse_profile(d).content_hash() == reference_profile.content_hash()
     d["tray_mass_kg"] = 11.0
     assert parse_profile(d).content_hash() != reference_profile.content_hash()
+
+
+def test_numbers_must_be_numbers(tmp_path: Path) -> None:
+    text = REFERENCE_PROFILE.read_text()
+    for value in ("true", '"30.99"'):  # a boolean, a quoted number
+        bad = tmp_path / "bad.yaml"
+        bad.write_text(text.replace("ratio: 30.99", f"ratio: {value}"))
+        with pytest.raises(ProfileError, match="field 'gear.ratio': Input should be a valid"):
+            load_profile(bad)
+    # YAML 1.2 numbers: an exponent without a sign is a number, not a string
+    ok = tmp_path / "ok.yaml"
+    ok.write_text(text.replace("ratio: 30.99", "ratio: 3.099e1"))
+    assert load_profile(ok).gear.ratio == pytest.approx(30.99)

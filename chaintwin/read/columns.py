@@ -19,7 +19,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from chaintwin.errors import ColumnMapError
-from chaintwin.read.files import read_limited
+from chaintwin.read.files import read_limited, yaml_load
 from chaintwin.units import CANONICAL_CHANNELS
 
 __all__ = ["ColumnMap", "ColumnTarget", "load_column_map"]
@@ -79,7 +79,7 @@ def load_column_map(path: str | Path) -> ColumnMap:
     source = str(path)
     raw = read_limited(path, what="column map", error=lambda s, m: ColumnMapError(f"{s}: {m}"))
     try:
-        data = yaml.safe_load(raw.decode("utf-8"))
+        data = yaml_load(raw.decode("utf-8"))
     except UnicodeDecodeError as exc:
         raise ColumnMapError(f"{source}: cannot read the column map ({exc})") from None
     except yaml.YAMLError:

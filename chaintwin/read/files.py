@@ -16,13 +16,23 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import stat
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
+
+import yaml
 
 from chaintwin.errors import ChaintwinError
 
-__all__ = ["DEFAULT_MAX_FILE_MB", "MAX_FILE_MB_ENV", "max_file_bytes", "read_limited"]
+__all__ = [
+    "DEFAULT_MAX_FILE_MB",
+    "MAX_FILE_MB_ENV",
+    "max_file_bytes",
+    "read_limited",
+    "yaml_load",
+]
 
 DEFAULT_MAX_FILE_MB = 64.0
 """Largest input file read, MB (10⁶ bytes), unless set otherwise."""
@@ -116,3 +126,31 @@ def _too_large(
     )
     exc.field = "max_file_mb"
     return exc
+
+
+class _Loader(yaml.SafeLoader):
+    """YAML's safe loader that reads ``2.7e9`` as a number, as YAML 1.2 does.
+
+    PyYAML follows YAML 1.1, where an exponent needs a sign (``2.7e+9``) and
+    ``2.7e9`` is a string; profile fields are strict numbers, so it would be
+    refused.
+    """
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(
+        r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+        |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+        |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+        |[-+]?\.(?:inf|Inf|INF)
+        |\.(?:nan|NaN|NAN))$""",
+        re.X,
+    ),
+    list("-+0123456789."),
+)
+
+
+def yaml_load(text: str) -> Any:
+    """Parse YAML text with :class:`_Loader` (safe; numbers with any exponent)."""
+    return yaml.load(text, Loader=_Loader)

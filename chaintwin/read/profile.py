@@ -45,7 +45,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from chaintwin.errors import ProfileError
-from chaintwin.read.files import read_limited
+from chaintwin.read.files import read_limited, yaml_load
 
 __all__ = [
     "BeltSpec",
@@ -60,8 +60,9 @@ __all__ = [
     "parse_profile",
 ]
 
-Positive = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
-NonNegative = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+# numbers must be numbers: strict, so that YAML's true or "1.5" are refused, not read as 1.0
+Positive = Annotated[float, Field(gt=0.0, allow_inf_nan=False, strict=True)]
+NonNegative = Annotated[float, Field(ge=0.0, allow_inf_nan=False, strict=True)]
 
 
 class _Spec(BaseModel):
@@ -75,7 +76,7 @@ class BeltSpec(_Spec):
     """Conveying length between sprocket centres, m."""
     mass_per_m_kg: Positive
     """Chain belt mass per metre of belt, kg/m."""
-    incline_deg: Annotated[float, Field(ge=-90.0, le=90.0)] = 0.0
+    incline_deg: Annotated[float, Field(ge=-90.0, le=90.0, strict=True)] = 0.0
     """Incline, degrees; positive when conveying uphill."""
     youngs_modulus_pa: Positive | None = None
     """Belt material Young's modulus, Pa (optional)."""
@@ -90,7 +91,7 @@ class SprocketSpec(_Spec):
 
     pitch_diameter_m: Positive
     """Pitch diameter d, m."""
-    teeth: Annotated[int, Field(ge=3, le=200)] | None = None
+    teeth: Annotated[int, Field(ge=3, le=200, strict=True)] | None = None
     """Number of teeth z (optional; unknown means no chordal correction)."""
 
 
@@ -99,11 +100,18 @@ class GearSpec(_Spec):
 
     ratio: Positive
     """Gear ratio i = motor speed / output speed."""
-    efficiency: Annotated[float, Field(gt=0.0, le=1.0)] = 0.95
+    efficiency: Annotated[float, Field(gt=0.0, le=1.0, strict=True)] = 0.95
     """Efficiency η while the motor drives the belt."""
     inertia_kgm2: NonNegative = 0.0
     """Gear unit inertia referred to the motor shaft, kg·m²."""
-    stages: list[tuple[Annotated[int, Field(ge=1)], Annotated[int, Field(ge=1)]]] | None = None
+    stages: (
+        list[
+            tuple[
+                Annotated[int, Field(ge=1, strict=True)], Annotated[int, Field(ge=1, strict=True)]
+            ]
+        ]
+        | None
+    ) = None
     """Pinion and gear tooth counts per stage, motor side first (optional)."""
 
     @model_validator(mode="after")
@@ -152,7 +160,7 @@ class ModelSpec(_Spec):
     Defaults are the published reference conveyor's values.
     """
 
-    friction: Annotated[float, Field(ge=0.0, le=2.0)] = 0.23
+    friction: Annotated[float, Field(ge=0.0, le=2.0, strict=True)] = 0.23
     """Kinetic belt-on-rail friction coefficient μ."""
     static_friction_ratio: Annotated[float, Field(ge=1.0, le=5.0)] = 1.2
     """Static over kinetic friction coefficient."""
@@ -355,7 +363,7 @@ def load_profile(path: str | Path) -> ConveyorProfile:
     except UnicodeDecodeError as exc:
         raise ProfileError(f"{source}: cannot read the profile ({exc}); save it as UTF-8") from None
     try:
-        data = yaml.safe_load(text)
+        data = yaml_load(text)
     except RecursionError:
         raise ProfileError(f"{source}: nested too deeply to be a profile") from None
     except yaml.YAMLError as exc:

@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -19,6 +22,7 @@ from chaintwin.identify.calibration import (
     sensitivity_nm_per_kg,
 )
 from chaintwin.identify.regression import RigidModelRegression
+from chaintwin.model.rigid import PARAMETER_NAMES
 from chaintwin.read.profile import ModelSpec, load_profile
 from chaintwin.read.recording import Recording
 from chaintwin.read.writer import write_recording
@@ -383,3 +387,35 @@ def test_recordings_without_set_points_are_calibrated_and_weighed(cal_p2: Calibr
     assert without.payload_kg == pytest.approx(40.0, abs=0.5)
     assert without.payload_kg == pytest.approx(with_sp.payload_kg, abs=0.3)
     assert without.consistent
+
+
+def test_a_calibration_with_impossible_numbers_is_refused(
+    cal_p2: Calibration, tmp_path: Path
+) -> None:
+    path = cal_p2.save(tmp_path / "cal.json")
+    good = json.loads(path.read_text())
+    mu, jd = PARAMETER_NAMES.index("mu"), PARAMETER_NAMES.index("J_d")
+
+    def edited(edit: Callable[[dict[str, Any]], None]) -> Path:
+        data = json.loads(json.dumps(good))
+        edit(data)
+        out = tmp_path / "edited.json"
+        out.write_text(json.dumps(data))
+        return out
+
+    def values(k: int, v: float) -> Callable[[dict[str, Any]], None]:
+        return lambda d: d["parameters"]["values"].__setitem__(k, v)
+
+    cases: list[tuple[Callable[[dict[str, Any]], None], str]] = [
+        (values(mu, -0.1), "friction coefficient mu is -0.1"),
+        (values(mu, 40.0), "friction coefficient mu is 40"),
+        (values(jd, 0.0), "drive inertia J_d is 0"),
+        (values(PARAMETER_NAMES.index("BmB"), 5.0), "more than the drive's torque limit"),
+        (lambda d: d["inertia_signature"].__setitem__("gain", 0.0), "gain is 0, not positive"),
+        (lambda d: d.__setitem__("recordings", "abc"), "'recordings' must be a list"),
+        (lambda d: d["parameters"]["covariance"][0].__setitem__(0, -1.0), "not a covariance"),
+    ]
+    for edit, message in cases:
+        with pytest.raises(CalibrationError, match=re.escape(message)):
+            load_calibration(edited(edit))
+    assert load_calibration(edited(lambda d: None)).case == cal_p2.case

@@ -143,7 +143,7 @@ def test_numbers_must_be_numbers(tmp_path: Path) -> None:
     for value in ("true", '"30.99"'):  # a boolean, a quoted number
         bad = tmp_path / "bad.yaml"
         bad.write_text(text.replace("ratio: 30.99", f"ratio: {value}"))
-        with pytest.raises(ProfileError, match="field 'gear.ratio': Input should be a valid"):
+        with pytest.raises(ProfileError, match=r"field 'gear\.ratio': Input should be a valid"):
             load_profile(bad)
     # YAML 1.2 numbers: an exponent without a sign is a number, not a string
     ok = tmp_path / "ok.yaml"

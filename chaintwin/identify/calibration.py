@@ -284,6 +284,8 @@ class Calibration:
                 f"(this chaintwin reads version {CALIBRATION_VERSION}); calibrate again"
             )
         try:
+            if not isinstance(data.get("recordings"), list):
+                raise ValueError("'recordings' must be a list")
             profile = parse_profile(data["profile"], f"{source}: embedded profile")
             params = data["parameters"]
             if list(params["names"]) != list(PARAMETER_NAMES):
@@ -324,7 +326,48 @@ class Calibration:
                 f"{source}: the embedded profile does not match its hash; the file was "
                 "edited by hand. Calibrate again from the recordings"
             )
+        problem = _broken_invariant(cal)
+        if problem is not None:
+            raise CalibrationError(f"{source}: {problem}; calibrate again from the recordings")
         return cal
+
+
+MAX_MU = 2.0
+"""Largest friction coefficient a calibration may hold (belt on rails: 0.05-0.5)."""
+
+
+def _broken_invariant(cal: Calibration) -> str | None:
+    """What is physically impossible in a calibration's numbers, or None.
+
+    Positive drive inertia and inertia-signature gain, μ in (0, 2], a loss
+    torque at nominal speed below the torque limit, a covariance with a
+    non-negative diagonal; the shapes are checked on reading.
+    """
+    p = cal.parameters
+    profile = cal.profile
+    cov = p.covariance
+    if not p["J_d"] > 0.0:
+        return f"the drive inertia J_d is {p['J_d']:g} kg·m², not positive"
+    if not 0.0 < p["mu"] <= MAX_MU:
+        return f"the friction coefficient mu is {p['mu']:g}, not in (0, {MAX_MU:g}]"
+    speed = (profile.motor.nominal_speed_rpm or 1500.0) * RPM_TO_RAD_S
+    limit = profile.torque_limit_nm
+    loss = abs(p["BmA"]) + abs(p["BmB"]) * speed + abs(p["BmC"]) * speed * speed
+    if limit is not None and loss > limit:
+        return (
+            f"the losses (BmA, BmB, BmC) make {loss:.4g} Nm at nominal speed, more than the "
+            f"drive's torque limit {limit:.4g} Nm"
+        )
+    if (np.diag(cov) < 0.0).any() or not np.allclose(cov, cov.T, rtol=1e-9, atol=0.0):
+        return "the parameter covariance is not a covariance (negative variance or asymmetric)"
+    if not (math.isfinite(cal.inertia_gain) and cal.inertia_gain > 0.0):
+        return f"the inertia signature's gain is {cal.inertia_gain:g}, not positive"
+    sigmas = (cal.inertia_gain_sigma, cal.inertia_offset_sigma_kg)
+    if not all(math.isfinite(v) and v >= 0.0 for v in sigmas) or not math.isfinite(
+        cal.inertia_offset_kg
+    ):
+        return "the inertia signature's offset or uncertainties are not finite and non-negative"
+    return None
 
 
 def _number(value: Any) -> float:

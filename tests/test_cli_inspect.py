@@ -153,3 +153,25 @@ def test_python_dash_m_and_no_traceback(tmp_path: Path) -> None:
     assert "Traceback" not in proc.stderr + proc.stdout
     # 5 metadata lines, the header on line 6, the row at 0.030 s (row 5) on line 12
     assert "line 12, column 'speed_setpoint [rpm]'" in proc.stdout
+
+
+def test_control_characters_from_a_file_never_reach_the_terminal(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from chaintwin.cli.app import main
+
+    hostile = "\x1b]0;owned\x07\x1b[2J"
+    ok = tmp_path / "meta.csv"
+    ok.write_text(make_text(meta={"conveyor": f"belt{hostile}", "operator": hostile}))
+    bad = tmp_path / "bad.csv"
+    bad.write_text(make_text(meta={"recorded_at": f"2026-01-01{hostile}"}))
+    code = main(["inspect", str(ok), str(bad)])
+    out, err = capsys.readouterr()
+    assert code == 2
+    assert "\x1b" not in out + err and "\x07" not in out + err
+    assert "belt\ufffd]0;owned" in out  # shown, defused
+    # the JSON form keeps the text, escaped by JSON itself
+    main(["inspect", str(ok), "--json"])
+    out, _ = capsys.readouterr()
+    assert "\x1b" not in out
+    assert json.loads(out)[0]["conveyor"] == f"belt{hostile}"

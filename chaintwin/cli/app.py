@@ -13,7 +13,7 @@ from typing import Annotated
 
 import typer
 
-from chaintwin.cli.common import EXIT_ALARM, EXIT_USAGE, error_message
+from chaintwin.cli.common import EXIT_ALARM, EXIT_USAGE, error_message, printable
 from chaintwin.errors import ChaintwinError
 from chaintwin.read.files import MAX_FILE_MB_ENV
 
@@ -91,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         return code if isinstance(code, int) else EXIT_USAGE
     except ChaintwinError as exc:
-        print(f"chaintwin: error: {error_message(exc)}", file=sys.stderr)
+        print(f"chaintwin: error: {printable(error_message(exc))}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
         print("chaintwin: interrupted", file=sys.stderr)

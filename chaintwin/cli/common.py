@@ -28,6 +28,8 @@ __all__ = [
     "print_json",
     "print_refused",
     "print_warning",
+    "printable",
+    "safe",
 ]
 
 EXIT_USAGE = 2
@@ -77,16 +79,34 @@ ColumnsOption = Annotated[
 ]
 
 
+_CONTROL = re.compile(r"[\x00-\x08\x0a-\x1f\x7f-\x9f]")
+"""Control characters (C0 but the tab, DEL, C1): a file's text must not steer the terminal."""
+
+
+def printable(text: str) -> str:
+    """Text a file supplied, with its control characters (ESC, CR, ...) shown as U+FFFD.
+
+    Names, metadata and messages come from files: an ``ESC ]0;...`` or
+    ``ESC [2J`` in them would retitle or clear the user's terminal.
+    """
+    return _CONTROL.sub("\ufffd", text)
+
+
+def safe(text: str) -> str:
+    """:func:`printable` text with Rich markup escaped, for ``console.print``."""
+    return escape(printable(text))
+
+
 def print_refused(console: Console, error: str) -> None:
-    """Print a refusal on one line (markup in the message escaped)."""
-    console.print(f"[red]refused[/red] {escape(error)}", highlight=False, soft_wrap=True)
+    """Print a refusal on one line (markup escaped, control characters replaced)."""
+    console.print(f"[red]refused[/red] {safe(error)}", highlight=False, soft_wrap=True)
 
 
 def print_warning(console: Console, where: str, code: str, message: str) -> None:
     """Print a warning on one line: ``warning <where>: <code>: <message>``."""
-    prefix = f"{escape(where)}: " if where else ""
+    prefix = f"{safe(where)}: " if where else ""
     console.print(
-        f"[yellow]warning[/yellow] {prefix}[bold]{code}[/bold]: {escape(message)}",
+        f"[yellow]warning[/yellow] {prefix}[bold]{code}[/bold]: {safe(message)}",
         highlight=False,
         soft_wrap=True,
     )

@@ -7,7 +7,6 @@ from typing import Annotated, Any
 
 import typer
 from rich.console import Console
-from rich.markup import escape
 from rich.table import Table
 
 from chaintwin import __version__
@@ -18,6 +17,7 @@ from chaintwin.cli.common import (
     print_json,
     print_refused,
     print_warning,
+    safe,
 )
 from chaintwin.errors import CalibrationError, ChaintwinError, EstimationError, RecordingError
 from chaintwin.identify.calibration import Calibration, calibrate, load_calibration
@@ -160,7 +160,7 @@ def register(app: typer.Typer) -> None:
             print_json(out)
         else:
             console = Console()
-            table = Table(title=f"chaintwin identify: {escape(prof.id)}")
+            table = Table(title=f"chaintwin identify: {safe(prof.id)}")
             for col in ("parameter", "value", "std. error", "unit"):
                 table.add_column(col)
             units = {"mu": "-", "BmA": "Nm", "BmB": "Nm·s/rad", "BmC": "Nm·s²/rad²"}
@@ -228,7 +228,7 @@ def register(app: typer.Typer) -> None:
         else:
             console = Console()
             console.print(
-                f"wrote {escape(str(out) if out is not None else 'the store')}: "
+                f"wrote {safe(str(out) if out is not None else 'the store')}: "
                 f"{len(recs)} recordings, case "
                 f"[bold]{cal.case}[/bold], mu = {cal.parameters['mu']:.4f}, payload "
                 f"sensitivity {cal.sensitivity_nm_per_kg * 1e3:.3f} mNm/kg "
@@ -273,16 +273,16 @@ def register(app: typer.Typer) -> None:
             print_json(results)
         else:
             console = Console()
-            table = Table(title=f"chaintwin weigh: {escape(cal.profile.id)}")
+            table = Table(title=f"chaintwin weigh: {safe(cal.profile.id)}")
             for col in ("file", "payload [kg]", "± [kg]", "friction", "inertia", "ok", "TLF"):
                 table.add_column(col)
             for r in results:
                 if "error" in r:
-                    table.add_row(escape(r["file"]), "[red]refused[/red]", "", "", "", "", "")
+                    table.add_row(safe(r["file"]), "[red]refused[/red]", "", "", "", "", "")
                     continue
                 inertia = r["payload_inertia_kg"]
                 table.add_row(
-                    escape(r["file"]),
+                    safe(r["file"]),
                     f"{r['payload_kg']:.2f}",
                     f"{r['uncertainty_kg']:.2f}",
                     f"{r['payload_friction_kg']:.2f}",

@@ -7,7 +7,6 @@ from typing import Annotated, Any
 
 import typer
 from rich.console import Console
-from rich.markup import escape
 from rich.table import Table
 
 from chaintwin.cli.common import (
@@ -18,6 +17,7 @@ from chaintwin.cli.common import (
     print_json,
     print_refused,
     print_warning,
+    safe,
 )
 from chaintwin.errors import RecordingError
 from chaintwin.read.columns import ColumnMap
@@ -75,12 +75,12 @@ def _print_table(results: list[dict[str, Any]]) -> None:
         table.add_column(col, overflow="fold")
     for r in results:
         if "error" in r:
-            table.add_row(escape(r["file"]), "", "", "", "", "[red]refused[/red]", "")
+            table.add_row(safe(r["file"]), "", "", "", "", "[red]refused[/red]", "")
             continue
         phases = "".join(_ARROWS[p["kind"]] for p in r["phases"])
         table.add_row(
-            escape(r["file"]),
-            escape(r["conveyor"] or "?"),
+            safe(r["file"]),
+            safe(r["conveyor"] or "?"),
             str(r["samples"]),
             f"{r['sample_time_s'] * 1e3:.4g}",
             f"{r['duration_s']:.3f}",

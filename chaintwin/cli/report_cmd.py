@@ -7,8 +7,8 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
-from rich.markup import escape
 
+from chaintwin.cli.common import safe
 from chaintwin.errors import StoreError
 
 __all__ = ["register"]
@@ -62,16 +62,16 @@ def register(app: typer.Typer) -> None:
             if conveyor is not None:
                 html, _d = conveyor_page(store, conveyor)
                 target = write_page(html, out or Path(report_file_name(conveyor)))
-                console.print(f"wrote {escape(str(target))}", highlight=False)
+                console.print(f"wrote {safe(str(target))}", highlight=False)
             elif fleet:
                 target = write_page(fleet_page(store), out or Path("fleet.html"))
-                console.print(f"wrote {escape(str(target))}", highlight=False)
+                console.print(f"wrote {safe(str(target))}", highlight=False)
             else:
                 folder = out or Path("reports")
                 written = write_folder(store, folder)
                 console.print(
-                    f"wrote {len(written)} pages into {escape(str(folder))} "
-                    f"(start with {escape(str(written[-1]))})",
+                    f"wrote {len(written)} pages into {safe(str(folder))} "
+                    f"(start with {safe(str(written[-1]))})",
                     highlight=False,
                 )
         finally:

@@ -7,10 +7,9 @@ from typing import Annotated, Any
 
 import typer
 from rich.console import Console
-from rich.markup import escape
 from rich.table import Table
 
-from chaintwin.cli.common import ColumnsOption, load_options, print_json, print_warning
+from chaintwin.cli.common import ColumnsOption, load_options, print_json, print_warning, safe
 from chaintwin.diagnose.lines import band_amplitude
 from chaintwin.diagnose.peaks import strongest_peaks
 from chaintwin.diagnose.spectra import MIN_SPEED_RPM, Spectrum, order_spectrum, welch_spectrum
@@ -100,7 +99,7 @@ def _print_tables(out: dict[str, Any], rows: list[dict[str, Any]], sample_time_s
         console = Console(width=max(console.width, 120))
     unit = "Hz" if out["kind"] == "frequency" else "order"
     console.print(
-        f"{escape(out['file'])}: {out['kind']} spectrum at {out['speed_rpm']:.1f} rpm, "
+        f"{safe(out['file'])}: {out['kind']} spectrum at {out['speed_rpm']:.1f} rpm, "
         f"Ts {sample_time_s * 1e3:.4g} ms, bin {out['resolution']:.4g} {unit}",
         highlight=False,
         soft_wrap=True,
@@ -108,7 +107,7 @@ def _print_tables(out: dict[str, Any], rows: list[dict[str, Any]], sample_time_s
     if rows:
         table = Table(title="characteristic lines")
         for col in ("line", "order", "frequency [Hz]", f"apparent [{unit}]", "amplitude [Nm]"):
-            table.add_column(escape(col), justify="left" if col == "line" else "right")
+            table.add_column(safe(col), justify="left" if col == "line" else "right")
         table.add_column("aliased")
         for r in rows:
             table.add_row(
@@ -124,7 +123,7 @@ def _print_tables(out: dict[str, Any], rows: list[dict[str, Any]], sample_time_s
         console.print("no --profile: characteristic lines not shown", highlight=False)
     peaks = Table(title=f"{PEAKS} strongest peaks")
     for col in (f"x [{unit}]", "amplitude [Nm]", "near line"):
-        peaks.add_column(escape(col), justify="left" if col == "near line" else "right")
+        peaks.add_column(safe(col), justify="left" if col == "near line" else "right")
     tolerance = 2.0 * out["resolution"]
     for p in out["peaks"]:
         near = [r["name"] for r in rows if abs(r["apparent"] - p["x"]) <= tolerance]

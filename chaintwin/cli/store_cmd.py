@@ -10,10 +10,9 @@ from typing import Annotated, Any
 
 import typer
 from rich.console import Console
-from rich.markup import escape
 from rich.progress import Progress
 
-from chaintwin.cli.common import ColumnsOption, expand_recordings, print_json, print_refused
+from chaintwin.cli.common import ColumnsOption, expand_recordings, print_json, print_refused, safe
 from chaintwin.cli.monitor_cmd import load_profiles
 from chaintwin.diagnose.monitor import SettingsGiven
 from chaintwin.errors import StoreError
@@ -132,7 +131,7 @@ def register(app: typer.Typer) -> None:
             return
         console = Console()
         console.print(
-            f"ingested into {escape(store.url.split('@')[-1])}: {summary.processed} processed, "
+            f"ingested into {safe(store.url.split('@')[-1])}: {summary.processed} processed, "
             f"{summary.duplicates} duplicates skipped, {summary.refused} refused, "
             f"{summary.warnings} warnings, {summary.new_alarms} new alarms "
             f"({summary.seconds:.1f} s)",

@@ -59,7 +59,8 @@ vector from values given by name, checking that every entry is given once.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+import operator
+from collections.abc import Callable, Mapping
 from typing import Any, cast
 
 import numpy as np
@@ -157,7 +158,10 @@ N_COEF = len(COEFFICIENTS)
 _COEF_NAMES = tuple(name for name, _ in COEFFICIENTS)
 
 
-def pack(**values: float) -> FloatArray:
+_get_coefficients = operator.itemgetter(*_COEF_NAMES)
+
+
+def pack(values: Mapping[str, float]) -> FloatArray:
     """The coefficient vector from one value per :data:`COEFFICIENTS` name.
 
     Raises
@@ -165,11 +169,15 @@ def pack(**values: float) -> FloatArray:
     ModelError
         When a name is missing or not in the layout (a programming error).
     """
-    if values.keys() != set(_COEF_NAMES):
+    try:
+        row = _get_coefficients(values)
+    except KeyError:
+        row = ()
+    if len(values) != N_COEF or len(row) != N_COEF:
         missing = sorted(set(_COEF_NAMES) - values.keys())
         unknown = sorted(values.keys() - set(_COEF_NAMES))
         raise ModelError(f"coefficients: missing {missing}, unknown {unknown}")
-    return np.array([values[name] for name in _COEF_NAMES], dtype=np.float64)
+    return np.fromiter(row, np.float64, N_COEF)
 
 
 # ----------------------------------------------------------- output layout

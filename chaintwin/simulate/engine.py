@@ -141,6 +141,11 @@ def elastic_substeps(params: PlantParameters) -> int:
     return n
 
 
+_TERMS = ("m_red", "fc", "fg", "hjm", "hjg", "brkp", "brkn")  # order of _kernel.belt_terms
+_TERMS_BEFORE = tuple(f"{name}0" for name in _TERMS)
+_TERMS_AFTER = tuple(f"{name}1" for name in _TERMS)
+
+
 def _coefficients(
     p: PlantParameters,
     n_cycles: int,
@@ -185,51 +190,51 @@ def _coefficients(
         after = before
         step_scale = 1.0
     teeth = p.teeth
-    terms = ("m_red", "fc", "fg", "hjm", "hjg", "brkp", "brkn")
-    return _k.pack(
-        dt=dt,
-        kv=p.position_gain_1_s,
-        kp=p.speed_gain_nm_s_rad,
-        kp_ti=p.speed_gain_nm_s_rad / p.speed_integral_time_s,
-        tlim=p.torque_limit_nm,
-        a_lag=a_lag,
-        b_lag=b_lag,
-        jd=jd,
-        eta=eta,
-        inv_eta=inv_eta,
-        bma=bma,
-        bmb=p.loss_viscous_nm_s_rad,
-        bmc=p.loss_quadratic_nm_s2_rad2,
-        mass=mass,
-        carried=carried,
-        mu_g_cos=mu_g_cos,
-        static=static,
-        g_sin=g_sin,
-        krv=krv,
-        pitch_r=p.pitch_radius_m,
-        ratio=p.ratio,
-        teeth=float(teeth),
-        polygon=1.0 if (p.polygon and teeth > 0) else 0.0,
-        loop=p.loop_length_m,
-        stiff=p.belt_stiffness_n_m,
-        damp=p.belt_damping_n_s_m,
-        obs_pos=p.obstruction_position_m,
-        obs_width=p.obstruction_width_m,
-        obs_force=p.obstruction_force_n,
-        imp_period=p.impulse_period_rad,
-        imp_width=p.impulse_width_rad,
-        imp_amp=p.impulse_amplitude_nm,
-        step_k=float(step_k),
-        step_kg=step_kg,
-        theta0=initial_motor_angle,
-        x0=initial_belt_position_m,
-        nsub=float(elastic_substeps(p)) if p.elastic else 1.0,
-        nrip=float(len(p.ripple_orders)),
-        tau=tau,
-        step_scale=step_scale,
-        **{f"{name}0": v for name, v in zip(terms, before, strict=True)},
-        **{f"{name}1": v for name, v in zip(terms, after, strict=True)},
-    )
+    values = {
+        "dt": dt,
+        "kv": p.position_gain_1_s,
+        "kp": p.speed_gain_nm_s_rad,
+        "kp_ti": p.speed_gain_nm_s_rad / p.speed_integral_time_s,
+        "tlim": p.torque_limit_nm,
+        "a_lag": a_lag,
+        "b_lag": b_lag,
+        "jd": jd,
+        "eta": eta,
+        "inv_eta": inv_eta,
+        "bma": bma,
+        "bmb": p.loss_viscous_nm_s_rad,
+        "bmc": p.loss_quadratic_nm_s2_rad2,
+        "mass": mass,
+        "carried": carried,
+        "mu_g_cos": mu_g_cos,
+        "static": static,
+        "g_sin": g_sin,
+        "krv": krv,
+        "pitch_r": p.pitch_radius_m,
+        "ratio": p.ratio,
+        "teeth": float(teeth),
+        "polygon": 1.0 if (p.polygon and teeth > 0) else 0.0,
+        "loop": p.loop_length_m,
+        "stiff": p.belt_stiffness_n_m,
+        "damp": p.belt_damping_n_s_m,
+        "obs_pos": p.obstruction_position_m,
+        "obs_width": p.obstruction_width_m,
+        "obs_force": p.obstruction_force_n,
+        "imp_period": p.impulse_period_rad,
+        "imp_width": p.impulse_width_rad,
+        "imp_amp": p.impulse_amplitude_nm,
+        "step_k": float(step_k),
+        "step_kg": step_kg,
+        "theta0": initial_motor_angle,
+        "x0": initial_belt_position_m,
+        "nsub": float(elastic_substeps(p)) if p.elastic else 1.0,
+        "nrip": float(len(p.ripple_orders)),
+        "tau": tau,
+        "step_scale": step_scale,
+    }
+    values.update(zip(_TERMS_BEFORE, before, strict=True))
+    values.update(zip(_TERMS_AFTER, after, strict=True))
+    return _k.pack(values)
 
 
 def _check_cycle(params: PlantParameters, setpoints: Setpoints, where: str) -> None:

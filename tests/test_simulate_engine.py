@@ -17,6 +17,7 @@ from chaintwin.read.profile import ConveyorProfile, ModelSpec, load_profile
 from chaintwin.simulate import (
     PlantParameters,
     Setpoints,
+    _kernel,
     elastic_substeps,
     from_arrays,
     ramp,
@@ -25,6 +26,7 @@ from chaintwin.simulate import (
     trapezoid,
     trapezoid2,
 )
+from chaintwin.simulate.plant import calibrated_model
 
 PROFILES = Path(chaintwin.examples.__file__).parent / "profiles"
 NOMINAL = 1415.0 * 2.0 * math.pi / 60.0
@@ -243,3 +245,26 @@ def test_from_profile_defaults_and_overrides(profile: ConveyorProfile) -> None:
     default = PlantParameters.from_profile(bare, torque_limit_nm=5.0)
     assert default.mu == ModelSpec().friction
     assert default.torque_limit_nm == 5.0
+
+
+def test_calibrated_model_maps_the_calibration_vocabulary() -> None:
+    spec = ModelSpec(static_friction_ratio=1.4)
+    got = calibrated_model(spec, {"mu": 0.31, "BmA": -0.01, "BmB": 0.002, "BmC": 1e-6, "J_d": 1.0})
+    assert got.friction == 0.31
+    assert got.loss_constant_nm == 0.0  # a fit's scatter below zero is simulated as zero
+    assert got.loss_viscous_nm_s_rad == 0.002
+    assert got.loss_quadratic_nm_s2_rad2 == 1e-6
+    assert got.static_friction_ratio == 1.4  # what a calibration does not identify is kept
+
+
+def test_coefficient_layout_is_one_table() -> None:
+    names = [name for name, _ in _kernel.COEFFICIENTS]
+    assert len(set(names)) == len(names) == _kernel.N_COEF
+    assert _kernel.C_DT == 0
+    assert _kernel.C_STEP_SCALE == _kernel.N_COEF - 1
+    values = {name: float(i) for i, name in enumerate(names)}
+    np.testing.assert_array_equal(_kernel.pack(values), np.arange(_kernel.N_COEF, dtype=float))
+    with pytest.raises(ModelError, match="missing \\['dt'\\]"):
+        _kernel.pack({name: 0.0 for name in names[1:]})
+    with pytest.raises(ModelError, match="unknown \\['speed'\\]"):
+        _kernel.pack({**values, "speed": 1.0})

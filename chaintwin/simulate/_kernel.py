@@ -54,6 +54,12 @@ Coefficient layout
 meaning and unit of each entry, in order. The index constants ``C_*`` are
 made from it (one :func:`_coef` call per row) and :func:`pack` builds a
 vector from values given by name, checking that every entry is given once.
+
+The kernels, their shared pieces and the layout stay in this one module
+although it is long: numba's on-disk cache is invalidated only when the
+file of the cached function changes (not the files of functions it
+inlines) and it freezes module-level constants such as ``C_*`` at compile
+time, so a kernel in another file could run stale pieces or indices.
 """
 
 from __future__ import annotations

@@ -7,11 +7,6 @@ the nominal 1415 rpm with 0.5 s ramps, held 10.5 s (12 s in all, 12 001
 controller cycles at 1 ms). Prints one table:
 
 * time per simulated cycle, rigid model and elastic + polygon + stick-slip;
-* batched (batch 256, plain rigid model): simulations per second, µs per
-  simulated cycle and the speed-up against ``simulate()`` of the same run,
-  for the full output (five channels at every cycle, as by default) and for
-  output-error fitting (``stride=6``, ``channels=("torque", "speed")``: a
-  6 ms scope recording), plus the arithmetic alone;
 * the same rigid model in continuous time through scipy's ``solve_ivp``
   (LSODA and RK45, rtol 1e-6) and the speed-up against both.
 
@@ -38,27 +33,19 @@ import numpy as np  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 
 import chaintwin.examples  # noqa: E402
+from chaintwin.model.physics import G  # noqa: E402
 from chaintwin.read.profile import load_profile  # noqa: E402
 from chaintwin.simulate import (  # noqa: E402
     PlantParameters,
     Setpoints,
+    _kernel,
     simulate,
-    simulate_batch,
     trapezoid,
 )
-from chaintwin.simulate import kernel as _kernel  # noqa: E402
-from chaintwin.simulate.engine import (  # noqa: E402
-    _chunk_size,
-    _coefficient_matrix,
-    _coefficients,
-)
+from chaintwin.simulate.engine import _coefficients  # noqa: E402
 
 NOMINAL = 1415.0 * 2.0 * math.pi / 60.0
-BATCH = 256
 RIGID_TARGET_MS = 0.3
-BATCH_TARGET_US = 20.0
-FIT_STRIDE = 6  # a 6 ms scope recording at the 1 ms controller cycle
-FIT_CHANNELS = ("torque", "speed")
 
 
 def best_of(fn: Callable[[], Any], repeat: int, number: int = 1) -> tuple[float, float]:
@@ -84,13 +71,12 @@ def continuous_rhs(p: PlantParameters, sp: Setpoints) -> Callable[[float, Any], 
     t_knots = sp.time
     w_knots = np.asarray(sp.speed)
     p_knots = np.asarray(sp.position)
-    g = 9.81
     jd = p.drive_inertia_kgm2
     k = p.belt_speed_per_motor_speed
     m = p.moving_mass_kg
     m_red = m * k * k
-    fc = p.friction * g * math.cos(p.incline_rad) * m * k
-    fg = g * math.sin(p.incline_rad) * p.carried_mass_kg * k
+    fc = p.mu * G * math.cos(p.incline_rad) * m * k
+    fg = G * math.sin(p.incline_rad) * p.carried_mass_kg * k
     eta = p.efficiency
     kp, ti, kv, lim = (
         p.speed_gain_nm_s_rad,
@@ -137,10 +123,6 @@ def main() -> int:
     t0 = time.perf_counter()
     simulate(plant, sp)
     simulate(realism, sp)
-    members = [plant.replace(payload_kg=float(x)) for x in np.linspace(0.0, 80.0, BATCH)]
-    simulate_batch(members[:8], sp)
-    simulate_batch(members[:8], sp, full_output=True)
-    simulate_batch(members[:8], sp, stride=FIT_STRIDE, channels=FIT_CHANNELS)
     print(f"warm-up (compile or load cache): {time.perf_counter() - t0:.1f} s")
 
     rows: list[tuple[str, str, str]] = []
@@ -172,90 +154,6 @@ def main() -> int:
             f"{_sub(realism)} sub-steps/cycle; info",
         ),
     ]
-
-    # ------------------------------------------------------------- batched
-    def batch_row(label: str, seconds: float, note: str) -> tuple[str, str, str]:
-        per = seconds / BATCH
-        return (
-            label,
-            f"{BATCH / seconds:,.0f} sims/s = {per * 1e6:.1f} µs/cycle, ×{rigid_best / per:.1f}",
-            note,
-        )
-
-    def verdict(seconds: float) -> str:
-        ok = "meets" if seconds / BATCH * 1e6 <= BATCH_TARGET_US and threads <= 2 else "MISSES"
-        return f"{ok} ≤ {BATCH_TARGET_US:g} µs"
-
-    n_fit = -(-n // FIT_STRIDE)
-    numba.set_num_threads(threads)
-    full_best, _ = best_of(lambda: simulate_batch(members, sp), repeat=5)
-    rows.append(
-        batch_row(
-            f"batch {BATCH}, {threads} threads: full output (5 ch., every cycle)",
-            full_best,
-            verdict(full_best),
-        )
-    )
-    reuse = np.empty((5, n, BATCH))
-    reuse_best, _ = best_of(lambda: simulate_batch(members, sp, out=reuse), repeat=5)
-    rows.append(batch_row("  same, into a reused out= buffer", reuse_best, "info"))
-    all_best, _ = best_of(lambda: simulate_batch(members, sp, full_output=True), repeat=3)
-    rows.append(batch_row("  same, all 9 channels (full_output=True)", all_best, "info"))
-
-    def fit() -> None:
-        simulate_batch(members, sp, stride=FIT_STRIDE, channels=FIT_CHANNELS)
-
-    fit_best, _ = best_of(fit, repeat=15)
-    rows.append(
-        batch_row(
-            f"batch {BATCH}, {threads} threads: fitting, stride {FIT_STRIDE}, "
-            f"{'+'.join(FIT_CHANNELS)}",
-            fit_best,
-            verdict(fit_best),
-        )
-    )
-    rows.append(
-        (
-            f"  same, per controller step of all {BATCH}",
-            f"{fit_best / n * 1e6:.2f} µs/step",
-            "(other reading of 'per simulated cycle')",
-        )
-    )
-    if threads != 1:
-        numba.set_num_threads(1)
-        fit1_best, _ = best_of(fit, repeat=7)
-        rows.append(batch_row("  same, 1 thread", fit1_best, "info"))
-        numba.set_num_threads(threads)
-    pack_best, _ = best_of(lambda: _coefficient_matrix(members, n), repeat=15)
-    rows.append(
-        (
-            f"  of which Python: packing {BATCH} parameter sets",
-            f"{pack_best / BATCH * 1e6:.1f} µs/cycle",
-            "info (single-threaded)",
-        )
-    )
-    coefs, _plain = _coefficient_matrix(members, n)
-    chunk = _chunk_size(BATCH)
-    sat = np.zeros(BATCH)
-    bad = np.zeros(BATCH, dtype=np.bool_)
-    none = np.empty(0, dtype=np.int64)
-    nothing = np.empty((0, n, BATCH))
-
-    def compute_only() -> None:
-        _kernel.batch_plain_kernel(coefs, sp.speed, sp.position, chunk, 1, none, nothing, sat, bad)
-
-    compute_only()
-    k_best, _ = best_of(compute_only, repeat=7)
-    rows.append(
-        batch_row(f"batch kernel, {threads} threads, nothing stored", k_best, "info (arithmetic)")
-    )
-    rows.append(
-        (
-            "output written per simulated cycle",
-            f"{5 * n * 8 / 1e3:.0f} kB full, {len(FIT_CHANNELS) * n_fit * 8 / 1e3:.0f} kB fitting",
-            "float64",
-        )
-    )
 
     # ------------------------------------------------------------- solve_ivp
     rhs = continuous_rhs(plant, sp)
@@ -293,11 +191,6 @@ def main() -> int:
         print(f"{name:<{width}}  {value:<{width2}}  {note}")
     print()
     print(
-        "µs/cycle = wall time per simulated 12 s cycle (one member of the batch); ×N = "
-        "speed-up against simulate() of the rigid model on one core, measured in this run. "
-        "The full output writes 5 float64 channels per member at every cycle (into fresh "
-        "memory unless out= is given); fitting keeps every 6th cycle of torque and speed, "
-        "as a 6 ms drive scope records them. 'nothing stored' is the arithmetic alone. "
         "solve_ivp runs the continuous-time rigid model (Coulomb terms regularised with "
         "tanh(ω/0.01)); its ratio is against simulate() of the rigid model."
     )

@@ -31,7 +31,7 @@ def _truth_model() -> ModelSpec:
 
 TRUTH = _truth_model()
 PAYLOAD_KG = 30.0
-THREE = ("friction", "loss_viscous_nm_s_rad", "drive_inertia_scale")
+THREE = ("mu", "loss_viscous_nm_s_rad", "drive_inertia_scale")
 # With one recording at one speed, BmC·ω|ω| (0.044 Nm at nominal speed) cannot be told
 # from BmB·ω and μ; these tests give BmA and BmC their true values, as a calibration from
 # recordings at several speeds would (see test_three_speeds_separate_the_losses).
@@ -65,7 +65,9 @@ def clean_fit(clean: Recording) -> OutputErrorFit:
 
 
 def _truth(name: str) -> float:
-    return 1.0 if name == "drive_inertia_scale" else float(getattr(TRUTH, name))
+    if name == "drive_inertia_scale":
+        return 1.0
+    return float(getattr(TRUTH, "friction" if name == "mu" else name))  # ModelSpec's name
 
 
 # ---------------------------------------------------------------- (a) noise-free
@@ -109,7 +111,7 @@ def test_predict_reproduces_the_recording(clean: Recording, clean_fit: OutputErr
     moving = np.abs(clean.speed) > 5.0
     assert np.sqrt(np.mean((sim.torque - clean.torque)[moving] ** 2)) < 0.02
     plant = clean_fit.plant_parameters(PROFILE, payload_kg=PAYLOAD_KG)
-    assert plant.friction == clean_fit.theta_["friction"]
+    assert plant.mu == clean_fit.theta_["mu"]
     assert plant.loss_quadratic_nm_s2_rad2 == TRUTH.loss_quadratic_nm_s2_rad2
     assert not (plant.elastic or plant.stick_slip or plant.polygon)
 
@@ -128,7 +130,7 @@ def test_recording_without_position_setpoint_integrates_the_speed(clean: Recordi
     fit = OutputErrorFit(parameters=THREE, fixed=KNOWN_LOSSES, starts=1).fit(
         rec, PROFILE, payload_kg=PAYLOAD_KG
     )
-    assert fit.theta_["friction"] == pytest.approx(TRUTH.friction, rel=0.01)
+    assert fit.theta_["mu"] == pytest.approx(TRUTH.friction, rel=0.01)
 
 
 # ---------------------------------------------------------------- (b) realism on
@@ -140,7 +142,7 @@ def test_realistic_recording_recovers_friction_and_viscous_loss() -> None:
     fit = OutputErrorFit(parameters=THREE, fixed=KNOWN_LOSSES).fit(
         rec, PROFILE, payload_kg=PAYLOAD_KG
     )
-    assert fit.theta_["friction"] == pytest.approx(TRUTH.friction, rel=0.03)
+    assert fit.theta_["mu"] == pytest.approx(TRUTH.friction, rel=0.03)
     assert fit.theta_["loss_viscous_nm_s_rad"] == pytest.approx(
         TRUTH.loss_viscous_nm_s_rad, rel=0.15
     )
@@ -160,7 +162,7 @@ def test_three_speeds_separate_the_losses() -> None:
     fit = OutputErrorFit(parameters=(*THREE, "loss_quadratic_nm_s2_rad2")).fit(
         recs, PROFILE, payload_kg=PAYLOAD_KG
     )
-    assert fit.theta_["friction"] == pytest.approx(TRUTH.friction, rel=0.03)
+    assert fit.theta_["mu"] == pytest.approx(TRUTH.friction, rel=0.03)
     assert fit.theta_["loss_viscous_nm_s_rad"] == pytest.approx(
         TRUTH.loss_viscous_nm_s_rad, rel=0.15
     )
@@ -202,12 +204,12 @@ def test_recording_that_starts_in_motion_is_refused(clean: Recording) -> None:
 @pytest.mark.parametrize(
     ("settings", "match"),
     [
-        ({"parameters": ("friction", "stiffness")}, "unknown parameter"),
+        ({"parameters": ("mu", "stiffness")}, "unknown parameter"),
         ({"parameters": ()}, "at least one"),
-        ({"parameters": ("friction", "friction")}, "twice"),
+        ({"parameters": ("mu", "mu")}, "twice"),
         ({"bounds": {"loss_constant_nm": (0.0, 1.0)}}, "not fitted"),
-        ({"bounds": {"friction": (0.5, 0.1)}}, "lower < upper"),
-        ({"fixed": {"friction": 0.2}}, "also fitted"),
+        ({"bounds": {"mu": (0.5, 0.1)}}, "lower < upper"),
+        ({"fixed": {"mu": 0.2}}, "also fitted"),
         ({"fixed": {"loss_constant_nm": -1.0}}, "finite number ≥ 0"),
         ({"starts": 0}, "starts"),
     ],
@@ -236,4 +238,4 @@ def test_poor_convergence_warns(clean: Recording) -> None:
 
 def test_parameter_names_are_documented() -> None:
     assert set(THREE) <= set(PARAMETER_NAMES)
-    assert "friction" in repr(OutputErrorFit())
+    assert "mu" in repr(OutputErrorFit())

@@ -1,4 +1,4 @@
-"""The simulator as a tool: set points, control, symmetry, batches, errors.
+"""The simulator as a tool: set points, control, symmetry, errors.
 
 Run with ``-s`` to see the measured numbers.
 """
@@ -15,19 +15,18 @@ import chaintwin.examples
 from chaintwin.errors import ModelError
 from chaintwin.read.profile import ConveyorProfile, ModelSpec, load_profile
 from chaintwin.simulate import (
-    BatchResult,
     PlantParameters,
     Setpoints,
+    _kernel,
     elastic_substeps,
     from_arrays,
     ramp,
     simulate,
-    simulate_batch,
     stairs,
     trapezoid,
     trapezoid2,
 )
-from chaintwin.simulate.engine import CHANNELS, MAIN_CHANNELS
+from chaintwin.simulate.plant import calibrated_model
 
 PROFILES = Path(chaintwin.examples.__file__).parent / "profiles"
 NOMINAL = 1415.0 * 2.0 * math.pi / 60.0
@@ -200,217 +199,11 @@ def test_standstill_holds_without_chattering(plant: PlantParameters) -> None:
     )
 
 
-# -------------------------------------------------------------------- batch
-def test_batch_equals_single_runs(profile: ConveyorProfile, plant: PlantParameters) -> None:
-    members = [
-        plant,
-        plant.replace(payload_kg=0.0, friction=0.3),
-        PlantParameters.from_profile(profile, payload_kg=75.0, stick_slip=True),
-        plant.replace(payload_step_time_s=0.8, payload_step_kg=20.0),
-        plant.replace(polygon=True, ripple_orders=(3.3,), ripple_amplitudes_nm=(0.02,)),
-        plant.replace(elastic=True, obstruction_width_m=0.2, obstruction_force_n=80.0),
-        plant.replace(impulse_period_rad=2.0, impulse_width_rad=0.3, impulse_amplitude_nm=0.1),
-    ]
-    sp = trapezoid(speed_rad_s=NOMINAL, accel_rad_s2=NOMINAL / 0.5, hold_s=1.0)
-    batch = simulate_batch(members, sp, full_output=True)
-    assert isinstance(batch, BatchResult)
-    assert len(batch) == len(members)
-    assert batch.torque.shape == (len(members), len(sp))
-    assert batch.time.shape == (len(members), len(sp))
-    assert bool(np.all(batch.success))
-    for i, p in enumerate(members):
-        single = simulate(p, sp)
-        member = batch.member(i)
-        for name in (
-            "torque_setpoint",
-            "torque",
-            "speed",
-            "position",
-            "belt_speed_m_s",
-            "belt_position_m",
-            "sprocket_force_n",
-            "load_torque_nm",
-            "loss_torque_nm",
-        ):
-            np.testing.assert_array_equal(
-                getattr(member, name), getattr(single, name), err_msg=f"member {i}: {name}"
-            )
-        assert member.message == single.message
-    lean = simulate_batch(members[:3], sp)
-    assert lean.belt_position_m is None
-    np.testing.assert_array_equal(lean.torque, batch.torque[:3])
-    with pytest.raises(ModelError, match="full_output"):
-        lean.member(0)
-
-
-def test_batch_across_many_plain_members(plant: PlantParameters) -> None:
-    """More members than one vector chunk, odd count: every column is right."""
-    payloads = np.linspace(0.0, 80.0, 37)
-    members = [plant.replace(payload_kg=float(m)) for m in payloads]
-    sp = trapezoid(speed_rad_s=NOMINAL, accel_rad_s2=NOMINAL / 0.5, hold_s=0.3)
-    batch = simulate_batch(members, sp)
-    for i in (0, 8, 17, 36):
-        single = simulate(members[i], sp)
-        np.testing.assert_array_equal(batch.torque[i], single.torque)
-        np.testing.assert_array_equal(batch.position[i], single.position)
-    # heavier belt, more torque at constant speed
-    hold = round(0.8 / sp.cycle_s)
-    assert np.all(np.diff(batch.torque[:, hold]) > 0.0)
-
-
-def _fit_batch(plant: PlantParameters) -> list[PlantParameters]:
-    """Plain members (one with a payload step, one diverging) and two realism ones."""
-    return [
-        plant,
-        plant.replace(payload_kg=0.0, friction=0.3, stick_slip=True),
-        plant.replace(payload_step_time_s=0.4, payload_step_kg=15.0),
-        plant.replace(polygon=True, ripple_orders=(3.3,), ripple_amplitudes_nm=(0.02,)),
-        plant.replace(elastic=True),
-        # unstable speed loop with no torque limit to speak of: diverges
-        plant.replace(
-            speed_gain_nm_s_rad=1e3,
-            torque_limit_nm=1e308,
-            loss_viscous_nm_s_rad=0.0,
-            loss_quadratic_nm_s2_rad2=0.0,
-        ),
-        plant.replace(cycle_s=plant.cycle_s * (1.0 + 3e-10), payload_kg=33.0),
-    ] + [plant.replace(payload_kg=float(m)) for m in np.linspace(5.0, 75.0, 11)]
-
-
-def test_batch_stride_and_channels_equal_full_output(plant: PlantParameters) -> None:
-    """A scope-like stride keeps every k-th cycle; a channel subset keeps those rows."""
-    members = _fit_batch(plant)
-    sp = trapezoid(speed_rad_s=NOMINAL, accel_rad_s2=NOMINAL / 0.5, hold_s=0.3)
-    n = len(sp)
-    full = simulate_batch(members, sp, full_output=True)
-    assert full.stride == 1
-    assert full.channels == CHANNELS
-    assert list(full.success) == [i != 5 for i in range(len(members))]
-    assert members[6].cycle_s != sp.cycle_s
-    for i in (5, 6):  # the diverged one; a cycle time off in the last bits
-        single = simulate(members[i], sp)
-        assert full.messages[i] == single.message
-        for name in CHANNELS:
-            np.testing.assert_array_equal(full.channel(name)[i], getattr(single, name))
-    subsets: list[tuple[str, ...]] = [
-        ("torque", "speed"),
-        ("speed", "torque"),
-        ("loss_torque_nm",),
-        ("torque_setpoint", "belt_position_m", "position"),
-        CHANNELS,
-    ]
-    for stride in (1, 2, 6, 7, 12, n - 1, n, n + 5):
-        n_out = -(-n // stride)
-        for channels in subsets:
-            res = simulate_batch(members, sp, stride=stride, channels=channels)
-            assert res.stride == stride
-            assert res.channels == channels
-            assert res.time.shape == (len(members), n_out)
-            np.testing.assert_array_equal(res.time, full.time[:, ::stride])
-            np.testing.assert_array_equal(res.speed_setpoint, full.speed_setpoint[:, ::stride])
-            np.testing.assert_array_equal(
-                res.position_setpoint, full.position_setpoint[:, ::stride]
-            )
-            for name in CHANNELS:
-                value = getattr(res, name)
-                if name not in channels:
-                    assert value is None, name
-                    continue
-                assert value.shape == (len(members), n_out)
-                assert not value.flags.writeable
-                np.testing.assert_array_equal(
-                    value,
-                    full.channel(name)[:, ::stride],
-                    err_msg=f"stride {stride}, {name}",
-                )
-            np.testing.assert_array_equal(res.success, full.success)
-            np.testing.assert_array_equal(res.saturated_cycles, full.saturated_cycles)
-            assert res.messages == full.messages
-    # the default channels, thinned
-    lean = simulate_batch(members, sp, stride=6)
-    assert lean.channels == MAIN_CHANNELS
-    assert lean.belt_position_m is None
-    np.testing.assert_array_equal(lean.channel("belt_speed_m_s"), full.belt_speed_m_s[:, ::6])
-
-
-def test_batch_coefficients_equal_single_run_ones(plant: PlantParameters) -> None:
-    """The vectorised packing gives the bits simulate() packs, member by member."""
-    from chaintwin.simulate.engine import _coefficient_matrix, _coefficients
-
-    rng = np.random.default_rng(7)
-    members = _fit_batch(plant) + [
-        plant.replace(
-            payload_kg=float(rng.uniform(0.0, 80.0)),
-            friction=float(rng.uniform(0.05, 0.4)),
-            efficiency=float(rng.uniform(0.5, 1.0)),
-            incline_rad=float(rng.choice([0.0, 0.07, -0.2])),
-            torque_time_constant_s=float(rng.choice([0.0, 0.001, 0.0023])),
-            stick_slip=bool(rng.integers(2)),
-            teeth=int(rng.choice([0, 10, 17])),
-            loss_constant_nm=float(rng.uniform(0.0, 0.1)),
-            payload_step_time_s=float(rng.choice([-1.0, 0.0, 0.3, 50.0])),
-            payload_step_kg=float(rng.uniform(-5.0, 10.0)),
-        )
-        for _ in range(40)
-    ]
-    for n in (1, 301, 5000):
-        coefs, plain = _coefficient_matrix(members, n)
-        np.testing.assert_array_equal(coefs, np.stack([_coefficients(p, n) for p in members]))
-        np.testing.assert_array_equal(plain, [p.is_plain_rigid for p in members])
-
-
-def test_batch_out_buffer_and_argument_errors(plant: PlantParameters) -> None:
-    members = [plant.replace(payload_kg=float(m)) for m in (0.0, 20.0, 40.0)]
-    sp = trapezoid(speed_rad_s=NOMINAL, accel_rad_s2=NOMINAL / 0.5, hold_s=0.2)
-    n_out = -(-len(sp) // 6)
-    ref = simulate_batch(members, sp, stride=6, channels=("torque", "speed"))
-    buf = np.full((2, n_out, len(members)), np.nan)
-    first = simulate_batch(members, sp, stride=6, channels=("torque", "speed"), out=buf)
-    assert np.shares_memory(first.channel("torque"), buf)
-    assert buf.flags.writeable  # the caller's buffer stays writeable, the views not
-    assert not first.channel("speed").flags.writeable
-    np.testing.assert_array_equal(first.channel("torque"), ref.channel("torque"))
-    np.testing.assert_array_equal(buf[1].T, ref.channel("speed"))
-    # reused: the next call overwrites the previous result's arrays
-    heavier = [p.replace(payload_kg=p.payload_kg + 10.0) for p in members]
-    second = simulate_batch(heavier, sp, stride=6, channels=("torque", "speed"), out=buf)
-    np.testing.assert_array_equal(first.channel("torque"), second.channel("torque"))
-    assert not np.array_equal(second.channel("torque"), ref.channel("torque"))
-    for bad_out in (
-        np.empty((2, n_out + 1, len(members))),
-        np.empty((2, n_out, len(members)), dtype=np.float32),
-        np.empty((2, len(members), n_out)).transpose(0, 2, 1),
-    ):
-        with pytest.raises(ModelError, match="out="):
-            simulate_batch(members, sp, stride=6, channels=("torque", "speed"), out=bad_out)
-    for stride in (0, -3, 1.5, True):
-        with pytest.raises(ModelError, match="stride"):
-            simulate_batch(members, sp, stride=stride)  # type: ignore[arg-type]
-    with pytest.raises(ModelError, match="unknown channel"):
-        simulate_batch(members, sp, channels=("torque", "current"))
-    with pytest.raises(ModelError, match="twice"):
-        simulate_batch(members, sp, channels=("torque", "torque"))
-    with pytest.raises(ModelError, match="at least one"):
-        simulate_batch(members, sp, channels=())
-    with pytest.raises(ModelError, match="not both"):
-        simulate_batch(members, sp, channels=("torque",), full_output=True)
-    with pytest.raises(ModelError, match="not kept"):
-        ref.channel("position")
-    with pytest.raises(ModelError, match="unknown channel"):
-        ref.channel("current")
-    with pytest.raises(ModelError, match="stride 1"):
-        simulate_batch(members, sp, stride=2, full_output=True).member(0)
-
-
 # ------------------------------------------------------------------- errors
 def test_cycle_mismatch_and_bad_parameters(plant: PlantParameters) -> None:
     sp = trapezoid(speed_rad_s=10.0, accel_rad_s2=100.0, hold_s=0.1, cycle_s=0.002)
     with pytest.raises(ModelError, match="cycle"):
         simulate(plant, sp)
-    with pytest.raises(ModelError, match="member 0"):
-        simulate_batch([plant], sp)
-    with pytest.raises(ModelError, match="at least one"):
-        simulate_batch([], sp)
     with pytest.raises(ModelError, match="efficiency"):
         plant.replace(efficiency=1.5)
     with pytest.raises(ModelError, match="unknown field"):
@@ -432,7 +225,7 @@ def test_from_profile_defaults_and_overrides(profile: ConveyorProfile) -> None:
     assert p.belt_speed_per_motor_speed == pytest.approx(profile.belt_speed_per_motor_speed)
     # stiffness from E·A/L when the model gives none
     q = PlantParameters.from_profile(profile, model=ModelSpec(friction=0.3))
-    assert q.friction == 0.3
+    assert q.mu == 0.3
     b = profile.belt
     assert b.youngs_modulus_pa is not None
     assert b.cross_section_m2 is not None
@@ -450,5 +243,28 @@ def test_from_profile_defaults_and_overrides(profile: ConveyorProfile) -> None:
     with pytest.raises(ModelError, match="torque limit"):
         PlantParameters.from_profile(bare)
     default = PlantParameters.from_profile(bare, torque_limit_nm=5.0)
-    assert default.friction == ModelSpec().friction
+    assert default.mu == ModelSpec().friction
     assert default.torque_limit_nm == 5.0
+
+
+def test_calibrated_model_maps_the_calibration_vocabulary() -> None:
+    spec = ModelSpec(static_friction_ratio=1.4)
+    got = calibrated_model(spec, {"mu": 0.31, "BmA": -0.01, "BmB": 0.002, "BmC": 1e-6, "J_d": 1.0})
+    assert got.friction == 0.31
+    assert got.loss_constant_nm == 0.0  # a fit's scatter below zero is simulated as zero
+    assert got.loss_viscous_nm_s_rad == 0.002
+    assert got.loss_quadratic_nm_s2_rad2 == 1e-6
+    assert got.static_friction_ratio == 1.4  # what a calibration does not identify is kept
+
+
+def test_coefficient_layout_is_one_table() -> None:
+    names = [name for name, _ in _kernel.COEFFICIENTS]
+    assert len(set(names)) == len(names) == _kernel.N_COEF
+    assert _kernel.C_DT == 0
+    assert _kernel.C_STEP_SCALE == _kernel.N_COEF - 1
+    values = {name: float(i) for i, name in enumerate(names)}
+    np.testing.assert_array_equal(_kernel.pack(values), np.arange(_kernel.N_COEF, dtype=float))
+    with pytest.raises(ModelError, match="missing \\['dt'\\]"):
+        _kernel.pack({name: 0.0 for name in names[1:]})
+    with pytest.raises(ModelError, match="unknown \\['speed'\\]"):
+        _kernel.pack({**values, "speed": 1.0})

@@ -181,7 +181,7 @@ def test_energy_balance_over_a_cycle(name: str, payload: float, options: dict[st
     travel = np.abs(np.diff(res.belt_position_m)).sum()
     lift = res.belt_position_m[-1] - res.belt_position_m[0]
     w_friction = (
-        p.friction * G * math.cos(p.incline_rad) * p.moving_mass_kg * travel
+        p.mu * G * math.cos(p.incline_rad) * p.moving_mass_kg * travel
         + G * math.sin(p.incline_rad) * p.carried_mass_kg * lift
     )
     w_losses = float(
@@ -218,7 +218,7 @@ def test_two_mass_model_rings_at_its_mode(profile: ConveyorProfile) -> None:
         profile,
         payload_kg=40.0,
         elastic=True,
-        friction=0.0,
+        mu=0.0,
         loss_constant_nm=0.0,
         loss_viscous_nm_s_rad=0.0,
         loss_quadratic_nm_s2_rad2=0.0,
@@ -354,10 +354,10 @@ def test_downhill_belt_drives_the_motor() -> None:
         load_profile(PROFILES / "incline-line-02.yaml"),
         payload_kg=100.0,
         incline_rad=-0.3,
-        friction=0.05,
+        mu=0.05,
     )
     f = physics.belt_force_n(
-        mu=p.friction,
+        mu=p.mu,
         moving_mass_kg=p.moving_mass_kg,
         carried_mass_kg=p.carried_mass_kg,
         incline_rad=p.incline_rad,

@@ -121,7 +121,7 @@ def test_faults_change_the_plant(reference_profile: ConveyorProfile) -> None:
     healthy = faulty_plant(reference_profile, payload_kg=0)
     assert faulty_plant(
         reference_profile, payload_kg=0, faults=[Fault("friction", 0.2)]
-    ).friction == pytest.approx(healthy.friction * 1.2)
+    ).mu == pytest.approx(healthy.mu * 1.2)
     lub = faulty_plant(reference_profile, payload_kg=0, faults=[Fault("lubrication", 1.0)])
     assert lub.loss_viscous_nm_s_rad == pytest.approx(2 * healthy.loss_viscous_nm_s_rad)
     brg = faulty_plant(reference_profile, payload_kg=0, faults=[Fault("bearing", 0.5)])

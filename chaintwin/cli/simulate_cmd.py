@@ -21,6 +21,7 @@ from chaintwin.read.writer import write_recording
 from chaintwin.simulate import setpoints as sp
 from chaintwin.simulate.faults import FAULT_NAMES, parse_faults
 from chaintwin.simulate.fleet import GenerateSummary, generate
+from chaintwin.simulate.plant import calibrated_model
 from chaintwin.simulate.virtual import Realism, default_setpoints, run_virtual
 from chaintwin.units import RPM_TO_RAD_S
 
@@ -50,7 +51,7 @@ def build_model(
     CalibrationError
         When the calibration file cannot be used, or belongs to another conveyor.
     """
-    base = (profile.model or ModelSpec()).model_dump()
+    model = profile.model or ModelSpec()
     if calibration is not None:
         from chaintwin.identify.calibration import load_calibration
 
@@ -60,13 +61,8 @@ def build_model(
                 f"{calibration}: calibration of conveyor '{cal.profile.id}', not of "
                 f"'{profile.id}'; give the matching calibration"
             )
-        p = cal.parameters
-        base.update(
-            friction=p["mu"],
-            loss_constant_nm=max(p["BmA"], 0.0),
-            loss_viscous_nm_s_rad=max(p["BmB"], 0.0),
-            loss_quadratic_nm_s2_rad2=max(p["BmC"], 0.0),
-        )
+        model = calibrated_model(model, cal.parameters)
+    base = model.model_dump()
     base.update({k: v for k, v in overrides.items() if v is not None})
     try:
         return ModelSpec.model_validate(base)

@@ -11,7 +11,7 @@ What is fitted
 --------------
 Any of
 
-* ``friction``: belt-on-rail friction coefficient μ;
+* ``mu``: belt-on-rail friction coefficient μ;
 * ``loss_constant_nm``: BmA, Nm;
 * ``loss_viscous_nm_s_rad``: BmB, Nm·s/rad;
 * ``loss_quadratic_nm_s2_rad2``: BmC, Nm·s²/rad²;
@@ -23,8 +23,8 @@ profile's known data and an explicit :class:`~chaintwin.read.profile.ModelSpec`
 of neutral values, and the fitted fields are replaced per evaluation.
 Parameters that are not fitted take the value given in ``fixed``, else the
 documented neutral default :data:`NEUTRAL`: no gear losses (BmA = BmB =
-BmC = 0), inertia scale 1, and friction 0.23 (ModelSpec's typical value;
-fit friction or fix it). The plant is the rigid model with every realism
+BmC = 0), inertia scale 1, and μ 0.23 (ModelSpec's typical value;
+fit mu or fix it). The plant is the rigid model with every realism
 switch off (no elastic belt, so its stiffness is irrelevant; no stick-slip,
 no polygon effect), the torque lag τ from ``motor.torque_time_constant_s``.
 
@@ -87,7 +87,7 @@ One simulation per recording and residual evaluation, through
 :func:`~chaintwin.simulate.simulate` (about 0.4 ms for a 12 s recording at
 a 1 ms cycle); a fit of three parameters from four starts runs some 150
 simulations. Batching the finite-difference Jacobian through
-``simulate_batch`` was not worth its overhead at three or four members.
+a batch simulator was not worth its overhead at three or four members.
 """
 
 from __future__ import annotations
@@ -120,7 +120,7 @@ __all__ = [
 ]
 
 PARAMETER_NAMES: tuple[str, ...] = (
-    "friction",
+    "mu",
     "loss_constant_nm",
     "loss_viscous_nm_s_rad",
     "loss_quadratic_nm_s2_rad2",
@@ -129,7 +129,7 @@ PARAMETER_NAMES: tuple[str, ...] = (
 """Parameters the output-error fit can fit (see the module docstring)."""
 
 NEUTRAL: Mapping[str, float] = {
-    "friction": 0.23,
+    "mu": 0.23,
     "loss_constant_nm": 0.0,
     "loss_viscous_nm_s_rad": 0.0,
     "loss_quadratic_nm_s2_rad2": 0.0,
@@ -238,7 +238,7 @@ def _plant(
 ) -> PlantParameters:
     scale = values["drive_inertia_scale"]
     return base.replace(
-        friction=values["friction"],
+        mu=values["mu"],
         loss_constant_nm=values["loss_constant_nm"],
         loss_viscous_nm_s_rad=values["loss_viscous_nm_s_rad"],
         loss_quadratic_nm_s2_rad2=values["loss_quadratic_nm_s2_rad2"],
@@ -250,7 +250,7 @@ def _plant(
 def _base_plant(profile: ConveyorProfile, payload_kg: float) -> PlantParameters:
     """The rigid plant of the profile's known data with neutral model values."""
     spec = ModelSpec(
-        friction=NEUTRAL["friction"],
+        friction=NEUTRAL["mu"],
         static_friction_ratio=1.0,
         loss_constant_nm=0.0,
         loss_viscous_nm_s_rad=0.0,
@@ -285,7 +285,7 @@ class OutputErrorFit:
         Number of starting points (Latin hypercube in the bounds).
     bounds : mapping of str to (float, float), optional
         Bounds per fitted parameter, SI; missing names get the defaults:
-        friction (0, 1); BmA (0, T/2); BmB (0, T/(2·ω)); BmC (0, T/(2·ω²));
+        mu (0, 1); BmA (0, T/2); BmB (0, T/(2·ω)); BmC (0, T/(2·ω²));
         drive_inertia_scale (0.25, 4), with T the motor's nominal torque (else
         the torque limit / 3, else the peak measured torque) and ω the peak
         speed set point.
@@ -338,7 +338,7 @@ class OutputErrorFit:
     def __init__(
         self,
         *,
-        parameters: Sequence[str] = ("friction", "loss_viscous_nm_s_rad", "drive_inertia_scale"),
+        parameters: Sequence[str] = ("mu", "loss_viscous_nm_s_rad", "drive_inertia_scale"),
         starts: int = 4,
         bounds: Mapping[str, tuple[float, float]] | None = None,
         seed: int = 0,
@@ -411,7 +411,7 @@ class OutputErrorFit:
         self, names: tuple[str, ...], torque_ref: float, speed_ref: float
     ) -> tuple[FloatArray, FloatArray]:
         defaults = {
-            "friction": (0.0, 1.0),
+            "mu": (0.0, 1.0),
             "loss_constant_nm": (0.0, 0.5 * torque_ref),
             "loss_viscous_nm_s_rad": (0.0, 0.5 * torque_ref / speed_ref),
             "loss_quadratic_nm_s2_rad2": (0.0, 0.5 * torque_ref / speed_ref**2),
@@ -435,8 +435,8 @@ class OutputErrorFit:
                     f"bounds of '{name}' ({a!r}, {b!r}) must be finite with "
                     f"{low_limit:g} ≤ lower < upper"
                 )
-            if name == "friction" and b > 2.0:
-                raise EstimationError("bounds of 'friction' must lie within [0, 2]")
+            if name == "mu" and b > 2.0:
+                raise EstimationError("bounds of 'mu' must lie within [0, 2]")
             lo[i], hi[i] = a, b
         return lo, hi
 

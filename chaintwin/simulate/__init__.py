@@ -1,18 +1,16 @@
 """Closed-loop simulator and the virtual conveyor.
 
 Set points → drive controller replica → conveyor plant (:mod:`engine`,
-compiled kernels in :mod:`kernel`), and on top of it the virtual conveyor
+compiled kernels in the private :mod:`_kernel`), and on top of it the virtual conveyor
 (:mod:`virtual`: realism a drive scope adds, faults) and time series over
 simulated days (:mod:`fleet`). The hot path of output-error fitting; kernels
 are compiled with numba and cached on disk after the first run.
 """
 
 from chaintwin.simulate.engine import (
-    BatchResult,
     SimulationResult,
     elastic_substeps,
     simulate,
-    simulate_batch,
 )
 from chaintwin.simulate.faults import FAULT_NAMES, Fault, parse_fault, parse_faults
 from chaintwin.simulate.fleet import GenerateSummary, generate
@@ -37,7 +35,6 @@ from chaintwin.simulate.virtual import (
 __all__ = [
     "DEFAULT_BELT_STIFFNESS_N_M",
     "FAULT_NAMES",
-    "BatchResult",
     "Fault",
     "GenerateSummary",
     "PlantParameters",
@@ -56,7 +53,6 @@ __all__ = [
     "ramp",
     "run_virtual",
     "simulate",
-    "simulate_batch",
     "stairs",
     "trapezoid",
     "trapezoid2",

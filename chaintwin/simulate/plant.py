@@ -13,16 +13,54 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 from chaintwin.errors import ModelError
 from chaintwin.model import physics
 from chaintwin.read.profile import ConveyorProfile, ModelSpec
 
-__all__ = ["DEFAULT_BELT_STIFFNESS_N_M", "PlantParameters"]
+__all__ = ["DEFAULT_BELT_STIFFNESS_N_M", "PlantParameters", "calibrated_model"]
 
 DEFAULT_BELT_STIFFNESS_N_M = 1.0e6
 """Belt stiffness used when the profile gives neither k nor E·A, N/m."""
+
+
+class _ByName(Protocol):
+    """Identified values looked up by name (a calibration's parameters, a mapping)."""
+
+    def __getitem__(self, name: str, /) -> float: ...
+
+
+def calibrated_model(model: ModelSpec, parameters: _ByName) -> ModelSpec:
+    """A plant model with a calibration's identified friction and losses.
+
+    The one translation from the calibration's vocabulary
+    (:attr:`chaintwin.identify.calibration.Calibration.parameters`: ``mu``,
+    ``BmA``, ``BmB``, ``BmC``) to the simulation's. Identified losses below
+    zero (a fit's scatter around a small value) are simulated as zero; the
+    other fields of ``model`` (static friction ratio, stiffness, damping)
+    are kept.
+
+    Parameters
+    ----------
+    model : ModelSpec
+        The model to start from (a profile's ``model:`` section).
+    parameters : RigidParameters or mapping of str to float
+        Looked up by name: ``mu`` (1), ``BmA`` (Nm), ``BmB`` (Nm·s/rad), ``BmC`` (Nm·s²/rad²).
+
+    Returns
+    -------
+    ModelSpec
+        Use with :meth:`PlantParameters.from_profile` (``model=``).
+    """
+    return model.model_copy(
+        update={
+            "friction": parameters["mu"],
+            "loss_constant_nm": max(parameters["BmA"], 0.0),
+            "loss_viscous_nm_s_rad": max(parameters["BmB"], 0.0),
+            "loss_quadratic_nm_s2_rad2": max(parameters["BmC"], 0.0),
+        }
+    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -49,8 +87,8 @@ class PlantParameters:
         Incline β, rad (positive: conveying uphill).
     loop_length_m : float
         Belt loop length, m (the obstruction repeats every loop).
-    friction : float
-        Kinetic belt-on-rail friction coefficient μ.
+    mu : float
+        Kinetic belt-on-rail friction coefficient μ (profile key ``model.friction``).
     static_friction_ratio : float
         Static over kinetic friction (used when ``stick_slip`` is on).
     loss_constant_nm, loss_viscous_nm_s_rad, loss_quadratic_nm_s2_rad2 : float
@@ -114,7 +152,7 @@ class PlantParameters:
     payload_kg: float
     incline_rad: float
     loop_length_m: float
-    friction: float
+    mu: float
     static_friction_ratio: float
     loss_constant_nm: float
     loss_viscous_nm_s_rad: float
@@ -162,7 +200,7 @@ class PlantParameters:
             (self.payload_kg >= 0.0, "payload_kg", "must not be negative"),
             (abs(self.incline_rad) <= 0.5 * math.pi, "incline_rad", "must lie in [-π/2, π/2]"),
             (self.loop_length_m > 0.0, "loop_length_m", "must be positive"),
-            (self.friction >= 0.0, "friction", "must not be negative"),
+            (self.mu >= 0.0, "mu", "must not be negative"),
             (self.static_friction_ratio >= 1.0, "static_friction_ratio", "must be at least 1"),
             (self.loss_constant_nm >= 0.0, "loss_constant_nm", "must not be negative"),
             (self.loss_viscous_nm_s_rad >= 0.0, "loss_viscous_nm_s_rad", "must not be negative"),
@@ -252,7 +290,7 @@ class PlantParameters:
             typical values (the reference conveyor's).
         **overrides
             Any field of :class:`PlantParameters` (``elastic=True``,
-            ``friction=0.3``, ...).
+            ``mu=0.3``, ...).
 
         Returns
         -------
@@ -300,7 +338,7 @@ class PlantParameters:
             payload_kg=payload_kg,
             incline_rad=profile.incline_rad,
             loop_length_m=profile.loop_length_m,
-            friction=spec.friction,
+            mu=spec.friction,
             static_friction_ratio=spec.static_friction_ratio,
             loss_constant_nm=spec.loss_constant_nm,
             loss_viscous_nm_s_rad=spec.loss_viscous_nm_s_rad,
@@ -368,7 +406,7 @@ class PlantParameters:
     def is_plain_rigid(self) -> bool:
         """True for the rigid identification model with no fault injected.
 
-        Such members of a batch run on the vectorised kernel.
+        Such plants run on the lean kernel (``_kernel.plain_kernel``).
         """
         return not (
             self.elastic
@@ -394,7 +432,7 @@ class PlantParameters:
         """Rigid-model motor torque at a constant speed, Nm."""
         return physics.steady_torque_nm(
             speed_rad_s=speed_rad_s,
-            mu=self.friction,
+            mu=self.mu,
             moving_mass_kg=self.moving_mass_kg,
             carried_mass_kg=self.carried_mass_kg,
             incline_rad=self.incline_rad,

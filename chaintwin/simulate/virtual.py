@@ -33,6 +33,7 @@ import numpy as np
 
 from chaintwin._types import FloatArray
 from chaintwin.errors import ModelError
+from chaintwin.model.physics import G
 from chaintwin.read.profile import ConveyorProfile, ModelSpec
 from chaintwin.read.recording import Metadata, Recording
 from chaintwin.simulate.engine import SimulationResult, simulate
@@ -209,11 +210,11 @@ def faulty_plant(
     if realism.gear_mesh and stages:
         orders.append(float(stages[0][0]))  # first-stage mesh: pinion teeth per motor revolution
         amps.append(GEAR_MESH_RIPPLE * tn)
-    friction = plant.friction
+    mu = plant.mu
     for fault in faults:
         s = fault.severity
         if fault.name == "friction":
-            friction *= 1.0 + s
+            mu *= 1.0 + s
         elif fault.name == "lubrication":
             changes["loss_constant_nm"] *= 1.0 + 0.5 * s
             changes["loss_viscous_nm_s_rad"] *= 1.0 + s
@@ -233,7 +234,7 @@ def faulty_plant(
             changes["impulse_width_rad"] = period / teeth
             changes["impulse_amplitude_nm"] = s * GEAR_TOOTH_AMPLITUDE * tn
         elif fault.name == "obstruction":
-            rail = plant.friction * 9.81 * (plant.belt_mass_kg + plant.tray_mass_kg)
+            rail = plant.mu * G * (plant.belt_mass_kg + plant.tray_mass_kg)
             changes["obstruction_position_m"] = OBSTRUCTION_PLACE * plant.loop_length_m
             changes["obstruction_width_m"] = OBSTRUCTION_WIDTH_M
             changes["obstruction_force_n"] = s * rail
@@ -242,7 +243,7 @@ def faulty_plant(
             changes["pitch_radius_m"] = plant.pitch_radius_m * (1.0 + eps)
             changes["loop_length_m"] = plant.loop_length_m * (1.0 + eps)
             changes["polygon"] = plant.teeth > 0
-            friction *= 1.0 + 2.0 * eps
+            mu *= 1.0 + 2.0 * eps
             if plant.teeth > 0:
                 # the longer pitch no longer seats on the tooth flank: each link
                 # lands and drops on engagement, an impact once per tooth pass
@@ -253,7 +254,7 @@ def faulty_plant(
         elif fault.name == "payload_step":
             changes["payload_step_time_s"] = payload_step_time_s
             changes["payload_step_kg"] = s * PAYLOAD_STEP_KG
-    changes["friction"] = friction
+    changes["mu"] = mu
     changes["ripple_orders"] = tuple(orders)
     changes["ripple_amplitudes_nm"] = tuple(amps)
     return plant.replace(**changes)
@@ -481,7 +482,7 @@ def run_virtual(
         "sample_time_s": sample_time_s,
         "realism": realism.switches(),
         "calibration": calibration,
-        "friction": plant.friction,
+        "friction": plant.mu,
         "payload_step_kg": plant.payload_step_kg,
         "payload_step_time_s": plant.payload_step_time_s if plant.payload_step_kg else None,
     }

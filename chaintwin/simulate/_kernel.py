@@ -39,41 +39,51 @@ of the power flow that motion would have) in one direction to move;
 otherwise the speed stays at zero. This holds the belt without chattering
 while the drive holds position.
 
-Same bits in the scalar and the batch kernel
---------------------------------------------
-The plain rigid model (the identification model) runs one member at a
-time in :func:`plain_kernel` and many side by side in
-:func:`batch_plain_kernel`; both must give the same numbers. Both run the
-operations of :func:`plain_step`, take their belt terms precomputed from
-the coefficients (``C_M_RED0`` …, computed in Python), and are compiled
-without floating-point contraction (``_EXACT``): fused multiply-adds are
-written out (:func:`fma`) where wanted, so that LLVM cannot fuse
-differently in a scalar loop and its vectorised twin. Where the two differ
-(:func:`rigid_core` with ``lanes``), they choose between identical values.
+The plain rigid model
+---------------------
+The identification model (rigid, no realism switch, no fault) runs in
+:func:`plain_kernel`, a lean twin of :func:`rigid_kernel`: it takes its belt
+terms precomputed from the coefficients (``M_RED0`` …, computed in Python
+by :func:`belt_terms` once per run) and is compiled without floating-point
+contraction (``_EXACT``), fused multiply-adds written out (:func:`fma`), so
+that its numbers do not depend on how LLVM fuses operations.
+
+Coefficient layout
+------------------
+:data:`COEFFICIENTS` is the one table of the coefficient vector: name,
+meaning and unit of each entry, in order. The index constants ``C_*`` are
+made from it (one :func:`_coef` call per row) and :func:`pack` builds a
+vector from values given by name, checking that every entry is given once.
+
+The kernels, their shared pieces and the layout stay in this one module
+although it is long: numba's on-disk cache is invalidated only when the
+file of the cached function changes (not the files of functions it
+inlines) and it freezes module-level constants such as ``C_*`` at compile
+time, so a kernel in another file could run stale pieces or indices.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+import operator
+from collections.abc import Callable, Mapping
 from typing import Any, cast
 
 import numpy as np
-import numpy.typing as npt
 from llvmlite import ir as llvm_ir  # type: ignore[import-untyped]
-from numba import njit, prange, types
+from numba import njit, types
 from numba.extending import intrinsic
 
-FloatArray = npt.NDArray[np.float64]
+from chaintwin._types import FloatArray
+from chaintwin.errors import ModelError
 
 __all__ = [
-    "LANES",
+    "COEFFICIENTS",
     "N_COEF",
-    "N_MAIN",
     "N_OUT",
-    "batch_general_kernel",
-    "batch_plain_kernel",
+    "belt_terms",
     "elastic_kernel",
+    "pack",
     "plain_extra",
     "plain_kernel",
     "plain_step",
@@ -81,64 +91,98 @@ __all__ = [
 ]
 
 # ------------------------------------------------------- coefficient layout
-C_DT = 0  # controller cycle, s
-C_KV = 1  # position gain, 1/s
-C_KP = 2  # speed gain, Nm·s/rad
-C_KP_TI = 3  # Kp/Ti, Nm/rad
-C_TLIM = 4  # torque limit, Nm
-C_A_LAG = 5  # 1 - exp(-dt/τ)
-C_B_LAG = 6  # mean of exp(-t/τ) over a cycle, τ·(1 - exp(-dt/τ))/dt
-C_JD = 7  # motor + gear inertia, kg·m²
-C_ETA = 8  # gear efficiency
-C_INV_ETA = 9  # 1/η
-C_BMA = 10  # loss constant, Nm
-C_BMB = 11  # loss viscous, Nm·s/rad
-C_BMC = 12  # loss quadratic, Nm·s²/rad²
-C_MASS = 13  # moving mass m_b + m_t + m_p, kg
-C_CARRIED = 14  # carried mass m_t + m_p, kg
-C_MU_G_COS = 15  # μ·g·cosβ, N/kg
-C_STATIC = 16  # static/kinetic friction ratio in effect (1 without stick-slip)
-C_G_SIN = 17  # g·sinβ, N/kg
-C_KRV = 18  # r/i, m/rad
-C_PITCH_R = 19  # R, m
-C_RATIO = 20  # i
-C_TEETH = 21  # z (0 unknown)
-C_POLYGON = 22  # 1.0: polygon effect on
-C_LOOP = 23  # loop length, m
-C_STIFF = 24  # belt stiffness, N/m
-C_DAMP = 25  # belt damping, N·s/m
-C_OBS_POS = 26  # obstruction start, m
-C_OBS_WIDTH = 27  # obstruction width, m
-C_OBS_FORCE = 28  # obstruction force, N
-C_IMP_PERIOD = 29  # impulse period, rad
-C_IMP_WIDTH = 30  # impulse width, rad
-C_IMP_AMP = 31  # impulse amplitude, Nm
-C_STEP_K = 32  # cycle of the payload step (-1: none)
-C_STEP_KG = 33  # payload step, kg
-C_THETA0 = 34  # initial motor angle, rad
-C_X0 = 35  # initial belt position, m
-C_NSUB = 36  # elastic sub-steps per cycle
-C_NRIP = 37  # number of ripple orders
-C_TAU = 38  # torque time constant, s
-# plain rigid model (plain_kernel, batch_plain_kernel): belt terms at the
-# motor before (…0) and after (…1) the payload step, computed once in
-# Python so that the scalar and the batch kernel start from the same bits
-C_M_RED0 = 39  # reflected mass m·(r/i)², kg·m²
-C_FC0 = 40  # kinetic friction torque, Nm
-C_FG0 = 41  # incline torque, Nm
-C_HJM0 = 42  # dt/(J_d + M/η), s/(kg·m²)
-C_HJG0 = 43  # dt/(J_d + M·η), s/(kg·m²)
-C_BRKP0 = 44  # breakaway level forward, Nm
-C_BRKN0 = 45  # breakaway level backward, Nm
-C_M_RED1 = 46
-C_FC1 = 47
-C_FG1 = 48
-C_HJM1 = 49
-C_HJG1 = 50
-C_BRKP1 = 51
-C_BRKN1 = 52
-C_STEP_SCALE = 53  # speed factor at the payload step (momentum kept)
-N_COEF = 54
+COEFFICIENTS: list[tuple[str, str]] = []
+"""The coefficient vector's layout: ``(name, meaning with unit)`` per entry, in order.
+
+Filled by the ``C_* = _coef(...)`` rows below (the one table); :func:`pack`
+builds a vector from values given by these names."""
+
+
+def _coef(name: str, meaning: str) -> int:
+    """Append a row to :data:`COEFFICIENTS`; returns its index (a ``C_*`` constant)."""
+    COEFFICIENTS.append((name, meaning))
+    return len(COEFFICIENTS) - 1
+
+
+C_DT = _coef("dt", "controller cycle, s")
+C_KV = _coef("kv", "position gain, 1/s")
+C_KP = _coef("kp", "speed gain, Nm·s/rad")
+C_KP_TI = _coef("kp_ti", "speed gain over integral time Kp/Ti, Nm/rad")
+C_TLIM = _coef("tlim", "torque limit, Nm")
+C_A_LAG = _coef("a_lag", "torque lag step 1 - exp(-dt/τ), 1")
+C_B_LAG = _coef("b_lag", "mean of exp(-t/τ) over a cycle, τ·(1 - exp(-dt/τ))/dt")
+C_JD = _coef("jd", "motor + gear inertia, kg·m²")
+C_ETA = _coef("eta", "gear efficiency η, 1")
+C_INV_ETA = _coef("inv_eta", "1/η, 1")
+C_BMA = _coef("bma", "loss constant, Nm")
+C_BMB = _coef("bmb", "loss viscous, Nm·s/rad")
+C_BMC = _coef("bmc", "loss quadratic, Nm·s²/rad²")
+C_MASS = _coef("mass", "moving mass m_b + m_t + m_p, kg")
+C_CARRIED = _coef("carried", "carried mass m_t + m_p, kg")
+C_MU_G_COS = _coef("mu_g_cos", "μ·g·cosβ: kinetic rail friction force per kg of moving mass, N/kg")
+C_STATIC = _coef("static", "static/kinetic friction ratio in effect (1 without stick-slip), 1")
+C_G_SIN = _coef("g_sin", "g·sinβ, N/kg")
+C_KRV = _coef("krv", "belt speed per motor speed r/i, m/rad")
+C_PITCH_R = _coef("pitch_r", "sprocket pitch radius R, m")
+C_RATIO = _coef("ratio", "gear ratio i, 1")
+C_TEETH = _coef("teeth", "sprocket teeth z (0 unknown)")
+C_POLYGON = _coef("polygon", "1.0: polygon effect on, 0.0 off")
+C_LOOP = _coef("loop", "loop length, m")
+C_STIFF = _coef("stiff", "belt stiffness, N/m")
+C_DAMP = _coef("damp", "belt damping, N·s/m")
+C_OBS_POS = _coef("obs_pos", "obstruction start, m")
+C_OBS_WIDTH = _coef("obs_width", "obstruction width, m")
+C_OBS_FORCE = _coef("obs_force", "obstruction force, N")
+C_IMP_PERIOD = _coef("imp_period", "impulse period, rad")
+C_IMP_WIDTH = _coef("imp_width", "impulse width, rad")
+C_IMP_AMP = _coef("imp_amp", "impulse amplitude, Nm")
+C_STEP_K = _coef("step_k", "cycle of the payload step (-1: none), cycles")
+C_STEP_KG = _coef("step_kg", "payload step, kg")
+C_THETA0 = _coef("theta0", "initial motor angle, rad")
+C_X0 = _coef("x0", "initial belt position, m")
+C_NSUB = _coef("nsub", "elastic sub-steps per cycle (1 when rigid)")
+C_NRIP = _coef("nrip", "number of ripple orders")
+C_TAU = _coef("tau", "torque time constant, s")
+C_M_RED0 = _coef("m_red0", "plain model: reflected mass m·(r/i)² before the payload step, kg·m²")
+C_FC0 = _coef("fc0", "plain model: kinetic friction torque at the motor, Nm")
+C_FG0 = _coef("fg0", "plain model: incline torque at the motor, Nm")
+C_HJM0 = _coef("hjm0", "dt/(J_d + M/η), s/(kg·m²)")
+C_HJG0 = _coef("hjg0", "dt/(J_d + M·η), s/(kg·m²)")
+C_BRKP0 = _coef("brkp0", "breakaway level forward, Nm")
+C_BRKN0 = _coef("brkn0", "breakaway level backward, Nm")
+C_M_RED1 = _coef("m_red1", "m_red0 after the payload step, kg·m²")
+C_FC1 = _coef("fc1", "fc0 after the payload step, Nm")
+C_FG1 = _coef("fg1", "fg0 after the payload step, Nm")
+C_HJM1 = _coef("hjm1", "hjm0 after the payload step, s/(kg·m²)")
+C_HJG1 = _coef("hjg1", "hjg0 after the payload step, s/(kg·m²)")
+C_BRKP1 = _coef("brkp1", "brkp0 after the payload step, Nm")
+C_BRKN1 = _coef("brkn1", "brkn0 after the payload step, Nm")
+C_STEP_SCALE = _coef("step_scale", "speed factor at the payload step (momentum kept)")
+N_COEF = len(COEFFICIENTS)
+_COEF_NAMES = tuple(name for name, _ in COEFFICIENTS)
+
+
+_get_coefficients = operator.itemgetter(*_COEF_NAMES)
+
+
+def pack(values: Mapping[str, float]) -> FloatArray:
+    """The coefficient vector from one value per :data:`COEFFICIENTS` name.
+
+    Raises
+    ------
+    ModelError
+        When a name is missing or not in the layout (a programming error).
+    """
+    try:
+        row = _get_coefficients(values)
+    except KeyError:
+        row = ()
+    if len(values) != N_COEF or len(row) != N_COEF:
+        missing = sorted(set(_COEF_NAMES) - values.keys())
+        unknown = sorted(values.keys() - set(_COEF_NAMES))
+        raise ModelError(f"coefficients: missing {missing}, unknown {unknown}")
+    return np.fromiter(row, np.float64, N_COEF)
+
 
 # ----------------------------------------------------------- output layout
 O_TORQUE_SP = 0
@@ -151,16 +195,13 @@ O_FORCE = 6
 O_LOAD = 7
 O_LOSS = 8
 N_OUT = 9
-N_MAIN = 5  # rows 0..4: the channels a batch keeps by default
 
 # fastmath without nnan/ninf: NaN/inf checks must keep working
 _FASTMATH = {"nsz", "contract"}
-# the plain rigid model (scalar and batch kernel, and the pieces they share)
-# runs without contraction: LLVM fuses a multiply into an add only where the
-# product has no other use, which differs between a scalar loop and its
-# vectorised twin (and between kernels that keep different outputs), so
-# results could differ in the last bit. Fused multiply-adds are written out
-# (:func:`fma`) instead, the same in every kernel.
+# the plain rigid model (and the pieces it shares) runs without contraction:
+# LLVM fuses a multiply into an add only where the product has no other use,
+# which depends on which outputs a kernel keeps, so results could differ in
+# the last bit. Fused multiply-adds are written out (:func:`fma`) instead.
 _EXACT = {"nsz"}
 _HUGE = 1e300
 _STOP_RAD_S = 1e-6  # motor speeds decaying below this snap to standstill, rad/s
@@ -231,6 +272,33 @@ def breakaway_levels(
     )
 
 
+def belt_terms(
+    mass: float,
+    carried: float,
+    mu_g_cos: float,
+    static: float,
+    g_sin: float,
+    k: float,
+    dt: float,
+    jd: float,
+    eta: float,
+    inv_eta: float,
+    bma: float,
+) -> tuple[float, float, float, float, float, float, float]:
+    """Belt terms of :func:`plain_kernel`, layout ``M_RED0 … BRKN0``, in Python.
+
+    Runs the Python source of :func:`mass_terms`, :func:`step_gains` and
+    :func:`breakaway_levels` (the same equations the other kernels compile)
+    on Python floats, once per simulation: IEEE operations without fused
+    multiply-adds. Returns ``(M, f_c, f_g, dt/J_mot, dt/J_gen, brk+, brk-)``
+    in kg·m², Nm, Nm, s/(kg·m²), s/(kg·m²), Nm, Nm.
+    """
+    m_red, fc, fs, fg = mass_terms.py_func(mass, carried, mu_g_cos, static, g_sin, k)
+    hjm, hjg = step_gains.py_func(dt, jd, m_red, eta, inv_eta)
+    brk_pos, brk_neg = breakaway_levels.py_func(fs, fg, bma, eta, inv_eta)
+    return m_red, fc, fg, hjm, hjg, brk_pos, brk_neg
+
+
 @njit(inline="always", fastmath=_EXACT, error_model="numpy", cache=True)
 def controller(
     w_sp: float,
@@ -282,19 +350,6 @@ def settle(new: float, old: float, direction: float, eps: float) -> float:
 
 
 @njit(inline="always", fastmath=_EXACT, error_model="numpy", cache=True)
-def settle_lanes(new: float, old: float, direction: float, eps: float) -> float:
-    """:func:`settle` in fewer operations (for lanes; one more on the chain).
-
-    ``direction`` is exactly -1, 0 or 1, so ``direction·new`` is exact and
-    one comparison covers both directions (with 0, ``0 > thr ≥ 0`` fails);
-    the same decision, so the same result, as :func:`settle`.
-    """
-    mag = abs(old)
-    thr = mag if mag < eps else eps
-    return new if direction * new > thr else 0.0
-
-
-@njit(inline="always", fastmath=_EXACT, error_model="numpy", cache=True)
 def rigid_core(
     t_drive: float,
     omega: float,
@@ -312,22 +367,15 @@ def rigid_core(
     bmc: float,
     hjm: float,
     hjg: float,
-    lanes: bool,
 ) -> tuple[float, float, float, bool]:
     """One rigid-plant step; returns ``(ω_new, direction, f, motoring)``.
 
     ``t_drive`` is the mean motor torque minus disturbance torques, ``f_*``
     the belt terms at the motor (ideal gear), ``cen`` the polygon term
     ``m·k·(dk/dθ)·ω²``, ``brk_*`` from :func:`breakaway_levels`,
-    ``hjm``/``hjg`` from :func:`step_gains`.
-
-    ``lanes`` (a constant at each call site) picks the arrangement: False
-    keeps the dependency chain through ω short (one member at a time, bound
-    by latency), True uses fewer operations (many members side by side,
-    bound by throughput). Both give the same bits: they differ only in
-    choosing the power-flow case before or after the update, and in how the
-    (identical) decisions are computed. ``motoring`` may differ while the
-    step ends stuck (direction 0), where it means nothing.
+    ``hjm``/``hjg`` from :func:`step_gains`. Both power-flow cases are
+    computed side by side and the choice made last, which keeps the
+    dependency chain through ω short.
     """
     # direction of motion; from standstill the breakaway decides (static
     # friction, efficiency of the would-be flow)
@@ -340,21 +388,12 @@ def rigid_core(
     wc = omega * fma(bmc, abs(omega), bmb)
     # motoring iff Q·ω > 0 with Q ∝ f·J_d + M·A (see the module notes)
     nn = fma(-m_red, wc, fma(m_red, a0, f * jd))
-    if lanes:
-        # se is ±1 (or 0: the step ends stuck whatever the case), so se·nn
-        # is exact; pick the case's efficiency and gain, then one update
-        mot = se * nn >= 0.0
-        ke = inv_eta if mot else eta
-        hj = hjm if mot else hjg
-        w = fma(-hj, wc, fma(fma(-f, ke, a0), hj, omega))
-        w = settle_lanes(w, omega, se, _STOP_RAD_S)
-    else:
-        # both cases in parallel, the choice last
-        w_mot = fma(-hjm, wc, fma(fma(-f, inv_eta, a0), hjm, omega))
-        w_gen = fma(-hjg, wc, fma(fma(-f, eta, a0), hjg, omega))
-        mot = (nn >= 0.0) if se > 0.0 else (nn <= 0.0)
-        w = w_mot if mot else w_gen
-        w = settle(w, omega, se, _STOP_RAD_S)
+    # both cases in parallel, the choice last
+    w_mot = fma(-hjm, wc, fma(fma(-f, inv_eta, a0), hjm, omega))
+    w_gen = fma(-hjg, wc, fma(fma(-f, eta, a0), hjg, omega))
+    mot = (nn >= 0.0) if se > 0.0 else (nn <= 0.0)
+    w = w_mot if mot else w_gen
+    w = settle(w, omega, se, _STOP_RAD_S)
     return w, se, f, mot
 
 
@@ -565,7 +604,6 @@ def rigid_kernel(
             bmc,
             hjm_k,
             hjg_k,
-            False,
         )
         moving = se != 0.0
         q = f + mk * ((w - omega) * inv_dt) if moving else t_drive
@@ -623,14 +661,11 @@ def plain_step(
     brk_neg: float,
     hjm: float,
     hjg: float,
-    lanes: bool,
 ) -> tuple[float, float, bool, float, float, float, float, float, bool]:
     """One controller cycle of the plain rigid model (no realism, no fault).
 
-    Shared by :func:`plain_kernel` (``lanes`` False) and
-    :func:`batch_plain_kernel` (True) so that both run the same operations
-    (see :func:`rigid_core` for ``lanes``). Returns ``(u, integral,
-    saturated, t_avg, t_next, ω_new, direction, f, motoring)``.
+    Returns ``(u, integral, saturated, t_avg, t_next, ω_new, direction, f,
+    motoring)``.
     """
     u, integ = controller(ws, ps, theta, omega, integ, kv, kp, kp_ti, dt, tlim)
     sat = abs(u) >= tlim
@@ -653,7 +688,6 @@ def plain_step(
         bmc,
         hjm,
         hjg,
-        lanes,
     )
     return u, integ, sat, t_avg, t_next, w, se, f, mot
 
@@ -692,8 +726,7 @@ def plain_kernel(
 ) -> tuple[int, int, int]:
     """Rigid model without faults (the identification model), lean and fast.
 
-    The same operations per member as :func:`batch_plain_kernel`
-    (:func:`plain_step`); the model of :func:`rigid_kernel` with every
+    One :func:`plain_step` per cycle; the model of :func:`rigid_kernel` with every
     feature off, with the belt terms taken from the coefficients
     (``C_M_RED0`` …). Returns as :func:`rigid_kernel`.
     """
@@ -779,7 +812,6 @@ def plain_kernel(
             brk_neg,
             hjm,
             hjg,
-            False,
         )
         n_sat += 1 if sat else 0
         force, load, loss = plain_extra(
@@ -976,299 +1008,3 @@ def elastic_kernel(
             _fail(out, k + 1)
             return 1, k + 1, n_sat
     return 0, -1, n_sat
-
-
-# ----------------------------------------------------------- batch kernels
-LANES = 64
-"""Row length of a batch chunk's work buffer (a compile-time constant, so
-that the vectoriser sees fixed distances between the buffer's rows)."""
-
-# work-buffer rows: parameters, state, outputs
-_B_KV, _B_KP, _B_KP_TI, _B_TLIM, _B_A_LAG, _B_B_LAG, _B_JD, _B_ETA, _B_INV_ETA = range(9)
-_B_BMA, _B_BMB, _B_BMC, _B_M, _B_FC, _B_BRKP, _B_BRKN, _B_FG, _B_KRV, _B_HJM = range(9, 19)
-_B_HJG, _B_THETA0, _B_X0, _B_INV_KRV, _B_TH, _B_OM, _B_TQ, _B_UP, _B_IN, _B_SAT = range(19, 29)
-_B_OUT = 29
-_B_ROWS = _B_OUT + N_OUT
-
-
-@njit(inline="always", fastmath=_EXACT, error_model="numpy", cache=True)
-def _lane_step(
-    buf: FloatArray,
-    j: int,
-    ws: float,
-    ps: float,
-    dt: float,
-    half_dt: float,
-    inv_dt: float,
-    record: bool,
-) -> None:
-    """One cycle of lane ``j`` of a work buffer (state rows updated in place).
-
-    With ``record`` the nine output rows receive the cycle's channels; the
-    state update is the same operations either way (:func:`plain_step`).
-    """
-    theta = buf[_B_TH * LANES + j]
-    omega = buf[_B_OM * LANES + j]
-    torque = buf[_B_TQ * LANES + j]
-    m_red = buf[_B_M * LANES + j]
-    eta = buf[_B_ETA * LANES + j]
-    inv_eta = buf[_B_INV_ETA * LANES + j]
-    bma = buf[_B_BMA * LANES + j]
-    bmb = buf[_B_BMB * LANES + j]
-    bmc = buf[_B_BMC * LANES + j]
-    u, integ, sat, t_avg, t_next, w, se, f, mot = plain_step(
-        ws,
-        ps,
-        theta,
-        omega,
-        torque,
-        buf[_B_UP * LANES + j],
-        buf[_B_IN * LANES + j],
-        buf[_B_KV * LANES + j],
-        buf[_B_KP * LANES + j],
-        buf[_B_KP_TI * LANES + j],
-        dt,
-        buf[_B_TLIM * LANES + j],
-        buf[_B_A_LAG * LANES + j],
-        buf[_B_B_LAG * LANES + j],
-        buf[_B_JD * LANES + j],
-        eta,
-        inv_eta,
-        bma,
-        bmb,
-        bmc,
-        m_red,
-        buf[_B_FC * LANES + j],
-        buf[_B_FG * LANES + j],
-        buf[_B_BRKP * LANES + j],
-        buf[_B_BRKN * LANES + j],
-        buf[_B_HJM * LANES + j],
-        buf[_B_HJG * LANES + j],
-        True,
-    )
-    if record:
-        krv = buf[_B_KRV * LANES + j]
-        force, load, loss = plain_extra(
-            t_avg,
-            omega,
-            w,
-            se,
-            f,
-            mot,
-            m_red,
-            inv_dt,
-            buf[_B_INV_KRV * LANES + j],
-            eta,
-            inv_eta,
-            bma,
-            bmb,
-            bmc,
-        )
-        buf[(_B_OUT + O_TORQUE_SP) * LANES + j] = u
-        buf[(_B_OUT + O_TORQUE) * LANES + j] = torque
-        buf[(_B_OUT + O_SPEED) * LANES + j] = omega
-        buf[(_B_OUT + O_POSITION) * LANES + j] = theta
-        buf[(_B_OUT + O_BELT_SPEED) * LANES + j] = krv * omega
-        buf[(_B_OUT + O_BELT_POSITION) * LANES + j] = fma(
-            krv, theta - buf[_B_THETA0 * LANES + j], buf[_B_X0 * LANES + j]
-        )
-        buf[(_B_OUT + O_FORCE) * LANES + j] = force
-        buf[(_B_OUT + O_LOAD) * LANES + j] = load
-        buf[(_B_OUT + O_LOSS) * LANES + j] = loss
-    buf[_B_TH * LANES + j] = fma(half_dt, omega + w, theta)
-    buf[_B_OM * LANES + j] = w
-    buf[_B_TQ * LANES + j] = t_next
-    buf[_B_UP * LANES + j] = u
-    buf[_B_IN * LANES + j] = integ
-    buf[_B_SAT * LANES + j] += 1.0 if sat else 0.0
-
-
-@njit(inline="always", fastmath=_EXACT, error_model="numpy", cache=True)
-def _load_terms(buf: FloatArray, j: int, cf: FloatArray, after_step: bool) -> None:
-    """Belt terms of lane ``j`` from the coefficients, before or after the step."""
-    o = C_M_RED1 - C_M_RED0 if after_step else 0
-    buf[_B_M * LANES + j] = cf[C_M_RED0 + o]
-    buf[_B_FC * LANES + j] = cf[C_FC0 + o]
-    buf[_B_FG * LANES + j] = cf[C_FG0 + o]
-    buf[_B_HJM * LANES + j] = cf[C_HJM0 + o]
-    buf[_B_HJG * LANES + j] = cf[C_HJG0 + o]
-    buf[_B_BRKP * LANES + j] = cf[C_BRKP0 + o]
-    buf[_B_BRKN * LANES + j] = cf[C_BRKN0 + o]
-
-
-@njit(inline="always", cache=True)
-def _is_state_channel(q: int) -> bool:
-    """Output rows that are the state at the cycle start (copied from state rows)."""
-    return q in (O_TORQUE, O_SPEED, O_POSITION)
-
-
-@njit(inline="always", fastmath=_EXACT, error_model="numpy", cache=True)
-def _copy_rows(
-    buf: FloatArray,
-    flat: FloatArray,
-    src: npt.NDArray[np.int64],
-    rows: npt.NDArray[np.int64],
-    col: int,
-    n_cols: int,
-    n_members: int,
-    c0: int,
-    m: int,
-) -> None:
-    """Lanes ``0..m`` of buffer rows ``src[r]`` to column ``col`` of output rows ``rows[r]``."""
-    for i in range(rows.size):
-        # unsigned indices: no negative-index wraparound in the copy
-        dst = np.uint64((rows[i] * n_cols + col) * n_members + c0)
-        s0 = np.uint64(src[i] * LANES)
-        for j in range(m):
-            uj = np.uint64(j)
-            flat[dst + uj] = buf[s0 + uj]
-
-
-@njit(parallel=True, fastmath=_EXACT, error_model="numpy", cache=True)
-def batch_plain_kernel(
-    coefs: FloatArray,
-    w_sp: FloatArray,
-    p_sp: FloatArray,
-    chunk: int,
-    stride: int,
-    channels: npt.NDArray[np.int64],
-    out: FloatArray,
-    saturated: FloatArray,
-    diverged: npt.NDArray[np.bool_],
-) -> None:
-    """Plain rigid model (no realism, no fault) for many members at once.
-
-    ``coefs`` (B, N_COEF); ``out`` (Q, n_out, B) receives output rows
-    ``channels`` (Q of the ``O_*`` rows) at cycles ``0, stride, 2·stride…``
-    (``n_out = ceil(n/stride)``), as a scope samples them. ``saturated`` (B)
-    receives the cycles at the torque limit, ``diverged`` (B) whether the
-    final state is non-finite (:func:`plain_kernel` then tells where).
-
-    Members are processed in chunks of ``chunk`` ≤ LANES lanes (one chunk per
-    task, across threads); the inner loop runs over the lanes of a chunk
-    (vectorised) and does exactly the operations of :func:`plain_kernel`
-    (:func:`plain_step`). Cycles that are not kept run a lean loop that only
-    advances the state; kept cycles copy the motor torque, speed and angle
-    straight from the state rows and compute the other channels only when
-    asked for.
-    """
-    n_members = coefs.shape[0]
-    n = w_sp.size
-    n_q = channels.size
-    n_cols = out.shape[1]
-    dt = coefs[0, C_DT]
-    inv_dt = 1.0 / dt
-    half_dt = 0.5 * dt
-    n_chunks = (n_members + chunk - 1) // chunk
-    flat = out.reshape(-1)
-    # channels copied from the state rows before a kept cycle ("pre") and
-    # from the output rows after it ("post")
-    n_pre = 0
-    for r in range(n_q):
-        q = channels[r]
-        if _is_state_channel(q):
-            n_pre += 1
-    pre_src = np.empty(n_pre, dtype=np.int64)
-    pre_rows = np.empty(n_pre, dtype=np.int64)
-    post_src = np.empty(n_q - n_pre, dtype=np.int64)
-    post_rows = np.empty(n_q - n_pre, dtype=np.int64)
-    i_pre = 0
-    i_post = 0
-    for r in range(n_q):
-        q = channels[r]
-        if _is_state_channel(q):
-            pre_src[i_pre] = _B_TQ if q == O_TORQUE else (_B_OM if q == O_SPEED else _B_TH)
-            pre_rows[i_pre] = r
-            i_pre += 1
-        else:
-            post_src[i_post] = _B_OUT + q
-            post_rows[i_post] = r
-            i_post += 1
-    full = i_post > 0
-    for c in prange(n_chunks):
-        c0 = c * chunk
-        m = min(chunk, n_members - c0)
-        width = (m + 7) // 8 * 8  # padded lanes copy member c0
-        buf = np.zeros(_B_ROWS * LANES)
-        step_k = np.full(LANES, -1)
-        any_step = False
-        for j in range(width):
-            b = c0 + j if j < m else c0
-            cf = coefs[b]
-            buf[_B_KV * LANES + j] = cf[C_KV]
-            buf[_B_KP * LANES + j] = cf[C_KP]
-            buf[_B_KP_TI * LANES + j] = cf[C_KP_TI]
-            buf[_B_TLIM * LANES + j] = cf[C_TLIM]
-            buf[_B_A_LAG * LANES + j] = cf[C_A_LAG]
-            buf[_B_B_LAG * LANES + j] = cf[C_B_LAG]
-            buf[_B_JD * LANES + j] = cf[C_JD]
-            buf[_B_ETA * LANES + j] = cf[C_ETA]
-            buf[_B_INV_ETA * LANES + j] = cf[C_INV_ETA]
-            buf[_B_BMA * LANES + j] = cf[C_BMA]
-            buf[_B_BMB * LANES + j] = cf[C_BMB]
-            buf[_B_BMC * LANES + j] = cf[C_BMC]
-            buf[_B_KRV * LANES + j] = cf[C_KRV]
-            buf[_B_THETA0 * LANES + j] = cf[C_THETA0]
-            buf[_B_X0 * LANES + j] = cf[C_X0]
-            buf[_B_INV_KRV * LANES + j] = 1.0 / cf[C_KRV]
-            buf[_B_TH * LANES + j] = cf[C_THETA0]
-            _load_terms(buf, j, cf, False)
-            if j < m and cf[C_STEP_K] >= 0.0:
-                step_k[j] = int(cf[C_STEP_K])
-                any_step = True
-        next_kept = 0
-        col = 0
-        for k in range(n):
-            if any_step:
-                for j in range(m):
-                    if step_k[j] == k:
-                        cf = coefs[c0 + j]
-                        _load_terms(buf, j, cf, True)
-                        buf[_B_OM * LANES + j] = buf[_B_OM * LANES + j] * cf[C_STEP_SCALE]
-            ws = w_sp[k]
-            ps = p_sp[k]
-            if k == next_kept:
-                _copy_rows(buf, flat, pre_src, pre_rows, col, n_cols, n_members, c0, m)
-                if full:
-                    for j in range(width):
-                        _lane_step(buf, j, ws, ps, dt, half_dt, inv_dt, True)
-                    _copy_rows(buf, flat, post_src, post_rows, col, n_cols, n_members, c0, m)
-                else:
-                    for j in range(width):
-                        _lane_step(buf, j, ws, ps, dt, half_dt, inv_dt, False)
-                next_kept += stride
-                col += 1
-            else:
-                for j in range(width):
-                    _lane_step(buf, j, ws, ps, dt, half_dt, inv_dt, False)
-        for j in range(m):
-            saturated[c0 + j] = buf[_B_SAT * LANES + j]
-            theta = buf[_B_TH * LANES + j]
-            torque = buf[_B_TQ * LANES + j]
-            diverged[c0 + j] = not (abs(theta) < _HUGE and abs(torque) < _HUGE)
-
-
-@njit(parallel=True, fastmath=_FASTMATH, error_model="numpy", cache=True)
-def batch_general_kernel(
-    coefs: FloatArray,
-    orders: FloatArray,
-    amps: FloatArray,
-    elastic: npt.NDArray[np.bool_],
-    w_sp: FloatArray,
-    p_sp: FloatArray,
-    out: FloatArray,
-    status: npt.NDArray[np.int64],
-) -> None:
-    """Members with realism or faults, one per task: ``out`` (B, N_OUT, n).
-
-    Runs :func:`rigid_kernel` or :func:`elastic_kernel` per member;
-    ``status`` (B, 3) receives their return values.
-    """
-    for b in prange(coefs.shape[0]):
-        if elastic[b]:
-            res = elastic_kernel(coefs[b], orders[b], amps[b], w_sp, p_sp, out[b])
-        else:
-            res = rigid_kernel(coefs[b], orders[b], amps[b], w_sp, p_sp, out[b])
-        status[b, 0] = res[0]
-        status[b, 1] = res[1]
-        status[b, 2] = res[2]

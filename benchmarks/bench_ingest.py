@@ -58,7 +58,7 @@ calibration, numba compilation and the start of the fork server (a warm-up
 ingest into a throwaway store runs first). Every measurement is repeated in ``ROUNDS`` rounds, the
 configurations interleaved so that they see the same load on the machine;
 rows 2-4 keep the best round, rows 2m and 3m show the median. BLAS is pinned
-to one thread (DESIGN.md).
+to one thread (docs/design.md).
 
 Run: ``python benchmarks/bench_ingest.py`` (about 2 minutes on 2 cores).
 """

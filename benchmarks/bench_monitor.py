@@ -26,7 +26,7 @@ compilation is not in the timings. Every measurement is repeated in
 ``ROUNDS`` rounds (fresh monitors each round, the rows interleaved recording
 by recording so that the reference sees the same machine load as the rest)
 and each recording keeps its best round. BLAS is pinned to one thread
-(DESIGN.md).
+(docs/design.md).
 
 Run: ``.venv/bin/python benchmarks/bench_monitor.py`` (about 30 s).
 """

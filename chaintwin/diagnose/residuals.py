@@ -1,4 +1,4 @@
-"""Residuals of the rigid model: measured minus model motor torque (DESIGN.md, section 3).
+"""Residuals of the rigid model: measured minus model motor torque (docs/design.md, section 3).
 
 The rigid model's torque per sample comes from
 :func:`chaintwin.model.rigid.model_torque` (the one rigid model).
@@ -7,7 +7,7 @@ The residual ``e = T_measured − T_model`` (Nm) is what the rigid model does
 not explain: belt ringing after the ramp corners, the polygon effect, gear and
 bearing orders, an obstruction at one place on the belt, a wrong payload or
 drifting friction. :func:`residual_stats` condenses it into the statistics of
-DESIGN.md section 3; :func:`residual_analysis` does so for the whole recording
+docs/design.md section 3; :func:`residual_analysis` does so for the whole recording
 and per kind of movement phase.
 
 A fault locked to one place on the belt (an obstruction, a damaged module)

@@ -1,6 +1,6 @@
 """Amplitude spectra of drive channels: Welch and order analysis (estimation only).
 
-DESIGN.md, section 3, "Spectra": FFT/Welch with log amplitude and order
+docs/design.md, section 3, "Spectra": FFT/Welch with log amplitude and order
 analysis by resampling the torque to equal steps of motor angle. Amplitudes
 at the characteristic lines are in :mod:`.lines`, peaks and the median of
 spectra in :mod:`.peaks`, where lines appear (folding) and the line

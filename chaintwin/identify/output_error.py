@@ -3,7 +3,7 @@
 The rigid model's parameters are fitted by simulating the drive's controller
 replica and the rigid plant (:func:`chaintwin.simulate.simulate`) from the
 recording's own speed and position set points and comparing the simulated
-torque and speed with the measured ones (DESIGN.md, section 3). It needs no
+torque and speed with the measured ones (docs/design.md, section 3). It needs no
 measured acceleration and checks the controller replica on the way; it is
 also what the reference did.
 
@@ -29,7 +29,7 @@ switch off (no elastic belt, so its stiffness is irrelevant; no stick-slip,
 no polygon effect), the torque lag τ from ``motor.torque_time_constant_s``.
 
 With one known load, μ and BmA both multiply ``sign(ω)`` and cannot be told
-apart (DESIGN.md, identifiability): fit them together only from recordings
+apart (docs/design.md, identifiability): fit them together only from recordings
 at two or more loads (``fit`` takes several recordings). With one speed,
 μ, BmB and BmC are separated only by the ramps; recordings at two or three
 speeds separate them much better.
@@ -64,7 +64,7 @@ sub-increment errors against static friction, which says nothing about the
 parameters. The end of each move is left out after the set point reaches
 zero: a real belt stops with a rebound (spring and stick-slip) that the
 rigid model does not have. The start of motion is left out for the same
-reason (breakaway above kinetic friction, belt wind-up); DESIGN.md section 2.
+reason (breakaway above kinetic friction, belt wind-up); docs/design.md section 2.
 
 Residuals and cost
 ------------------

@@ -7,7 +7,7 @@ known payload (see :mod:`chaintwin.model.rigid` for the model and
 scikit-learn estimator contract: settings in ``__init__``, ``fit`` returns
 ``self``, fitted values end in ``_``.
 
-Identifiability (DESIGN.md): with one known load, μ·M and BmA both multiply
+Identifiability (docs/design.md): with one known load, μ·M and BmA both multiply
 ``sign(ω)`` and cannot be told apart; the fit then fixes BmA to
 ``bma_prior`` (default 0: gear units' Coulomb loss is typically well under
 1 % of the rail friction torque) and says so in a warning. Loads that differ

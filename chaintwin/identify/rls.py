@@ -3,7 +3,7 @@
 The rigid model is linear in its unknowns (see :mod:`chaintwin.model.rigid`),
 ``y = φᵀθ + e``, one row ``φ`` per window (or per sample, or per cycle). The
 online twin updates the estimate θ with every row instead of solving the
-batch problem again (DESIGN.md, section 3).
+batch problem again (docs/design.md, section 3).
 
 Update
 ------

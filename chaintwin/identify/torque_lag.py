@@ -2,7 +2,7 @@
 
 The motor's actual torque follows the torque set point through a first-order
 lag ``1/(1 + s·τ)``, τ ≈ 1 ms, after a delay of one controller cycle
-(DESIGN.md, section 2). Discretised exactly at the controller cycle Tc (the
+(docs/design.md, section 2). Discretised exactly at the controller cycle Tc (the
 set point held over each cycle)::
 
     T[k+1] = T[k] + a·(Tsp[k-d] - T[k]),    a = 1 - exp(-Tc/τ),    d = 1

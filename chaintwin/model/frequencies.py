@@ -1,7 +1,7 @@
 """Characteristic frequencies and orders of a conveyor, and where a scope sees them.
 
 A table of the lines a spectrum of the motor torque (or speed) may hold,
-computed from the profile alone (DESIGN.md, section 3, "Spectra"):
+computed from the profile alone (docs/design.md, section 3, "Spectra"):
 
 ==========================  ===========  =========================================
 name                        kind         order (per motor revolution)
@@ -43,7 +43,7 @@ identification: it only places bands, it fits nothing.
   ``f_n = n·c/(2L) = (n/2)·√(k/m_c)``. A point load lowers the modes
   differently from a smeared one: take these as the places of bands, a few
   percent to some ten percent off, not as exact lines.
-* ``two_mass_mode``: the elastic two-mass model of DESIGN.md, section 2,
+* ``two_mass_mode``: the elastic two-mass model of docs/design.md, section 2,
   ``f = √(k·(1/m₁ + 1/m₂))/(2π)`` with the drive side seen as a mass at the
   belt, ``m₁ = (J_motor + J_gear)·i²/r²``, and the belt side
   ``m₂ = m_b + m_t + m_p``.

@@ -1,4 +1,4 @@
-"""Closed-form conveyor physics on the motor shaft (DESIGN.md, section 2).
+"""Closed-form conveyor physics on the motor shaft (docs/design.md, section 2).
 
 Everything is SI: kg, m, s, rad, N, Nm. Symbols: gear ratio i, efficiency η,
 sprocket pitch radius R with z teeth and chordal mean radius

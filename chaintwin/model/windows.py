@@ -1,6 +1,6 @@
 """Window integrals of a recording: the regressors of the rigid model.
 
-The rigid model on the motor shaft (DESIGN.md, section 2) is linear in the
+The rigid model on the motor shaft (docs/design.md, section 2) is linear in the
 unknowns::
 
     T_m = J_d·α + M·(r/i)·g_f·α                    drive and belt inertia

@@ -1,6 +1,6 @@
 """Column maps: read exports whose headers are named otherwise.
 
-A column map is a small YAML file (data contract, section 3) that maps each
+A column map is a small YAML file (docs/data-contract.md, section 3) that maps each
 exported header, exactly as written, to a canonical name and unit::
 
     columns:

@@ -1,6 +1,6 @@
 """Conveyor profiles: what the engineer knows of a conveyor, validated.
 
-A profile is a YAML file per conveyor (data contract, section 2), in SI
+A profile is a YAML file per conveyor (docs/data-contract.md, section 2), in SI
 except where a field's name says otherwise (``_deg``, ``_rpm``). Unknown
 fields are refused (a typo must not silently fall back to a default), and
 every error names the field path.
@@ -177,7 +177,7 @@ class ModelSpec(_Spec):
 
 
 class ConveyorProfile(_Spec):
-    """A conveyor's known data (data contract, section 2), validated.
+    """A conveyor's known data (docs/data-contract.md, section 2), validated.
 
     Derived quantities are properties in SI units.
     """

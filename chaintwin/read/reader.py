@@ -1,6 +1,6 @@
 """Read drive recordings ("scopes") exactly as the data contract writes them.
 
-The format (data contract, section 1)::
+The format (docs/data-contract.md, section 1)::
 
     # conveyor: white-belt-01
     # sample_time_s: 0.006

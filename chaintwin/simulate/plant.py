@@ -2,7 +2,7 @@
 
 :class:`PlantParameters` is flat, frozen and SI (motor side unless a name
 says otherwise). With every realism switch off and no disturbance it is the
-rigid identification model of DESIGN.md section 2; the switches add what the
+rigid identification model of docs/design.md section 2; the switches add what the
 rigid model leaves out (elastic belt, polygon effect, stick-slip) and the
 disturbances inject faults (bearing/gear ripple, tooth impulses, a local
 obstruction, a tray placed on the moving belt).

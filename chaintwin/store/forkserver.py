@@ -76,7 +76,7 @@ BLAS_THREADS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def pin_threads() -> None:
-    """One BLAS thread per worker process (DESIGN.md: small matrices oversubscribe).
+    """One BLAS thread per worker process (docs/design.md, section 4: small matrices oversubscribe).
 
     Effective in a process that has not loaded numpy yet (the fork server,
     before its warm-up); a worker initializer calls it too, for Dask's and

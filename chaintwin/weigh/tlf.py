@@ -1,6 +1,6 @@
 """The transport loss factor: a conveyor's performance index.
 
-Definition (DESIGN.md, section 3)::
+Definition (docs/design.md, section 3)::
 
     f_T = W / (m_p · g · s)
 

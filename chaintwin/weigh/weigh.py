@@ -1,6 +1,6 @@
 """Dynamic weighing: the payload from torque alone, with an uncertainty.
 
-The payload shows up twice in a recording (DESIGN.md, identifiability):
+The payload shows up twice in a recording (docs/design.md, identifiability):
 
 * **friction**: ``p·g·(μ·cosβ + sinβ)·r/(i·η)`` more torque at any speed,
   strong at constant speed. It confuses "heavier" with "rails got stickier".

@@ -80,7 +80,7 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from chaintwin.diagnose.monitor import ConveyorMonitor, MonitorSettings  # noqa: E402
-from chaintwin.identify.calibration import calibrate  # noqa: E402
+from chaintwin.identify.calibrating import calibrate  # noqa: E402
 from chaintwin.read.batch import group_by_conveyor  # noqa: E402
 from chaintwin.read.profile import load_profile  # noqa: E402
 from chaintwin.simulate.faults import Fault  # noqa: E402

@@ -49,7 +49,7 @@ from typing import TypeVar  # noqa: E402
 
 from chaintwin.diagnose.features import recording_features  # noqa: E402
 from chaintwin.diagnose.monitor import ConveyorMonitor, MonitorSettings  # noqa: E402
-from chaintwin.identify.calibration import calibrate  # noqa: E402
+from chaintwin.identify.calibrating import calibrate  # noqa: E402
 from chaintwin.read.profile import load_profile  # noqa: E402
 from chaintwin.simulate.faults import Fault  # noqa: E402
 from chaintwin.simulate.fleet import generate  # noqa: E402

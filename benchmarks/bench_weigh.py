@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from chaintwin.identify.calibration import calibrate
+from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.regression import RigidModelRegression
 from chaintwin.read.profile import ConveyorProfile, load_profile
 from chaintwin.read.recording import Recording

@@ -29,7 +29,7 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from chaintwin.diagnose.features import recording_features  # noqa: E402
-from chaintwin.identify.calibration import calibrate  # noqa: E402
+from chaintwin.identify.calibrating import calibrate  # noqa: E402
 from chaintwin.read.profile import load_profile  # noqa: E402
 from chaintwin.simulate.faults import Fault  # noqa: E402
 from chaintwin.simulate.fleet import generate  # noqa: E402

@@ -26,7 +26,7 @@ from datetime import datetime
 from pathlib import Path
 
 from chaintwin.diagnose.monitor import ConveyorMonitor, MonitorSettings
-from chaintwin.identify.calibration import calibrate
+from chaintwin.identify.calibrating import calibrate
 from chaintwin.read.profile import load_profile
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate

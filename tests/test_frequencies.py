@@ -259,7 +259,7 @@ def test_the_line_catalogue_is_the_one_source_of_the_features_lines() -> None:
     from conftest import EXAMPLES
 
     from chaintwin.diagnose.features import recording_features
-    from chaintwin.identify.calibration import calibrate
+    from chaintwin.identify.calibrating import calibrate
     from chaintwin.model.frequencies import (
         SHAFT_HARMONICS,
         known_line_orders,

@@ -15,9 +15,9 @@ from conftest import REFERENCE_PROFILE
 
 from chaintwin.cli.app import main
 from chaintwin.errors import CalibrationError, EstimationError, NotFittedError
+from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.calibration import (
     Calibration,
-    calibrate,
     load_calibration,
     sensitivity_nm_per_kg,
 )

@@ -23,7 +23,8 @@ from chaintwin.diagnose.monitor import (
 )
 from chaintwin.diagnose.state import acknowledge_alarm, add_maintenance, load_state
 from chaintwin.errors import MonitorError, StoreError
-from chaintwin.identify.calibration import Calibration, calibrate
+from chaintwin.identify.calibrating import calibrate
+from chaintwin.identify.calibration import Calibration
 from chaintwin.read.profile import load_profile
 from chaintwin.read.writer import write_recording
 from chaintwin.simulate.faults import Fault

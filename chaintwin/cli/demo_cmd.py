@@ -78,7 +78,7 @@ def run_demo(out: Path, *, days: int, per_day: int, workers: int | None, console
 
     from rich.progress import Progress
 
-    from chaintwin.identify.calibration import calibrate
+    from chaintwin.identify.calibrating import calibrate
     from chaintwin.report.data import conveyor_data
     from chaintwin.report.html import write_folder
     from chaintwin.simulate.faults import parse_fault

@@ -20,7 +20,8 @@ from chaintwin.cli.common import (
     safe,
 )
 from chaintwin.errors import CalibrationError, ChaintwinError, EstimationError, RecordingError
-from chaintwin.identify.calibration import Calibration, calibrate, load_calibration
+from chaintwin.identify.calibrating import calibrate
+from chaintwin.identify.calibration import Calibration, load_calibration
 from chaintwin.read.columns import ColumnMap, load_column_map
 from chaintwin.read.profile import ConveyorProfile, load_profile
 from chaintwin.read.recording import Recording

@@ -10,7 +10,7 @@ payloads vary and are not known):
    data (the datasheet inertias, not the ``model:`` section) that gives an
    estimate of each payload, p_k = (J'_k − J_d)·(i/r)².
 2. The recordings are calibrated together with these payloads as if they
-   were known (:func:`~chaintwin.identify.calibration.calibrate`): the
+   were known (:func:`~chaintwin.identify.calibrating.calibrate`): the
    payloads' spread separates the rail friction from the constant loss.
 
 What this costs, compared with a calibration on known loads: a datasheet
@@ -28,7 +28,8 @@ import dataclasses
 from collections.abc import Sequence
 
 from chaintwin.errors import EstimationError
-from chaintwin.identify.calibration import Calibration, calibrate, identification_profile
+from chaintwin.identify.calibrating import calibrate
+from chaintwin.identify.calibration import Calibration, identification_profile
 from chaintwin.identify.regression import RigidModelRegression
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording, RecordingWarning

@@ -5,9 +5,9 @@ Estimators follow the scikit-learn contract (settings in ``__init__``,
 reads a profile's ``model:`` section.
 """
 
+from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.calibration import (
     Calibration,
-    calibrate,
     identification_profile,
     load_calibration,
     sensitivity_nm_per_kg,

@@ -1,6 +1,8 @@
-"""Calibration: learn a conveyor's parameters from known-load runs, keep them in a file.
+"""Calibration: a conveyor's parameters learned from known-load runs, and their file.
 
-:func:`calibrate` fits :class:`~chaintwin.identify.regression.RigidModelRegression`
+This module holds the :class:`Calibration` record, its file format and the
+checks made when one is read; :func:`chaintwin.identify.calibrating.calibrate`
+makes one. It fits :class:`~chaintwin.identify.regression.RigidModelRegression`
 to recordings whose metadata holds ``payload_kg`` (an empty tray at least),
 identifies the torque lag where a recording at the controller cycle allows,
 and judges its own data: how well the payload sensitivity (torque per kg,
@@ -28,21 +30,17 @@ their covariance, the method and the chaintwin version.
 
 from __future__ import annotations
 
-import copy
-import hashlib
 import json
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from chaintwin.errors import CalibrationError, ChaintwinError, EstimationError
-from chaintwin.identify.regression import RigidModelRegression, speed_clusters
-from chaintwin.identify.torque_lag import identify_torque_lag
+from chaintwin.errors import CalibrationError
+from chaintwin.identify.regression import speed_clusters
 from chaintwin.model.physics import payload_sensitivity_nm_kg
 from chaintwin.model.rigid import (
     PARAMETER_NAMES,
@@ -50,17 +48,15 @@ from chaintwin.model.rigid import (
     drive_inertia_at,
     incline_terms,
 )
-from chaintwin.model.windows import window_integrals
 from chaintwin.read.files import read_limited
 from chaintwin.read.profile import ConveyorProfile, parse_profile
-from chaintwin.read.recording import Recording, RecordingWarning
+from chaintwin.read.recording import RecordingWarning
 from chaintwin.units import RPM_TO_RAD_S
 
 __all__ = [
     "CALIBRATION_FORMAT",
     "CALIBRATION_VERSION",
     "Calibration",
-    "calibrate",
     "identification_profile",
     "load_calibration",
     "sensitivity_nm_per_kg",
@@ -394,248 +390,3 @@ def load_calibration(path: str | Path) -> Calibration:
     except RecursionError:
         raise CalibrationError(f"{source}: nested too deeply to be a calibration") from None
     return Calibration.from_dict(data, source)
-
-
-def _sha256(recording: Recording) -> str | None:
-    try:
-        raw = read_limited(recording.source, what="recording", error=CalibrationError)
-    except ChaintwinError:
-        return None
-    return hashlib.sha256(raw).hexdigest()
-
-
-def _torque_lag(
-    recordings: Sequence[Recording], profile: ConveyorProfile
-) -> tuple[float | None, float | None, list[RecordingWarning]]:
-    """Torque lag from recordings sampled at the controller cycle, inverse-variance pooled."""
-    taus: list[float] = []
-    errs: list[float] = []
-    cycle = profile.controller.cycle_s
-    for rec in recordings:
-        tsp = rec.torque_setpoint
-        if tsp is None or abs(rec.sample_time_s - cycle) > 0.05 * cycle:
-            continue
-        try:
-            res = identify_torque_lag(rec.time, tsp, rec.torque, cycle_s=cycle)
-        except EstimationError:
-            continue
-        if res.tau_stderr_s > 0 and math.isfinite(res.tau_stderr_s):
-            taus.append(res.tau_s)
-            errs.append(res.tau_stderr_s)
-    if not taus:
-        return (
-            None,
-            None,
-            [
-                RecordingWarning(
-                    "torque_lag_unknown",
-                    "the torque lag needs a recording at the controller cycle "
-                    f"({cycle * 1e3:g} ms) with the torque set point; none was given",
-                )
-            ],
-        )
-    w = 1.0 / np.square(errs)
-    tau = float(np.sum(w * np.asarray(taus)) / np.sum(w))
-    return tau, float(1.0 / np.sqrt(np.sum(w))), []
-
-
-def _calibrate_inertia_signature(
-    cal: Calibration,
-    recordings: Sequence[Recording],
-    loads: Sequence[float],
-    trays: Sequence[float],
-) -> Calibration:
-    """Learn how the raw inertia signature reads the known loads (gain, offset, scatter)."""
-    from chaintwin.identify.signatures import fit_signatures
-
-    known: list[float] = []
-    raw: list[float] = []
-    var: list[float] = []
-    for rec, load, tray in zip(recordings, loads, trays, strict=True):
-        try:
-            fit, cov = fit_signatures(
-                rec, cal.id_profile, cal.parameters, tray, ramp_rate=cal.ramp_noise_rate
-            )
-        except EstimationError:
-            continue
-        if fit.has_inertia:
-            known.append(load)
-            raw.append(float(fit.estimate[1]))
-            var.append(float(cov[1, 1]))
-    if not raw:
-        return cal
-    p = np.asarray(known)
-    y = np.asarray(raw)
-    w = 1.0 / np.maximum(np.asarray(var), 1e-12)
-    if float(np.ptp(p)) >= 5.0:
-        x = np.column_stack((np.ones_like(p), p))
-        xtw = x.T * w
-        cov = np.linalg.inv(xtw @ x)
-        offset, gain = cov @ (xtw @ y)
-        res = y - (offset + gain * p)
-        if len(p) > 2:  # scatter beyond the stated uncertainties widens the estimate
-            cov = cov * max(1.0, float(np.sum(w * res * res)) / (len(p) - 2))
-        # combine with the physics prior gain = 1 ± INERTIA_GAIN_PRIOR_SIGMA
-        prior_w = 1.0 / INERTIA_GAIN_PRIOR_SIGMA**2
-        data_w = 1.0 / cov[1, 1]
-        gain_post = (prior_w * 1.0 + data_w * gain) / (prior_w + data_w)
-        return replace(
-            cal,
-            inertia_gain=float(gain_post),
-            inertia_gain_sigma=float(np.sqrt(1.0 / (prior_w + data_w))),
-            inertia_offset_kg=float(offset),
-            inertia_offset_sigma_kg=float(np.sqrt(cov[0, 0])),
-        )
-    offset = float(np.sum(w * (y - p)) / np.sum(w))
-    return replace(
-        cal,
-        inertia_offset_kg=offset,
-        inertia_offset_sigma_kg=float(np.sqrt(1.0 / np.sum(w))),
-    )
-
-
-def _ramp_check(
-    settings: RigidModelRegression,
-    recordings: Sequence[Recording],
-    profile: ConveyorProfile,
-    parameters: RigidParameters,
-) -> tuple[RigidParameters, list[RecordingWarning]]:
-    """One load at one speed: μ from each ramp side alone; their disagreement joins μ's uncertainty.
-
-    With one load at one speed, friction is told from the speed-dependent
-    gear losses only by how the torque follows the speed in the ramps, in
-    effect by extrapolating the losses to standstill. What the rigid model
-    misses there (breakaway and the belt winding up when starting, the
-    power-flow change and the belt unwinding when braking) biases that
-    extrapolation by several percent of μ on the virtual conveyor, far more
-    than the fit's statistical error says. The accelerating and the
-    decelerating ramps suffer differently, so fitting each side alone and
-    taking half their difference as a further standard uncertainty of μ
-    (added in quadrature) makes the reported sensitivity uncertainty cover
-    that bias: the split-half estimate of a systematic error.
-    """
-    mus: dict[str, float] = {}
-    for side in ("accelerate", "decelerate"):
-        one = copy.copy(settings)
-        one.ramp_side = side
-        try:
-            mus[side] = one.fit(recordings, profile).parameters_["mu"]
-        except EstimationError:
-            continue
-    if len(mus) < 2:
-        return parameters, [
-            RecordingWarning(
-                "ramp_check",
-                "one load at one speed: the ramps could not be fitted side by side, so the "
-                "friction's extrapolation to standstill is not checked; its uncertainty is "
-                "the fit's statistical one only",
-            )
-        ]
-    half = 0.5 * abs(mus["accelerate"] - mus["decelerate"])
-    k = PARAMETER_NAMES.index("mu")
-    cov = np.array(parameters.covariance, dtype=np.float64)
-    cov[k, k] += half * half
-    mu = parameters["mu"]
-    note = RecordingWarning(
-        "ramp_check",
-        f"one load at one speed: the accelerating ramps alone give mu = "
-        f"{mus['accelerate']:.4f}, the decelerating ones {mus['decelerate']:.4f}; half their "
-        f"difference ({half / mu:.1%} of mu) is added to mu's uncertainty (what the rigid "
-        "model misses in the ramps)",
-    )
-    return replace(parameters, covariance=cov), [note]
-
-
-def calibrate(
-    recordings: Sequence[Recording],
-    profile: ConveyorProfile,
-    *,
-    estimator: RigidModelRegression | None = None,
-    version: str = "",
-) -> Calibration:
-    """Calibrate a conveyor from recordings with a known ``payload_kg``.
-
-    Parameters
-    ----------
-    recordings : sequence of Recording
-        Calibration recordings of one conveyor; each needs ``payload_kg``.
-    profile : ConveyorProfile
-        The conveyor's profile (its ``model:`` section is not read).
-    estimator : RigidModelRegression, optional
-        Settings of the regression (default settings otherwise).
-    version : str
-        chaintwin version to record.
-
-    Returns
-    -------
-    Calibration
-
-    Raises
-    ------
-    EstimationError
-        When a recording lacks ``payload_kg`` or the data cannot determine the model.
-    """
-    id_prof = identification_profile(profile)
-    missing = [r.source for r in recordings if r.metadata.payload_kg is None]
-    if missing:
-        raise EstimationError(
-            f"{missing[0]}: no payload_kg in its metadata; calibration needs recordings "
-            "with a known load (an empty tray is '# payload_kg: 0')"
-        )
-    settings = estimator or RigidModelRegression()
-    est = copy.copy(settings).fit(recordings, id_prof)
-    loads = [t + p for t, p in zip(est.trays_kg_, est.loads_kg_, strict=True)]
-    speeds = speed_clusters(est.plateau_speeds_)
-    if max(loads) - min(loads) >= est.min_load_spread_kg:
-        case = "several_loads"
-    elif len(speeds) >= 2:
-        case = "one_load_several_speeds"
-    else:
-        case = "one_load_one_speed"
-    parameters = est.parameters_
-    ramp_notes: list[RecordingWarning] = []
-    if case == "one_load_one_speed":
-        parameters, ramp_notes = _ramp_check(settings, recordings, id_prof, parameters)
-    tau, tau_err, lag_warn = _torque_lag(recordings, id_prof)
-    rec_info: list[dict[str, Any]] = []
-    for k, rec in enumerate(recordings):
-        wi = window_integrals(rec, id_prof)
-        plateau = (
-            float(np.median(wi.mean_speed[wi.constant])) / RPM_TO_RAD_S
-            if wi.constant.any()
-            else None
-        )
-        rec_info.append(
-            {
-                "file": rec.source,
-                "sha256": _sha256(rec),
-                "payload_kg": est.loads_kg_[k],
-                "tray_kg": est.trays_kg_[k],
-                "sample_time_s": rec.sample_time_s,
-                "recorded_at": rec.metadata.recorded_at.isoformat()
-                if rec.metadata.recorded_at
-                else None,
-                "plateau_speed_rpm": plateau,
-            }
-        )
-    warnings = list(est.warnings_) + lag_warn + ramp_notes
-    for rec in recordings:
-        for w in rec.warnings:
-            warnings.append(RecordingWarning(w.code, f"{rec.source}: {w.message}"))
-    cal = Calibration(
-        profile=profile,
-        parameters=parameters,
-        case=case,
-        recordings=rec_info,
-        torque_lag_s=tau,
-        torque_lag_stderr_s=tau_err,
-        residual_rms_nm=est.residual_rms_nm_,
-        ramp_noise_rate=float(est.noise_rates_[1]),
-        warnings=tuple(warnings),
-        chaintwin_version=version,
-    )
-    cal = _calibrate_inertia_signature(cal, recordings, est.loads_kg_, est.trays_kg_)
-    note = cal.recommendation()
-    if note is not None:
-        cal = replace(cal, warnings=(*cal.warnings, RecordingWarning("calibration_weak", note)))
-    return cal

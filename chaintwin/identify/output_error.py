@@ -93,23 +93,36 @@ a batch simulator was not worth its overhead at three or four members.
 from __future__ import annotations
 
 import math
-import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any, Self
 
 import numpy as np
-import numpy.typing as npt
 from scipy.optimize import least_squares
 from scipy.stats import qmc
 
 from chaintwin._types import FloatArray
-from chaintwin.errors import ChaintwinError, ConvergenceWarning, EstimationError, NotFittedError
-from chaintwin.read.profile import ConveyorProfile, ModelSpec
+from chaintwin.errors import ConvergenceWarning, EstimationError, NotFittedError
+from chaintwin.identify.closed_loop import (
+    FAILED_RESIDUAL,
+    NEUTRAL,
+    PARAMETER_NAMES,
+    Fitted,
+    Prepared,
+    StartResult,
+    base_plant,
+    fit_bounds,
+    fixed_values,
+    plant_of,
+    plant_values,
+    prepare,
+    sample_like,
+    warn_poor_fit,
+)
+from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
 from chaintwin.simulate.engine import SimulationResult, simulate
 from chaintwin.simulate.plant import PlantParameters
-from chaintwin.simulate.setpoints import Setpoints, from_arrays
 
 __all__ = [
     "NEUTRAL",
@@ -118,157 +131,6 @@ __all__ = [
     "OutputErrorFit",
     "StartResult",
 ]
-
-PARAMETER_NAMES: tuple[str, ...] = (
-    "mu",
-    "loss_constant_nm",
-    "loss_viscous_nm_s_rad",
-    "loss_quadratic_nm_s2_rad2",
-    "drive_inertia_scale",
-)
-"""Parameters the output-error fit can fit (see the module docstring)."""
-
-NEUTRAL: Mapping[str, float] = {
-    "mu": 0.23,
-    "loss_constant_nm": 0.0,
-    "loss_viscous_nm_s_rad": 0.0,
-    "loss_quadratic_nm_s2_rad2": 0.0,
-    "drive_inertia_scale": 1.0,
-}
-"""Values of the parameters that are neither fitted nor given in ``fixed``."""
-
-_FAILED_RESIDUAL = 10.0
-"""Residual (scaled units) given to every sample of a diverged simulation."""
-
-
-@dataclass(frozen=True, slots=True)
-class StartResult:
-    """Where one starting point of the fit ended.
-
-    Parameters
-    ----------
-    start : dict of str to float
-        The starting point, SI.
-    theta : dict of str to float
-        The solution, SI.
-    cost : float
-        Half the sum of squared scaled residuals at the solution.
-    nfev : int
-        Simulations run for this start (residual evaluations, finite
-        differences included; one per recording each).
-    status : int
-        :func:`scipy.optimize.least_squares` status (> 0: converged).
-    message : str
-        Its message.
-    """
-
-    start: dict[str, float]
-    theta: dict[str, float]
-    cost: float
-    nfev: int
-    status: int
-    message: str
-
-    @property
-    def converged(self) -> bool:
-        """Whether the optimiser met a tolerance (status > 0)."""
-        return self.status > 0
-
-
-@dataclass(frozen=True, slots=True)
-class _Prepared:
-    """A recording made ready for repeated simulation."""
-
-    setpoints: Setpoints
-    theta0: float
-    base: PlantParameters
-    index: npt.NDArray[np.int64] | None  # sample → cycle, when on the grid
-    sim_time: FloatArray  # recording times relative to the first sample
-    mask: npt.NDArray[np.bool_]
-    torque: FloatArray  # measured, at the compared samples
-    speed: FloatArray
-
-
-@dataclass(frozen=True, slots=True)
-class _Fitted:
-    names: tuple[str, ...]
-    theta: dict[str, float]
-    values: dict[str, float]  # fitted and fixed, every name in PARAMETER_NAMES
-    covariance: FloatArray
-    stderr: dict[str, float]
-    cost: float
-    starts: list[StartResult]
-    nfev: int
-    agree: bool
-    rms_torque_nm: float
-    rms_speed_rad_s: float
-    n_samples: int
-
-
-def _channel(recording: Recording, name: str) -> FloatArray:
-    values = recording.channels.get(name)
-    if values is None:
-        if name == "speed_setpoint":
-            raise EstimationError(
-                f"{recording.source}: has no speed_setpoint channel; the output-error fit "
-                "drives the simulated closed loop with the recorded set points: record the "
-                "speed set point (and the position set point) with the scope"
-            )
-        raise EstimationError(f"{recording.source}: has no {name} channel")
-    arr = np.asarray(values, dtype=np.float64)
-    if not np.all(np.isfinite(arr)):
-        raise EstimationError(
-            f"{recording.source}: the {name} channel holds NaN or infinite values; cut the "
-            "recording to its valid part"
-        )
-    return arr
-
-
-def _plant_values(
-    names: Sequence[str], x: FloatArray, fixed: Mapping[str, float]
-) -> dict[str, float]:
-    values = dict(fixed)
-    for name, value in zip(names, x, strict=True):
-        values[name] = float(value)
-    return values
-
-
-def _plant(
-    base: PlantParameters, values: Mapping[str, float], inertia: tuple[float, float]
-) -> PlantParameters:
-    scale = values["drive_inertia_scale"]
-    return base.replace(
-        mu=values["mu"],
-        loss_constant_nm=values["loss_constant_nm"],
-        loss_viscous_nm_s_rad=values["loss_viscous_nm_s_rad"],
-        loss_quadratic_nm_s2_rad2=values["loss_quadratic_nm_s2_rad2"],
-        motor_inertia_kgm2=inertia[0] * scale,
-        gear_inertia_kgm2=inertia[1] * scale,
-    )
-
-
-def _base_plant(profile: ConveyorProfile, payload_kg: float) -> PlantParameters:
-    """The rigid plant of the profile's known data with neutral model values."""
-    spec = ModelSpec(
-        friction=NEUTRAL["mu"],
-        static_friction_ratio=1.0,
-        loss_constant_nm=0.0,
-        loss_viscous_nm_s_rad=0.0,
-        loss_quadratic_nm_s2_rad2=0.0,
-    )
-    try:
-        return PlantParameters.from_profile(profile, payload_kg=payload_kg, model=spec)
-    except ChaintwinError as exc:
-        raise EstimationError(f"profile '{profile.id}': {exc}") from None
-
-
-def _sample(sim_values: FloatArray, prep: _Prepared, cycle_s: float) -> FloatArray:
-    """A simulated channel at the recording's sample times."""
-    if prep.index is not None:
-        out: FloatArray = sim_values[prep.index]
-        return out
-    grid = np.arange(sim_values.shape[0], dtype=np.float64) * cycle_s
-    return np.asarray(np.interp(prep.sim_time, grid, sim_values), dtype=np.float64)
 
 
 class OutputErrorFit:
@@ -333,7 +195,7 @@ class OutputErrorFit:
     """
 
     # set by fit(); __init__ only stores settings
-    _fit: _Fitted | None = None
+    _fit: Fitted | None = None
 
     def __init__(
         self,
@@ -391,116 +253,23 @@ class OutputErrorFit:
             raise EstimationError(f"min_speed_share={self.min_speed_share!r} must lie in (0, 1)")
 
     def _fixed_values(self, names: tuple[str, ...]) -> dict[str, float]:
-        values = dict(NEUTRAL)
-        for name, value in (self.fixed or {}).items():
-            if name not in PARAMETER_NAMES:
-                raise EstimationError(
-                    f"fixed: unknown parameter '{name}'; choose from {', '.join(PARAMETER_NAMES)}"
-                )
-            if name in names:
-                raise EstimationError(f"fixed: '{name}' is also fitted; give it in one place")
-            low = 1e-6 if name == "drive_inertia_scale" else 0.0
-            if not (math.isfinite(value) and value >= low):
-                raise EstimationError(
-                    f"fixed: '{name}' = {value!r} must be a finite number ≥ {low:g}"
-                )
-            values[name] = float(value)
-        return values
+        return fixed_values(names, self.fixed)
 
     def _bounds(
         self, names: tuple[str, ...], torque_ref: float, speed_ref: float
     ) -> tuple[FloatArray, FloatArray]:
-        defaults = {
-            "mu": (0.0, 1.0),
-            "loss_constant_nm": (0.0, 0.5 * torque_ref),
-            "loss_viscous_nm_s_rad": (0.0, 0.5 * torque_ref / speed_ref),
-            "loss_quadratic_nm_s2_rad2": (0.0, 0.5 * torque_ref / speed_ref**2),
-            "drive_inertia_scale": (0.25, 4.0),
-        }
-        given = dict(self.bounds or {})
-        extra = sorted(set(given) - set(names))
-        if extra:
-            raise EstimationError(
-                f"bounds given for {', '.join(extra)}, which are not fitted; fit them or "
-                "drop their bounds"
-            )
-        lo = np.empty(len(names))
-        hi = np.empty(len(names))
-        for i, name in enumerate(names):
-            a, b = given.get(name, defaults[name])
-            a, b = float(a), float(b)
-            low_limit = 0.0 if name != "drive_inertia_scale" else 1e-6
-            if not (math.isfinite(a) and math.isfinite(b) and low_limit <= a < b):
-                raise EstimationError(
-                    f"bounds of '{name}' ({a!r}, {b!r}) must be finite with "
-                    f"{low_limit:g} ≤ lower < upper"
-                )
-            if name == "mu" and b > 2.0:
-                raise EstimationError("bounds of 'mu' must lie within [0, 2]")
-            lo[i], hi[i] = a, b
-        return lo, hi
+        return fit_bounds(names, self.bounds, torque_ref, speed_ref)
 
-    # ------------------------------------------------------- preparation
     def _prepare(
         self, recording: Recording, profile: ConveyorProfile, payload_kg: float
-    ) -> _Prepared:
-        if not (math.isfinite(payload_kg) and payload_kg >= 0.0):
-            raise EstimationError(f"payload_kg={payload_kg!r} must be a mass ≥ 0 kg")
-        cycle = profile.controller.cycle_s
-        t = _channel(recording, "time")
-        w_sp = _channel(recording, "speed_setpoint")
-        w = _channel(recording, "speed")
-        tq = _channel(recording, "torque")
-        psp = recording.channels.get("position_setpoint")
-        if psp is not None:
-            psp = _channel(recording, "position_setpoint")
-        if t.size < 8 or np.any(np.diff(t) <= 0.0):
-            raise EstimationError(
-                f"{recording.source}: needs at least 8 samples with strictly increasing time"
-            )
-        peak = float(np.max(np.abs(w_sp)))
-        if peak <= 0.0:
-            raise EstimationError(
-                f"{recording.source}: the speed set point never leaves zero; the conveyor "
-                "does not move, so there is nothing to fit"
-            )
-        rest = self.min_speed_share * peak
-        if abs(w_sp[0]) > rest or abs(w[0]) > rest:
-            raise EstimationError(
-                f"{recording.source}: starts in motion; the simulation starts at rest: give a "
-                "recording triggered before the move"
-            )
-        setpoints = from_arrays(t, w_sp, psp, cycle_s=cycle)
-        theta0 = float(psp[0]) if psp is not None else 0.0
-
-        rel = (t - t[0]) / cycle
-        nearest = np.rint(rel)
-        on_grid = bool(np.max(np.abs(rel - nearest)) <= 1e-6)
-        index = np.minimum(nearest.astype(np.int64), len(setpoints) - 1) if on_grid else None
-
-        moving = np.abs(w_sp) > rest
-        mask = moving.copy()
-        skip = self.skip_start_s
-        if skip > 0.0:
-            rises = np.flatnonzero(moving[1:] & ~moving[:-1]) + 1
-            if moving[0]:
-                rises = np.concatenate(([0], rises))
-            for a in rises.tolist():
-                mask &= ~((t >= t[a]) & (t < t[a] + skip))
-        if int(np.count_nonzero(mask)) < 2 * len(self.parameters) + 2:
-            raise EstimationError(
-                f"{recording.source}: only {int(np.count_nonzero(mask))} samples with the "
-                "set point moving after the start transients; give a longer movement"
-            )
-        return _Prepared(
-            setpoints=setpoints,
-            theta0=theta0,
-            base=_base_plant(profile, payload_kg),
-            index=index,
-            sim_time=t - t[0],
-            mask=mask,
-            torque=tq[mask],
-            speed=w[mask],
+    ) -> Prepared:
+        return prepare(
+            recording,
+            profile,
+            payload_kg,
+            min_speed_share=self.min_speed_share,
+            skip_start_s=self.skip_start_s,
+            n_parameters=len(self.parameters),
         )
 
     # ----------------------------------------------------------- fitting
@@ -566,25 +335,25 @@ class OutputErrorFit:
         counter = [0]
 
         def residuals(u: FloatArray) -> FloatArray:
-            values = _plant_values(names, lo + u * span, fixed)
+            values = plant_values(names, lo + u * span, fixed)
             parts: list[FloatArray] = []
             for prep in preps:
                 counter[0] += 1
                 sim = simulate(
-                    _plant(prep.base, values, inertia),
+                    plant_of(prep.base, values, inertia),
                     prep.setpoints,
                     initial_motor_angle=prep.theta0,
                 )
                 n = int(np.count_nonzero(prep.mask))
                 if not sim.success:
-                    parts.append(np.full(2 * n, _FAILED_RESIDUAL))
+                    parts.append(np.full(2 * n, FAILED_RESIDUAL))
                     continue
-                tq = _sample(sim.torque, prep, cycle)[prep.mask]
-                w = _sample(sim.speed, prep, cycle)[prep.mask]
+                tq = sample_like(sim.torque, prep, cycle)[prep.mask]
+                w = sample_like(sim.speed, prep, cycle)[prep.mask]
                 parts.append((tq - prep.torque) / torque_scale)
                 parts.append((w - prep.speed) / speed_scale)
             r = np.concatenate(parts)
-            return np.where(np.isfinite(r), r, _FAILED_RESIDUAL)
+            return np.where(np.isfinite(r), r, FAILED_RESIDUAL)
 
         sampler = qmc.LatinHypercube(d=len(names), rng=np.random.default_rng(self.seed))
         unit_starts = 0.1 + 0.8 * sampler.random(self.starts)
@@ -652,10 +421,10 @@ class OutputErrorFit:
             offset += 2 * n
             n_samples += n
         theta = dict(zip(names, x_best.tolist(), strict=True))
-        self._fit = _Fitted(
+        self._fit = Fitted(
             names=names,
             theta=theta,
-            values=_plant_values(names, x_best, fixed),
+            values=plant_values(names, x_best, fixed),
             covariance=cov,
             stderr=dict(zip(names, stderr.tolist(), strict=True)),
             cost=float(sol.cost),
@@ -666,47 +435,11 @@ class OutputErrorFit:
             rms_speed_rad_s=math.sqrt(speed_sq / n_samples),
             n_samples=n_samples,
         )
-        self._warn(names, sol, lo, hi, x_best, agree)
+        warn_poor_fit(names, sol, lo, hi, x_best, agree)
         return self
 
-    @staticmethod
-    def _warn(
-        names: tuple[str, ...],
-        sol: Any,
-        lo: FloatArray,
-        hi: FloatArray,
-        x_best: FloatArray,
-        agree: bool,
-    ) -> None:
-        if int(sol.status) <= 0:
-            warnings.warn(
-                f"the output-error fit did not converge ({sol.message}); raise max_nfev",
-                ConvergenceWarning,
-                stacklevel=3,
-            )
-        edge = 1e-6 * (hi - lo)
-        at_bound = [
-            n
-            for n, x, a, b, e in zip(names, x_best, lo, hi, edge, strict=True)
-            if x - a <= e or b - x <= e
-        ]
-        if at_bound:
-            warnings.warn(
-                f"fitted value(s) at a bound: {', '.join(at_bound)}; the recording cannot tell "
-                "them, or the bounds are too narrow (their standard errors are not meaningful)",
-                ConvergenceWarning,
-                stacklevel=3,
-            )
-        if not agree:
-            warnings.warn(
-                "the starting points ended at different solutions; the cost has several "
-                "minima or is flat: see starts_",
-                ConvergenceWarning,
-                stacklevel=3,
-            )
-
     # ----------------------------------------------------------- results
-    def _fitted(self) -> _Fitted:
+    def _fitted(self) -> Fitted:
         if self._fit is None:
             raise NotFittedError(
                 "this OutputErrorFit is not fitted yet; call fit(recording, profile, "
@@ -787,8 +520,8 @@ class OutputErrorFit:
         fitted = self._fitted()
         if not (math.isfinite(payload_kg) and payload_kg >= 0.0):
             raise EstimationError(f"payload_kg={payload_kg!r} must be a mass ≥ 0 kg")
-        base = _base_plant(profile, payload_kg)
-        return _plant(base, fitted.values, (base.motor_inertia_kgm2, base.gear_inertia_kgm2))
+        base = base_plant(profile, payload_kg)
+        return plant_of(base, fitted.values, (base.motor_inertia_kgm2, base.gear_inertia_kgm2))
 
     def predict(
         self, recording: Recording, profile: ConveyorProfile, payload_kg: float
@@ -820,14 +553,14 @@ class OutputErrorFit:
         """
         fitted = self._fitted()
         prep = self._prepare(recording, profile, payload_kg)
-        plant = _plant(
+        plant = plant_of(
             prep.base, fitted.values, (prep.base.motor_inertia_kgm2, prep.base.gear_inertia_kgm2)
         )
         sim = simulate(plant, prep.setpoints, initial_motor_angle=prep.theta0)
         cycle = profile.controller.cycle_s
 
         def at(values: FloatArray) -> FloatArray:
-            return _sample(values, prep, cycle)
+            return sample_like(values, prep, cycle)
 
         return replace(
             sim,

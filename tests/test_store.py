@@ -519,7 +519,7 @@ def test_a_fleet_ingest_on_workers_equals_each_conveyor_ingested_alone(tmp_path:
 def test_local_workers_run_with_a_short_thread_switch_interval() -> None:
     import sys
 
-    from chaintwin.store.ingest import SWITCH_INTERVAL_S, executor
+    from chaintwin.store.executors import SWITCH_INTERVAL_S, executor
 
     before = sys.getswitchinterval()
     with executor(1, None):

@@ -25,13 +25,10 @@ kill finishes the job.
 from __future__ import annotations
 
 import os
-import sys
-import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any
@@ -44,7 +41,7 @@ from chaintwin.read.columns import ColumnMap
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
 
-from . import forkserver
+from .executors import InlineExecutor, executor, runs_inline
 from .store import Finished, StateConflict, Store, Waiting
 from .worker import Prepared, prepare, prepare_many
 
@@ -86,105 +83,6 @@ class IngestSummary:
             "waiting": self.waiting,
             "seconds": self.seconds,
         }
-
-
-class InlineExecutor(Executor):
-    """A ``concurrent.futures`` executor that runs each task in this process at once.
-
-    One worker needs no pool: the pipeline then runs on one core with
-    nothing sent between processes and no worker to start, by the same code
-    path as on a pool or a cluster (the futures are done when returned).
-    """
-
-    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future[Any]:
-        """Run ``fn(*args, **kwargs)`` now; its result (or exception) in a done future."""
-        fut: Future[Any] = Future()
-        try:
-            fut.set_result(fn(*args, **kwargs))
-        except Exception as exc:  # handed to the caller through the future
-            fut.set_exception(exc)
-        return fut
-
-
-def _inline(workers: int | None, scheduler: str | None) -> bool:
-    """Whether the pipeline runs in this process: one local worker (given, or one core)."""
-    return scheduler is None and (workers or os.cpu_count() or 1) == 1
-
-
-SWITCH_INTERVAL_S = 0.0002
-"""The interpreter's thread switch interval while local workers run, s (default 0.005)."""
-
-_responsive_lock = threading.Lock()
-_responsive_users = 0
-_responsive_before = 0.005
-
-
-@contextmanager
-def _responsive() -> Iterator[None]:
-    """A shorter thread switch interval for the time of the block.
-
-    The process pool's own threads in this process (one reads the workers'
-    results from a pipe, another hands them their tasks;
-    a Dask client's event loop likewise) need the interpreter lock, which
-    the health model and the store hold while they work: at the default
-    interval (5 ms) a worker can wait that long to hand over each piece of
-    its results or to get its next task.
-    """
-    global _responsive_users, _responsive_before
-    with _responsive_lock:  # ingests may run in threads: the first sets, the last restores
-        if _responsive_users == 0:
-            _responsive_before = sys.getswitchinterval()
-            sys.setswitchinterval(min(_responsive_before, SWITCH_INTERVAL_S))
-        _responsive_users += 1
-    try:
-        yield
-    finally:
-        with _responsive_lock:
-            _responsive_users -= 1
-            if _responsive_users == 0:
-                sys.setswitchinterval(_responsive_before)
-
-
-@contextmanager
-def executor(workers: int | None, scheduler: str | None) -> Iterator[Executor]:
-    """A ``concurrent.futures`` executor: this process, a local process pool, or a Dask cluster.
-
-    Parameters
-    ----------
-    workers : int, optional
-        Local worker processes (default: the machine's cores); 1 runs the
-        pipeline in this process (:class:`InlineExecutor`).
-    scheduler : str, optional
-        Address of a Dask scheduler (``tcp://host:8786``); the cluster's
-        workers are used instead of local processes.
-
-    Raises
-    ------
-    StoreError
-        When the scheduler cannot be reached.
-    """
-    if _inline(workers, scheduler):
-        yield InlineExecutor()
-        return
-    with _responsive():
-        if scheduler is None:
-            # forked from the fork server (forkserver.py says why), which may
-            # have been started already by the command (forkserver.start)
-            with forkserver.pool(workers) as ex:
-                yield ex
-            return
-        from distributed import Client
-
-        try:
-            client = Client(scheduler, timeout="10s")  # type: ignore[no-untyped-call]
-        except (OSError, TimeoutError) as exc:
-            raise StoreError(
-                f"--scheduler {scheduler}: cannot reach the Dask scheduler ({exc})"
-            ) from None
-        try:
-            yield client.get_executor()  # type: ignore[no-untyped-call]
-        finally:
-            client.close()  # type: ignore[no-untyped-call]
 
 
 CHUNK = 16
@@ -643,7 +541,7 @@ def ingest(
         if progress is not None:
             progress(done, total)
 
-    if _inline(workers, scheduler):
+    if runs_inline(workers, scheduler):
         # one recording at a time in this process: nothing to save on messages,
         # and a learned calibration is taken up by the very next recording
         window = _Window(tasks=1, biggest=1, lanes=1, left=total)

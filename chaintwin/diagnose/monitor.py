@@ -120,11 +120,15 @@ class MonitorSettings:
 
     def __post_init__(self) -> None:
         if self.baseline_n < 5:
-            raise MonitorError(f"--baseline {self.baseline_n} must be at least 5 recordings")
+            raise MonitorError(
+                f"baseline_n {self.baseline_n} must be at least 5 recordings", field="baseline_n"
+            )
         if not 1 <= self.x <= self.y:
-            raise MonitorError(f"--alarm-rule {self.x}/{self.y} needs 1 <= X <= Y")
+            raise MonitorError(
+                f"alarm_rule {self.x}/{self.y} needs 1 <= X <= Y", field="alarm_rule"
+            )
         if not (math.isfinite(self.z_limit) and self.z_limit > 0):
-            raise MonitorError(f"--z-limit {self.z_limit} must be a positive number")
+            raise MonitorError(f"z_limit {self.z_limit} must be a positive number", field="z_limit")
 
 
 @dataclass(frozen=True, slots=True)

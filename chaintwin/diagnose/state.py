@@ -152,7 +152,7 @@ def new_event(kind: str, by: str, why: str, at: datetime | None = None) -> dict[
     if kind not in MAINTENANCE_KINDS:
         raise StoreError(f"maintenance kind '{kind}' must be one of {', '.join(MAINTENANCE_KINDS)}")
     if not by.strip():
-        raise StoreError("say who did the maintenance (--by)")
+        raise StoreError("say who did the maintenance (by)", field="by")
     when = at or datetime.now(UTC)
     if when.tzinfo is None:
         when = when.replace(tzinfo=UTC)
@@ -230,7 +230,7 @@ def acknowledge_alarm(
         When no alarm has that id, or ``by`` is empty.
     """
     if not by.strip():
-        raise StoreError("say who acknowledges the alarm (--by)")
+        raise StoreError("say who acknowledges the alarm (by)", field="by")
     open_ids = []
     for state in data["conveyors"].values():
         for alarm in state.get("alarms", []) if isinstance(state, dict) else []:

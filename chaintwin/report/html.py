@@ -318,7 +318,9 @@ def write_page(html: str, path: str | Path) -> Path:
         tmp.replace(target)
     except OSError as exc:
         tmp.unlink(missing_ok=True)
-        raise StoreError(f"--out {target}: cannot write the report ({exc.strerror})") from None
+        raise StoreError(
+            f"out {target}: cannot write the report ({exc.strerror})", field="out"
+        ) from None
     return target
 
 

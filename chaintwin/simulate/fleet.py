@@ -141,12 +141,16 @@ def generate(
     -------
     GenerateSummary
     """
-    if days < 1 or per_day < 1:
-        raise ModelError("--days and --per-day must be at least 1")
+    if days < 1:
+        raise ModelError(f"days {days} must be at least 1", field="days")
+    if per_day < 1:
+        raise ModelError(f"per_day {per_day} must be at least 1", field="per_day")
     if not 0 <= onset_day < days:
-        raise ModelError(f"--onset {onset_day} must be a day from 0 to {days - 1}")
+        raise ModelError(
+            f"onset_day {onset_day} must be a day from 0 to {days - 1}", field="onset_day"
+        )
     if not 0.0 <= drift < 0.5:
-        raise ModelError(f"--drift {drift} must be from 0 to 0.5 (0.05 = ±5 %)")
+        raise ModelError(f"drift {drift} must be from 0 to 0.5 (0.05 = ±5 %)", field="drift")
     lo, hi = payload_range_kg
     if not 0.0 <= lo <= hi:
         raise ModelError(f"payload range {lo}-{hi} kg must satisfy 0 <= low <= high")

@@ -1,0 +1,46 @@
+"""The command line names its options where the library names its fields."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from conftest import EXAMPLES, REFERENCE_PROFILE
+
+from chaintwin.cli.app import main
+
+
+@pytest.mark.parametrize(
+    ("args", "line"),
+    [
+        (["generate", "--days", "0"], "--days 0 must be at least 1"),
+        (["generate", "--per-day", "0"], "--per-day 0 must be at least 1"),
+        (["generate", "--days", "3", "--onset", "5"], "--onset 5 must be a day from 0 to 2"),
+        (["generate", "--drift", "0.7"], "--drift 0.7 must be from 0 to 0.5"),
+    ],
+)
+def test_generate_settings(
+    args: list[str], line: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code = main([*args, "--profile", str(REFERENCE_PROFILE), "--out", str(tmp_path)])
+    _, err = capsys.readouterr()
+    assert code == 2
+    assert err.startswith(f"chaintwin: error: {line}")
+    assert err.count("\n") == 1
+
+
+@pytest.mark.parametrize(
+    ("option", "line"),
+    [
+        (["--baseline", "3"], "--baseline 3 must be at least 5 recordings"),
+        (["--alarm-rule", "5/3"], "--alarm-rule 5/3 needs 1 <= X <= Y"),
+        (["--z-limit", "-1"], "--z-limit -1.0 must be a positive number"),
+    ],
+)
+def test_monitor_settings(option: list[str], line: str, capsys: pytest.CaptureFixture[str]) -> None:
+    rec = str(EXAMPLES / "recordings" / "white-belt-01-40kg.csv")
+    code = main(["monitor", "--profile", str(REFERENCE_PROFILE), *option, rec])
+    _, err = capsys.readouterr()
+    assert code == 2
+    assert line in err
+    assert err.count("\n") == 1

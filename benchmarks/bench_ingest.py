@@ -79,7 +79,8 @@ import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from chaintwin.diagnose.monitor import ConveyorMonitor, MonitorSettings  # noqa: E402
+from chaintwin.diagnose.monitor import ConveyorMonitor  # noqa: E402
+from chaintwin.diagnose.records import MonitorSettings  # noqa: E402
 from chaintwin.identify.calibrating import calibrate  # noqa: E402
 from chaintwin.read.batch import group_by_conveyor  # noqa: E402
 from chaintwin.read.profile import load_profile  # noqa: E402

@@ -48,7 +48,8 @@ from pathlib import Path  # noqa: E402
 from typing import TypeVar  # noqa: E402
 
 from chaintwin.diagnose.features import recording_features  # noqa: E402
-from chaintwin.diagnose.monitor import ConveyorMonitor, MonitorSettings  # noqa: E402
+from chaintwin.diagnose.monitor import ConveyorMonitor  # noqa: E402
+from chaintwin.diagnose.records import MonitorSettings  # noqa: E402
 from chaintwin.identify.calibrating import calibrate  # noqa: E402
 from chaintwin.read.profile import load_profile  # noqa: E402
 from chaintwin.simulate.faults import Fault  # noqa: E402

@@ -25,7 +25,8 @@ import time
 from datetime import datetime
 from pathlib import Path
 
-from chaintwin.diagnose.monitor import ConveyorMonitor, MonitorSettings
+from chaintwin.diagnose.monitor import ConveyorMonitor
+from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.identify.calibrating import calibrate
 from chaintwin.read.profile import load_profile
 from chaintwin.simulate.faults import Fault

@@ -13,14 +13,11 @@ from conftest import REFERENCE_PROFILE
 
 from chaintwin.cli.app import EXIT_ALARM, main
 from chaintwin.cli.monitor_cmd import order_recordings
+from chaintwin.diagnose.causes import resolve_causes
 from chaintwin.diagnose.features import recording_features
 from chaintwin.diagnose.health import fit_baseline, forecast_crossing, x_of_y
-from chaintwin.diagnose.monitor import (
-    ConveyorMonitor,
-    MonitorSettings,
-    RecordingResult,
-    resolve_causes,
-)
+from chaintwin.diagnose.monitor import ConveyorMonitor
+from chaintwin.diagnose.records import MonitorSettings, RecordingResult
 from chaintwin.diagnose.state import acknowledge_alarm, add_maintenance, load_state
 from chaintwin.errors import MonitorError, StoreError
 from chaintwin.identify.calibrating import calibrate

@@ -20,7 +20,7 @@ import pytest
 from conftest import EXAMPLES, REFERENCE_PROFILE
 
 from chaintwin.cli.app import main
-from chaintwin.diagnose.monitor import MonitorSettings
+from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.read.profile import load_profile
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate

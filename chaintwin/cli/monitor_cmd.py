@@ -20,7 +20,8 @@ from chaintwin.cli.common import (
     print_refused,
     print_warning,
 )
-from chaintwin.diagnose.monitor import ConveyorMonitor, RecordingResult, SettingsGiven
+from chaintwin.diagnose.monitor import ConveyorMonitor
+from chaintwin.diagnose.records import RecordingResult, SettingsGiven
 from chaintwin.diagnose.state import (
     MAINTENANCE_KINDS,
     acknowledge_alarm,

@@ -14,7 +14,7 @@ from rich.progress import Progress
 
 from chaintwin.cli.common import ColumnsOption, expand_recordings, print_json, print_refused, safe
 from chaintwin.cli.monitor_cmd import load_profiles
-from chaintwin.diagnose.monitor import SettingsGiven
+from chaintwin.diagnose.records import SettingsGiven
 from chaintwin.errors import StoreError
 from chaintwin.read.columns import load_column_map
 

@@ -9,10 +9,21 @@ import numpy.typing as npt
 
 from chaintwin._types import FloatArray
 from chaintwin.errors import EstimationError
+from chaintwin.model.frequencies import apparent_orders
 
 from .spectra import Spectrum
 
-__all__ = ["median_spectrum", "novel_peaks", "strongest_peaks"]
+__all__ = [
+    "GUARD_BINS",
+    "median_spectrum",
+    "novel_peaks",
+    "spectrum_from_state",
+    "strongest_peaks",
+    "unexplained_peak",
+]
+
+GUARD_BINS = 4
+"""Bins either side of a known line left out of :func:`unexplained_peak`."""
 
 
 def _local_maxima(amplitude: FloatArray) -> npt.NDArray[np.intp]:
@@ -143,3 +154,52 @@ def median_spectrum(spectra: Sequence[Spectrum]) -> Spectrum:
         channel=first.channel,
         speed_rpm=float(np.median([s.speed_rpm for s in spectra])),
     )
+
+
+def spectrum_from_state(x: list[float], amplitude: list[float], speed_rpm: float) -> Spectrum:
+    """A plateau torque spectrum as a monitor's state keeps it (grid, amplitudes, speed)."""
+    grid = np.asarray(x)
+    return Spectrum(
+        x=grid,
+        amplitude=np.asarray(amplitude),
+        kind="frequency",
+        resolution=float(grid[1] - grid[0]),
+        channel="torque",
+        speed_rpm=speed_rpm,
+    )
+
+
+def unexplained_peak(
+    spectrum: Spectrum,
+    baseline_x: FloatArray,
+    baseline_amplitude: FloatArray,
+    floor: float,
+    line_orders: FloatArray,
+    guard_bins: int = GUARD_BINS,
+) -> tuple[float, float]:
+    """The largest ratio of a spectrum to its baseline away from the known lines, and its order.
+
+    Bins within ``guard_bins`` of a line's apparent place (orders folded at
+    the spectrum's sample time) and the two lowest bins (the trend left by
+    detrending) do not count.
+
+    Returns
+    -------
+    (float, float)
+        The ratio and its order; NaN, NaN when the spectrum has no speed.
+    """
+    ref = np.interp(spectrum.x, baseline_x, baseline_amplitude)
+    ratio = spectrum.amplitude / np.maximum(ref, floor)
+    speed_hz = spectrum.speed_rpm / 60.0
+    if speed_hz <= 0:
+        return float("nan"), float("nan")
+    if not spectrum.x[-1] > 0:
+        return float("nan"), float("nan")
+    ts = 1.0 / (2.0 * float(spectrum.x[-1]))
+    res = spectrum.resolution
+    lines = apparent_orders(line_orders, spectrum.speed_rpm, ts)
+    near = np.abs(spectrum.x[:, None] - lines[None, :] * speed_hz) <= guard_bins * res
+    guard = near.any(axis=1) | (spectrum.x < 2.0 * res)  # the trend left in the lowest bins
+    ratio = np.where(guard, 0.0, ratio)
+    k = int(np.argmax(ratio))
+    return float(ratio[k]), float(spectrum.x[k] / speed_hz)

@@ -23,6 +23,9 @@ from pathlib import Path
 from typing import Any
 
 from chaintwin.errors import StoreError
+from chaintwin.read.recording import RecordingWarning
+
+from .records import parse_time
 
 __all__ = [
     "MAINTENANCE_KINDS",
@@ -259,3 +262,31 @@ def acknowledge_alarm(
     raise StoreError(
         f"no alarm '{alarm_id}' in the state (open alarms: {', '.join(open_ids) or 'none'})"
     )
+
+
+def apply_events(
+    events: list[dict[str, Any]], alarms: list[dict[str, Any]], when: datetime | None
+) -> list[dict[str, str]]:
+    """Apply the maintenance events made up to a recording's time; a note for each.
+
+    Each event not yet applied whose time is at or before ``when`` is marked
+    applied and closes the open alarms; the caller restarts its baseline
+    when any note comes back.
+    """
+    notes: list[dict[str, str]] = []
+    if when is None:
+        return notes
+    for event in events:
+        at = None if event["applied"] else parse_time(event["at"])
+        if at is None or at > when:
+            continue
+        event["applied"] = True
+        close_alarms(alarms, event)
+        notes.append(
+            RecordingWarning(
+                "baseline_restarted",
+                f"maintenance '{event['kind']}' on {event['at']} by {event['by']} "
+                f"({event['why']}): the baseline restarts from this recording",
+            ).to_dict()
+        )
+    return notes

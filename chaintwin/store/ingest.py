@@ -33,7 +33,8 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any
 
-from chaintwin.diagnose.monitor import ConveyorMonitor, MonitorSettings
+from chaintwin.diagnose.monitor import ConveyorMonitor
+from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.errors import StoreError
 from chaintwin.identify.calibration import Calibration
 from chaintwin.read.batch import RecordingFile, group_by_conveyor, order_recordings

@@ -28,7 +28,8 @@ from sqlalchemy.engine import Engine
 from sqlalchemy.exc import IntegrityError, OperationalError
 from sqlalchemy.orm import Session
 
-from chaintwin.diagnose.monitor import ConveyorMonitor, MonitorSettings, RecordingResult
+from chaintwin.diagnose.monitor import ConveyorMonitor
+from chaintwin.diagnose.records import MonitorSettings, RecordingResult
 from chaintwin.diagnose.state import json_ready
 from chaintwin.errors import StoreError
 from chaintwin.identify.calibration import Calibration

@@ -1,0 +1,123 @@
+"""Alarms of a conveyor's health model: opened by the X-of-Y rule, closed when quiet.
+
+An alarm is a JSON-ready dict (the form state files, the store and
+``monitor --json`` keep): ``id``, ``conveyor``, ``feature``, ``cause``,
+``change``, ``since``, ``opened_at``, ``last_seen``, ``status``
+(``open``/``closed``), ``acknowledged``, and when closed ``closed_at`` and
+``closed_by``.
+"""
+
+from __future__ import annotations
+
+import math
+import uuid
+from datetime import datetime
+from typing import Any
+
+from .features import feature_spec
+from .health import FeatureBaseline, x_of_y
+from .records import MonitorSettings, iso_utc
+
+__all__ = ["close_quiet_alarms", "judge", "open_alarm"]
+
+
+def open_alarm(
+    alarms: list[dict[str, Any]],
+    *,
+    conveyor: str,
+    feature: str,
+    cause: str,
+    change: float | None,
+    when: datetime | None,
+    window: list[bool],
+    window_times: list[str | None],
+) -> dict[str, Any]:
+    """The open alarm of a feature, opened now if there is none.
+
+    Its cause and change are the latest known (a recording that cannot tell
+    keeps the last change); a new alarm dates from the first exceedance in
+    the feature's window.
+    """
+    for alarm in alarms:
+        if alarm["status"] == "open" and alarm["feature"] == feature:
+            alarm["cause"] = cause
+            if change is not None:
+                alarm["change"] = change
+            alarm["last_seen"] = iso_utc(when)
+            return alarm
+    since = next((t for t, f in zip(window_times, window, strict=True) if f), iso_utc(when))
+    alarm = {
+        "id": uuid.uuid4().hex[:8],
+        "conveyor": conveyor,
+        "feature": feature,
+        "cause": cause,
+        "change": change,
+        "since": since,
+        "opened_at": iso_utc(when),
+        "last_seen": iso_utc(when),
+        "status": "open",
+        "acknowledged": None,
+    }
+    alarms.append(alarm)
+    return alarm
+
+
+def close_quiet_alarms(
+    alarms: list[dict[str, Any]],
+    windows: dict[str, list[bool]],
+    y: int,
+    when: datetime | None,
+) -> None:
+    """Close every open alarm whose feature has not exceeded in its last ``y`` recordings."""
+    for alarm in alarms:
+        if alarm["status"] != "open":
+            continue
+        win = windows.get(alarm["feature"], [])
+        if len(win) >= y and not any(win):
+            alarm["status"] = "closed"
+            alarm["closed_at"] = iso_utc(when)
+            alarm["closed_by"] = f"no exceedance in the last {y} recordings"
+
+
+def judge(
+    baselines: dict[str, FeatureBaseline],
+    values: dict[str, float],
+    windows: dict[str, list[bool]],
+    window_times: dict[str, list[str | None]],
+    settings: MonitorSettings,
+    when: datetime | None,
+) -> tuple[list[str], dict[str, float], list[str]]:
+    """Check a recording's features against their baselines and apply the X-of-Y rule.
+
+    Each tracked feature's window (the last Y exceedances, with their times)
+    is updated in place.
+
+    Returns
+    -------
+    (list of str, dict of str to float, list of str)
+        Features whose rule is met, each feature's relative change (where
+        known), and the features this recording exceeded.
+    """
+    met: list[str] = []
+    change: dict[str, float] = {}
+    exceeded: list[str] = []
+    for name, fb in baselines.items():
+        spec = feature_spec(name)
+        if spec.cause is None:
+            continue
+        value = values.get(name, float("nan"))
+        load = values.get(spec.regressor, float("nan"))
+        ex = fb.check(value, load, settings.z_limit, spec.min_rel)
+        win = windows.setdefault(name, [])
+        times = window_times.setdefault(name, [])
+        win.append(ex.exceeded)
+        times.append(iso_utc(when))
+        del win[: -settings.y]
+        del times[: -settings.y]
+        if ex.exceeded:
+            exceeded.append(name)
+        if math.isfinite(ex.change):
+            change[name] = ex.change
+        if x_of_y(win, settings.x, settings.y)[-1]:
+            met.append(name)
+    return met, change, exceeded

@@ -454,3 +454,23 @@ def test_a_worker_s_features_equal_those_made_from_the_file_alone(
         assert item.features is not None and item.recording is not None
         alone = recording_features(load_recording(f, profile=PROFILE), cal)
         assert pickle.dumps(item.features) == pickle.dumps(alone)
+
+
+def test_an_inspection_is_monitored_without_segmenting_again(
+    series: dict[str, Path], cal: Calibration, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Compute once: given validation's inspection, the monitor reuses its phases."""
+    files = _files(series["healthy"])[:6]
+    by_recording = _run(ConveyorMonitor(PROFILE, MonitorSettings(baseline_n=5), cal), files)
+    inspections = [load_recording(f, profile=PROFILE) for f in files]
+
+    def no_segmenting(*_args: object) -> None:
+        raise AssertionError("segmented again")
+
+    monkeypatch.setattr("chaintwin.diagnose.monitor.segment", no_segmenting)
+    mon = ConveyorMonitor(PROFILE, MonitorSettings(baseline_n=5), cal)
+    by_inspection: list[RecordingResult] = []
+    for f, ins in zip(files, inspections, strict=True):
+        by_inspection += mon.process(ins, f.name)
+    by_inspection += mon.finish()
+    assert [r.to_dict() for r in by_inspection] == [r.to_dict() for r in by_recording]

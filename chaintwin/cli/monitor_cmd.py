@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 from datetime import datetime
 from pathlib import Path
@@ -39,6 +40,7 @@ from chaintwin.identify.calibration import Calibration, load_calibration
 from chaintwin.read.batch import group_by_conveyor, order_recordings
 from chaintwin.read.columns import ColumnMap, load_column_map
 from chaintwin.read.profile import ConveyorProfile, load_profile
+from chaintwin.read.profile import load_profiles as read_profiles
 from chaintwin.read.recording import RecordingWarning
 from chaintwin.validate.checks import load_recording
 
@@ -65,7 +67,7 @@ _FILES_HELP = "Recordings (files or folders), in any order: they are sorted by r
 
 
 def load_profiles(profile: Path | None, profiles: Path | None) -> dict[str, ConveyorProfile]:
-    """The profiles of ``--profile`` or ``--profiles``, by id.
+    """The profiles of ``--profile`` or ``--profiles``, by id (one loader: the library's).
 
     Raises
     ------
@@ -78,19 +80,7 @@ def load_profiles(profile: Path | None, profiles: Path | None) -> dict[str, Conv
         p = load_profile(profile)
         return {p.id: p}
     assert profiles is not None
-    if not profiles.is_dir():
-        raise ProfileError(f"{profiles}: --profiles must be a folder of profile YAML files")
-    found: dict[str, ConveyorProfile] = {}
-    where: dict[str, Path] = {}
-    for f in sorted([*profiles.glob("*.yaml"), *profiles.glob("*.yml")]):
-        p = load_profile(f)
-        if p.id in found:
-            raise ProfileError(f"{f}: id '{p.id}' is also the id of {where[p.id]}; ids must differ")
-        found[p.id] = p
-        where[p.id] = f
-    if not found:
-        raise ProfileError(f"{profiles}: holds no profile (*.yaml)")
-    return found
+    return read_profiles(profiles)
 
 
 def run_monitor(
@@ -170,19 +160,18 @@ def run_monitor(
         order, missing = order_recordings([(item.path, item.recorded_at) for item in items])
         for f in order:
             try:
-                rec = loader(f)
+                ins = load_recording(f, profile=prof, column_map=column_map)
             except ChaintwinError as exc:
                 results.append(RecordingResult(f, cid, None, "refused", error=str(exc)))
                 continue
             if f in missing:
-                rec = rec.with_warnings(
-                    RecordingWarning(
-                        "no_recorded_at",
-                        "no recorded_at in the metadata: processed in file order after the "
-                        "recording before it",
-                    )
+                late = RecordingWarning(
+                    "no_recorded_at",
+                    "no recorded_at in the metadata: processed in file order after the "
+                    "recording before it",
                 )
-            results += mon.process(rec, sha[f])
+                ins = dataclasses.replace(ins, recording=ins.recording.with_warnings(late))
+            results += mon.process(ins, sha[f])  # the inspection: its phases are reused
         results += mon.finish()
         monitors.append(mon)
         if state is not None:

@@ -23,6 +23,7 @@ without recomputing old recordings).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from datetime import datetime
@@ -38,7 +39,7 @@ from chaintwin.model.frequencies import known_line_orders
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording, RecordingWarning
 from chaintwin.validate.checks import Inspection
-from chaintwin.validate.phases import segment
+from chaintwin.validate.phases import Phase, segment
 
 from . import alarms, baseline, beltmap, monitor_state
 from .causes import cause_priority, resolve_causes
@@ -137,12 +138,7 @@ class ConveyorMonitor:
                     "own baseline",
                 ).to_dict()
             )
-            calibration = Calibration(
-                **{
-                    **{f: getattr(calibration, f) for f in calibration.__dataclass_fields__},
-                    "profile": self.profile,
-                }
-            )
+            calibration = dataclasses.replace(calibration, profile=self.profile)
             self.calibration_source = "sibling"
         else:
             self.calibration_source = "file"
@@ -184,15 +180,18 @@ class ConveyorMonitor:
     # ---------------------------------------------------------- processing
     def process(
         self,
-        recording: Recording,
+        recording: Recording | Inspection,
         sha256: str | None = None,
         *,
         features: RecordingFeatures | None = None,
     ) -> list[RecordingResult]:
         """Take the next recording (in recorded order).
 
-        ``features``, when given, are the recording's features computed
-        elsewhere (a worker process) against this monitor's calibration.
+        Give the validated :class:`~chaintwin.validate.checks.Inspection`
+        where there is one: its phases are used as they are (a bare recording
+        is segmented here). ``features``, when given, are the recording's
+        features computed elsewhere (a worker process) against this
+        monitor's calibration.
 
         Returns
         -------
@@ -200,6 +199,8 @@ class ConveyorMonitor:
             Usually one; none while a calibration is being learned (the
             recordings wait), all waiting ones when it has been learned.
         """
+        phases = recording.phases if isinstance(recording, Inspection) else None
+        recording = recording.recording if isinstance(recording, Inspection) else recording
         when = recording.metadata.recorded_at
         if sha256 is not None and any(sha == sha256 for sha, _x in self.pending_meta):
             return [
@@ -247,7 +248,9 @@ class ConveyorMonitor:
         if stamp is not None:
             self.last_recorded_at = max(self.last_recorded_at or "", stamp)
         extra += self._apply_events(when)
-        if "position" not in recording.channels and not self._noted("no_position"):
+        if "position" not in recording.channels and all(
+            n["code"] != "no_position" for n in self.notes
+        ):
             self.notes.append(
                 RecordingWarning(
                     "no_position",
@@ -262,14 +265,11 @@ class ConveyorMonitor:
             if len(self.pending) < self.settings.baseline_n:
                 return []
             return self._learn()
-        return [self._monitor(recording, sha256, extra, features)]
+        return [self._monitor(recording, sha256, extra, features, phases)]
 
     def waiting(self) -> list[tuple[Recording, str | None]]:
         """The recordings held back until a calibration is learned, with their content hashes."""
         return [(rec, sha) for rec, (sha, _x) in zip(self.pending, self.pending_meta, strict=True)]
-
-    def _noted(self, code: str) -> bool:
-        return any(n["code"] == code for n in self.notes)
 
     def flush_pending(self) -> list[RecordingResult]:
         """Monitor the recordings that waited for a calibration (after :meth:`set_calibration`)."""
@@ -363,6 +363,7 @@ class ConveyorMonitor:
         sha256: str | None,
         extra: list[dict[str, str]],
         features: RecordingFeatures | None = None,
+        phases: tuple[Phase, ...] | None = None,
     ) -> RecordingResult:
         assert self.calibration is not None
         when = recording.metadata.recorded_at
@@ -379,7 +380,7 @@ class ConveyorMonitor:
                 else extract(
                     Inspection(
                         recording,
-                        tuple(segment(recording)),
+                        tuple(segment(recording)) if phases is None else phases,
                         not recording.has_warning("incomplete_cycle"),
                     ),
                     self.calibration,

@@ -15,6 +15,7 @@ import importlib as _importlib
 import typing as _typing
 
 if _typing.TYPE_CHECKING:
+    from chaintwin.diagnose import ConveyorMonitor, MonitorSettings
     from chaintwin.errors import (
         CalibrationError,
         ChaintwinError,
@@ -55,6 +56,7 @@ if _typing.TYPE_CHECKING:
         write_recording,
     )
     from chaintwin.simulate import Fault, PlantParameters, Realism, run_virtual
+    from chaintwin.store import Store
     from chaintwin.validate import Inspection, Phase, inspect_recording, load_recording, segment
     from chaintwin.weigh import WeighResult, transport_loss_factor
 
@@ -68,6 +70,7 @@ _LAZY: dict[str, str] = {
     "ColumnMapError": "chaintwin.errors",
     "ConnectorError": "chaintwin.errors",
     "ConvergenceWarning": "chaintwin.errors",
+    "ConveyorMonitor": "chaintwin.diagnose",
     "ConveyorProfile": "chaintwin.read",
     "DataError": "chaintwin.errors",
     "EstimationError": "chaintwin.errors",
@@ -76,6 +79,7 @@ _LAZY: dict[str, str] = {
     "Metadata": "chaintwin.read",
     "ModelError": "chaintwin.errors",
     "MonitorError": "chaintwin.errors",
+    "MonitorSettings": "chaintwin.diagnose",
     "NotFittedError": "chaintwin.errors",
     "OutputErrorFit": "chaintwin.identify",
     "Phase": "chaintwin.validate",
@@ -88,6 +92,7 @@ _LAZY: dict[str, str] = {
     "RecursiveLeastSquares": "chaintwin.identify",
     "RigidModelRegression": "chaintwin.identify",
     "RigidParameters": "chaintwin.model",
+    "Store": "chaintwin.store",
     "StoreError": "chaintwin.errors",
     "TorqueLagEstimator": "chaintwin.identify",
     "WeighResult": "chaintwin.weigh",
@@ -118,6 +123,7 @@ __all__ = [
     "ColumnMapError",
     "ConnectorError",
     "ConvergenceWarning",
+    "ConveyorMonitor",
     "ConveyorProfile",
     "DataError",
     "EstimationError",
@@ -126,6 +132,7 @@ __all__ = [
     "Metadata",
     "ModelError",
     "MonitorError",
+    "MonitorSettings",
     "NotFittedError",
     "OutputErrorFit",
     "Phase",
@@ -138,6 +145,7 @@ __all__ = [
     "RecursiveLeastSquares",
     "RigidModelRegression",
     "RigidParameters",
+    "Store",
     "StoreError",
     "TorqueLagEstimator",
     "WeighResult",

@@ -12,12 +12,14 @@ import pytest
 from conftest import EXAMPLES, REFERENCE_PROFILE, make_text
 
 from chaintwin.cli.app import main
+from chaintwin.diagnose.state import load_state
 from chaintwin.errors import (
     CalibrationError,
     ChaintwinError,
     ColumnMapError,
     ProfileError,
     RecordingError,
+    StoreError,
 )
 from chaintwin.identify.calibration import load_calibration
 from chaintwin.read.columns import load_column_map
@@ -30,6 +32,7 @@ LOADERS = [
     (load_profile, ProfileError),
     (load_column_map, ColumnMapError),
     (load_calibration, CalibrationError),
+    (load_state, StoreError),
 ]
 
 

@@ -29,7 +29,17 @@ def test_error_tree_has_one_root() -> None:
     assert issubclass(errors.NotFittedError, errors.EstimationError)
 
 
-SUBPACKAGES = ("identify", "model", "read", "report", "simulate", "validate", "weigh")
+SUBPACKAGES = (
+    "diagnose",
+    "identify",
+    "model",
+    "read",
+    "report",
+    "simulate",
+    "store",
+    "validate",
+    "weigh",
+)
 
 
 def isort_key(name: str) -> tuple[int, str]:
@@ -59,3 +69,8 @@ def test_the_workflow_is_importable_from_the_top() -> None:
     assert chaintwin.calibrate is chaintwin.identify.calibrate
     assert callable(chaintwin.weigh.weigh)
     assert chaintwin.WeighResult is chaintwin.weigh.WeighResult
+    from chaintwin.diagnose.monitor import ConveyorMonitor
+    from chaintwin.store.store import Store
+
+    assert chaintwin.ConveyorMonitor is ConveyorMonitor
+    assert chaintwin.Store is Store

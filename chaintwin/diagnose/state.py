@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from chaintwin.errors import StoreError
+from chaintwin.read.files import read_limited
 from chaintwin.read.recording import RecordingWarning
 
 from .records import parse_time
@@ -73,15 +74,18 @@ def load_state(path: str | Path, *, missing_ok: bool = True) -> dict[str, Any]:
         if missing_ok:
             return empty_state()
         raise StoreError(f"{p}: no such state file; run `chaintwin monitor --state {p}` first")
+    raw = read_limited(p, what="state", error=lambda src, msg: StoreError(f"{src}: {msg}"))
     try:
-        data = json.loads(p.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as exc:
+        data = json.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError as exc:
         raise StoreError(f"{p}: cannot read the state ({exc})") from None
     except json.JSONDecodeError as exc:
         raise StoreError(
             f"{p}, line {exc.lineno}: the state is not valid JSON; restore it from a backup "
             "or start a new state file"
         ) from None
+    except RecursionError:
+        raise StoreError(f"{p}: nested too deeply to be a monitoring state") from None
     if not isinstance(data, dict) or data.get("format") != STATE_FORMAT:
         raise StoreError(f"{p}: not a chaintwin monitoring state (no 'format: {STATE_FORMAT}')")
     if data.get("format_version") != STATE_VERSION:

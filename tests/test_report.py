@@ -216,3 +216,29 @@ def test_demo_refuses_a_file_or_a_link_as_its_folder(
     assert main(["demo", "--out", str(fake), "--days", "4"]) == 2
     assert "not the demo's own folder" in capsys.readouterr().err
     assert (mine / "keep.txt").read_text(encoding="utf-8") == "keep me"
+
+
+def test_the_report_reads_the_stored_health_as_the_monitor_would_say_it(plant_db: str) -> None:
+    """The page's summary, forecasts and baselines come from the stored state, equal to
+    what the rebuilt monitor reports (the report no longer rebuilds it)."""
+    from chaintwin.diagnose.monitor import ConveyorMonitor
+    from chaintwin.report.data import conveyor_data
+    from chaintwin.store.store import Store
+
+    store = Store(plant_db)
+    try:
+        for cid in (HEALTHY, FAULTY):
+            profile = store.profile(cid)
+            state = store.state(cid)
+            assert profile is not None and state is not None
+            mon = ConveyorMonitor.from_state(state, profile)
+            page = conveyor_data(store, cid, waterfall=0)
+            assert page.summary == mon.summary()
+            assert page.forecasts == mon.forecasts()
+            assert page.baseline_since == mon.baseline_since
+            assert page.trends  # drawn with the stored baselines' limits
+            assert page.calibration is not None and mon.calibration is not None
+            assert page.calibration.to_dict() == mon.calibration.to_dict()
+        assert page.summary["open_alarms"]  # the faulty conveyor's alarm is on the page
+    finally:
+        store.close()

@@ -10,18 +10,20 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from chaintwin.errors import ChaintwinError, StoreError
 from chaintwin.identify.calibration import Calibration
 from chaintwin.read.recording import Recording, RecordingWarning
 
+from . import baseline
 from .health import FeatureBaseline
 
 if TYPE_CHECKING:
     from .monitor import ConveyorMonitor
 
-__all__ = ["restore", "state_of", "summary_of"]
+__all__ = ["StoredHealth", "read_health", "restore", "state_of", "summary_of"]
 
 
 def state_of(mon: ConveyorMonitor) -> dict[str, Any]:
@@ -134,20 +136,64 @@ def restore(
         mon.pending_meta.append((sha, extra))
 
 
-def summary_of(mon: ConveyorMonitor) -> dict[str, Any]:
-    """The conveyor's summary for ``monitor --json`` (``conveyors``)."""
-    return {
-        "conveyor": mon.profile.id,
-        "calibration": mon.calibration_source,
-        "recordings": len(mon.history),
+@dataclass(frozen=True)
+class StoredHealth:
+    """What a saved state says of a conveyor's health, read without rebuilding the monitor.
+
+    Attributes
+    ----------
+    summary : dict
+        The ``monitor --json`` summary (``conveyors`` entry).
+    baselines : dict of str to FeatureBaseline
+        The features' baselines (empty while the baseline is being learned).
+    z_limit : float
+        The monitor's z limit.
+    baseline_since : str or None
+        ISO time the baseline dates from.
+    calibration : dict or None
+        The calibration the monitor uses, as its file's JSON.
+    """
+
+    summary: dict[str, Any]
+    baselines: dict[str, FeatureBaseline]
+    z_limit: float
+    baseline_since: str | None
+    calibration: dict[str, Any] | None
+
+
+def read_health(data: dict[str, Any]) -> StoredHealth:
+    """A saved state's health: summary, baselines and forecasts, from its JSON alone.
+
+    Raises
+    ------
+    KeyError, TypeError, ValueError
+        When the state is damaged.
+    """
+    stored = data["baselines"]
+    baselines = {k: FeatureBaseline.from_dict(v) for k, v in (stored or {}).items()}
+    z_limit = float(data["settings"]["z_limit"])
+    since = data["baseline_since"]
+    summary = {
+        "conveyor": data["conveyor"],
+        "calibration": data["calibration_source"],
+        "recordings": len(data["history"]),
         "baseline": {
-            "complete": mon.baselines is not None,
-            "recordings": len(mon.baseline_rows),
-            "since": mon.baseline_since,
-            "outliers": {k: v.outliers for k, v in (mon.baselines or {}).items() if v.outliers},
+            "complete": stored is not None,
+            "recordings": len(data["baseline_rows"]),
+            "since": since,
+            "outliers": {k: v.outliers for k, v in baselines.items() if v.outliers},
         },
-        "open_alarms": mon.open_alarms(),
-        "forecasts": mon.forecasts(),
-        "events": [e for e in mon.events],
-        "notes": mon.notes,
+        "open_alarms": [a for a in data["alarms"] if a["status"] == "open"],
+        "forecasts": baseline.forecasts(baselines, data["history"], since or "", z_limit)
+        if baselines
+        else [],
+        "events": list(data["events"]),
+        "notes": data["notes"],
     }
+    return StoredHealth(summary, baselines, z_limit, since, data["calibration"])
+
+
+def summary_of(mon: ConveyorMonitor) -> dict[str, Any]:
+    """The conveyor's summary for ``monitor --json`` (``conveyors``): :func:`read_health`
+    of its state."""
+    return read_health(state_of(mon)).summary

@@ -26,7 +26,7 @@ import numpy as np
 from chaintwin._types import FloatArray
 from chaintwin.diagnose.features import FeatureSpec, feature_spec
 from chaintwin.diagnose.health import FeatureBaseline
-from chaintwin.diagnose.monitor import ConveyorMonitor
+from chaintwin.diagnose.monitor_state import read_health
 from chaintwin.errors import ChaintwinError, StoreError
 from chaintwin.identify.calibration import Calibration
 from chaintwin.model.rigid import model_torque, motoring_mask
@@ -309,19 +309,22 @@ def conveyor_data(
     z_limit = 5.0
     calibration = store.calibration(conveyor)
     baseline_since = None
-    if state is not None:
+    if state is not None and state.get("profile_sha256") != profile.content_hash():
+        notes.append("health model not readable: it was made with another version of the profile")
+    elif state is not None:
+        # read what the store holds; the monitor is not rebuilt for a page
         try:
-            mon = ConveyorMonitor.from_state(state, profile, source=f"store {conveyor}")
-        except ChaintwinError as exc:
-            notes.append(f"health model not readable: {exc}")
+            health = read_health(state)
+            if health.calibration is not None:
+                calibration = Calibration.from_dict(health.calibration, f"store {conveyor}")
+        except (ChaintwinError, KeyError, TypeError, ValueError) as exc:
+            notes.append(f"health model not readable: {exc!r}")
         else:
-            summary = mon.summary()
-            forecasts = mon.forecasts()
-            baselines = dict(mon.baselines or {})
-            z_limit = mon.settings.z_limit
-            baseline_since = mon.baseline_since
-            if mon.calibration is not None:
-                calibration = mon.calibration
+            summary = health.summary
+            forecasts = summary["forecasts"]
+            baselines = health.baselines
+            z_limit = health.z_limit
+            baseline_since = health.baseline_since
     data = ConveyorData(
         profile=profile,
         results=results,

@@ -552,3 +552,35 @@ def test_a_file_given_twice_is_read_once_and_the_health_model_stores_as_before(
         assert json.loads(_to_json({"big": 2**70})) == {"big": 2**70}  # beyond orjson
     finally:
         store.close()
+
+
+def test_an_unexpected_failure_refuses_that_recording_and_the_batch_goes_on(
+    plant: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """One recording whose analysis fails in an unforeseen way is refused with its reason;
+    every other recording is stored (one worker: the pipeline runs in this process)."""
+    from chaintwin.store import worker
+
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    _calibrate(plant, url)
+    files = _recordings(plant)
+    victim = files[7]
+    real = worker.recording_features
+
+    def fragile(ins: Any, cal: Any) -> Any:
+        if ins.recording.source == victim:
+            raise FloatingPointError("overflow in a fit")
+        return real(ins, cal)
+
+    monkeypatch.setattr(worker, "recording_features", fragile)
+    store = Store(url)
+    try:
+        summary = ingest(files, {PROFILE.id: PROFILE}, store, workers=1)
+        assert summary.refused == 1
+        (refusal,) = summary.refusals
+        assert refusal["file"] == victim
+        assert "FloatingPointError: overflow in a fit" in refusal["error"]
+        assert summary.processed == len(files) - 1
+        assert len(store.results(PROFILE.id)) == len(files) - 1
+    finally:
+        store.close()

@@ -60,7 +60,25 @@ def prepare(
     -------
     Prepared
         The recording (its channels packed), its features, or why it was refused.
+        Any failure of this one recording, expected or not, is its refusal with
+        the reason: one bad file must not cost the batch.
     """
+    try:
+        return _prepare(path, profile, column_map, calibration)
+    except Exception as exc:
+        reason = (
+            f"{path}: could not be processed ({type(exc).__name__}: {exc}); the other "
+            "recordings go on. This is a chaintwin bug: please report it with the file"
+        )
+        return Prepared(None, None, reason, None)
+
+
+def _prepare(
+    path: str,
+    profile: ConveyorProfile,
+    column_map: ColumnMap | None,
+    calibration: Calibration | None,
+) -> Prepared:
     try:
         inspection = load_recording(path, profile=profile, column_map=column_map)
     except ChaintwinError as exc:

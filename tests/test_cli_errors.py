@@ -44,3 +44,23 @@ def test_monitor_settings(option: list[str], line: str, capsys: pytest.CaptureFi
     assert code == 2
     assert line in err
     assert err.count("\n") == 1
+
+
+def test_a_command_asked_for_json_prints_its_error_as_json_too(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import json
+
+    missing = tmp_path / "typo.db"
+    code = main(["export", "--db", f"sqlite:///{missing}", "--format", "json"])
+    out, err = capsys.readouterr()
+    assert code == 2
+    error = json.loads(out)["error"]
+    assert error["code"] == "store_error"
+    assert error["field"] == "url"
+    assert error["message"] == err.strip().removeprefix("chaintwin: error: ")
+    # without --json only the one line on stderr
+    assert main(["export", "--db", f"sqlite:///{missing}"]) == 2
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert err.count("\n") == 1

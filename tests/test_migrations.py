@@ -87,7 +87,7 @@ def test_the_store_of_0_1_0_is_refused_then_upgraded_and_reads_the_same(
     before = LEGACY.read_bytes() if db.startswith("sqlite") else None
     code, out, err = _run(["export", "--db", db, "--format", "json"], capsys)
     assert code == 2
-    assert out == ""
+    assert json.loads(out)["error"]["code"] == "store_error"  # --format json: JSON too
     assert len(err.strip().splitlines()) == 1
     assert "revision 0001" in err and f"needs {migrate.HEAD_REVISION}" in err
     assert f"run `chaintwin db upgrade --db {db}`" in err

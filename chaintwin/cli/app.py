@@ -2,7 +2,9 @@
 
 Every user mistake surfaces as a :class:`~chaintwin.errors.ChaintwinError`;
 :func:`main` prints it on one line to standard error and exits with 2, so a
-user never sees a traceback for bad input.
+user never sees a traceback for bad input. A command asked for JSON
+(``--json``, ``--format json``) also prints ``{"error": {"code", "message"}}``
+on standard output, the shape the HTTP API uses.
 """
 
 from __future__ import annotations
@@ -13,7 +15,15 @@ from typing import Annotated
 
 import typer
 
-from chaintwin.cli.common import EXIT_ALARM, EXIT_USAGE, error_message, printable
+from chaintwin.cli.common import (
+    EXIT_ALARM,
+    EXIT_USAGE,
+    error_message,
+    error_object,
+    print_json,
+    printable,
+    wants_json,
+)
 from chaintwin.errors import ChaintwinError
 from chaintwin.read.files import MAX_FILE_MB_ENV
 
@@ -91,7 +101,10 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         return code if isinstance(code, int) else EXIT_USAGE
     except ChaintwinError as exc:
-        print(f"chaintwin: error: {printable(error_message(exc))}", file=sys.stderr)
+        message = error_message(exc)
+        print(f"chaintwin: error: {printable(message)}", file=sys.stderr)
+        if wants_json(sys.argv[1:] if argv is None else argv):
+            print_json({"error": error_object(exc, message)})
         return EXIT_USAGE
     except KeyboardInterrupt:
         print("chaintwin: interrupted", file=sys.stderr)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import re
 import sys
@@ -23,6 +24,7 @@ __all__ = [
     "OPTION_OF_FIELD",
     "ColumnsOption",
     "error_message",
+    "error_object",
     "expand_recordings",
     "load_options",
     "print_json",
@@ -30,6 +32,7 @@ __all__ = [
     "print_warning",
     "printable",
     "safe",
+    "wants_json",
 ]
 
 EXIT_USAGE = 2
@@ -77,6 +80,27 @@ ColumnsOption = Annotated[
     Path | None,
     typer.Option("--columns", help="Column map YAML for exports named otherwise."),
 ]
+
+
+def wants_json(args: Iterable[str]) -> bool:
+    """Whether a command line asks for JSON output (``--json``, ``--format json``)."""
+    words = list(args)
+    if "--json" in words or "--format=json" in words:
+        return True
+    return any(a == "--format" and b == "json" for a, b in itertools.pairwise(words))
+
+
+def error_object(exc: ChaintwinError, message: str | None = None) -> dict[str, str]:
+    """A command-level error as JSON: ``{"code": ..., "message": ...}`` (and ``field``).
+
+    ``code`` is the error's kind in snake case (``store_error``,
+    ``recording_error``), stable for scripts; ``message`` the one line.
+    """
+    kind = re.sub(r"(?<!^)(?=[A-Z])", "_", type(exc).__name__).lower()
+    out = {"code": kind, "message": error_message(exc) if message is None else message}
+    if exc.field is not None:
+        out["field"] = exc.field
+    return out
 
 
 _CONTROL = re.compile(r"[\x00-\x08\x0a-\x1f\x7f-\x9f]")

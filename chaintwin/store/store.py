@@ -129,8 +129,8 @@ class Store:
             path = url[len("sqlite:///") :]
             if path not in ("", ":memory:") and not os.path.exists(path):
                 raise StoreError(
-                    f"url {url}: there is no store at {path}; give the store's URL (url, or "
-                    "the environment variable CHAINTWIN_DB), or ingest recordings into it first",
+                    f"url {url}: there is no store at {path}; give the store's URL (or set "
+                    "CHAINTWIN_DB), or ingest recordings into it first",
                     field="url",
                 )
         self.engine: Engine = engine_for(url)

@@ -132,3 +132,37 @@ def test_the_command_line_names_its_option_and_goes_on_past_a_pipe(
     assert "not a regular file" in by_file["pipe.csv"]["error"]
     assert "(--max-file-mb 2 MB)" in by_file["big.csv"]["error"]
     assert by_file["white-belt-01-40kg.csv"]["samples"] > 0
+
+
+def test_atomic_writes_leave_no_temporary_file_and_keep_the_old_one(tmp_path: Path) -> None:
+    from chaintwin.read.files import write_atomic
+
+    def fail(target: str, message: str) -> ChaintwinError:
+        return ChaintwinError(f"{target}: {message}")
+
+    target = tmp_path / "out.json"
+    write_atomic(target, "old\n", what="file", error=fail)
+    assert target.read_text() == "old\n"
+    assert oct(target.stat().st_mode & 0o777) != oct(0o600)  # not mkstemp's private mode
+
+    def half_then_crash(path: Path) -> None:
+        path.write_text("half")
+        raise OSError(28, "No space left on device")
+
+    with pytest.raises(ChaintwinError, match=r"out\.json: cannot write the file \(No space"):
+        write_atomic(target, half_then_crash, what="file", error=fail)
+    assert target.read_text() == "old\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.json"]  # no .tmp left
+
+    # a read-only folder: the error says so, nothing else is masked or left behind
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    try:
+        if os.access(ro, os.W_OK):  # root writes anyway: nothing to check here
+            return
+        with pytest.raises(ChaintwinError, match="cannot write the file"):
+            write_atomic(ro / "x.json", "x", what="file", error=fail)
+        assert list(ro.iterdir()) == []
+    finally:
+        ro.chmod(0o700)

@@ -339,7 +339,7 @@ def test_cli_bad_output_path_is_one_line(
     code = main(["simulate", "--profile", str(REFERENCE_PROFILE), "--out", str(tmp_path)])
     err = capsys.readouterr().err
     assert code == 2
-    assert "cannot be written" in err
+    assert "cannot write the recording" in err
 
 
 def test_weigh_short_slices_are_weighed_or_refused_never_crash(cal_p2: Calibration) -> None:

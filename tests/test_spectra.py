@@ -15,7 +15,7 @@ from chaintwin.cli.app import main
 from chaintwin.diagnose.lines import band_amplitude, line_amplitudes
 from chaintwin.diagnose.peaks import median_spectrum, novel_peaks, strongest_peaks
 from chaintwin.diagnose.spectra import Spectrum, order_spectrum, welch_spectrum
-from chaintwin.errors import EstimationError, RecordingError
+from chaintwin.errors import EstimationError, RecordingError, StoreError
 from chaintwin.model.frequencies import (
     apparent_order,
     apparent_orders,
@@ -293,8 +293,9 @@ def test_plot_spectrum_writes_a_png(tmp_path: Path) -> None:
     assert out == tmp_path / "s.png"
     assert out.read_bytes().startswith(PNG_MAGIC)
     assert [p.name for p in tmp_path.iterdir()] == ["s.png"]  # no temporary left
-    with pytest.raises(OSError):  # noqa: PT011 - whatever the platform's errno
+    with pytest.raises(StoreError, match="cannot write the picture") as info:
         plot_spectrum(spec, tmp_path / "missing" / "s.png")
+    assert info.value.field == "png"
     assert [p.name for p in tmp_path.iterdir()] == ["s.png"]
 
 
@@ -365,4 +366,4 @@ def test_cli_unwritable_png_is_one_line_exit_2(
     code = main(["spectrum", str(bearing_csv), "--png", str(png)])
     err = capsys.readouterr().err
     assert code == 2
-    assert err.count("\n") == 1 and "cannot be written" in err
+    assert err.count("\n") == 1 and "--png" in err and "cannot write the picture" in err

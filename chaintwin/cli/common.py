@@ -51,6 +51,7 @@ OPTION_OF_FIELD: dict[str, str] = {
     "onset_day": "--onset",
     "out": "--out",
     "per_day": "--per-day",
+    "png": "--png",
     "scheduler": "--scheduler",
     "state": "--state",
     "url": "--db",

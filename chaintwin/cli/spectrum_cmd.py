@@ -168,14 +168,7 @@ def register(app: typer.Typer) -> None:
         if png is not None:
             kind = "order" if orders else "Welch"
             marks = {r["name"]: r["apparent"] for r in rows}
-            try:
-                plot_spectrum(
-                    spec, png, lines=marks, title=f"{file.name}: {kind} spectrum of torque"
-                )
-            except OSError as exc:
-                raise RecordingError(
-                    str(png), f"cannot be written ({exc.strerror or exc}); check the path"
-                ) from None
+            plot_spectrum(spec, png, lines=marks, title=f"{file.name}: {kind} spectrum of torque")
         if as_json:
             print_json(out)
         else:

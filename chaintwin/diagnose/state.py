@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from chaintwin.errors import StoreError
-from chaintwin.read.files import read_limited
+from chaintwin.read.files import read_limited, write_atomic
 from chaintwin.read.recording import RecordingWarning
 
 from .records import parse_time
@@ -117,17 +117,12 @@ def save_state(path: str | Path, data: dict[str, Any]) -> Path:
     StoreError
         When it cannot be written (the previous state is left as it was).
     """
-    p = Path(path)
-    tmp = p.with_name(f".{p.name}.{uuid.uuid4().hex[:8]}.tmp")
-    try:
-        tmp.write_text(json.dumps(json_ready(data), allow_nan=False) + "\n", encoding="utf-8")
-        tmp.replace(p)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise StoreError(
-            f"{p}: cannot write the state ({exc.strerror or exc}); check the path"
-        ) from None
-    return p
+    return write_atomic(
+        path,
+        json.dumps(json_ready(data), allow_nan=False) + "\n",
+        what="state",
+        error=lambda t, m: StoreError(f"{t}: {m}"),
+    )
 
 
 def _conveyor(data: dict[str, Any], conveyor: str) -> dict[str, Any]:

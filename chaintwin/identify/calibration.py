@@ -48,7 +48,7 @@ from chaintwin.model.rigid import (
     drive_inertia_at,
     incline_terms,
 )
-from chaintwin.read.files import read_limited
+from chaintwin.read.files import read_limited, write_atomic
 from chaintwin.read.profile import ConveyorProfile, parse_profile
 from chaintwin.read.recording import RecordingWarning
 from chaintwin.units import RPM_TO_RAD_S
@@ -252,12 +252,19 @@ class Calibration:
         }
 
     def save(self, path: str | Path) -> Path:
-        """Write the calibration file atomically (temporary file, then rename)."""
-        target = Path(path)
-        tmp = target.with_name(target.name + ".tmp")
-        tmp.write_text(json.dumps(self.to_dict(), indent=2) + "\n", encoding="utf-8")
-        tmp.replace(target)
-        return target
+        """Write the calibration file atomically (:func:`~chaintwin.read.files.write_atomic`).
+
+        Raises
+        ------
+        CalibrationError
+            When it cannot be written (an older file there is left as it was).
+        """
+        return write_atomic(
+            path,
+            json.dumps(self.to_dict(), indent=2) + "\n",
+            what="calibration",
+            error=lambda t, m: CalibrationError(f"{t}: {m}"),
+        )
 
     @classmethod
     def from_dict(cls, data: Any, source: str = "<calibration>") -> Calibration:

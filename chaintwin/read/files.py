@@ -14,10 +14,12 @@ variable ``CHAINTWIN_MAX_FILE_MB`` says otherwise (the command line's
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import re
 import stat
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -31,6 +33,7 @@ __all__ = [
     "MAX_FILE_MB_ENV",
     "max_file_bytes",
     "read_limited",
+    "write_atomic",
     "yaml_load",
 ]
 
@@ -41,6 +44,9 @@ MAX_FILE_MB_ENV = "CHAINTWIN_MAX_FILE_MB"
 """The environment variable that sets the limit, MB."""
 
 _MB = 1_000_000
+
+_UMASK = os.umask(0)
+os.umask(_UMASK)  # read once: the mode new files get (0o666 less the umask)
 
 
 def max_file_bytes() -> int:
@@ -114,6 +120,63 @@ def read_limited(
     if len(data) > limit:  # it grew while being read
         raise _too_large(error, source, len(data), limit, what)
     return data
+
+
+def write_atomic(
+    path: str | Path,
+    content: str | bytes | Callable[[Path], None],
+    *,
+    what: str,
+    error: Callable[[str, str], ChaintwinError],
+) -> Path:
+    """Write a file so that a reader sees the old one or the whole new one, never half.
+
+    The content goes to a temporary file of a unique name beside the target
+    (``.<name>.<random>.tmp``), which is then renamed over it. On any failure
+    the temporary file is removed and the target left as it was; the error
+    names the target and the system's reason.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file to write.
+    content : str, bytes or callable
+        Text (UTF-8), bytes, or a function that writes the file at the path
+        it is given (e.g. a figure's ``savefig``).
+    what : str
+        What the file is, for messages (``"calibration"``, ``"report"``).
+    error : callable
+        Makes the caller's own error from ``(target, message)``.
+
+    Raises
+    ------
+    ChaintwinError
+        Of the caller's type, when the file cannot be written.
+    """
+    target = Path(path)
+    tmp: Path | None = None
+    try:
+        fd, name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+        tmp = Path(name)
+        with os.fdopen(fd, "wb") as handle:
+            if isinstance(content, str):
+                handle.write(content.encode("utf-8"))
+            elif isinstance(content, bytes):
+                handle.write(content)
+        if callable(content):
+            content(tmp)
+        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes it private; give it the usual mode
+        os.replace(tmp, target)
+        tmp = None
+    except OSError as exc:
+        raise error(
+            str(target), f"cannot write the {what} ({exc.strerror or exc}); check the folder"
+        ) from None
+    finally:
+        if tmp is not None:
+            with contextlib.suppress(OSError):  # never masks the error above
+                tmp.unlink()
+    return target
 
 
 def _too_large(

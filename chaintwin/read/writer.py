@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from chaintwin.errors import RecordingError
+from chaintwin.read.files import write_atomic
 from chaintwin.read.recording import Metadata, Recording
 from chaintwin.units import CANONICAL_CHANNELS, UnitContext, from_si_factor
 
@@ -165,8 +166,4 @@ def write_recording(
         The path written.
     """
     text = format_recording(recording, units=units, dialect=dialect, decimals=decimals)
-    target = Path(path)
-    tmp = target.with_name(target.name + ".tmp")
-    tmp.write_text(text, encoding="utf-8")
-    tmp.replace(target)
-    return target
+    return write_atomic(path, text, what="recording", error=lambda t, m: RecordingError(t, m))

@@ -14,7 +14,6 @@ Sections of a conveyor page (their HTML ids, which tests and links use):
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -26,6 +25,7 @@ from jinja2 import Environment, PackageLoader, StrictUndefined
 from chaintwin import __version__
 from chaintwin.diagnose.residuals import residual_analysis
 from chaintwin.errors import ChaintwinError, StoreError
+from chaintwin.read.files import write_atomic
 from chaintwin.store.store import Store
 
 from . import figures
@@ -311,17 +311,18 @@ def write_page(html: str, path: str | Path) -> Path:
         When it cannot be written (an older page there is left as it was).
     """
     target = Path(path)
-    tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(html, encoding="utf-8")
-        tmp.replace(target)
     except OSError as exc:
-        tmp.unlink(missing_ok=True)
         raise StoreError(
-            f"out {target}: cannot write the report ({exc.strerror})", field="out"
+            f"out {target}: cannot make its folder ({exc.strerror or exc})", field="out"
         ) from None
-    return target
+    return write_atomic(
+        target,
+        html,
+        what="report",
+        error=lambda t, m: StoreError(f"out {t}: {m}", field="out"),
+    )
 
 
 def write_folder(store: Store, folder: str | Path) -> list[Path]:

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-import os
 from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 
 from chaintwin.diagnose.spectra import Spectrum
+from chaintwin.errors import StoreError
+from chaintwin.read.files import write_atomic
 
 __all__ = ["plot_spectrum"]
 
@@ -96,10 +97,9 @@ def plot_spectrum(
     )
     fig.tight_layout()
 
-    tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
-    try:
-        fig.savefig(tmp, format="png")
-        tmp.replace(target)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return target
+    return write_atomic(
+        target,
+        lambda tmp: fig.savefig(tmp, format="png"),
+        what="picture",
+        error=lambda t, m: StoreError(f"png {t}: {m}", field="png"),
+    )

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from chaintwin.errors import ModelError
+from chaintwin.read.files import write_atomic
 from chaintwin.read.profile import ConveyorProfile, ModelSpec
 from chaintwin.read.writer import write_recording
 from chaintwin.simulate.faults import Fault
@@ -227,7 +228,10 @@ def generate(
             rows.append({"file": name, **truth})
             tick()
     truth_file = folder / "truth.jsonl"
-    tmp = truth_file.with_name(truth_file.name + ".tmp")
-    tmp.write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in rows), encoding="utf-8")
-    tmp.replace(truth_file)
+    write_atomic(
+        truth_file,
+        "".join(json.dumps(r, sort_keys=True) + "\n" for r in rows),
+        what="truth file",
+        error=lambda t, m: ModelError(f"{t}: {m}"),
+    )
     return GenerateSummary(folder, days * per_day, n_cal, truth_file)

@@ -64,3 +64,22 @@ def test_a_command_asked_for_json_prints_its_error_as_json_too(
     out, err = capsys.readouterr()
     assert out == ""
     assert err.count("\n") == 1
+
+
+def test_calibrate_with_no_usable_file_names_each_file_and_why(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    a.write_text("time [s],speed [rpm]\n0,0\n")
+    b.write_text("hello\n")
+    out = tmp_path / "cal.json"
+    code = main(
+        ["calibrate", "--profile", str(REFERENCE_PROFILE), str(a), str(b), "--out", str(out)]
+    )
+    _, err = capsys.readouterr()
+    assert code == 2
+    assert err.count("\n") == 1
+    assert f"{a}, line 1: missing required column 'torque'" in err
+    assert f"{b}, line 1: header of column 1 is 'hello'" in err
+    assert not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.csv", "b.csv"]  # no temp file left

@@ -57,6 +57,12 @@ def _inspect(file: str, profile: ConveyorProfile, column_map: ColumnMap | None) 
     return ins
 
 
+def _none_usable(refused: list[dict[str, str]], what: str) -> EstimationError:
+    """The error when no file is usable: each file and why, in one line."""
+    reasons = "; ".join(r["error"] for r in refused) or "no recording was given"
+    return EstimationError(f"no usable recording to {what} from: {reasons}")
+
+
 def _read_all(
     files: list[str], profile: ConveyorProfile, column_map: ColumnMap | None, *, known: bool
 ) -> tuple[list[Recording], list[dict[str, str]]]:
@@ -153,7 +159,7 @@ def register(app: typer.Typer) -> None:
         cmap = load_column_map(columns) if columns is not None else None
         recs, refused = _read_all(expand_recordings(files), prof, cmap, known=True)
         if not recs:
-            raise EstimationError("no usable recording to identify from")
+            raise _none_usable(refused, "identify")
         cal = calibrate(recs, prof, version=__version__)
         out = identify_dict(cal)
         out["refused"] = refused
@@ -211,7 +217,7 @@ def register(app: typer.Typer) -> None:
         cmap = load_column_map(columns) if columns is not None else None
         recs, refused = _read_all(expand_recordings(files), prof, cmap, known=True)
         if not recs:
-            raise EstimationError("no usable recording to calibrate from")
+            raise _none_usable(refused, "calibrate")
         cal = calibrate(recs, prof, version=__version__)
         if out is not None:
             _save(cal, out)

@@ -4,8 +4,9 @@ The names below are imported on first use (PEP 562): a worker process that
 needs the features does not load the health model with them.
 """
 
-import importlib as _importlib
 import typing as _typing
+
+from chaintwin._lazy import lazy_getattr
 
 if _typing.TYPE_CHECKING:
     from chaintwin.diagnose.causes import resolve_causes
@@ -51,10 +52,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> _typing.Any:
-    """Import a public name on first use."""
-    try:
-        module = _LAZY[name]
-    except KeyError:
-        raise AttributeError(f"module 'chaintwin.diagnose' has no attribute {name!r}") from None
-    return getattr(_importlib.import_module(module), name)
+__getattr__ = lazy_getattr(__name__, _LAZY)

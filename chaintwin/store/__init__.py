@@ -4,8 +4,9 @@ The names below are imported on first use (PEP 562): the ingest's worker
 processes import ``chaintwin.store.worker`` without the store's database code.
 """
 
-import importlib as _importlib
 import typing as _typing
+
+from chaintwin._lazy import lazy_getattr
 
 if _typing.TYPE_CHECKING:
     from chaintwin.store.engine import store_url
@@ -25,10 +26,4 @@ _LAZY: dict[str, str] = {
 __all__ = ["HEAD_REVISION", "IngestSummary", "Store", "ingest", "store_url", "upgrade"]
 
 
-def __getattr__(name: str) -> _typing.Any:
-    """Import a public name on first use."""
-    try:
-        module = _LAZY[name]
-    except KeyError:
-        raise AttributeError(f"module 'chaintwin.store' has no attribute {name!r}") from None
-    return getattr(_importlib.import_module(module), name)
+__getattr__ = lazy_getattr(__name__, _LAZY)

@@ -6,6 +6,7 @@ Run with ``-s`` to see the measured numbers.
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -257,11 +258,27 @@ def test_calibrated_model_maps_the_calibration_vocabulary() -> None:
     assert got.static_friction_ratio == 1.4  # what a calibration does not identify is kept
 
 
+def test_kernel_cache_is_invalidated_when_a_dependency_changes(tmp_path: Path) -> None:
+    # numba stamps a cache with the kernel file's own mtime; a newer
+    # dependency (shared pieces, layout) must make the kernel file newer still
+    kernel, piece = tmp_path / "rigid.py", tmp_path / "pieces.py"
+    kernel.write_text("kernel")
+    piece.write_text("piece")
+    os.utime(kernel, ns=(1_000_000_000, 1_000_000_000))
+    os.utime(piece, ns=(2_000_000_000, 2_000_000_000))
+    _kernel.layout.keep_cache_fresh(str(kernel), str(piece))
+    assert kernel.stat().st_mtime_ns > piece.stat().st_mtime_ns
+    stamp = kernel.stat().st_mtime_ns
+    _kernel.layout.keep_cache_fresh(str(kernel), str(piece))  # fresh: untouched
+    assert kernel.stat().st_mtime_ns == stamp
+    _kernel.layout.keep_cache_fresh(str(kernel), str(tmp_path / "missing.py"))  # no error
+
+
 def test_coefficient_layout_is_one_table() -> None:
     names = [name for name, _ in _kernel.COEFFICIENTS]
     assert len(set(names)) == len(names) == _kernel.N_COEF
-    assert _kernel.C_DT == 0
-    assert _kernel.C_STEP_SCALE == _kernel.N_COEF - 1
+    assert _kernel.layout.C_DT == 0
+    assert _kernel.layout.C_STEP_SCALE == _kernel.N_COEF - 1
     values = {name: float(i) for i, name in enumerate(names)}
     np.testing.assert_array_equal(_kernel.pack(values), np.arange(_kernel.N_COEF, dtype=float))
     with pytest.raises(ModelError, match="missing \\['dt'\\]"):

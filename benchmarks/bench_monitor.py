@@ -18,7 +18,7 @@ same run:
    baseline phase and the monitored phase;
 5. the same without a calibration (learned from the first ``BASELINE_N``
    recordings), amortised per recording (total / N, learning included);
-6. the state round trip ``json.dumps(to_state())`` + ``from_state(json.loads())``
+6. the state round trip ``json.dumps(to_state().to_dict())`` + ``from_state(json.loads())``
    after the series, and the state's size.
 
 Numba-compiled code is warmed up first with throwaway monitors, so
@@ -223,7 +223,7 @@ def main() -> None:
             times, size = [], 0
             for _ in range(ROUND_TRIPS):
                 t0 = time.perf_counter()
-                text = json.dumps(m.to_state())
+                text = json.dumps(m.to_state().to_dict())
                 back = ConveyorMonitor.from_state(json.loads(text), prof)
                 times.append(time.perf_counter() - t0)
                 size = len(text.encode())
@@ -318,7 +318,7 @@ def main() -> None:
     print(
         "'median ms' of row 5 is the amortised time per recording (the best round's total "
         f"incl. mon.finish(), / {n}); of rows 6, 6a the best of {ROUND_TRIPS} round trips "
-        "(json.dumps(to_state()) + from_state(json.loads()))"
+        "(json.dumps(to_state().to_dict()) + from_state(json.loads()))"
     )
     print(
         f"state size (JSON): calibrated {state_bytes / 1e3:.0f} kB "

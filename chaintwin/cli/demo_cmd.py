@@ -174,7 +174,7 @@ def run_demo(out: Path, *, days: int, per_day: int, workers: int | None, console
                 cid,
                 str(len(d.results)),
                 d.status,
-                "; ".join(f"{a['cause']} ({(a.get('since') or '')[5:10]})" for a in opened) or "-",
+                "; ".join(f"{a.cause} ({(a.since or '')[5:10]})" for a in opened) or "-",
                 f"{d.recent_payload():.1f}",
                 f"{d.recent_tlf():.2f}",
                 f"{d.health_index:.2f}",

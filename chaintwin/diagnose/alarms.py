@@ -1,10 +1,6 @@
 """Alarms of a conveyor's health model: opened by the X-of-Y rule, closed when quiet.
 
-An alarm is a JSON-ready dict (the form state files, the store and
-``monitor --json`` keep): ``id``, ``conveyor``, ``feature``, ``cause``,
-``change``, ``since``, ``opened_at``, ``last_seen``, ``status``
-(``open``/``closed``), ``acknowledged``, and when closed ``closed_at`` and
-``closed_by``.
+Alarms are :class:`~chaintwin.diagnose.records.Alarm` records.
 """
 
 from __future__ import annotations
@@ -12,17 +8,16 @@ from __future__ import annotations
 import math
 import uuid
 from datetime import datetime
-from typing import Any
 
 from .features import feature_spec
 from .health import FeatureBaseline, x_of_y
-from .records import MonitorSettings, iso_utc
+from .records import Alarm, MonitorSettings, iso_utc
 
 __all__ = ["close_quiet_alarms", "judge", "open_alarm"]
 
 
 def open_alarm(
-    alarms: list[dict[str, Any]],
+    alarms: list[Alarm],
     *,
     conveyor: str,
     feature: str,
@@ -31,7 +26,7 @@ def open_alarm(
     when: datetime | None,
     window: list[bool],
     window_times: list[str | None],
-) -> dict[str, Any]:
+) -> Alarm:
     """The open alarm of a feature, opened now if there is none.
 
     Its cause and change are the latest known (a recording that cannot tell
@@ -39,44 +34,40 @@ def open_alarm(
     the feature's window.
     """
     for alarm in alarms:
-        if alarm["status"] == "open" and alarm["feature"] == feature:
-            alarm["cause"] = cause
+        if alarm.is_open and alarm.feature == feature:
+            alarm.cause = cause
             if change is not None:
-                alarm["change"] = change
-            alarm["last_seen"] = iso_utc(when)
+                alarm.change = change
+            alarm.last_seen = iso_utc(when)
             return alarm
     since = next((t for t, f in zip(window_times, window, strict=True) if f), iso_utc(when))
-    alarm = {
-        "id": uuid.uuid4().hex[:8],
-        "conveyor": conveyor,
-        "feature": feature,
-        "cause": cause,
-        "change": change,
-        "since": since,
-        "opened_at": iso_utc(when),
-        "last_seen": iso_utc(when),
-        "status": "open",
-        "acknowledged": None,
-    }
+    alarm = Alarm(
+        id=uuid.uuid4().hex[:8],
+        conveyor=conveyor,
+        feature=feature,
+        cause=cause,
+        change=change,
+        since=since,
+        opened_at=iso_utc(when),
+        last_seen=iso_utc(when),
+    )
     alarms.append(alarm)
     return alarm
 
 
 def close_quiet_alarms(
-    alarms: list[dict[str, Any]],
+    alarms: list[Alarm],
     windows: dict[str, list[bool]],
     y: int,
     when: datetime | None,
 ) -> None:
     """Close every open alarm whose feature has not exceeded in its last ``y`` recordings."""
     for alarm in alarms:
-        if alarm["status"] != "open":
+        if not alarm.is_open:
             continue
-        win = windows.get(alarm["feature"], [])
+        win = windows.get(alarm.feature, [])
         if len(win) >= y and not any(win):
-            alarm["status"] = "closed"
-            alarm["closed_at"] = iso_utc(when)
-            alarm["closed_by"] = f"no exceedance in the last {y} recordings"
+            alarm.close(iso_utc(when), f"no exceedance in the last {y} recordings")
 
 
 def judge(

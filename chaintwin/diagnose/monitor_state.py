@@ -1,16 +1,19 @@
-"""A conveyor's health model saved and restored: :meth:`ConveyorMonitor.to_state` as JSON.
+"""A conveyor's health model saved and restored: :class:`MonitorState`.
 
 The state holds everything the monitor learned (settings, calibration,
 recordings waiting for a learned calibration, baselines, the belt map, the
 X-of-Y windows, alarms, events, recent history), so that monitoring goes on
-with new recordings without recomputing old ones.
+with new recordings without recomputing old ones. Its JSON form
+(:meth:`MonitorState.to_dict`) is a conveyor's entry of the state file
+(:mod:`.state`, format version :data:`~.state.STATE_VERSION`) and of the
+store's ``monitor_states`` table.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from chaintwin.errors import ChaintwinError, StoreError
@@ -19,121 +22,241 @@ from chaintwin.read.recording import Recording, RecordingWarning
 
 from . import baseline
 from .health import FeatureBaseline
+from .records import Alarm, Event, MonitorSettings
+from .state import STATE_VERSION
 
 if TYPE_CHECKING:
     from .monitor import ConveyorMonitor
 
-__all__ = ["StoredHealth", "read_health", "restore", "state_of", "summary_of"]
+__all__ = [
+    "MonitorState",
+    "PendingFile",
+    "StoredHealth",
+    "StoredSpectrum",
+    "read_health",
+    "restore",
+    "state_of",
+    "summary_of",
+]
+
+StoredSpectrum = tuple[list[float], list[float], float]
+"""A spectrum as a state keeps it: orders, amplitudes (Nm) and speed (rpm)."""
 
 
-def state_of(mon: ConveyorMonitor) -> dict[str, Any]:
-    """Everything ``mon`` learned, JSON-ready (:func:`restore` reads it back)."""
-    return {
-        "conveyor": mon.profile.id,
-        "profile_sha256": mon.profile.content_hash(),
-        "settings": {
-            "baseline_n": mon.settings.baseline_n,
-            "x": mon.settings.x,
-            "y": mon.settings.y,
-            "z_limit": mon.settings.z_limit,
-        },
-        "calibration": None if mon.calibration is None else mon.calibration.to_dict(),
-        "calibration_source": mon.calibration_source,
-        "pending": [
-            {"path": path, "file": rec.source, "sha256": sha, "warnings": extra}
+@dataclass(frozen=True, slots=True)
+class PendingFile:
+    """A recording kept for a calibration still being learned: read again on restore."""
+
+    path: str
+    file: str
+    sha256: str | None
+    warnings: list[dict[str, str]]
+
+
+def _spectrum(sp: Any) -> StoredSpectrum | None:
+    return (
+        None if sp is None else ([float(v) for v in sp[0]], [float(v) for v in sp[1]], float(sp[2]))
+    )
+
+
+@dataclass(slots=True)
+class MonitorState:
+    """Everything a :class:`~chaintwin.diagnose.monitor.ConveyorMonitor` learned.
+
+    ``version`` is the state format version it was written with
+    (:data:`~chaintwin.diagnose.state.STATE_VERSION`); the other attributes
+    are the monitor's, under the same names.
+    """
+
+    conveyor: str
+    profile_sha256: str
+    settings: MonitorSettings
+    calibration: Calibration | None
+    calibration_source: str
+    pending: list[PendingFile] = field(default_factory=list)
+    baseline_rows: list[dict[str, Any]] = field(default_factory=list)
+    late_rows: list[dict[str, Any]] = field(default_factory=list)
+    baseline_spectra: list[StoredSpectrum | None] = field(default_factory=list)
+    baselines: dict[str, FeatureBaseline] | None = None
+    baseline_spectrum: StoredSpectrum | None = None
+    baseline_since: str | None = None
+    belt_last: list[float | None] = field(default_factory=list)
+    belt_prev: list[float | None] = field(default_factory=list)
+    windows: dict[str, list[bool]] = field(default_factory=dict)
+    window_times: dict[str, list[str | None]] = field(default_factory=dict)
+    alarms: list[Alarm] = field(default_factory=list)
+    events: list[Event] = field(default_factory=list)
+    history: list[dict[str, Any]] = field(default_factory=list)
+    notes: list[dict[str, str]] = field(default_factory=list)
+    last_recorded_at: str | None = None
+    version: int = STATE_VERSION
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready (a conveyor's entry of the state file)."""
+        return {
+            "conveyor": self.conveyor,
+            "profile_sha256": self.profile_sha256,
+            "settings": dataclasses.asdict(self.settings),
+            "calibration": None if self.calibration is None else self.calibration.to_dict(),
+            "calibration_source": self.calibration_source,
+            "pending": [
+                {"path": p.path, "file": p.file, "sha256": p.sha256, "warnings": p.warnings}
+                for p in self.pending
+            ],
+            "baseline_rows": self.baseline_rows,
+            "late_rows": self.late_rows,
+            "baseline_spectra": [None if sp is None else list(sp) for sp in self.baseline_spectra],
+            "baselines": None
+            if self.baselines is None
+            else {k: v.to_dict() for k, v in self.baselines.items()},
+            "baseline_spectrum": None
+            if self.baseline_spectrum is None
+            else list(self.baseline_spectrum),
+            "baseline_since": self.baseline_since,
+            "belt_last": self.belt_last,
+            "belt_prev": self.belt_prev,
+            "windows": self.windows,
+            "window_times": self.window_times,
+            "alarms": [a.to_dict() for a in self.alarms],
+            "events": [e.to_dict() for e in self.events],
+            "history": self.history,
+            "notes": self.notes,
+            "last_recorded_at": self.last_recorded_at,
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], *, source: str = "<state>") -> MonitorState:
+        """Inverse of :meth:`to_dict`.
+
+        Raises
+        ------
+        StoreError
+            When the state is damaged (the message names ``source``).
+        """
+        try:
+            s = data["settings"]
+            settings = MonitorSettings(
+                int(s["baseline_n"]), int(s["x"]), int(s["y"]), float(s["z_limit"])
+            )
+            cal = data["calibration"]
+            stored = data["baselines"]
+            return cls(
+                conveyor=str(data["conveyor"]),
+                profile_sha256=str(data["profile_sha256"]),
+                settings=settings,
+                calibration=None if cal is None else Calibration.from_dict(cal, source),
+                calibration_source=str(data["calibration_source"]),
+                pending=[
+                    PendingFile(str(p["path"]), str(p["file"]), p["sha256"], list(p["warnings"]))
+                    for p in data["pending"]
+                ],
+                baseline_rows=list(data["baseline_rows"]),
+                late_rows=list(data["late_rows"]),
+                baseline_spectra=[_spectrum(sp) for sp in data["baseline_spectra"]],
+                baselines=None
+                if stored is None
+                else {k: FeatureBaseline.from_dict(v) for k, v in stored.items()},
+                baseline_spectrum=_spectrum(data["baseline_spectrum"]),
+                baseline_since=data["baseline_since"],
+                belt_last=list(data["belt_last"]),
+                belt_prev=list(data["belt_prev"]),
+                windows={k: list(v) for k, v in data["windows"].items()},
+                window_times={k: list(v) for k, v in data["window_times"].items()},
+                alarms=[Alarm.from_dict(a) for a in data["alarms"]],
+                events=[Event.from_dict(e) for e in data["events"]],
+                history=list(data["history"]),
+                notes=list(data["notes"]),
+                last_recorded_at=data["last_recorded_at"],
+            )
+        except ChaintwinError as exc:
+            raise StoreError(f"{source}: monitoring state is damaged ({exc})") from None
+        except (KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
+            conveyor = data.get("conveyor") if isinstance(data, dict) else None
+            raise StoreError(
+                f"{source}: monitoring state of '{conveyor}' is damaged ({exc!r}); restore it "
+                "from a backup or start a new state file"
+            ) from None
+
+
+def state_of(mon: ConveyorMonitor) -> MonitorState:
+    """Everything ``mon`` learned (:func:`restore` puts it back into a monitor)."""
+    return MonitorState(
+        conveyor=mon.profile.id,
+        profile_sha256=mon.profile.content_hash(),
+        settings=mon.settings,
+        calibration=mon.calibration,
+        calibration_source=mon.calibration_source,
+        pending=[
+            PendingFile(path, rec.source, sha, extra)
             for path, rec, (sha, extra) in zip(
                 mon.pending_files, mon.pending, mon.pending_meta, strict=True
             )
         ],
-        "baseline_rows": mon.baseline_rows,
-        "late_rows": mon.late_rows,
-        "baseline_spectra": mon.baseline_spectra,
-        "baselines": None
-        if mon.baselines is None
-        else {k: v.to_dict() for k, v in mon.baselines.items()},
-        "baseline_spectrum": mon.baseline_spectrum,
-        "baseline_since": mon.baseline_since,
-        "belt_last": mon.belt_last,
-        "belt_prev": mon.belt_prev,
-        "windows": mon.windows,
-        "window_times": mon.window_times,
-        "alarms": mon.alarms,
-        "events": mon.events,
-        "history": mon.history,
-        "notes": mon.notes,
-        "last_recorded_at": mon.last_recorded_at,
-    }
+        baseline_rows=mon.baseline_rows,
+        late_rows=mon.late_rows,
+        baseline_spectra=mon.baseline_spectra,
+        baselines=mon.baselines,
+        baseline_spectrum=mon.baseline_spectrum,
+        baseline_since=mon.baseline_since,
+        belt_last=mon.belt_last,
+        belt_prev=mon.belt_prev,
+        windows=mon.windows,
+        window_times=mon.window_times,
+        alarms=mon.alarms,
+        events=mon.events,
+        history=mon.history,
+        notes=mon.notes,
+        last_recorded_at=mon.last_recorded_at,
+    )
 
 
 def restore(
     mon: ConveyorMonitor,
-    data: dict[str, Any],
+    state: MonitorState,
     *,
-    source: str,
     loader: Callable[[str], Recording] | None,
 ) -> None:
     """Put a state's content into a new monitor of the same profile and settings.
 
     Recordings that were waiting for a learned calibration are read again
     with ``loader``; one that cannot be is left out with a note.
-
-    Raises
-    ------
-    StoreError
-        When the state is damaged.
     """
-    profile = mon.profile
-    try:
-        if data["calibration"] is not None:
-            mon.calibration = Calibration.from_dict(data["calibration"], source)
-        mon.calibration_source = str(data["calibration_source"])
-        mon.baseline_rows = list(data["baseline_rows"])
-        mon.late_rows = list(data["late_rows"])
-        mon.baseline_spectra = [
-            None if sp is None else (list(sp[0]), list(sp[1]), float(sp[2]))
-            for sp in data["baseline_spectra"]
-        ]
-        if data["baselines"] is not None:
-            mon.baselines = {k: FeatureBaseline.from_dict(v) for k, v in data["baselines"].items()}
-        bs = data["baseline_spectrum"]
-        mon.baseline_spectrum = None if bs is None else (bs[0], bs[1], float(bs[2]))
-        mon.baseline_since = data["baseline_since"]
-        mon.belt_last = list(data["belt_last"])
-        mon.belt_prev = list(data["belt_prev"])
-        mon.windows = {k: list(v) for k, v in data["windows"].items()}
-        mon.window_times = {k: list(v) for k, v in data["window_times"].items()}
-        mon.alarms = list(data["alarms"])
-        mon.events = list(data["events"])
-        mon.history = list(data["history"])
-        mon.notes = list(data["notes"])
-        mon.last_recorded_at = data["last_recorded_at"]
-        mon.processed = {h["sha256"]: k for k, h in enumerate(mon.history) if h.get("sha256")}
-        pending = [
-            (str(p["path"]), str(p["file"]), p["sha256"], list(p["warnings"]))
-            for p in data["pending"]
-        ]
-    except (KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
-        raise StoreError(
-            f"{source}: monitoring state of '{profile.id}' is damaged ({exc!r}); restore it "
-            "from a backup or start a new state file"
-        ) from None
-    for path, name, sha, extra in pending:
+    if state.calibration is not None:
+        mon.calibration = state.calibration
+    mon.calibration_source = state.calibration_source
+    mon.baseline_rows = state.baseline_rows
+    mon.late_rows = state.late_rows
+    mon.baseline_spectra = state.baseline_spectra
+    mon.baselines = state.baselines
+    mon.baseline_spectrum = state.baseline_spectrum
+    mon.baseline_since = state.baseline_since
+    mon.belt_last = state.belt_last
+    mon.belt_prev = state.belt_prev
+    mon.windows = state.windows
+    mon.window_times = state.window_times
+    mon.alarms = state.alarms
+    mon.events = state.events
+    mon.history = state.history
+    mon.notes = state.notes
+    mon.last_recorded_at = state.last_recorded_at
+    mon.processed = {h["sha256"]: k for k, h in enumerate(mon.history) if h.get("sha256")}
+    for pending in state.pending:
         try:
             if loader is None:
                 raise StoreError("no reader given")
-            rec = dataclasses.replace(loader(path), source=name)
+            rec = dataclasses.replace(loader(pending.path), source=pending.file)
         except ChaintwinError as exc:  # the file is gone or no longer readable
             mon.notes.append(
                 RecordingWarning(
                     "pending_lost",
-                    f"{name}, waiting for the learned calibration, cannot be read again "
+                    f"{pending.file}, waiting for the learned calibration, cannot be read again "
                     f"({exc}); it is left out",
                 ).to_dict()
             )
             continue
         mon.pending.append(rec)
-        mon.pending_files.append(path)
-        mon.pending_meta.append((sha, extra))
+        mon.pending_files.append(pending.path)
+        mon.pending_meta.append((pending.sha256, pending.warnings))
 
 
 @dataclass(frozen=True)
@@ -150,47 +273,40 @@ class StoredHealth:
         The monitor's z limit.
     baseline_since : str or None
         ISO time the baseline dates from.
-    calibration : dict or None
-        The calibration the monitor uses, as its file's JSON.
+    calibration : Calibration or None
+        The calibration the monitor uses.
     """
 
     summary: dict[str, Any]
     baselines: dict[str, FeatureBaseline]
     z_limit: float
     baseline_since: str | None
-    calibration: dict[str, Any] | None
+    calibration: Calibration | None
 
 
-def read_health(data: dict[str, Any]) -> StoredHealth:
-    """A saved state's health: summary, baselines and forecasts, from its JSON alone.
-
-    Raises
-    ------
-    KeyError, TypeError, ValueError
-        When the state is damaged.
-    """
-    stored = data["baselines"]
-    baselines = {k: FeatureBaseline.from_dict(v) for k, v in (stored or {}).items()}
-    z_limit = float(data["settings"]["z_limit"])
-    since = data["baseline_since"]
+def read_health(state: MonitorState) -> StoredHealth:
+    """A saved state's health: summary, baselines and forecasts, without rebuilding the monitor."""
+    baselines = state.baselines or {}
+    z_limit = state.settings.z_limit
+    since = state.baseline_since
     summary = {
-        "conveyor": data["conveyor"],
-        "calibration": data["calibration_source"],
-        "recordings": len(data["history"]),
+        "conveyor": state.conveyor,
+        "calibration": state.calibration_source,
+        "recordings": len(state.history),
         "baseline": {
-            "complete": stored is not None,
-            "recordings": len(data["baseline_rows"]),
+            "complete": state.baselines is not None,
+            "recordings": len(state.baseline_rows),
             "since": since,
             "outliers": {k: v.outliers for k, v in baselines.items() if v.outliers},
         },
-        "open_alarms": [a for a in data["alarms"] if a["status"] == "open"],
-        "forecasts": baseline.forecasts(baselines, data["history"], since or "", z_limit)
+        "open_alarms": [a.to_dict() for a in state.alarms if a.is_open],
+        "forecasts": baseline.forecasts(baselines, state.history, since or "", z_limit)
         if baselines
         else [],
-        "events": list(data["events"]),
-        "notes": data["notes"],
+        "events": [e.to_dict() for e in state.events],
+        "notes": state.notes,
     }
-    return StoredHealth(summary, baselines, z_limit, since, data["calibration"])
+    return StoredHealth(summary, baselines, z_limit, since, state.calibration)
 
 
 def summary_of(mon: ConveyorMonitor) -> dict[str, Any]:

@@ -1,4 +1,4 @@
-"""What monitoring is told and says: its settings and its result for one recording.
+"""What monitoring is told and says: settings, the result of a recording, alarms, events.
 
 Also the small conversions the health model's records share: unknown
 values as NaN or None, times as ISO 8601 in UTC.
@@ -14,6 +14,9 @@ from typing import Any
 from chaintwin.errors import MonitorError
 
 __all__ = [
+    "Acknowledgement",
+    "Alarm",
+    "Event",
     "MonitorSettings",
     "RecordingResult",
     "SettingsGiven",
@@ -131,6 +134,187 @@ class RecordingResult:
     def from_dict(cls, data: dict[str, Any]) -> RecordingResult:
         """Inverse of :meth:`to_dict` (for results kept in a state)."""
         return cls(**{k: v for k, v in data.items() if k in cls.__dataclass_fields__})
+
+
+def _text(data: dict[str, Any], key: str, *, optional: bool = False) -> Any:
+    """``data[key]`` checked to be a string (or None when ``optional``)."""
+    value = data[key]
+    if not (isinstance(value, str) or (optional and value is None)):
+        raise TypeError(f"'{key}' must be a string, not {type(value).__name__}")
+    return value
+
+
+@dataclass(frozen=True, slots=True)
+class Acknowledgement:
+    """Who acknowledged an alarm, why and when (ISO time, UTC)."""
+
+    by: str
+    why: str
+    at: str
+
+    def to_dict(self) -> dict[str, str]:
+        """JSON-ready."""
+        return {"by": self.by, "why": self.why, "at": self.at}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Acknowledgement:
+        """Inverse of :meth:`to_dict`; KeyError or TypeError when damaged."""
+        return cls(by=_text(data, "by"), why=_text(data, "why"), at=_text(data, "at"))
+
+
+@dataclass(slots=True)
+class Alarm:
+    """An alarm of a conveyor's health model (opened by the X-of-Y rule).
+
+    Attributes
+    ----------
+    id : str
+        Short unique id (``acknowledge`` takes it).
+    conveyor, feature, cause : str
+        Where, on which condition feature, and its probable cause.
+    change : float or None
+        The feature's latest relative change against its baseline, 1
+        (None while unknown).
+    since : str or None
+        ISO time of the first exceedance in the window that opened it.
+    opened_at, last_seen : str or None
+        ISO times of the recording that opened it and of the last that met the rule.
+    status : str
+        ``open`` or ``closed``.
+    acknowledged : Acknowledgement or None
+        Set while open: it stays open but no longer fails ``--fail-on-alarm``.
+    closed_at, closed_by : str or None
+        When and by what (quiet recordings, a maintenance event) it closed.
+    """
+
+    id: str
+    conveyor: str
+    feature: str
+    cause: str
+    change: float | None
+    since: str | None
+    opened_at: str | None
+    last_seen: str | None
+    status: str = "open"
+    acknowledged: Acknowledgement | None = None
+    closed_at: str | None = None
+    closed_by: str | None = None
+
+    @property
+    def is_open(self) -> bool:
+        """Whether the alarm is open (acknowledged or not)."""
+        return self.status == "open"
+
+    def close(self, at: str | None, by: str) -> None:
+        """Close the alarm at ISO time ``at`` for the reason ``by``."""
+        self.status = "closed"
+        self.closed_at = at
+        self.closed_by = by
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready (the form of state files, the store and ``monitor --json``)."""
+        out: dict[str, Any] = {
+            "id": self.id,
+            "conveyor": self.conveyor,
+            "feature": self.feature,
+            "cause": self.cause,
+            "change": self.change,
+            "since": self.since,
+            "opened_at": self.opened_at,
+            "last_seen": self.last_seen,
+            "status": self.status,
+            "acknowledged": None if self.acknowledged is None else self.acknowledged.to_dict(),
+        }
+        if self.status == "closed":
+            out["closed_at"] = self.closed_at
+            out["closed_by"] = self.closed_by
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Alarm:
+        """Inverse of :meth:`to_dict`.
+
+        Raises
+        ------
+        KeyError, TypeError, ValueError
+            When the record is damaged.
+        """
+        status = _text(data, "status")
+        if status not in ("open", "closed"):
+            raise ValueError(f"alarm status '{status}' is neither open nor closed")
+        change = data["change"]
+        ack = data.get("acknowledged")
+        return cls(
+            id=_text(data, "id"),
+            conveyor=_text(data, "conveyor"),
+            feature=_text(data, "feature"),
+            cause=_text(data, "cause"),
+            change=None if change is None else float(change),
+            since=_text(data, "since", optional=True),
+            opened_at=_text(data, "opened_at", optional=True),
+            last_seen=_text(data, "last_seen", optional=True),
+            status=status,
+            acknowledged=None if ack is None else Acknowledgement.from_dict(ack),
+            closed_at=data.get("closed_at"),
+            closed_by=data.get("closed_by"),
+        )
+
+
+@dataclass(slots=True)
+class Event:
+    """A maintenance event: recordings after ``at`` form a new baseline.
+
+    Attributes
+    ----------
+    id : str
+        Short unique id.
+    kind : str
+        One of :data:`~chaintwin.diagnose.state.MAINTENANCE_KINDS`.
+    at : str
+        ISO time (UTC) the work was done.
+    by, why : str
+        Who did it and why.
+    recorded : str
+        ISO time it was entered.
+    applied : bool
+        Whether monitoring has restarted its baseline for it.
+    """
+
+    id: str
+    kind: str
+    at: str
+    by: str
+    why: str
+    recorded: str
+    applied: bool = False
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready."""
+        return {
+            "id": self.id,
+            "kind": self.kind,
+            "at": self.at,
+            "by": self.by,
+            "why": self.why,
+            "recorded": self.recorded,
+            "applied": self.applied,
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Event:
+        """Inverse of :meth:`to_dict`; KeyError or TypeError when damaged."""
+        applied = data["applied"]
+        if not isinstance(applied, bool):
+            raise TypeError("'applied' must be true or false")
+        return cls(
+            id=_text(data, "id"),
+            kind=_text(data, "kind"),
+            at=_text(data, "at"),
+            by=_text(data, "by"),
+            why=_text(data, "why"),
+            recorded=_text(data, "recorded"),
+            applied=applied,
+        )
 
 
 def as_number(x: float | None) -> float:

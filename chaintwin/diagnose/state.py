@@ -3,7 +3,7 @@
 One JSON object::
 
     {"format": "chaintwin.monitor-state", "format_version": 1,
-     "conveyors": {"<id>": <ConveyorMonitor.to_state()>, ...}}
+     "conveyors": {"<id>": <MonitorState.to_dict()>, ...}}
 
 Unknown numbers (NaN) are written as null. It is written atomically (a
 temporary file, then a rename), so a run that fails or is killed leaves the
@@ -26,7 +26,7 @@ from chaintwin.errors import StoreError
 from chaintwin.read.files import read_limited, write_atomic
 from chaintwin.read.recording import RecordingWarning
 
-from .records import parse_time
+from .records import Acknowledgement, Alarm, Event, parse_time
 
 __all__ = [
     "MAINTENANCE_KINDS",
@@ -134,8 +134,8 @@ def _conveyor(data: dict[str, Any], conveyor: str) -> dict[str, Any]:
     return state
 
 
-def new_event(kind: str, by: str, why: str, at: datetime | None = None) -> dict[str, Any]:
-    """A maintenance event record: id, kind, at, by, why, when it was recorded.
+def new_event(kind: str, by: str, why: str, at: datetime | None = None) -> Event:
+    """A maintenance event: id, kind, at, by, why, when it was recorded.
 
     Parameters
     ----------
@@ -159,15 +159,14 @@ def new_event(kind: str, by: str, why: str, at: datetime | None = None) -> dict[
     if when.tzinfo is None:
         when = when.replace(tzinfo=UTC)
     when = when.astimezone(UTC)
-    return {
-        "id": uuid.uuid4().hex[:8],
-        "kind": kind,
-        "at": when.isoformat(),
-        "by": by,
-        "why": why,
-        "recorded": datetime.now(UTC).isoformat(),
-        "applied": False,
-    }
+    return Event(
+        id=uuid.uuid4().hex[:8],
+        kind=kind,
+        at=when.isoformat(),
+        by=by,
+        why=why,
+        recorded=datetime.now(UTC).isoformat(),
+    )
 
 
 def add_maintenance(
@@ -177,7 +176,7 @@ def add_maintenance(
     by: str,
     why: str,
     at: datetime | None = None,
-) -> dict[str, Any]:
+) -> Event:
     """Record a maintenance event in a state; the conveyor's baseline restarts after it.
 
     Parameters
@@ -191,7 +190,7 @@ def add_maintenance(
 
     Returns
     -------
-    dict
+    Event
         The event.
 
     Raises
@@ -202,69 +201,73 @@ def add_maintenance(
     state = _conveyor(data, conveyor)
     event = new_event(kind, by, why, at)
     try:
-        state["events"].append(event)
-        state["events"].sort(key=lambda e: e["at"])
-        close_alarms(state["alarms"], event)
-    except (KeyError, TypeError, AttributeError) as exc:
+        events = [Event.from_dict(e) for e in state["events"]] + [event]
+        alarms = [Alarm.from_dict(a) for a in state["alarms"]]
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise StoreError(
             f"the state of '{conveyor}' is damaged ({exc!r}); start a new one"
         ) from None
+    events.sort(key=lambda e: e.at)
+    close_alarms(alarms, event)
+    state["events"] = [e.to_dict() for e in events]
+    state["alarms"] = [a.to_dict() for a in alarms]
     return event
 
 
-def close_alarms(alarms: list[dict[str, Any]], event: dict[str, Any]) -> None:
+def close_alarms(alarms: list[Alarm], event: Event) -> None:
     """Close the open alarms of a conveyor for a maintenance event (who and what did it)."""
     for alarm in alarms:
-        if alarm.get("status") == "open":
-            alarm["status"] = "closed"
-            alarm["closed_at"] = event["at"]
-            alarm["closed_by"] = f"maintenance {event['kind']} ({event['by']}: {event['why']})"
+        if alarm.is_open:
+            alarm.close(event.at, f"maintenance {event.kind} ({event.by}: {event.why})")
 
 
 def acknowledge_alarm(
     data: dict[str, Any], alarm_id: str, by: str, why: str, at: datetime | None = None
-) -> dict[str, Any]:
+) -> Alarm:
     """Acknowledge an open alarm (any conveyor): it stays open but no longer fails scripts.
 
     Raises
     ------
     StoreError
-        When no alarm has that id, or ``by`` is empty.
+        When no alarm has that id, ``by`` is empty, or the state is damaged.
     """
     if not by.strip():
         raise StoreError("say who acknowledges the alarm (by)", field="by")
     open_ids = []
-    for state in data["conveyors"].values():
-        for alarm in state.get("alarms", []) if isinstance(state, dict) else []:
-            if not isinstance(alarm, dict):
-                continue
-            if alarm.get("id") == alarm_id:
-                if alarm.get("status") != "open":
+    for conveyor, state in data["conveyors"].items():
+        try:
+            alarms = [Alarm.from_dict(a) for a in state["alarms"]]
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise StoreError(
+                f"the state of '{conveyor}' is damaged ({exc!r}); start a new one"
+            ) from None
+        for k, alarm in enumerate(alarms):
+            if alarm.id == alarm_id:
+                if not alarm.is_open:
                     raise StoreError(
-                        f"alarm '{alarm_id}' is closed ({alarm.get('closed_by', 'closed')}); "
+                        f"alarm '{alarm_id}' is closed ({alarm.closed_by or 'closed'}); "
                         "only open alarms are acknowledged"
                     )
-                done = alarm.get("acknowledged")
-                if done:
+                done = alarm.acknowledged
+                if done is not None:
                     raise StoreError(
-                        f"alarm '{alarm_id}' was acknowledged by {done.get('by')} at "
-                        f"{done.get('at')} ({done.get('why')}); it stays so"
+                        f"alarm '{alarm_id}' was acknowledged by {done.by} at "
+                        f"{done.at} ({done.why}); it stays so"
                     )
-                alarm["acknowledged"] = {
-                    "by": by,
-                    "why": why,
-                    "at": (at or datetime.now(UTC)).astimezone(UTC).isoformat(),
-                }
-                return dict(alarm)
-            if alarm.get("status") == "open":
-                open_ids.append(str(alarm.get("id")))
+                alarm.acknowledged = Acknowledgement(
+                    by=by, why=why, at=(at or datetime.now(UTC)).astimezone(UTC).isoformat()
+                )
+                state["alarms"][k] = alarm.to_dict()
+                return alarm
+            if alarm.is_open:
+                open_ids.append(alarm.id)
     raise StoreError(
         f"no alarm '{alarm_id}' in the state (open alarms: {', '.join(open_ids) or 'none'})"
     )
 
 
 def apply_events(
-    events: list[dict[str, Any]], alarms: list[dict[str, Any]], when: datetime | None
+    events: list[Event], alarms: list[Alarm], when: datetime | None
 ) -> list[dict[str, str]]:
     """Apply the maintenance events made up to a recording's time; a note for each.
 
@@ -276,16 +279,16 @@ def apply_events(
     if when is None:
         return notes
     for event in events:
-        at = None if event["applied"] else parse_time(event["at"])
+        at = None if event.applied else parse_time(event.at)
         if at is None or at > when:
             continue
-        event["applied"] = True
+        event.applied = True
         close_alarms(alarms, event)
         notes.append(
             RecordingWarning(
                 "baseline_restarted",
-                f"maintenance '{event['kind']}' on {event['at']} by {event['by']} "
-                f"({event['why']}): the baseline restarts from this recording",
+                f"maintenance '{event.kind}' on {event.at} by {event.by} "
+                f"({event.why}): the baseline restarts from this recording",
             ).to_dict()
         )
     return notes

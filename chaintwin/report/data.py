@@ -27,6 +27,7 @@ from chaintwin._types import FloatArray
 from chaintwin.diagnose.features import FeatureSpec, feature_spec
 from chaintwin.diagnose.health import FeatureBaseline
 from chaintwin.diagnose.monitor_state import read_health
+from chaintwin.diagnose.records import Alarm, Event
 from chaintwin.errors import ChaintwinError, StoreError
 from chaintwin.identify.calibration import Calibration
 from chaintwin.model.rigid import model_torque, motoring_mask
@@ -109,8 +110,8 @@ class ConveyorData:
     profile: ConveyorProfile
     results: list[dict[str, Any]]
     times: list[datetime | None]
-    alarms: list[dict[str, Any]]
-    events: list[dict[str, Any]]
+    alarms: list[Alarm]
+    events: list[Event]
     summary: dict[str, Any]
     forecasts: list[dict[str, Any]]
     trends: list[FeatureTrend]
@@ -172,15 +173,15 @@ class ConveyorData:
         vals = [r["payload_kg"] for r in self.results if r.get("payload_kg") is not None]
         return float(statistics.median(vals[-RECENT:])) if vals else math.nan
 
-    def open_alarms(self) -> list[dict[str, Any]]:
+    def open_alarms(self) -> list[Alarm]:
         """Open alarms, acknowledged ones included."""
-        return [a for a in self.alarms if a.get("status") == "open"]
+        return [a for a in self.alarms if a.is_open]
 
 
 def health_status(data: ConveyorData) -> str:
     """A conveyor's status for the fleet page (see :data:`STATUS_ORDER`)."""
     opened = data.open_alarms()
-    if any(not a.get("acknowledged") for a in opened):
+    if any(a.acknowledged is None for a in opened):
         return "alarm"
     if opened:
         return "acknowledged"
@@ -309,14 +310,14 @@ def conveyor_data(
     z_limit = 5.0
     calibration = store.calibration(conveyor)
     baseline_since = None
-    if state is not None and state.get("profile_sha256") != profile.content_hash():
+    if state is not None and state.profile_sha256 != profile.content_hash():
         notes.append("health model not readable: it was made with another version of the profile")
     elif state is not None:
         # read what the store holds; the monitor is not rebuilt for a page
         try:
             health = read_health(state)
             if health.calibration is not None:
-                calibration = Calibration.from_dict(health.calibration, f"store {conveyor}")
+                calibration = health.calibration
         except (ChaintwinError, KeyError, TypeError, ValueError) as exc:
             notes.append(f"health model not readable: {exc!r}")
         else:

@@ -83,20 +83,20 @@ def _marks(ax: Axes, data: ConveyorData, feature: str | None = None) -> None:
     xs, _label = _x(data)
     end = xs[-1]
     for alarm in data.alarms:
-        if feature is not None and alarm.get("feature") != feature:
+        if feature is not None and alarm.feature != feature:
             continue
-        start = _when(data, alarm.get("since"))
-        stop = _when(data, alarm.get("closed_at")) or end
+        start = _when(data, alarm.since)
+        stop = _when(data, alarm.closed_at) or end
         if start is not None:
             ax.axvspan(start, stop, color="tab:red", alpha=0.08, linewidth=0)
     for ev in data.events:
-        at = _when(data, ev.get("at"))
+        at = _when(data, ev.at)
         if at is not None:
             ax.axvline(at, color="tab:purple", linewidth=1.0, linestyle=":")
             ax.text(
                 at,
                 0.98,
-                f" {ev.get('kind', '')}",
+                f" {ev.kind}",
                 transform=ax.get_xaxis_transform(),
                 fontsize=7,
                 color="tab:purple",

@@ -110,7 +110,7 @@ def page_names(conveyors: Sequence[str]) -> dict[str, str]:
 def _status_text(d: ConveyorData) -> str:
     opened = d.open_alarms()
     if opened:
-        causes = sorted({a["cause"] for a in opened})
+        causes = sorted({a.cause for a in opened})
         return f"open alarm on {', '.join(causes)}"
     status = d.status
     if status == "learning":
@@ -249,7 +249,7 @@ def _fleet_row(d: ConveyorData, links: Mapping[str, str] | None) -> FleetRow:
     last = next((t for t in reversed(d.times) if t is not None), None)
     fc = sorted(d.forecasts, key=lambda f: str(f["crosses_at"]))
     alarms = ", ".join(
-        f"{a['cause']} ({a['feature']}{', ack.' if a.get('acknowledged') else ''})" for a in opened
+        f"{a.cause} ({a.feature}{', ack.' if a.acknowledged else ''})" for a in opened
     )
     return FleetRow(
         id=d.profile.id,

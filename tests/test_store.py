@@ -115,15 +115,17 @@ def test_store_keeps_samples_acknowledgements_and_maintenance(
         for k, v in orig.channels.items():
             np.testing.assert_array_equal(again.channels[k], v)
         assert again.metadata.recorded_at == orig.metadata.recorded_at
-        opened = [a for a in store.alarms("white-belt-01") if a["status"] == "open"]
+        opened = [a for a in store.alarms("white-belt-01") if a.is_open]
         assert opened, "friction rises by 60 %: an alarm is open"
-        target = opened[0]["id"]
+        target = opened[0].id
         assert main(["acknowledge", target, "--db", db, "--by", "A. Fitter", "--why", "WO 7"]) == 0
-        acked = {a["id"]: a for a in store.alarms("white-belt-01")}[target]
-        assert acked["acknowledged"]["by"] == "A. Fitter" and acked["status"] == "open"
+        acked = {a.id: a for a in store.alarms("white-belt-01")}[target]
+        assert acked.acknowledged is not None and acked.acknowledged.by == "A. Fitter"
+        assert acked.is_open
         state = store.state("white-belt-01")
         assert state is not None
-        assert {a["id"]: a for a in state["alarms"]}[target]["acknowledged"]["why"] == "WO 7"
+        ack = {a.id: a for a in state.alarms}[target].acknowledged
+        assert ack is not None and ack.why == "WO 7"
         # twice is refused in one line, exit 2, nothing changed
         assert main(["acknowledge", target, "--db", db, "--by", "B"]) == 2
         assert "acknowledged by A. Fitter" in capsys.readouterr().err
@@ -148,12 +150,12 @@ def test_store_keeps_samples_acknowledgements_and_maintenance(
             )
             == 0
         )
-        assert all(a["status"] == "closed" for a in store.alarms("white-belt-01"))
+        assert all(not a.is_open for a in store.alarms("white-belt-01"))
         events = store.events("white-belt-01")
-        assert [e["kind"] for e in events] == ["cleaning"] and events[0]["by"] == "A. Fitter"
+        assert [e.kind for e in events] == ["cleaning"] and events[0].by == "A. Fitter"
         # the next ingest continues from the changed model (its baseline restarts)
         mon, _version = store.monitor(PROFILE, MonitorSettings(baseline_n=6))
-        assert mon is not None and [e["kind"] for e in mon.events] == ["cleaning"]
+        assert mon is not None and [e.kind for e in mon.events] == ["cleaning"]
         assert (
             main(
                 ["maintenance", "--db", db, "--conveyor", "nope", "--kind", "cleaning", "--by", "x"]
@@ -355,8 +357,8 @@ def test_a_learning_conveyor_goes_on_across_ingests(tmp_path: Path) -> None:
         assert [r["file"] for r in rows] == files
         assert {r["status"] for r in rows[:20]} == {"baseline"}
         state = store.state(PROFILE.id)
-        assert state is not None and state["calibration_source"] == "learned"
-        assert not [n for n in state["notes"] if n["code"] == "pending_lost"]
+        assert state is not None and state.calibration_source == "learned"
+        assert not [n for n in state.notes if n["code"] == "pending_lost"]
     finally:
         store.close()
 
@@ -547,7 +549,7 @@ def test_a_file_given_twice_is_read_once_and_the_health_model_stores_as_before(
         # the health model as orjson writes it reads back as json_ready + json wrote it
         mon, _version = store.monitor(PROFILE, settings)
         assert mon is not None
-        state = mon.to_state()
+        state = mon.to_state().to_dict()
         assert json.loads(_to_json(state)) == json.loads(json.dumps(json_ready(state)))
         assert json.loads(_to_json({"big": 2**70})) == {"big": 2**70}  # beyond orjson
     finally:
@@ -584,3 +586,51 @@ def test_an_unexpected_failure_refuses_that_recording_and_the_batch_goes_on(
         assert len(store.results(PROFILE.id)) == len(files) - 1
     finally:
         store.close()
+
+
+def _digest(path: Path) -> str:
+    import hashlib
+
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_reading_commands_open_read_only_and_damaged_stores_are_refused_untouched(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    good = tmp_path / "good.db"
+    store = Store(f"sqlite:///{good}")
+    store.put_profile(PROFILE)
+    store.close()
+    before = _digest(good)
+    # export only reads: the file is the same, and the read-only object cannot write
+    assert main(["export", "--db", f"sqlite:///{good}", "--format", "json"]) == 0
+    assert json.loads(capsys.readouterr().out) == []
+    assert _digest(good) == before
+    ro = Store(f"sqlite:///{good}", read_only=True)
+    try:
+        assert ro.conveyors() == [PROFILE.id]
+        with pytest.raises(Exception, match="readonly"):
+            ro.put_profile(PROFILE.model_copy(update={"id": "another-belt"}))
+    finally:
+        ro.close()
+    assert _digest(good) == before
+    # truncated, garbage pages, an empty file: one line, exit 2, file unchanged
+    data = good.read_bytes()
+    page = 4096
+    damaged = {
+        "truncated": data[: len(data) // 2],
+        "garbage": data[: 2 * page] + bytes(range(256)) * (page // 256) + data[3 * page :],
+        "not-sqlite": b"name,value\nthis,is a csv\n" * 50,
+    }
+    for name, content in damaged.items():
+        path = tmp_path / f"{name}.db"
+        path.write_bytes(content)
+        for argv in (
+            ["export", "--db", f"sqlite:///{path}"],
+            ["ingest", "--db", f"sqlite:///{path}", "--profile", str(REFERENCE_PROFILE), str(path)],
+        ):
+            assert main(argv) == 2, (name, argv[0])
+            err = capsys.readouterr().err.strip()
+            assert len(err.splitlines()) == 1, err
+            assert "damaged" in err or "not a usable SQLite database" in err, err
+            assert path.read_bytes() == content, (name, argv[0])

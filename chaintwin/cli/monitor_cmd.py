@@ -6,7 +6,7 @@ import dataclasses
 from collections.abc import Callable, Sequence
 from datetime import datetime
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, TypeVar
 
 import typer
 from rich.console import Console
@@ -22,7 +22,9 @@ from chaintwin.cli.common import (
     print_warning,
 )
 from chaintwin.diagnose.monitor import ConveyorMonitor
+from chaintwin.diagnose.monitor_state import MonitorState
 from chaintwin.diagnose.records import RecordingResult, SettingsGiven
+from chaintwin.diagnose.session import resume, undated
 from chaintwin.diagnose.state import (
     MAINTENANCE_KINDS,
     acknowledge_alarm,
@@ -41,8 +43,9 @@ from chaintwin.read.batch import group_by_conveyor, order_recordings
 from chaintwin.read.columns import ColumnMap, load_column_map
 from chaintwin.read.profile import ConveyorProfile, load_profile
 from chaintwin.read.profile import load_profiles as read_profiles
-from chaintwin.read.recording import RecordingWarning
 from chaintwin.validate.checks import load_recording
+
+T = TypeVar("T")
 
 __all__ = ["load_profiles", "order_recordings", "register", "run_monitor"]
 
@@ -135,27 +138,16 @@ def run_monitor(
         def loader(name: str, prof: ConveyorProfile = prof) -> Any:
             return load_recording(name, profile=prof, column_map=column_map).recording
 
-        given = cal_by_id.get(cid)
-        if cid in stored:
-            mon = ConveyorMonitor.from_state(stored[cid], prof, loader=loader, source="--state")
-            mon.settings = settings.merged(mon.settings)
-            same = given is None or (
-                mon.calibration is not None
-                and given.to_dict()["parameters"] == mon.calibration.to_dict()["parameters"]
-            )
-            if not same and mon.calibration_source == "file":
-                raise StoreError(
-                    f"--state: conveyor '{cid}' is monitored with another calibration; "
-                    "use a new state file to monitor it with this one"
-                )
-            if not same and given is not None:
-                # a calibration replaces a learned one (or a sibling's): the features
-                # change with the model, so the baseline starts again
-                mon.set_calibration(given)
-                mon.restart_baseline()
-                results += mon.flush_pending()
-        else:
-            mon = ConveyorMonitor(prof, settings.merged(None), given, loader=loader)
+        saved = (
+            ConveyorMonitor.from_state(stored[cid], prof, loader=loader, source="--state")
+            if cid in stored
+            else None
+        )
+        merged = settings.merged(None if saved is None else saved.settings)
+        mon, flushed = resume(
+            saved, prof, merged, cal_by_id.get(cid), loader=loader, source="--state"
+        )
+        results += flushed
         sha = {item.path: item.sha256 for item in items}
         order, missing = order_recordings([(item.path, item.recorded_at) for item in items])
         for f in order:
@@ -165,17 +157,12 @@ def run_monitor(
                 results.append(RecordingResult(f, cid, None, "refused", error=str(exc)))
                 continue
             if f in missing:
-                late = RecordingWarning(
-                    "no_recorded_at",
-                    "no recorded_at in the metadata: processed in file order after the "
-                    "recording before it",
-                )
-                ins = dataclasses.replace(ins, recording=ins.recording.with_warnings(late))
+                ins = dataclasses.replace(ins, recording=undated(ins.recording))
             results += mon.process(ins, sha[f])  # the inspection: its phases are reused
         results += mon.finish()
         monitors.append(mon)
         if state is not None:
-            state["conveyors"][cid] = mon.to_state()
+            state["conveyors"][cid] = mon.to_state().to_dict()
     return results, monitors
 
 
@@ -184,8 +171,8 @@ def open_unacknowledged(state: dict[str, Any] | None, monitors: list[ConveyorMon
     alarms = [a for m in monitors for a in m.open_alarms()]
     if state is not None:
         for conveyor in state["conveyors"].values():
-            alarms += [a for a in conveyor.get("alarms", []) if a.get("status") == "open"]
-    return any(a.get("acknowledged") is None for a in alarms)
+            alarms += [a for a in MonitorState.from_dict(conveyor).alarms if a.is_open]
+    return any(a.acknowledged is None for a in alarms)
 
 
 def _print_table(results: list[RecordingResult], monitors: list[ConveyorMonitor]) -> None:
@@ -320,7 +307,7 @@ def register(app: typer.Typer) -> None:
             state, db, conveyor, lambda data: add_maintenance(data, conveyor, kind, by, why, when)
         )
         Console().print(
-            f"recorded maintenance {event['id']} ({kind}) on {escape(conveyor)} at {event['at']}; "
+            f"recorded maintenance {event.id} ({kind}) on {escape(conveyor)} at {event.at}; "
             "the baseline restarts with the recordings after it",
             highlight=False,
         )
@@ -336,7 +323,7 @@ def register(app: typer.Typer) -> None:
         """Acknowledge an alarm: it stays open but --fail-on-alarm no longer fails on it."""
         a = _edit(state, db, None, lambda data: acknowledge_alarm(data, alarm, by, why), alarm)
         Console().print(
-            f"acknowledged alarm {a['id']} ({a['cause']}, {a['feature']}) on {a['conveyor']}",
+            f"acknowledged alarm {a.id} ({a.cause}, {a.feature}) on {a.conveyor}",
             highlight=False,
         )
 
@@ -345,9 +332,9 @@ def _edit(
     state: Path | None,
     db: str | None,
     conveyor: str | None,
-    edit: Callable[[dict[str, Any]], dict[str, Any]],
+    edit: Callable[[dict[str, Any]], T],
     alarm: str | None = None,
-) -> dict[str, Any]:
+) -> T:
     """Apply a change to a state file, or to the health model in a results store."""
     if state is not None and db is not None:
         raise StoreError("give either --state (a state file) or --db (a results store), not both")

@@ -56,7 +56,7 @@ def register(app: typer.Typer) -> None:
 
         if sum((conveyor is not None, fleet, every)) != 1:
             raise StoreError("give one of --conveyor ID, --fleet or --all")
-        store = Store(store_url(db), create=False)
+        store = Store(store_url(db), create=False, read_only=True)
         console = Console()
         try:
             if conveyor is not None:

@@ -161,7 +161,7 @@ def register(app: typer.Typer) -> None:
 
         if fmt not in ("csv", "json"):
             raise StoreError(f"--format {fmt}: use csv or json")
-        store = Store(store_url(db), create=False)
+        store = Store(store_url(db), create=False, read_only=True)
         try:
             if conveyor is not None and conveyor not in store.conveyors():
                 raise StoreError(

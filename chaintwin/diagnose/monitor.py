@@ -23,6 +23,7 @@ without recomputing old recordings).
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 from collections.abc import Callable
@@ -47,8 +48,11 @@ from .features import FEATURES, RecordingFeatures, feature_spec
 from .features import recording_features as extract
 from .health import FeatureBaseline
 from .learned import learn_calibration
+from .monitor_state import MonitorState
 from .peaks import median_spectrum, spectrum_from_state, unexplained_peak
 from .records import (
+    Alarm,
+    Event,
     MonitorSettings,
     RecordingResult,
     finite_or_none,
@@ -108,8 +112,8 @@ class ConveyorMonitor:
         self.belt_prev: list[float | None] = []
         self.windows: dict[str, list[bool]] = {}
         self.window_times: dict[str, list[str | None]] = {}
-        self.alarms: list[dict[str, Any]] = []
-        self.events: list[dict[str, Any]] = []
+        self.alarms: list[Alarm] = []
+        self.events: list[Event] = []
         self.history: list[dict[str, Any]] = []
         self.processed: dict[str, int] = {}
         self.last_recorded_at: str | None = None
@@ -145,7 +149,7 @@ class ConveyorMonitor:
         self.calibration = calibration
 
     # ---------------------------------------------------------- events
-    def add_event(self, kind: str, at: datetime, by: str, why: str) -> dict[str, Any]:
+    def add_event(self, kind: str, at: datetime, by: str, why: str) -> Event:
         """Record a maintenance event (:func:`~chaintwin.diagnose.state.new_event`).
 
         Recordings made after ``at`` form a new baseline; open alarms are
@@ -153,7 +157,7 @@ class ConveyorMonitor:
         """
         event = new_event(kind, by, why, at)
         self.events.append(event)
-        self.events.sort(key=lambda e: e["at"])
+        self.events.sort(key=lambda e: e.at)
         close_alarms(self.alarms, event)
         return event
 
@@ -397,7 +401,11 @@ class ConveyorMonitor:
         values = dict(feats.values)
         bump, bump_at = self._belt_bump(feats)
         values["belt_bump"] = bump
-        warnings = [x.to_dict() for x in w.warnings] + [x.to_dict() for x in feats.warnings] + extra
+        warnings = [x.to_dict() for x in w.warnings] + [x.to_dict() for x in feats.warnings]
+        # features computed elsewhere (an ingest worker) may predate a warning
+        # the recording got since (e.g. no_recorded_at): none is lost
+        warnings += [d for d in (x.to_dict() for x in recording.warnings) if d not in warnings]
+        warnings += extra
         if self.calibration_source != "file":
             warnings.append(
                 RecordingWarning(
@@ -467,8 +475,8 @@ class ConveyorMonitor:
                 detail = {
                     "cause": resolved[name],
                     "feature": name,
-                    "change": alarm["change"],
-                    "since": alarm["since"],
+                    "change": alarm.change,
+                    "since": alarm.since,
                 }
                 if name == "belt_bump" and bump_at is not None:
                     detail["belt_position_m"] = bump_at
@@ -522,7 +530,7 @@ class ConveyorMonitor:
 
     def _open_alarm(
         self, feature: str, cause: str, change: float | None, when: datetime | None
-    ) -> dict[str, Any]:
+    ) -> Alarm:
         """The open alarm of a feature, opened now if there is none (:func:`.alarms.open_alarm`)."""
         return alarms.open_alarm(
             self.alarms,
@@ -539,9 +547,9 @@ class ConveyorMonitor:
         alarms.close_quiet_alarms(self.alarms, self.windows, self.settings.y, when)
 
     # ---------------------------------------------------------- summary
-    def open_alarms(self) -> list[dict[str, Any]]:
+    def open_alarms(self) -> list[Alarm]:
         """Open alarms (acknowledged ones included)."""
-        return [a for a in self.alarms if a["status"] == "open"]
+        return [a for a in self.alarms if a.is_open]
 
     def forecasts(self) -> list[dict[str, Any]]:
         """When each tracked feature's trend crosses its limit (:func:`.baseline.forecasts`)."""
@@ -556,42 +564,42 @@ class ConveyorMonitor:
         return monitor_state.summary_of(self)
 
     # ---------------------------------------------------------- state
-    def to_state(self) -> dict[str, Any]:
-        """Everything learned, JSON-ready (:func:`.monitor_state.state_of`)."""
+    def to_state(self) -> MonitorState:
+        """Everything learned (:func:`.monitor_state.state_of`); ``to_dict()`` gives its JSON.
+
+        The record shares its lists with the monitor: serialise it before
+        processing more recordings.
+        """
         return monitor_state.state_of(self)
 
     @classmethod
     def from_state(
         cls,
-        data: dict[str, Any],
+        state: MonitorState | dict[str, Any],
         profile: ConveyorProfile,
         *,
         loader: Callable[[str], Recording] | None = None,
         source: str = "<state>",
     ) -> ConveyorMonitor:
-        """Continue from :meth:`to_state` output (:func:`.monitor_state.restore`).
+        """Continue from a saved state (:meth:`to_state`, or its JSON form).
 
         Raises
         ------
         StoreError
             When the state belongs to another profile or is damaged.
         """
-        if data.get("profile_sha256") != profile.content_hash():
+        if isinstance(state, MonitorState):
+            state = copy.deepcopy(state)
+        elif isinstance(state, dict):
+            state = MonitorState.from_dict(state, source=source)
+        else:
+            raise StoreError(f"{source}: a monitoring state is a JSON object, not {type(state)}")
+        if state.profile_sha256 != profile.content_hash():
             raise StoreError(
                 f"{source}: conveyor '{profile.id}' was monitored with another version of its "
                 "profile; give the profile it was monitored with, or start a new state file "
                 "for the changed conveyor"
             )
-        try:
-            s = data["settings"]
-            settings = MonitorSettings(
-                int(s["baseline_n"]), int(s["x"]), int(s["y"]), float(s["z_limit"])
-            )
-        except (KeyError, TypeError, ValueError) as exc:
-            raise StoreError(
-                f"{source}: monitoring state of '{profile.id}' is damaged ({exc!r}); restore it "
-                "from a backup or start a new state file"
-            ) from None
-        mon = cls(profile, settings, loader=loader)
-        monitor_state.restore(mon, data, source=source, loader=loader)
+        mon = cls(profile, state.settings, loader=loader)
+        monitor_state.restore(mon, state, loader=loader)
         return mon

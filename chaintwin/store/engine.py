@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 from typing import Any
+from urllib.parse import quote
 
 import orjson
 from sqlalchemy import create_engine, event
@@ -14,7 +15,7 @@ from sqlalchemy.exc import SQLAlchemyError
 from chaintwin.diagnose.state import json_ready
 from chaintwin.errors import StoreError
 
-__all__ = ["DEFAULT_URL", "engine_for", "safe_url", "store_url"]
+__all__ = ["DEFAULT_URL", "engine_for", "safe_url", "sqlite_path", "store_url"]
 
 DEFAULT_URL = "sqlite:///chaintwin.db"
 """The embedded default: a SQLite file in the working folder."""
@@ -67,8 +68,12 @@ def safe_url(url: str) -> str:
     return f"{scheme}://{user}:***@{tail}"
 
 
-def engine_for(url: str) -> Engine:
+def engine_for(url: str, *, read_only: bool = False) -> Engine:
     """The SQLAlchemy engine of a store URL (psycopg 3 for PostgreSQL; SQLite's pragmas).
+
+    With ``read_only`` a SQLite file is opened read-only (``mode=ro``): a
+    command that only reads cannot change it, even by accident; PostgreSQL
+    sessions are set read-only.
 
     Raises
     ------
@@ -78,6 +83,9 @@ def engine_for(url: str) -> Engine:
     target = url
     if target.startswith("postgresql://"):
         target = "postgresql+psycopg://" + target[len("postgresql://") :]
+    path = sqlite_path(url)
+    if read_only and path is not None:
+        target = f"sqlite:///file:{quote(path)}?mode=ro&uri=true"
     try:
         engine = create_engine(
             target,
@@ -93,8 +101,30 @@ def engine_for(url: str) -> Engine:
             field="url",
         ) from None
     if engine.dialect.name == "sqlite":
-        event.listen(engine, "connect", _sqlite_pragmas)
+        event.listen(engine, "connect", _sqlite_read_only if read_only else _sqlite_pragmas)
+    elif read_only:
+        event.listen(engine, "connect", _postgresql_read_only)
     return engine
+
+
+def sqlite_path(url: str) -> str | None:
+    """The file of a SQLite store URL (None for another database or an in-memory one)."""
+    if not url.startswith("sqlite:///"):
+        return None
+    path = url[len("sqlite:///") :]
+    return None if path in ("", ":memory:") or path.startswith("file:") else path
+
+
+def _sqlite_read_only(dbapi_connection: Any, _record: Any) -> None:
+    """A wait for the lock; nothing that writes (the journal mode stays the file's)."""
+    cur = dbapi_connection.cursor()
+    cur.execute("PRAGMA busy_timeout=30000")
+    cur.close()
+
+
+def _postgresql_read_only(dbapi_connection: Any, _record: Any) -> None:
+    """Every transaction of the session read-only."""
+    dbapi_connection.read_only = True
 
 
 def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:

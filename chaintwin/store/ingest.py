@@ -33,8 +33,8 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any
 
-from chaintwin.diagnose.monitor import ConveyorMonitor
 from chaintwin.diagnose.records import MonitorSettings
+from chaintwin.diagnose.session import resume, undated
 from chaintwin.errors import StoreError
 from chaintwin.identify.calibration import Calibration
 from chaintwin.read.batch import RecordingFile, group_by_conveyor, order_recordings
@@ -42,6 +42,7 @@ from chaintwin.read.columns import ColumnMap
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
 
+from .engine import safe_url
 from .executors import InlineExecutor, executor, runs_inline
 from .store import Finished, StateConflict, Store, Waiting
 from .worker import Prepared, prepare, prepare_many
@@ -126,9 +127,20 @@ class _Conveyor:
         self.summary = summary
         self.group = group
         store.put_profile(profile)  # refused when the stored health model has another profile
-        mon, self.version = store.monitor(profile, settings)
-        self.monitor = mon or ConveyorMonitor(profile, settings, store.calibration(profile.id))
-        self.opened = {a["id"] for a in self.monitor.alarms}
+        saved, self.version = store.monitor(profile, settings)
+        waited = (
+            {} if saved is None else {rec.source: (rec, str(sha)) for rec, sha in saved.waiting()}
+        )
+        # the store's calibration made anew (calibrate --db) replaces the model's
+        self.monitor, flushed = resume(
+            saved,
+            profile,
+            settings,
+            store.calibration(profile.id),
+            other_calibration="replace",
+            source=safe_url(store.url),
+        )
+        self.opened = {a.id for a in self.monitor.alarms}
         # this run's recordings taken by monitoring but not yet stored (file -> input)
         self.inputs: dict[str, Prepared] = {}
         self.digests: dict[str, str] = {}
@@ -137,7 +149,10 @@ class _Conveyor:
         # recordings stored while they wait for a learned calibration (file -> recording, sha)
         self.carried: dict[str, tuple[Recording, str]] = {}
         self._carry()
-        self.finished: list[Finished] = []
+        # recordings that waited in the store, weighed now with the new calibration
+        self.finished: list[Finished] = [
+            Finished(*waited[res.file], res, stored=True) for res in flushed
+        ]
         self.group_started = 0.0
 
     def _carry(self) -> None:
@@ -228,7 +243,7 @@ class _Conveyor:
         if mon is None:  # pragma: no cover - a row never disappears
             raise StoreError(f"the health model of '{self.profile.id}' vanished") from None
         self.monitor = mon
-        self.opened |= {a["id"] for a in mon.alarms}  # not this run's news
+        self.opened |= {a.id for a in mon.alarms}  # not this run's news
         self.finished = []
         stored = self.store.known(self.digests[f] for f in self.inputs)
         again = list(self.inputs.items())
@@ -244,7 +259,7 @@ class _Conveyor:
     def close(self) -> None:
         """Store what is left; count the alarms this ingest opened."""
         self.flush()
-        self.summary.new_alarms += len({a["id"] for a in self.monitor.alarms} - self.opened)
+        self.summary.new_alarms += len({a.id for a in self.monitor.alarms} - self.opened)
 
 
 SCAN_CHUNK = 128
@@ -338,6 +353,7 @@ class _Batch:
         )
         self.ready: dict[str, tuple[Prepared, Calibration | None]] = {}
         self.untaken: dict[str, deque[str]] = {}  # recorded order, once all is scanned
+        self.undated: set[str] = set()  # files without a recorded time
 
     def run(self) -> None:
         """Scan, send, take and store everything.
@@ -413,7 +429,8 @@ class _Batch:
         unsent = {f for _, f in self.unsent}
         self.unsent = deque()
         for cid, items in self.found.items():
-            order, _missing = order_recordings([(item.path, item.recorded_at) for item in items])
+            order, missing = order_recordings([(item.path, item.recorded_at) for item in items])
+            self.undated |= missing
             self.untaken[cid] = deque(order)
             self.unsent.extend((cid, f) for f in order if f in unsent)
         self.window.left = len(self.unsent)
@@ -477,6 +494,8 @@ class _Batch:
                 self._refuse(f, prepared.error or "refused")
                 continue
             self.tick()
+            if f in self.undated:
+                prepared = prepared._replace(recording=undated(prepared.recording))
             conv.take(prepared, self.sha[f], cal)
         if not order:
             del self.untaken[cid]

@@ -25,11 +25,12 @@ from typing import Any, TypeVar
 
 from sqlalchemy import insert, select, update
 from sqlalchemy.engine import Engine
-from sqlalchemy.exc import IntegrityError, OperationalError
+from sqlalchemy.exc import DatabaseError, IntegrityError, OperationalError
 from sqlalchemy.orm import Session
 
 from chaintwin.diagnose.monitor import ConveyorMonitor
-from chaintwin.diagnose.records import MonitorSettings, RecordingResult
+from chaintwin.diagnose.monitor_state import MonitorState
+from chaintwin.diagnose.records import Alarm, Event, MonitorSettings, RecordingResult
 from chaintwin.diagnose.state import json_ready
 from chaintwin.errors import StoreError
 from chaintwin.identify.calibration import Calibration
@@ -37,7 +38,7 @@ from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
 
 from . import migrate
-from .engine import engine_for, safe_url
+from .engine import engine_for, safe_url, sqlite_path
 from .samples import pack_samples, recording_meta, stored_recording
 from .schema import (
     AlarmRow,
@@ -96,6 +97,32 @@ def _iso_time(recording: Recording) -> str | None:
     return None if at is None else at.astimezone(UTC).isoformat()
 
 
+QUICK_CHECK_MAX_MB = 512
+"""SQLite stores up to this size (MB) get ``PRAGMA quick_check`` when opened
+(about a second per 100 MB); larger ones the schema check only."""
+
+
+def _check_sqlite_file(engine: Engine, path: str, where: str) -> None:
+    """Refuse a damaged SQLite file before anything reads or writes it.
+
+    Raises
+    ------
+    StoreError
+        When the integrity check finds damage.
+    """
+    if not os.path.exists(path) or os.path.getsize(path) > QUICK_CHECK_MAX_MB * 1_000_000:
+        return  # a new store, or one too large to check at every opening
+    with engine.connect() as connection:
+        rows = connection.exec_driver_sql("PRAGMA quick_check(3)").fetchall()
+    found = [str(r[0]) for r in rows]
+    if found != ["ok"]:
+        raise StoreError(
+            f"url {where}: the store is damaged ({'; '.join(found)[:200]}); nothing was "
+            "changed: restore it from a backup",
+            field="url",
+        )
+
+
 class StateConflict(Exception):
     """Another writer advanced a conveyor's health model first (not a user error)."""
 
@@ -115,6 +142,13 @@ class Store:
         Create a SQLite store that does not exist yet (False for commands
         that only read or change what is stored: a mistyped path is then an
         error, not a new empty store).
+    read_only : bool
+        Open it for reading only (commands that only read: ``export``,
+        ``report``): the database cannot be changed through this object.
+
+    A SQLite file is checked when it is opened (``PRAGMA quick_check`` up
+    to :data:`QUICK_CHECK_MAX_MB`, the schema always): a damaged file or
+    another program's database is refused, changed in nothing.
 
     Raises
     ------
@@ -123,26 +157,39 @@ class Store:
         not this chaintwin's (older: ``chaintwin db upgrade``; newer).
     """
 
-    def __init__(self, url: str, *, create: bool = True) -> None:
+    def __init__(self, url: str, *, create: bool = True, read_only: bool = False) -> None:
         self.url = url
-        if not create and url.startswith("sqlite:///"):
-            path = url[len("sqlite:///") :]
-            if path not in ("", ":memory:") and not os.path.exists(path):
-                raise StoreError(
-                    f"url {url}: there is no store at {path}; give the store's URL (or set "
-                    "CHAINTWIN_DB), or ingest recordings into it first",
-                    field="url",
-                )
-        self.engine: Engine = engine_for(url)
+        path = sqlite_path(url)
+        if (not create or read_only) and path is not None and not os.path.exists(path):
+            raise StoreError(
+                f"url {url}: there is no store at {path}; give the store's URL (or set "
+                "CHAINTWIN_DB), or ingest recordings into it first",
+                field="url",
+            )
+        self.engine: Engine = engine_for(url, read_only=read_only)
+        where = safe_url(self.url)
         try:
-            if migrate.check(self.engine, safe_url(self.url)) is None:
-                # a new store (create=False was refused above where it matters)
-                migrate.upgrade(self.engine, safe_url(self.url))
+            if path is not None:
+                _check_sqlite_file(self.engine, path, where)
+            if migrate.check(self.engine, where) is None:
+                if read_only:
+                    raise StoreError(
+                        f"url {where}: the database holds no chaintwin store; ingest "
+                        "recordings into it first",
+                        field="url",
+                    )
+                migrate.upgrade(self.engine, where)  # a new store
         except OperationalError as exc:
             self.engine.dispose()
             raise StoreError(
-                f"url {safe_url(self.url)}: cannot open the store ({exc.orig}); check the "
-                "path or server",
+                f"url {where}: cannot open the store ({exc.orig}); check the path or server",
+                field="url",
+            ) from None
+        except DatabaseError as exc:
+            self.engine.dispose()
+            raise StoreError(
+                f"url {where}: the file is not a usable SQLite database ({exc.orig}); "
+                "restore the store from a backup",
                 field="url",
             ) from None
         except BaseException:
@@ -293,12 +340,15 @@ class Store:
             When the database stays locked or fails.
         """
         conveyor = monitor.profile.id
-        state = monitor.to_state()
+        state = monitor.to_state().to_dict()
         state["history"] = state["history"][-HISTORY_IN_STATE:]
         waiting_sha = {w.sha256 for w in waiting}
-        for p in state["pending"]:
-            if p["sha256"] in waiting_sha or str(p["path"]).startswith(_STORED):
-                p["path"] = _STORED + str(p["sha256"])
+        state["pending"] = [
+            p | {"path": _STORED + str(p["sha256"])}
+            if p["sha256"] in waiting_sha or str(p["path"]).startswith(_STORED)
+            else p
+            for p in state["pending"]
+        ]
         # no json_ready copy: the column's serializer writes non-finite floats as
         # null itself (_to_json), and the health model is the largest value stored
         now = _now()
@@ -386,7 +436,7 @@ class Store:
 
     @staticmethod
     def _put_alarms_events(
-        s: Session, conveyor: str, alarms: list[dict[str, Any]], events: list[dict[str, Any]]
+        s: Session, conveyor: str, alarms: list[Alarm], events: list[Event]
     ) -> None:
         """Bring the alarm and event rows of a conveyor up to its health model."""
         rows = {
@@ -395,28 +445,28 @@ class Store:
         for alarm in alarms:
             values = {
                 "conveyor_id": conveyor,
-                "feature": alarm["feature"],
-                "cause": alarm["cause"],
-                "status": alarm["status"],
-                "since": alarm.get("since"),
-                "content": json_ready(alarm),
+                "feature": alarm.feature,
+                "cause": alarm.cause,
+                "status": alarm.status,
+                "since": alarm.since,
+                "content": json_ready(alarm.to_dict()),
             }
-            row = rows.get(alarm["id"])
+            row = rows.get(alarm.id)
             if row is None:
-                s.add(AlarmRow(id=alarm["id"], **values))
+                s.add(AlarmRow(id=alarm.id, **values))
             elif row.content != values["content"] or row.status != values["status"]:
                 for k, v in values.items():
                     setattr(row, k, v)
         known = set(s.scalars(select(EventRow.id).where(EventRow.conveyor_id == conveyor)))
         for ev in events:
-            if ev["id"] not in known:
+            if ev.id not in known:
                 s.add(
                     EventRow(
-                        id=ev["id"],
+                        id=ev.id,
                         conveyor_id=conveyor,
-                        kind=ev["kind"],
-                        at=ev["at"],
-                        content=json_ready(ev),
+                        kind=ev.kind,
+                        at=ev.at,
+                        content=json_ready(ev.to_dict()),
                     )
                 )
 
@@ -444,27 +494,61 @@ class Store:
                 return None
             return parse_profile(row.profile, f"{safe_url(self.url)} conveyor {conveyor}")
 
-    def state(self, conveyor: str) -> dict[str, Any] | None:
-        """A conveyor's stored health model (:meth:`ConveyorMonitor.to_state` JSON)."""
+    def state(self, conveyor: str) -> MonitorState | None:
+        """A conveyor's stored health model (None when it has none).
+
+        Raises
+        ------
+        StoreError
+            When the stored model is damaged.
+        """
         with Session(self.engine) as s:
             row = s.get(MonitorStateRow, conveyor)
-            return None if row is None else dict(row.state)
+            if row is None:
+                return None
+            data = dict(row.state)
+        return MonitorState.from_dict(data, source=f"{safe_url(self.url)} conveyor {conveyor}")
 
-    def alarms(self, conveyor: str | None = None) -> list[dict[str, Any]]:
-        """Stored alarms (as the health model keeps them), oldest first."""
+    def alarms(self, conveyor: str | None = None) -> list[Alarm]:
+        """Stored alarms (as the health model keeps them), oldest first.
+
+        Raises
+        ------
+        StoreError
+            When a stored alarm is damaged.
+        """
         with Session(self.engine) as s:
             q = select(AlarmRow).order_by(AlarmRow.since, AlarmRow.id)
             if conveyor is not None:
                 q = q.where(AlarmRow.conveyor_id == conveyor)
-            return [dict(r.content) | {"conveyor": r.conveyor_id} for r in s.scalars(q)]
+            return [
+                self._record(Alarm.from_dict, dict(r.content) | {"conveyor": r.conveyor_id}, r.id)
+                for r in s.scalars(q)
+            ]
 
-    def events(self, conveyor: str | None = None) -> list[dict[str, Any]]:
-        """Stored maintenance events, oldest first."""
+    def events(self, conveyor: str | None = None) -> list[Event]:
+        """Stored maintenance events, oldest first.
+
+        Raises
+        ------
+        StoreError
+            When a stored event is damaged.
+        """
         with Session(self.engine) as s:
             q = select(EventRow).order_by(EventRow.at, EventRow.id)
             if conveyor is not None:
                 q = q.where(EventRow.conveyor_id == conveyor)
-            return [dict(r.content) | {"conveyor": r.conveyor_id} for r in s.scalars(q)]
+            return [self._record(Event.from_dict, dict(r.content), r.id) for r in s.scalars(q)]
+
+    def _record(self, parse: Callable[[dict[str, Any]], T], content: dict[str, Any], key: str) -> T:
+        """A stored alarm or event as its record; StoreError naming it when damaged."""
+        try:
+            return parse(content)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise StoreError(
+                f"{safe_url(self.url)}: stored record '{key}' is damaged ({exc!r}); "
+                "run `chaintwin db upgrade` or restore the store from a backup"
+            ) from None
 
     def recording_index(self, conveyor: str) -> list[tuple[int, str, str | None]]:
         """``(id, file, recorded_at)`` of a conveyor's monitored recordings, in the order monitored.
@@ -546,7 +630,10 @@ class Store:
             )
             if done.rowcount != 1:  # type: ignore[attr-defined]
                 raise StateConflict(conveyor)  # rolls the transaction back
-            self._put_alarms_events(s, conveyor, state["alarms"], state["events"])
+            typed = MonitorState.from_dict(
+                state, source=f"{safe_url(self.url)} conveyor {conveyor}"
+            )
+            self._put_alarms_events(s, conveyor, typed.alarms, typed.events)
             return out
 
     def alarm_conveyor(self, alarm_id: str) -> str:

@@ -634,3 +634,58 @@ def test_reading_commands_open_read_only_and_damaged_stores_are_refused_untouche
             assert len(err.splitlines()) == 1, err
             assert "damaged" in err or "not a usable SQLite database" in err, err
             assert path.read_bytes() == content, (name, argv[0])
+
+
+def _session(sid: int) -> list[int]:
+    """Processes still running in session ``sid`` (zombies left out)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue  # ended meanwhile
+        if int(fields[3]) == sid and fields[0] != "Z":
+            found.append(int(stat.parent.name))
+    return found
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+def test_no_process_outlives_a_killed_ingest_and_sigterm_says_what_was_stored(
+    tmp_path: Path,
+) -> None:
+    generate(PROFILE, tmp_path / "recs", days=5, per_day=12, seed=9)
+    files = sorted(str(p) for p in (tmp_path / "recs").glob("*.csv"))
+    calib = sorted(str(p) for p in (tmp_path / "recs" / "calibration").glob("*.csv"))
+    for sig in (signal.SIGKILL, signal.SIGTERM):
+        url = f"sqlite:///{tmp_path / f'{sig.name}.db'}"
+        assert main(["calibrate", "--profile", str(REFERENCE_PROFILE), *calib, "--db", url]) == 0
+        cmd = [sys.executable, "-m", "chaintwin", "ingest", *files, "--db", url]
+        cmd += ["--profile", str(REFERENCE_PROFILE), "--workers", "2", "--commit-group", "2"]
+        # its own session: only the ingest itself is signalled, as a crash or
+        # an OOM kill would take it; its fork server and workers must follow
+        proc = subprocess.Popen(
+            cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True, text=True
+        )
+        store = Store(url)
+        try:
+            deadline = time.monotonic() + 120
+            while store.counts()["results"] < 3 and time.monotonic() < deadline:
+                assert proc.poll() is None, proc.communicate()
+                time.sleep(0.02)
+            assert len(_session(proc.pid)) >= 4, "ingest, fork server, tracker and workers run"
+            os.kill(proc.pid, sig)
+            _out, err = proc.communicate(timeout=60)
+            deadline = time.monotonic() + 20
+            while _session(proc.pid) and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert _session(proc.pid) == [], f"{sig.name}: processes left behind"
+            stored = store.counts()["results"]
+        finally:
+            store.close()
+            if proc.poll() is None:
+                proc.kill()
+        assert 0 < stored < len(files), "the signal came too late to test anything"
+        if sig == signal.SIGTERM:
+            assert proc.returncode == 128 + signal.SIGTERM
+            assert "stopped by SIGTERM" in err
+            assert f"{stored} recording(s) stored with their results" in err, err

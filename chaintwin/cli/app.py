@@ -10,7 +10,9 @@ on standard output, the shape the HTTP API uses.
 from __future__ import annotations
 
 import os
+import signal
 import sys
+import threading
 from typing import Annotated
 
 import typer
@@ -93,9 +95,15 @@ def main(argv: list[str] | None = None) -> int:
     argv : list of str, optional
         Arguments without the program name; default ``sys.argv[1:]``.
     """
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         app(args=argv, prog_name="chaintwin")  # standalone: always ends in SystemExit
     except SystemExit as exc:
+        stop = _interrupt_behind(exc)  # typer turns Ctrl-C/SIGTERM into an exit of 130
+        if stop is not None:
+            return _stopped(stop)
         code = exc.code
         if code is None:
             return 0
@@ -106,10 +114,49 @@ def main(argv: list[str] | None = None) -> int:
         if wants_json(sys.argv[1:] if argv is None else argv):
             print_json({"error": error_object(exc, message)})
         return EXIT_USAGE
-    except KeyboardInterrupt:
-        print("chaintwin: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        return _stopped(exc)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     return 0
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, turned into an exception so that a command stops as on Ctrl-C.
+
+    Work in hand unwinds: stores commit nothing half-done, local workers are
+    shut down, and the command says what it had done.
+    """
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _terminate(signum: int, _frame: object) -> None:
+    raise Terminated(signum)
+
+
+def _interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
+    """The Ctrl-C or SIGTERM an exception was raised in handling, if any."""
+    seen: set[int] = set()
+    cause: BaseException | None = exc
+    while cause is not None and id(cause) not in seen:
+        if isinstance(cause, KeyboardInterrupt):
+            return cause
+        seen.add(id(cause))
+        cause = cause.__cause__ or cause.__context__
+    return None
+
+
+def _stopped(exc: KeyboardInterrupt) -> int:
+    """Say that the command was stopped and what it had done; the exit code 128 + signal."""
+    signum = exc.signum if isinstance(exc, Terminated) else int(signal.SIGINT)
+    print(f"chaintwin: stopped by {signal.Signals(signum).name}", file=sys.stderr)
+    for note in getattr(exc, "__notes__", ()):
+        print(f"chaintwin: {printable(note)}", file=sys.stderr)
+    return 128 + signum
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -103,8 +103,14 @@ def executor(workers: int | None, scheduler: str | None) -> Iterator[Executor]:
         if scheduler is None:
             # forked from the fork server (forkserver.py says why), which may
             # have been started already by the command (forkserver.start)
-            with forkserver.pool(workers) as ex:
+            ex = forkserver.pool(workers)
+            try:
                 yield ex
+            except BaseException:
+                # stopped (an error, Ctrl-C, SIGTERM): tasks not started are dropped
+                ex.shutdown(wait=True, cancel_futures=True)
+                raise
+            ex.shutdown(wait=True)
             return
         from distributed import Client
 

@@ -20,7 +20,10 @@ from __future__ import annotations
 import json
 import multiprocessing
 import os
+import select
 import sys
+import threading
+import time
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import forkserver, process, spawn
 from multiprocessing.context import ForkServerContext
@@ -168,9 +171,50 @@ def pool(workers: int | None) -> ProcessPoolExecutor:
         Its results pipe widened to :data:`RESULT_PIPE_BYTES` where the
         system allows it.
     """
-    ex = ProcessPoolExecutor(max_workers=workers, mp_context=context(), initializer=pin_threads)
+    ex = ProcessPoolExecutor(
+        max_workers=workers,
+        mp_context=context(),
+        initializer=init_worker,
+        initargs=(os.getpid(),),
+    )
     _widen_results(ex)
     return ex
+
+
+def init_worker(parent: int) -> None:
+    """A local worker's set-up: one BLAS thread, and exit when ``parent`` (the ingest) dies.
+
+    A worker forked by the fork server is the fork server's child and holds
+    the pipes that keep the fork server and the resource tracker alive; it
+    would wait for tasks for good after a ``kill -9`` of the ingest. A
+    daemon thread waits for the ingest to end (a pidfd on Linux, else a
+    check every second) and ends the worker; the fork server and the
+    resource tracker then see their pipes close and end too.
+    """
+    pin_threads()
+    threading.Thread(target=_exit_with, args=(parent,), name="parent-watch", daemon=True).start()
+
+
+def _exit_with(parent: int) -> None:
+    """Wait until process ``parent`` has ended, then end this process at once."""
+    try:
+        fd = os.pidfd_open(parent)
+    except (AttributeError, OSError):  # no pidfd: poll
+        fd = None
+    if fd is not None:
+        poller = select.poll()
+        poller.register(fd, select.POLLIN)
+        poller.poll()  # readable once the process has ended
+    else:  # pragma: no cover - Linux before 5.3, other systems
+        while True:
+            time.sleep(1.0)
+            try:
+                os.kill(parent, 0)
+            except ProcessLookupError:
+                break
+            except PermissionError:
+                continue
+    os._exit(1)  # the task in hand is abandoned: its ingest is gone
 
 
 def _widen_results(ex: ProcessPoolExecutor) -> int | None:

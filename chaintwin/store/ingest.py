@@ -577,17 +577,25 @@ def ingest(
     for _ in range(len(files) - len(unique)):
         summary.duplicates += 1
         tick()
-    with executor(workers, scheduler) as ex:
-        _Batch(
-            ex,
-            unique,
-            profiles,
-            store,
-            window,
-            lambda prof: _Conveyor(store, prof, settings, summary, max(1, commit_group)),
-            column_map,
-            summary,
-            tick,
-        ).run()
+    try:
+        with executor(workers, scheduler) as ex:
+            _Batch(
+                ex,
+                unique,
+                profiles,
+                store,
+                window,
+                lambda prof: _Conveyor(store, prof, settings, summary, max(1, commit_group)),
+                column_map,
+                summary,
+                tick,
+            ).run()
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM through the command line
+        exc.add_note(
+            f"ingest stopped: {summary.processed} recording(s) stored with their results, "
+            f"{summary.waiting} stored waiting for a calibration; run the same ingest again "
+            "to finish (what is stored is skipped)"
+        )
+        raise
     summary.seconds = (datetime.now(UTC) - started).total_seconds()
     return summary

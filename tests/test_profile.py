@@ -149,3 +149,19 @@ def test_numbers_must_be_numbers(tmp_path: Path) -> None:
     ok = tmp_path / "ok.yaml"
     ok.write_text(text.replace("ratio: 30.99", "ratio: 3.099e1"))
     assert load_profile(ok).gear.ratio == pytest.approx(30.99)
+
+
+def test_a_conveyor_id_is_at_most_100_characters_and_names_a_page_of_any_length() -> None:
+    from chaintwin.read.profile import MAX_ID_LENGTH
+    from chaintwin.report.html import report_file_name
+
+    d = reference_dict()
+    d["id"] = "x" * (MAX_ID_LENGTH + 200)
+    with pytest.raises(ProfileError, match=r"field 'id': String should have at most 100"):
+        parse_profile(d, "p.yaml")
+    d["id"] = "é" * MAX_ID_LENGTH  # 200 bytes in UTF-8
+    assert parse_profile(d, "p.yaml").id == d["id"]
+    for conveyor in ("é" * MAX_ID_LENGTH, "ü" * 300, "a/b" * 100):
+        name = report_file_name(conveyor)
+        assert len(name.encode()) <= 255 and name.endswith(".html")
+    assert report_file_name("ü" * 300) != report_file_name("ü" * 299)  # cut names stay apart

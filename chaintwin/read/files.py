@@ -114,9 +114,13 @@ def read_limited(
     except OSError as exc:
         raise error(source, f"cannot be read ({exc.strerror or exc}); check the path") from None
     with os.fdopen(fd, "rb") as handle:
-        if not stat.S_ISREG(os.fstat(handle.fileno()).st_mode):
+        info = os.fstat(handle.fileno())
+        if not stat.S_ISREG(info.st_mode):
             raise error(source, f"is not a regular file; give a {what} file")
-        data = handle.read(limit + 1)
+        # read(n) allocates n bytes first: ask for the file's size, not the limit
+        data = handle.read(min(info.st_size, limit) + 1)
+        if len(data) > info.st_size:  # it grows while being read
+            data += handle.read(limit + 1 - len(data))
     if len(data) > limit:  # it grew while being read
         raise _too_large(error, source, len(data), limit, what)
     return data

@@ -52,6 +52,7 @@ __all__ = [
     "ControllerSpec",
     "ConveyorProfile",
     "GearSpec",
+    "MAX_ID_LENGTH",
     "ModelSpec",
     "MotorSpec",
     "SprocketSpec",
@@ -176,13 +177,18 @@ class ModelSpec(_Spec):
     """Belt damping, N·s/m."""
 
 
+MAX_ID_LENGTH = 100
+"""Longest conveyor id, characters (it names files, store rows and pages)."""
+
+
 class ConveyorProfile(_Spec):
     """A conveyor's known data (docs/data-contract.md, section 2), validated.
 
     Derived quantities are properties in SI units.
     """
 
-    id: Annotated[str, Field(min_length=1)]
+    id: Annotated[str, Field(min_length=1, max_length=MAX_ID_LENGTH)]
+    """The conveyor's id: 1 to :data:`MAX_ID_LENGTH` characters."""
     belt: BeltSpec
     sprocket: SprocketSpec
     gear: GearSpec

@@ -13,6 +13,7 @@ Sections of a conveyor page (their HTML ids, which tests and links use):
 
 from __future__ import annotations
 
+import hashlib
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -86,7 +87,14 @@ _ENV.globals.update(fmt=_fmt, pct=_pct, version=__version__)
 def report_file_name(conveyor: str) -> str:
     """File name of a conveyor's page: ``<id>.html``, other characters than ``A-Za-z0-9-_.`` → _."""
     safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in conveyor)
+    if len(safe.encode()) > _NAME_BYTES:  # file systems allow 255 bytes a name
+        digest = hashlib.sha256(conveyor.encode()).hexdigest()[:8]
+        safe = safe.encode()[:_NAME_BYTES].decode(errors="ignore") + "-" + digest
     return f"{safe}.html"
+
+
+_NAME_BYTES = 200
+"""Longest page name before ``.html``, bytes (longer ones are cut, with a hash)."""
 
 
 def page_names(conveyors: Sequence[str]) -> dict[str, str]:

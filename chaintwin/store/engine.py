@@ -57,7 +57,12 @@ def _from_json(text: str | bytes) -> Any:
 
 
 def safe_url(url: str) -> str:
-    """The URL without its password, for messages."""
+    """The URL for messages: without its password, control characters escaped (one line)."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in _without_password(url))
+
+
+def _without_password(url: str) -> str:
+    """The URL with its password, if any, replaced by ``***``."""
     head, sep, tail = url.partition("@")
     if not sep or "://" not in head:
         return url
@@ -96,7 +101,7 @@ def engine_for(url: str, *, read_only: bool = False) -> Engine:
         )
     except (SQLAlchemyError, ImportError, ValueError) as exc:
         raise StoreError(
-            f"url {safe_url(url)}: not a usable database URL ({exc}); use "
+            f"url {safe_url(url)}: not a usable database URL ({_first_line(exc)}); use "
             "sqlite:///file.db or postgresql://user:password@host/database",
             field="url",
         ) from None
@@ -105,6 +110,11 @@ def engine_for(url: str, *, read_only: bool = False) -> Engine:
     elif read_only:
         event.listen(engine, "connect", _postgresql_read_only)
     return engine
+
+
+def _first_line(exc: BaseException) -> str:
+    """An exception's message up to its first line break (a one-line error)."""
+    return (str(exc).strip().splitlines() or [type(exc).__name__])[0]
 
 
 def sqlite_path(url: str) -> str | None:

@@ -162,7 +162,7 @@ class Store:
         path = sqlite_path(url)
         if (not create or read_only) and path is not None and not os.path.exists(path):
             raise StoreError(
-                f"url {url}: there is no store at {path}; give the store's URL (or set "
+                f"url {safe_url(url)}: there is no store there; give the store's URL (or set "
                 "CHAINTWIN_DB), or ingest recordings into it first",
                 field="url",
             )

@@ -565,11 +565,7 @@ class ConveyorMonitor:
 
     # ---------------------------------------------------------- state
     def to_state(self) -> MonitorState:
-        """Everything learned (:func:`.monitor_state.state_of`); ``to_dict()`` gives its JSON.
-
-        The record shares its lists with the monitor: serialise it before
-        processing more recordings.
-        """
+        """Everything learned (:func:`.monitor_state.state_of`, sharing the monitor's lists)."""
         return monitor_state.state_of(self)
 
     @classmethod
@@ -590,10 +586,8 @@ class ConveyorMonitor:
         """
         if isinstance(state, MonitorState):
             state = copy.deepcopy(state)
-        elif isinstance(state, dict):
+        else:  # its JSON form
             state = MonitorState.from_dict(state, source=source)
-        else:
-            raise StoreError(f"{source}: a monitoring state is a JSON object, not {type(state)}")
         if state.profile_sha256 != profile.content_hash():
             raise StoreError(
                 f"{source}: conveyor '{profile.id}' was monitored with another version of its "

@@ -48,11 +48,11 @@ from chaintwin.errors import ProfileError
 from chaintwin.read.files import read_limited, yaml_load
 
 __all__ = [
+    "MAX_ID_LENGTH",
     "BeltSpec",
     "ControllerSpec",
     "ConveyorProfile",
     "GearSpec",
-    "MAX_ID_LENGTH",
     "ModelSpec",
     "MotorSpec",
     "SprocketSpec",

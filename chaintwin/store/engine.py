@@ -15,7 +15,15 @@ from sqlalchemy.exc import SQLAlchemyError
 from chaintwin.diagnose.state import json_ready
 from chaintwin.errors import StoreError
 
-__all__ = ["DEFAULT_URL", "engine_for", "safe_url", "sqlite_path", "store_url"]
+__all__ = [
+    "DEFAULT_URL",
+    "QUICK_CHECK_MAX_MB",
+    "check_sqlite_file",
+    "engine_for",
+    "safe_url",
+    "sqlite_path",
+    "store_url",
+]
 
 DEFAULT_URL = "sqlite:///chaintwin.db"
 """The embedded default: a SQLite file in the working folder."""
@@ -153,3 +161,29 @@ def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
     cur.execute("PRAGMA busy_timeout=30000")
     cur.execute("PRAGMA foreign_keys=ON")
     cur.close()
+
+
+QUICK_CHECK_MAX_MB = 512
+"""SQLite stores up to this size (MB) get ``PRAGMA quick_check`` when opened
+(about a second per 100 MB); larger ones the schema check only."""
+
+
+def check_sqlite_file(engine: Engine, path: str, where: str) -> None:
+    """Refuse a damaged SQLite file before anything reads or writes it.
+
+    Raises
+    ------
+    StoreError
+        When the integrity check finds damage.
+    """
+    if not os.path.exists(path) or os.path.getsize(path) > QUICK_CHECK_MAX_MB * 1_000_000:
+        return  # a new store, or one too large to check at every opening
+    with engine.connect() as connection:
+        rows = connection.exec_driver_sql("PRAGMA quick_check(3)").fetchall()
+    found = [str(r[0]) for r in rows]
+    if found != ["ok"]:
+        raise StoreError(
+            f"url {where}: the store is damaged ({'; '.join(found)[:200]}); nothing was "
+            "changed: restore it from a backup",
+            field="url",
+        )

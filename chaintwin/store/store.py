@@ -19,7 +19,6 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any, TypeVar
 
@@ -30,7 +29,7 @@ from sqlalchemy.orm import Session
 
 from chaintwin.diagnose.monitor import ConveyorMonitor
 from chaintwin.diagnose.monitor_state import MonitorState
-from chaintwin.diagnose.records import Alarm, Event, MonitorSettings, RecordingResult
+from chaintwin.diagnose.records import Alarm, Event, MonitorSettings
 from chaintwin.diagnose.state import json_ready
 from chaintwin.errors import StoreError
 from chaintwin.identify.calibration import Calibration
@@ -38,7 +37,8 @@ from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
 
 from . import migrate
-from .engine import engine_for, safe_url, sqlite_path
+from .engine import check_sqlite_file, engine_for, safe_url, sqlite_path
+from .rows import Finished, Waiting, put_alarms_events
 from .samples import pack_samples, recording_meta, stored_recording
 from .schema import (
     AlarmRow,
@@ -63,28 +63,6 @@ HISTORY_IN_STATE = 300
 results are in the ``results`` table."""
 
 
-@dataclass(frozen=True, slots=True)
-class Waiting:
-    """A recording the health model holds back until it has learned a calibration."""
-
-    recording: Recording
-    sha256: str
-    samples: bytes | None = None
-
-
-@dataclass(frozen=True, slots=True)
-class Finished:
-    """A recording that monitoring has taken, ready to be stored."""
-
-    recording: Recording
-    sha256: str
-    result: RecordingResult
-    samples: bytes | None = None
-    """The compressed channels (:func:`pack_samples`), when packed already (in a worker)."""
-    stored: bool = False
-    """Stored already (while it waited for a learned calibration): only its result is new."""
-
-
 T = TypeVar("T")
 
 _STORED = "store:"
@@ -95,32 +73,6 @@ def _iso_time(recording: Recording) -> str | None:
     """``recorded_at`` in UTC, as monitoring writes it."""
     at = recording.metadata.recorded_at
     return None if at is None else at.astimezone(UTC).isoformat()
-
-
-QUICK_CHECK_MAX_MB = 512
-"""SQLite stores up to this size (MB) get ``PRAGMA quick_check`` when opened
-(about a second per 100 MB); larger ones the schema check only."""
-
-
-def _check_sqlite_file(engine: Engine, path: str, where: str) -> None:
-    """Refuse a damaged SQLite file before anything reads or writes it.
-
-    Raises
-    ------
-    StoreError
-        When the integrity check finds damage.
-    """
-    if not os.path.exists(path) or os.path.getsize(path) > QUICK_CHECK_MAX_MB * 1_000_000:
-        return  # a new store, or one too large to check at every opening
-    with engine.connect() as connection:
-        rows = connection.exec_driver_sql("PRAGMA quick_check(3)").fetchall()
-    found = [str(r[0]) for r in rows]
-    if found != ["ok"]:
-        raise StoreError(
-            f"url {where}: the store is damaged ({'; '.join(found)[:200]}); nothing was "
-            "changed: restore it from a backup",
-            field="url",
-        )
 
 
 class StateConflict(Exception):
@@ -147,7 +99,7 @@ class Store:
         ``report``): the database cannot be changed through this object.
 
     A SQLite file is checked when it is opened (``PRAGMA quick_check`` up
-    to :data:`QUICK_CHECK_MAX_MB`, the schema always): a damaged file or
+    to :data:`~.engine.QUICK_CHECK_MAX_MB`, the schema always): a damaged file or
     another program's database is refused, changed in nothing.
 
     Raises
@@ -170,7 +122,7 @@ class Store:
         where = safe_url(self.url)
         try:
             if path is not None:
-                _check_sqlite_file(self.engine, path, where)
+                check_sqlite_file(self.engine, path, where)
             if migrate.check(self.engine, where) is None:
                 if read_only:
                     raise StoreError(
@@ -423,7 +375,7 @@ class Store:
                             for item in items
                         ],
                     )
-                self._put_alarms_events(s, conveyor, monitor.alarms, monitor.events)
+                put_alarms_events(s, conveyor, monitor.alarms, monitor.events)
         except IntegrityError:
             # one of the recordings was stored by another writer in the meantime
             raise StateConflict(conveyor) from None
@@ -433,42 +385,6 @@ class Store:
                 "this group was stored, run the command again"
             ) from None
         return 1 if version == 0 else version + 1
-
-    @staticmethod
-    def _put_alarms_events(
-        s: Session, conveyor: str, alarms: list[Alarm], events: list[Event]
-    ) -> None:
-        """Bring the alarm and event rows of a conveyor up to its health model."""
-        rows = {
-            r.id: r for r in s.scalars(select(AlarmRow).where(AlarmRow.conveyor_id == conveyor))
-        }
-        for alarm in alarms:
-            values = {
-                "conveyor_id": conveyor,
-                "feature": alarm.feature,
-                "cause": alarm.cause,
-                "status": alarm.status,
-                "since": alarm.since,
-                "content": json_ready(alarm.to_dict()),
-            }
-            row = rows.get(alarm.id)
-            if row is None:
-                s.add(AlarmRow(id=alarm.id, **values))
-            elif row.content != values["content"] or row.status != values["status"]:
-                for k, v in values.items():
-                    setattr(row, k, v)
-        known = set(s.scalars(select(EventRow.id).where(EventRow.conveyor_id == conveyor)))
-        for ev in events:
-            if ev.id not in known:
-                s.add(
-                    EventRow(
-                        id=ev.id,
-                        conveyor_id=conveyor,
-                        kind=ev.kind,
-                        at=ev.at,
-                        content=json_ready(ev.to_dict()),
-                    )
-                )
 
     # ------------------------------------------------------------ reading
     def results(self, conveyor: str | None = None) -> list[dict[str, Any]]:
@@ -633,7 +549,7 @@ class Store:
             typed = MonitorState.from_dict(
                 state, source=f"{safe_url(self.url)} conveyor {conveyor}"
             )
-            self._put_alarms_events(s, conveyor, typed.alarms, typed.events)
+            put_alarms_events(s, conveyor, typed.alarms, typed.events)
             return out
 
     def alarm_conveyor(self, alarm_id: str) -> str:

@@ -1,0 +1,70 @@
+"""What the store takes besides the health model: recordings to store, alarm and event rows."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from chaintwin.diagnose.records import Alarm, Event, RecordingResult
+from chaintwin.diagnose.state import json_ready
+from chaintwin.read.recording import Recording
+
+from .schema import AlarmRow, EventRow
+
+__all__ = ["Finished", "Waiting", "put_alarms_events"]
+
+
+@dataclass(frozen=True, slots=True)
+class Waiting:
+    """A recording the health model holds back until it has learned a calibration."""
+
+    recording: Recording
+    sha256: str
+    samples: bytes | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Finished:
+    """A recording that monitoring has taken, ready to be stored."""
+
+    recording: Recording
+    sha256: str
+    result: RecordingResult
+    samples: bytes | None = None
+    """The compressed channels (:func:`~.samples.pack_samples`), if a worker packed them."""
+    stored: bool = False
+    """Stored already (while it waited for a learned calibration): only its result is new."""
+
+
+def put_alarms_events(s: Session, conveyor: str, alarms: list[Alarm], events: list[Event]) -> None:
+    """Bring the alarm and event rows of a conveyor up to its health model."""
+    rows = {r.id: r for r in s.scalars(select(AlarmRow).where(AlarmRow.conveyor_id == conveyor))}
+    for alarm in alarms:
+        values = {
+            "conveyor_id": conveyor,
+            "feature": alarm.feature,
+            "cause": alarm.cause,
+            "status": alarm.status,
+            "since": alarm.since,
+            "content": json_ready(alarm.to_dict()),
+        }
+        row = rows.get(alarm.id)
+        if row is None:
+            s.add(AlarmRow(id=alarm.id, **values))
+        elif row.content != values["content"] or row.status != values["status"]:
+            for k, v in values.items():
+                setattr(row, k, v)
+    known = set(s.scalars(select(EventRow.id).where(EventRow.conveyor_id == conveyor)))
+    for ev in events:
+        if ev.id not in known:
+            s.add(
+                EventRow(
+                    id=ev.id,
+                    conveyor_id=conveyor,
+                    kind=ev.kind,
+                    at=ev.at,
+                    content=json_ready(ev.to_dict()),
+                )
+            )

@@ -128,17 +128,11 @@ class _Conveyor:
         self.group = group
         store.put_profile(profile)  # refused when the stored health model has another profile
         saved, self.version = store.monitor(profile, settings)
-        waited = (
-            {} if saved is None else {rec.source: (rec, str(sha)) for rec, sha in saved.waiting()}
-        )
+        waited = {r.source: (r, str(h)) for r, h in (saved.waiting() if saved else [])}
         # the store's calibration made anew (calibrate --db) replaces the model's
+        cal, where = store.calibration(profile.id), safe_url(store.url)
         self.monitor, flushed = resume(
-            saved,
-            profile,
-            settings,
-            store.calibration(profile.id),
-            other_calibration="replace",
-            source=safe_url(store.url),
+            saved, profile, settings, cal, other_calibration="replace", source=where
         )
         self.opened = {a.id for a in self.monitor.alarms}
         # this run's recordings taken by monitoring but not yet stored (file -> input)

@@ -21,6 +21,7 @@ from conftest import EXAMPLES, REFERENCE_PROFILE
 
 from chaintwin.cli.app import main
 from chaintwin.diagnose.records import MonitorSettings
+from chaintwin.errors import StoreError
 from chaintwin.read.profile import load_profile
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate
@@ -689,3 +690,23 @@ def test_no_process_outlives_a_killed_ingest_and_sigterm_says_what_was_stored(
             assert proc.returncode == 128 + signal.SIGTERM
             assert "stopped by SIGTERM" in err
             assert f"{stored} recording(s) stored with their results" in err, err
+
+
+def test_a_damaged_stored_health_model_leaves_the_page_with_a_note(tmp_path: Path) -> None:
+    from sqlalchemy.orm import Session
+
+    from chaintwin.report.data import conveyor_data
+    from chaintwin.store.schema import MonitorStateRow
+
+    store = Store(f"sqlite:///{tmp_path / 'damaged.db'}")
+    try:
+        store.put_profile(PROFILE)
+        with Session(store.engine) as s, s.begin():
+            broken = {"conveyor": PROFILE.id, "profile_sha256": PROFILE.content_hash()}
+            s.add(MonitorStateRow(conveyor_id=PROFILE.id, state=broken, updated_at="", version=1))
+        with pytest.raises(StoreError, match="monitoring state of 'white-belt-01' is damaged"):
+            store.state(PROFILE.id)
+        page = conveyor_data(store, PROFILE.id, waterfall=0)
+        assert any("health model not readable" in n for n in page.notes)
+    finally:
+        store.close()

@@ -302,8 +302,12 @@ def conveyor_data(
             f"(it holds: {', '.join(store.conveyors()) or 'none'})"
         )
     results = [r for r in store.results(conveyor) if "error" not in r]
-    state = store.state(conveyor)
     notes: list[str] = []
+    try:
+        state = store.state(conveyor)
+    except StoreError as exc:  # the page shows what else the store holds
+        state = None
+        notes.append(f"health model not readable: {exc}")
     summary: dict[str, Any] = {"baseline": {"complete": False}}
     forecasts: list[dict[str, Any]] = []
     baselines: dict[str, FeatureBaseline] = {}

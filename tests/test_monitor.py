@@ -18,7 +18,7 @@ from chaintwin.diagnose.causes import resolve_causes
 from chaintwin.diagnose.features import recording_features
 from chaintwin.diagnose.health import fit_baseline, forecast_crossing, x_of_y
 from chaintwin.diagnose.monitor import ConveyorMonitor
-from chaintwin.diagnose.monitor_state import MonitorState
+from chaintwin.diagnose.monitor_state import LEARNED, MonitorState
 from chaintwin.diagnose.records import Alarm, Event, MonitorSettings, RecordingResult
 from chaintwin.diagnose.state import (
     STATE_VERSION,
@@ -492,6 +492,8 @@ def test_state_alarm_and_event_records_round_trip_and_refuse_damage(
     state = mon.to_state()
     assert isinstance(state.alarms[0], Alarm) and isinstance(state.events[0], Event)
     assert state.version == STATE_VERSION
+    own = {"conveyor", "profile_sha256", "settings", "pending", "version"}
+    assert {f.name for f in dataclasses.fields(MonitorState)} - own == set(LEARNED)
     text = json.loads(json.dumps(state.to_dict()))
     back = MonitorState.from_dict(text)
     assert back.to_dict() == text

@@ -169,9 +169,11 @@ def run_monitor(
 def open_unacknowledged(state: dict[str, Any] | None, monitors: list[ConveyorMonitor]) -> bool:
     """Whether any conveyor (of this run, or of the state) has an open, unacknowledged alarm."""
     alarms = [a for m in monitors for a in m.open_alarms()]
-    if state is not None:
-        for conveyor in state["conveyors"].values():
-            alarms += [a for a in MonitorState.from_dict(conveyor).alarms if a.is_open]
+    ran = {m.profile.id for m in monitors}
+    if state is not None:  # the conveyors of the state this run did not monitor
+        for cid, conveyor in state["conveyors"].items():
+            if cid not in ran:
+                alarms += [a for a in MonitorState.from_dict(conveyor).alarms if a.is_open]
     return any(a.acknowledged is None for a in alarms)
 
 

@@ -29,6 +29,7 @@ if TYPE_CHECKING:
     from .monitor import ConveyorMonitor
 
 __all__ = [
+    "LEARNED",
     "MonitorState",
     "PendingFile",
     "StoredHealth",
@@ -178,35 +179,41 @@ class MonitorState:
             ) from None
 
 
+LEARNED: tuple[str, ...] = (
+    "calibration",
+    "calibration_source",
+    "baseline_rows",
+    "late_rows",
+    "baseline_spectra",
+    "baselines",
+    "baseline_spectrum",
+    "baseline_since",
+    "belt_last",
+    "belt_prev",
+    "windows",
+    "window_times",
+    "alarms",
+    "events",
+    "history",
+    "notes",
+    "last_recorded_at",
+)
+"""Attributes a monitor and its :class:`MonitorState` share by name (copied as they are)."""
+
+
 def state_of(mon: ConveyorMonitor) -> MonitorState:
     """Everything ``mon`` learned (:func:`restore` puts it back into a monitor)."""
     return MonitorState(
         conveyor=mon.profile.id,
         profile_sha256=mon.profile.content_hash(),
         settings=mon.settings,
-        calibration=mon.calibration,
-        calibration_source=mon.calibration_source,
         pending=[
             PendingFile(path, rec.source, sha, extra)
             for path, rec, (sha, extra) in zip(
                 mon.pending_files, mon.pending, mon.pending_meta, strict=True
             )
         ],
-        baseline_rows=mon.baseline_rows,
-        late_rows=mon.late_rows,
-        baseline_spectra=mon.baseline_spectra,
-        baselines=mon.baselines,
-        baseline_spectrum=mon.baseline_spectrum,
-        baseline_since=mon.baseline_since,
-        belt_last=mon.belt_last,
-        belt_prev=mon.belt_prev,
-        windows=mon.windows,
-        window_times=mon.window_times,
-        alarms=mon.alarms,
-        events=mon.events,
-        history=mon.history,
-        notes=mon.notes,
-        last_recorded_at=mon.last_recorded_at,
+        **{name: getattr(mon, name) for name in LEARNED},
     )
 
 
@@ -221,24 +228,8 @@ def restore(
     Recordings that were waiting for a learned calibration are read again
     with ``loader``; one that cannot be is left out with a note.
     """
-    if state.calibration is not None:
-        mon.calibration = state.calibration
-    mon.calibration_source = state.calibration_source
-    mon.baseline_rows = state.baseline_rows
-    mon.late_rows = state.late_rows
-    mon.baseline_spectra = state.baseline_spectra
-    mon.baselines = state.baselines
-    mon.baseline_spectrum = state.baseline_spectrum
-    mon.baseline_since = state.baseline_since
-    mon.belt_last = state.belt_last
-    mon.belt_prev = state.belt_prev
-    mon.windows = state.windows
-    mon.window_times = state.window_times
-    mon.alarms = state.alarms
-    mon.events = state.events
-    mon.history = state.history
-    mon.notes = state.notes
-    mon.last_recorded_at = state.last_recorded_at
+    for name in LEARNED:
+        setattr(mon, name, getattr(state, name))
     mon.processed = {h["sha256"]: k for k, h in enumerate(mon.history) if h.get("sha256")}
     for pending in state.pending:
         try:

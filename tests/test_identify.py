@@ -419,3 +419,29 @@ def test_a_calibration_with_impossible_numbers_is_refused(
         with pytest.raises(CalibrationError, match=re.escape(message)):
             load_calibration(edited(edit))
     assert load_calibration(edited(lambda d: None)).case == cal_p2.case
+
+
+def test_a_loss_drift_allowance_widens_the_friction_signature_by_hand(
+    cal_p2: Calibration,
+) -> None:
+    from chaintwin.weigh.weigh import LOSS_DRIFT_REL
+
+    ins = inspected(40.0, 502, known=False)
+    plain = weigh(ins, cal_p2)
+    drift = weigh(ins, cal_p2, loss_drift_rel=LOSS_DRIFT_REL)
+    # by hand: 6 % of BmA + BmB·ω + BmC·ω² at 1415 rpm, over g·μ·r/(i·η) (flat)
+    w = 1415 * 2 * np.pi / 60
+    bma, bmb, bmc = cal_p2.parameters.losses
+    loss = bma + bmb * w + bmc * w * w
+    sens = 9.81 * cal_p2.parameters["mu"] * PROFILE.chordal_radius_m
+    sens /= PROFILE.kinematic_ratio * PROFILE.gear.efficiency
+    expected = LOSS_DRIFT_REL * loss / sens  # about 4.5 kg: losses of 75 kg of payload
+    added = np.sqrt(drift.friction_uncertainty_kg**2 - plain.friction_uncertainty_kg**2)
+    assert added == pytest.approx(expected, rel=0.02)
+    assert drift.payload_friction_kg == plain.payload_friction_kg
+    # the weight moves to the inertia signature; a 10 % friction rise at 20 kg
+    # then stays within the payload's uncertainty instead of reading as load
+    rise = inspected(20.0, 510, known=False, faults=[Fault("friction", 0.1)])
+    res = weigh(rise, cal_p2, loss_drift_rel=LOSS_DRIFT_REL)
+    assert res.payload_friction_kg > 24.0
+    assert res.payload_kg == pytest.approx(20.0, abs=2 * res.uncertainty_kg)

@@ -38,6 +38,7 @@ import numpy as np
 from chaintwin.errors import EstimationError
 from chaintwin.identify.calibration import INERTIA_MODEL_REL, Calibration
 from chaintwin.identify.signatures import SignatureFit, fit_signatures
+from chaintwin.model.physics import loss_torque_nm, payload_sensitivity_nm_kg
 from chaintwin.model.rigid import motoring_mask
 from chaintwin.model.windows import WindowIntegrals
 from chaintwin.read.recording import RecordingWarning
@@ -45,16 +46,49 @@ from chaintwin.units import RPM_TO_RAD_S
 from chaintwin.validate.checks import Inspection
 from chaintwin.weigh.tlf import transport_loss_factor
 
-__all__ = ["CONSISTENCY_SIGMA", "Segment", "WeighResult", "weigh"]
+__all__ = ["CONSISTENCY_SIGMA", "LOSS_DRIFT_REL", "Segment", "WeighResult", "weigh"]
 
 CONSISTENCY_SIGMA = 3.0
 """Friction and inertia estimates disagree beyond this many combined sigmas."""
+
+LOSS_DRIFT_REL = 0.06
+"""A standard uncertainty of the day's losses relative to the calibration's, 1:
+a ±10 % drift (uniform) has a standard deviation of 5.8 %. Give it to
+:func:`weigh` as ``loss_drift_rel`` to allow for such a drift (the default,
+0, trusts the calibration's losses; see docs/user-guide.md, weighing over
+random conveyors, for what each choice costs)."""
 
 STEP_MIN_KG = 2.0
 """Smallest load change reported as a segment, kg."""
 
 STEP_SIGMA = 6.0
 """A load change must stand this many sigmas above the windows' scatter."""
+
+
+def _loss_drift_kg(windows: WindowIntegrals, calibration: Calibration, rel: float) -> float:
+    """The friction payload's standard uncertainty from loss drift, kg.
+
+    ``rel`` of the calibrated loss torque at the plateau speed,
+    over the payload sensitivity in the direction of travel (``μ·cosβ ± sinβ``:
+    near zero on a decline, where the friction signature knows nothing).
+    """
+    speeds = windows.mean_speed[windows.constant] if windows.constant.any() else windows.mean_speed
+    if rel == 0.0 or speeds.size == 0:
+        return 0.0
+    w = float(np.median(speeds))
+    prof = calibration.id_profile
+    params = calibration.parameters
+    loss = abs(loss_torque_nm(w, *params.losses))
+    sens = abs(
+        payload_sensitivity_nm_kg(
+            mu=params["mu"],
+            incline_rad=prof.incline_rad * (1.0 if w >= 0 else -1.0),
+            radius_m=prof.chordal_radius_m,
+            ratio=prof.kinematic_ratio,
+            efficiency=prof.gear.efficiency,
+        )
+    )
+    return rel * loss / max(sens, 1e-9)
 
 
 @dataclass(frozen=True, slots=True)
@@ -162,6 +196,7 @@ def weigh(
     source: str | None = None,
     motoring: np.ndarray | None = None,
     windows: WindowIntegrals | None = None,
+    loss_drift_rel: float = 0.0,
 ) -> WeighResult:
     """Weigh the payload of one recording.
 
@@ -182,6 +217,13 @@ def weigh(
     windows : WindowIntegrals, optional
         The recording's window integrals with that ``motoring``, when already
         computed (:func:`~chaintwin.model.windows.window_integrals`).
+    loss_drift_rel : float
+        Standard uncertainty of the gear and motor losses relative to the
+        calibration's, 1 (e.g. :data:`LOSS_DRIFT_REL`). The friction
+        signature reads a loss change as payload; this much of the loss
+        torque at the plateau speed, over the payload sensitivity, enters
+        its uncertainty, and so shifts weight to the inertia signature.
+        0 (default) trusts the calibration's losses.
 
     Returns
     -------
@@ -260,6 +302,9 @@ def weigh(
             fit, cov = last, cov_last
 
     p_f = float(fit.estimate[0])
+    s_drift = _loss_drift_kg(fit.windows, calibration, loss_drift_rel)
+    cov = cov.copy()
+    cov[0, 0] += s_drift**2  # the friction signature reads a loss change as payload
     s_f = float(np.sqrt(cov[0, 0]))
     widen = 1.0
     if recording.has_warning("incomplete_cycle"):

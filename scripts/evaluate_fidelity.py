@@ -63,6 +63,7 @@ from typing import Any
 
 import numpy as np
 
+from chaintwin.diagnose.state import json_ready
 from chaintwin.errors import ChaintwinError
 from chaintwin.identify.calibrating import calibrate
 from chaintwin.model.physics import payload_sensitivity_nm_kg
@@ -409,7 +410,11 @@ def main(argv: list[str] | None = None) -> int:
     seconds = time.perf_counter() - started
     _print(summary, table, seconds)
     args.json.write_text(
-        json.dumps({"summary": summary, "conveyors": table, "rows": rows}, indent=1, default=str)
+        json.dumps(
+            json_ready({"summary": summary, "conveyors": table, "rows": rows}),
+            indent=1,
+            allow_nan=False,
+        )
     )
     return 0
 

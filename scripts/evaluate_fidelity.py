@@ -3,8 +3,7 @@
 Run::
 
     OPENBLAS_NUM_THREADS=1 python scripts/evaluate_fidelity.py weighing \
-        [--conveyors 30] [--seed 20261125] [--json fidelity-weighing.json] \
-        [--loss-drift-rel 0.06]
+        [--conveyors 30] [--seed 20261125] [--json fidelity-weighing.json]
 
 (about 15 s for 30 conveyors on one core).
 
@@ -27,7 +26,11 @@ conveying direction, at the conveyor's scope sample time; once with the gear
 losses of the calibration ("no drift") and once with them scaled by a
 factor drawn in 0.9-1.1 per recording ("drift ±10 %").
 
-It prints, per protocol and drift condition: the largest, 99th-percentile
+Each test recording is weighed in two modes: ``trusted`` (the calibration's
+losses, as the commands weigh) and ``unknown`` (a drift of ±10 % allowed
+for: ``weigh(..., loss_drift=LossDrift.unknown())``).
+
+It prints, per protocol, drift condition and mode: the largest, 99th-percentile
 and median absolute error (kg); the share of errors within 1, 2 and 3
 reported standard uncertainties and beyond 5; the median reported
 uncertainty over the median absolute error (an honest Gaussian gives 1.48);
@@ -71,11 +74,14 @@ from chaintwin.read.profile import ConveyorProfile, parse_profile
 from chaintwin.read.recording import Recording
 from chaintwin.simulate.virtual import default_setpoints, run_virtual
 from chaintwin.units import G
-from chaintwin.validate import inspect_recording
-from chaintwin.weigh import weigh
+from chaintwin.validate import Inspection, inspect_recording
+from chaintwin.weigh import reweigh, weigh
+from chaintwin.weigh.drift import LossDrift
 
 PROTOCOLS = ("one_load_one_speed", "one_load_several_speeds", "several_loads")
-DRIFTS = ("none", "drift10")
+MODES = ("trusted", "unknown")
+CONDITIONS = tuple((d, m) for d in ("none", "drift10") for m in MODES)
+"""Rows of the table: test condition and weighing mode."""
 TESTS_PER_DRIFT = 6
 SAMPLE_TIMES_S = (0.001, 0.006, 0.012)
 
@@ -225,63 +231,85 @@ def calibration_runs(conv: Conveyor, seed: int) -> dict[str, list[Recording]]:
     }
 
 
-def evaluate_conveyor(conv: Conveyor, seed: int, loss_drift_rel: float) -> list[dict[str, Any]]:
-    """Every weighing of one conveyor: a row per protocol, drift condition and test."""
+def _tests(conv: Conveyor, seed: int) -> list[tuple[str, float, float, Inspection]]:
+    """The test recordings: ``(condition, payload, loss scale, inspection)``, in order.
+
+    ``none``: the calibration's losses; ``drift10``: each recording's losses
+    scaled by 0.9-1.1 at random.
+    """
     rng = np.random.default_rng(seed)
-    tests: list[tuple[str, float, float, Any]] = []
-    for drift in DRIFTS:
-        for j in range(TESTS_PER_DRIFT):
-            payload = float(rng.uniform(0.0, conv.max_payload_kg))
-            scale = float(rng.uniform(0.9, 1.1)) if drift == "drift10" else 1.0
-            rec = _run(
-                conv,
-                payload,
-                seed + 100 + j + 50 * (drift != "none"),
-                direction=conv.direction,
-                loss_scale=scale,
-            )
-            tests.append((drift, payload, scale, inspect_recording(rec, conv.profile)))
+    tests: list[tuple[str, float, float, Inspection]] = []
+    plan = [("none", 1.0)] * TESTS_PER_DRIFT
+    plan += [("drift10", float(rng.uniform(0.9, 1.1))) for _ in range(TESTS_PER_DRIFT)]
+    for j, (condition, scale) in enumerate(plan):
+        payload = float(rng.uniform(0.0, conv.max_payload_kg))
+        rec = _run(conv, payload, seed + 100 + j, direction=conv.direction, loss_scale=scale)
+        tests.append((condition, payload, scale, inspect_recording(rec, conv.profile)))
+    return tests
+
+
+def evaluate_conveyor(conv: Conveyor, seed: int) -> list[dict[str, Any]]:
+    """Every weighing of one conveyor: a row per protocol, condition, mode and test.
+
+    Modes: ``trusted`` (the calibration's losses, as the commands weigh) and
+    ``unknown`` (a drift of ±10 % allowed for, :meth:`LossDrift.unknown`).
+    """
+    tests = _tests(conv, seed)
     rows: list[dict[str, Any]] = []
     truth_mu = conv.profile.model.friction if conv.profile.model else float("nan")
     for protocol, recs in calibration_runs(conv, seed).items():
         try:
             cal = calibrate(recs, conv.profile)
         except ChaintwinError as exc:
-            rows.append({"conveyor": conv.profile.id, "protocol": protocol, "error": str(exc)})
+            for drift_, mode_ in CONDITIONS:
+                rows.append(
+                    {"conveyor": conv.profile.id, "protocol": protocol, "drift": drift_}
+                    | {"mode": mode_, "payload_kg": None, "error": str(exc)}
+                )
             continue
         mu_err = float(cal.parameters["mu"]) / truth_mu - 1.0
-        for drift, payload, scale, ins in tests:
-            row: dict[str, Any] = {
+        for condition, payload, scale, ins in tests:
+            base: dict[str, Any] = {
                 "conveyor": conv.profile.id,
                 "protocol": protocol,
                 "case": cal.case,
-                "drift": drift,
+                "drift": condition,
                 "loss_scale": scale,
                 "payload_true_kg": payload,
                 "mu_rel_error": mu_err,
             }
             try:
-                res = weigh(ins, cal, loss_drift_rel=loss_drift_rel)
+                trusted = weigh(ins, cal)
             except ChaintwinError as exc:
-                row.update(payload_kg=None, uncertainty_kg=None, reason=str(exc))
-            else:
-                ok = res.payload_kg is not None and math.isfinite(res.payload_kg)
-                row.update(
-                    payload_kg=res.payload_kg if ok else None,
-                    uncertainty_kg=res.uncertainty_kg if ok else None,
-                    consistent=res.consistent,
-                    warnings=[w.code for w in res.warnings],
+                for mode in MODES:
+                    rows.append(base | {"mode": mode, "payload_kg": None, "reason": str(exc)})
+                continue
+            results = {"trusted": trusted, "unknown": reweigh(trusted, LossDrift.unknown())}
+            for mode, res in results.items():
+                ok = math.isfinite(res.payload_kg)
+                rows.append(
+                    base
+                    | {
+                        "mode": mode,
+                        "payload_kg": res.payload_kg if ok else None,
+                        "uncertainty_kg": res.uncertainty_kg if ok else None,
+                        "consistent": res.consistent,
+                        "warnings": [w.code for w in res.warnings],
+                    }
                 )
-            rows.append(row)
     return rows
 
 
 def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per protocol and drift condition: accuracy, honesty, unweighable share, mu error."""
     out = []
-    for protocol in PROTOCOLS:
-        for drift in DRIFTS:
-            mine = [r for r in rows if r["protocol"] == protocol and r.get("drift") == drift]
+    for protocol, (drift, mode) in ((p, c) for p in PROTOCOLS for c in CONDITIONS):
+        mine = [
+            r
+            for r in rows
+            if r["protocol"] == protocol and r.get("drift") == drift and r.get("mode") == mode
+        ]
+        if mine:
             weighed = [r for r in mine if r.get("payload_kg") is not None]
             err = np.array([r["payload_kg"] - r["payload_true_kg"] for r in weighed])
             u = np.array([r["uncertainty_kg"] for r in weighed])
@@ -292,6 +320,7 @@ def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                 {
                     "protocol": protocol,
                     "drift": drift,
+                    "mode": mode,
                     "n": len(mine),
                     "unweighable_share": 1.0 - len(weighed) / len(mine) if mine else math.nan,
                     "max_kg": float(ae.max()) if ae.size else math.nan,
@@ -329,44 +358,51 @@ def per_conveyor(rows: list[dict[str, Any]], convs: list[Conveyor]) -> list[dict
             "sensitivity_mnm_per_kg": 1e3 * float(sens),
         }
         for protocol in PROTOCOLS:
-            for drift in DRIFTS:
+            for drift, mode in CONDITIONS:
                 mine = [
                     r
                     for r in rows
                     if r["conveyor"] == p.id
                     and r["protocol"] == protocol
                     and r.get("drift") == drift
+                    and r.get("mode") == mode
                     and r.get("payload_kg") is not None
                 ]
                 errs = [abs(r["payload_kg"] - r["payload_true_kg"]) for r in mine]
-                entry[f"{protocol}/{drift}/max_kg"] = max(errs) if errs else None
+                entry[f"{protocol}/{drift}/{mode}/max_kg"] = max(errs) if errs else None
         out.append(entry)
     return out
 
 
 def _print(summary: list[dict[str, Any]], convs: list[dict[str, Any]], seconds: float) -> None:
     head = (
-        f"{'protocol':24} {'drift':8} {'n':>4} {'unweigh':>7} {'max':>7} {'p99':>7} "
+        f"{'protocol':24} {'drift':11} {'mode':8} {'n':>4} {'unweigh':>7} {'max':>7} {'p99':>7} "
         f"{'median':>7} {'<=1u':>5} {'<=2u':>5} {'<=3u':>5} {'>5u':>5} {'u/|e|':>6} {'mu err':>7}"
     )
     print(head)
     print("-" * len(head))
     for s in summary:
         print(
-            f"{s['protocol']:24} {s['drift']:8} {s['n']:4d} {s['unweighable_share']:7.1%} "
+            f"{s['protocol']:24} {s['drift']:11} {s['mode']:8} {s['n']:4d} "
+            f"{s['unweighable_share']:7.1%} "
             f"{s['max_kg']:7.2f} {s['p99_kg']:7.2f} {s['median_kg']:7.2f} "
             f"{s['within_1u']:5.0%} {s['within_2u']:5.0%} {s['within_3u']:5.0%} "
             f"{s['beyond_5u']:5.0%} {s['u_over_error']:6.2f} {s['mu_median_rel_error']:7.1%}"
         )
     print()
     print("errors in kg; u: the reported standard uncertainty; mu err: median |relative error|")
-    print("largest error per conveyor (kg), several_loads without / with drift:")
+    print(
+        "modes: trusted = the calibration's losses (as the commands weigh), unknown = ±10 % "
+        "drift allowed for (weigh(loss_drift=LossDrift.unknown()))"
+    )
+    print("largest error per conveyor (kg), several_loads: no drift, trusted / drift, unknown:")
     for c in convs:
         print(
             f"  {c['conveyor']}: {c['length_m']:5.1f} m, incline {c['incline_deg']:+5.1f} deg, "
             f"mu {c['mu']:.2f}, dir {c['direction']:+d}, {c['sample_time_ms']:.0f} ms, "
             f"sensitivity {c['sensitivity_mnm_per_kg']:6.2f} mNm/kg: "
-            f"{_fmt(c['several_loads/none/max_kg'])} / {_fmt(c['several_loads/drift10/max_kg'])}"
+            f"{_fmt(c['several_loads/none/trusted/max_kg'])} / "
+            f"{_fmt(c['several_loads/drift10/unknown/max_kg'])}"
         )
     print(f"\ntotal run time {seconds:.0f} s")
 
@@ -374,7 +410,7 @@ def _print(summary: list[dict[str, Any]], convs: list[dict[str, Any]], seconds: 
 def _header(args: argparse.Namespace) -> None:
     print(
         f"weighing over {args.conveyors} random conveyors (seed {args.seed}), every realism "
-        f"effect on; weigh(loss_drift_rel={args.loss_drift_rel:g})"
+        "effect on"
     )
 
 
@@ -388,12 +424,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--conveyors", type=int, default=30)
     parser.add_argument("--seed", type=int, default=20261125)
     parser.add_argument("--json", type=Path, default=Path("fidelity-weighing.json"))
-    parser.add_argument(
-        "--loss-drift-rel",
-        type=float,
-        default=0.0,
-        help="weigh(loss_drift_rel=...): allowance for loss drift (0: as the commands weigh)",
-    )
     args = parser.parse_args(argv)
     started = time.perf_counter()
     _header(args)
@@ -402,7 +432,7 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[dict[str, Any]] = []
     for k, conv in enumerate(convs):
         try:
-            rows += evaluate_conveyor(conv, args.seed + 1000 * (k + 1), args.loss_drift_rel)
+            rows += evaluate_conveyor(conv, args.seed + 1000 * (k + 1))
         except ChaintwinError as exc:  # a conveyor the simulator cannot run is listed
             print(f"{conv.profile.id}: not evaluated ({exc})", file=sys.stderr)
     summary = summarise(rows)

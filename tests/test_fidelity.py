@@ -30,15 +30,15 @@ def test_with_the_drift_allowance_the_uncertainty_is_honest_over_random_conveyor
 ) -> None:
     out = tmp_path / "fidelity.json"
     argv = ["weighing", "--conveyors", "8", "--seed", "77", "--json", str(out)]
-    assert _script().main([*argv, "--loss-drift-rel", "0.06"]) == 0
+    assert _script().main(argv) == 0
     printed = capsys.readouterr().out
     assert "several_loads" in printed and "sensitivity" in printed
     data = json.loads(out.read_text())
-    rows = {(s["protocol"], s["drift"]): s for s in data["summary"]}
+    rows = {(s["protocol"], s["drift"], s["mode"]): s for s in data["summary"]}
     assert len(data["conveyors"]) == 8
     for protocol in ("one_load_several_speeds", "several_loads"):
         for drift in ("none", "drift10"):
-            s = rows[protocol, drift]
+            s = rows[protocol, drift, "unknown"]
             assert s["n"] == 48 and s["calibration_failures"] == 0
             # a standard uncertainty: most errors within 2 of it, none far beyond
             assert s["within_2u"] >= 0.85, s

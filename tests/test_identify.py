@@ -424,11 +424,12 @@ def test_a_calibration_with_impossible_numbers_is_refused(
 def test_a_loss_drift_allowance_widens_the_friction_signature_by_hand(
     cal_p2: Calibration,
 ) -> None:
-    from chaintwin.weigh.weigh import LOSS_DRIFT_REL
+    from chaintwin.weigh import LossDrift, reweigh
+    from chaintwin.weigh.drift import LOSS_DRIFT_REL
 
     ins = inspected(40.0, 502, known=False)
     plain = weigh(ins, cal_p2)
-    drift = weigh(ins, cal_p2, loss_drift_rel=LOSS_DRIFT_REL)
+    drift = weigh(ins, cal_p2, loss_drift=LossDrift.unknown())
     # by hand: 6 % of BmA + BmB·ω + BmC·ω² at 1415 rpm, over g·μ·r/(i·η) (flat)
     w = 1415 * 2 * np.pi / 60
     bma, bmb, bmc = cal_p2.parameters.losses
@@ -439,9 +440,18 @@ def test_a_loss_drift_allowance_widens_the_friction_signature_by_hand(
     added = np.sqrt(drift.friction_uncertainty_kg**2 - plain.friction_uncertainty_kg**2)
     assert added == pytest.approx(expected, rel=0.02)
     assert drift.payload_friction_kg == plain.payload_friction_kg
+    # a known drift moves the friction signature by drift times the loss payload
+    known = weigh(ins, cal_p2, loss_drift=LossDrift(0.05, 0.0))
+    moved = plain.payload_friction_kg - known.payload_friction_kg
+    assert moved == pytest.approx(0.05 * loss / sens, rel=0.02)
+    # combining again from the stored signatures gives what weighing with it gives
+    again = reweigh(plain, LossDrift.unknown())
+    assert again.payload_kg == pytest.approx(drift.payload_kg, rel=1e-12)
+    assert again.uncertainty_kg == pytest.approx(drift.uncertainty_kg, rel=1e-12)
+    assert reweigh(drift, LossDrift()).payload_kg == pytest.approx(plain.payload_kg, rel=1e-12)
     # the weight moves to the inertia signature; a 10 % friction rise at 20 kg
     # then stays within the payload's uncertainty instead of reading as load
     rise = inspected(20.0, 510, known=False, faults=[Fault("friction", 0.1)])
-    res = weigh(rise, cal_p2, loss_drift_rel=LOSS_DRIFT_REL)
+    res = weigh(rise, cal_p2, loss_drift=LossDrift.unknown())
     assert res.payload_friction_kg > 24.0
     assert res.payload_kg == pytest.approx(20.0, abs=2 * res.uncertainty_kg)

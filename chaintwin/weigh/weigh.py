@@ -30,6 +30,7 @@ last segment's (what the belt carries at the end of the movement).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -44,19 +45,13 @@ from chaintwin.model.windows import WindowIntegrals
 from chaintwin.read.recording import RecordingWarning
 from chaintwin.units import RPM_TO_RAD_S
 from chaintwin.validate.checks import Inspection
+from chaintwin.weigh.drift import LossDrift
 from chaintwin.weigh.tlf import transport_loss_factor
 
-__all__ = ["CONSISTENCY_SIGMA", "LOSS_DRIFT_REL", "Segment", "WeighResult", "weigh"]
+__all__ = ["CONSISTENCY_SIGMA", "Segment", "Signatures", "WeighResult", "reweigh", "weigh"]
 
 CONSISTENCY_SIGMA = 3.0
 """Friction and inertia estimates disagree beyond this many combined sigmas."""
-
-LOSS_DRIFT_REL = 0.06
-"""A standard uncertainty of the day's losses relative to the calibration's, 1:
-a ±10 % drift (uniform) has a standard deviation of 5.8 %. Give it to
-:func:`weigh` as ``loss_drift_rel`` to allow for such a drift (the default,
-0, trusts the calibration's losses; see docs/user-guide.md, weighing over
-random conveyors, for what each choice costs)."""
 
 STEP_MIN_KG = 2.0
 """Smallest load change reported as a segment, kg."""
@@ -65,15 +60,15 @@ STEP_SIGMA = 6.0
 """A load change must stand this many sigmas above the windows' scatter."""
 
 
-def _loss_drift_kg(windows: WindowIntegrals, calibration: Calibration, rel: float) -> float:
-    """The friction payload's standard uncertainty from loss drift, kg.
+def _loss_payload_kg(windows: WindowIntegrals, calibration: Calibration) -> float:
+    """The calibrated loss torque at the plateau speed as payload, kg.
 
-    ``rel`` of the calibrated loss torque at the plateau speed,
-    over the payload sensitivity in the direction of travel (``μ·cosβ ± sinβ``:
-    near zero on a decline, where the friction signature knows nothing).
+    Loss over the payload sensitivity in the direction of travel
+    (``μ·cosβ ± sinβ``; near zero on a decline, where the friction signature
+    knows nothing): what a loss drift of 100 % moves the friction signature by.
     """
     speeds = windows.mean_speed[windows.constant] if windows.constant.any() else windows.mean_speed
-    if rel == 0.0 or speeds.size == 0:
+    if speeds.size == 0:
         return 0.0
     w = float(np.median(speeds))
     prof = calibration.id_profile
@@ -88,7 +83,93 @@ def _loss_drift_kg(windows: WindowIntegrals, calibration: Calibration, rel: floa
             efficiency=prof.gear.efficiency,
         )
     )
-    return rel * loss / max(sens, 1e-9)
+    return loss / max(sens, 1e-9)
+
+
+@dataclass(frozen=True, slots=True)
+class Signatures:
+    """The two signatures' payloads of a recording before they are combined.
+
+    What :func:`reweigh` needs to combine them again with another loss drift.
+
+    Attributes
+    ----------
+    friction_kg, friction_var : float
+        Friction-signature payload (kg) and its variance without loss drift (kg²).
+    inertia_kg, inertia_var : float or None
+        Inertia-signature payload (kg) and variance (kg²); None without a ramp.
+    covariance : float
+        Their covariance, kg².
+    loss_payload_kg : float
+        The calibrated loss torque at the recording's speed as payload, kg.
+    widen : float
+        Factor on every uncertainty (2 for an incomplete cycle).
+    """
+
+    friction_kg: float
+    friction_var: float
+    inertia_kg: float | None
+    inertia_var: float | None
+    covariance: float
+    loss_payload_kg: float
+    widen: float = 1.0
+
+
+@dataclass(frozen=True, slots=True)
+class _Combined:
+    payload_kg: float
+    uncertainty_kg: float
+    friction_kg: float
+    friction_uncertainty_kg: float
+    inertia_uncertainty_kg: float | None
+    consistent: bool
+    warnings: tuple[RecordingWarning, ...]
+
+
+def _combine(sig: Signatures, drift: LossDrift) -> _Combined:
+    """The payload from both signatures, the friction one corrected for the loss drift.
+
+    The friction signature is moved by ``drift.mean`` times the loss payload
+    and its variance grows by ``(drift.sigma · loss payload)²``. When the
+    two disagree beyond :data:`CONSISTENCY_SIGMA` combined sigmas the
+    payload is the inertia estimate; else their covariance-weighted mean.
+    """
+    p_f = sig.friction_kg - drift.mean * sig.loss_payload_kg
+    var_f = sig.friction_var + (drift.sigma * sig.loss_payload_kg) ** 2
+    w = sig.widen
+    if sig.inertia_kg is None or sig.inertia_var is None:
+        s_f = float(np.sqrt(var_f))
+        return _Combined(p_f, s_f * w, p_f, s_f * w, None, True, ())
+    p_i, var_i, cov = sig.inertia_kg, sig.inertia_var, sig.covariance
+    diff_var = var_f + var_i - 2.0 * cov
+    warnings: tuple[RecordingWarning, ...] = ()
+    consistent = abs(p_f - p_i) <= CONSISTENCY_SIGMA * float(np.sqrt(diff_var))
+    if consistent:
+        c = np.array([[var_f, cov], [cov, var_i]])
+        inv = np.linalg.inv(c)
+        ones = np.ones(2)
+        var = 1.0 / float(ones @ inv @ ones)
+        payload = float(var * (ones @ inv @ np.array([p_f, p_i])))
+        unc = float(np.sqrt(var))
+    else:
+        payload, unc = p_i, float(np.sqrt(var_i))
+        warnings = (
+            RecordingWarning(
+                "signatures_disagree",
+                f"friction says {p_f:.1f} kg, inertia {p_i:.1f} kg (±{np.sqrt(diff_var):.1f}"
+                " kg on the difference): the rail friction or the losses have changed "
+                "since calibration, not the load; the payload is the inertia estimate",
+            ),
+        )
+    return _Combined(
+        payload,
+        unc * w,
+        p_f,
+        float(np.sqrt(var_f)) * w,
+        float(np.sqrt(var_i)) * w,
+        consistent,
+        warnings,
+    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -126,6 +207,10 @@ class WeighResult:
         Transport loss factor (None under 1 kg).
     warnings : tuple of RecordingWarning
         The recording's and the weighing's warnings.
+    signatures : Signatures or None
+        The two signatures before they were combined (for :func:`reweigh`).
+    loss_drift : LossDrift
+        The loss drift the friction signature was corrected for.
     """
 
     file: str
@@ -139,6 +224,8 @@ class WeighResult:
     segments: tuple[Segment, ...] = ()
     tlf: float | None = None
     warnings: tuple[RecordingWarning, ...] = field(default_factory=tuple)
+    signatures: Signatures | None = None
+    loss_drift: LossDrift = field(default_factory=LossDrift)
 
     def to_dict(self) -> dict[str, Any]:
         """The ``weigh --json`` object."""
@@ -196,7 +283,7 @@ def weigh(
     source: str | None = None,
     motoring: np.ndarray | None = None,
     windows: WindowIntegrals | None = None,
-    loss_drift_rel: float = 0.0,
+    loss_drift: LossDrift | None = None,
 ) -> WeighResult:
     """Weigh the payload of one recording.
 
@@ -217,13 +304,12 @@ def weigh(
     windows : WindowIntegrals, optional
         The recording's window integrals with that ``motoring``, when already
         computed (:func:`~chaintwin.model.windows.window_integrals`).
-    loss_drift_rel : float
-        Standard uncertainty of the gear and motor losses relative to the
-        calibration's, 1 (e.g. :data:`LOSS_DRIFT_REL`). The friction
-        signature reads a loss change as payload; this much of the loss
-        torque at the plateau speed, over the payload sensitivity, enters
-        its uncertainty, and so shifts weight to the inertia signature.
-        0 (default) trusts the calibration's losses.
+    loss_drift : LossDrift, optional
+        How far the losses have drifted since the calibration
+        (:mod:`chaintwin.weigh.drift`): the friction signature is corrected
+        by it and its uncertainty carried. None trusts the calibration's
+        losses; :meth:`LossDrift.unknown` allows for a drift of ±10 % when
+        nothing is known of it.
 
     Returns
     -------
@@ -301,11 +387,6 @@ def weigh(
             )
             fit, cov = last, cov_last
 
-    p_f = float(fit.estimate[0])
-    s_drift = _loss_drift_kg(fit.windows, calibration, loss_drift_rel)
-    cov = cov.copy()
-    cov[0, 0] += s_drift**2  # the friction signature reads a loss change as payload
-    s_f = float(np.sqrt(cov[0, 0]))
     widen = 1.0
     if recording.has_warning("incomplete_cycle"):
         widen = 2.0
@@ -315,48 +396,26 @@ def weigh(
                 "weighed from an incomplete cycle; the uncertainty is doubled",
             )
         )
+    p_i: float | None = None
+    var_i: float | None = None
+    cov_fi = 0.0
     if fit.has_inertia:
         # the inertia signature as this conveyor's calibration reads it
         g = calibration.inertia_gain
         p_i = (float(fit.estimate[1]) - calibration.inertia_offset_kg) / g
-        c = cov.copy()
-        c[0, 1] = c[1, 0] = cov[0, 1] / g
+        cov_fi = float(cov[0, 1]) / g
         # the inertia signature's model error: a fixed share, or half the
         # disagreement of the two inertia estimators if that is larger
         model_err = INERTIA_MODEL_REL * abs(p_i)
         if fit.inertia_alternative is not None:
             model_err = max(model_err, 0.5 * abs(fit.inertia_alternative - fit.estimate[1]) / g)
-        c[1, 1] = (
-            cov[1, 1] / g**2
+        var_i = (
+            float(cov[1, 1]) / g**2
             + (p_i * calibration.inertia_gain_sigma / g) ** 2
             + (calibration.inertia_offset_sigma_kg / g) ** 2
             + model_err**2
         )
-        est = np.array([p_f, p_i])
-        s_i: float | None = float(np.sqrt(c[1, 1]))
-        diff_var = c[0, 0] + c[1, 1] - 2.0 * c[0, 1]
-        consistent = abs(p_f - p_i) <= CONSISTENCY_SIGMA * float(np.sqrt(diff_var))
-        if consistent:
-            inv = np.linalg.inv(c)
-            ones = np.ones(2)
-            var = 1.0 / float(ones @ inv @ ones)
-            payload = float(var * (ones @ inv @ est))
-            unc = float(np.sqrt(var))
-        else:
-            payload, unc = p_i, float(np.sqrt(c[1, 1]))
-            warnings.append(
-                RecordingWarning(
-                    "signatures_disagree",
-                    f"friction says {p_f:.1f} kg, inertia {p_i:.1f} kg (±{np.sqrt(diff_var):.1f}"
-                    " kg on the difference): the rail friction or the losses have changed "
-                    "since calibration, not the load; the payload is the inertia estimate",
-                )
-            )
-        inertia: float | None = p_i
     else:
-        inertia = s_i = None
-        consistent = True
-        payload, unc = p_f, s_f
         warnings.append(
             RecordingWarning(
                 "no_inertia_signature",
@@ -364,6 +423,15 @@ def weigh(
                 "cannot tell a heavier load from higher friction",
             )
         )
+    signatures = Signatures(
+        friction_kg=float(fit.estimate[0]),
+        friction_var=float(cov[0, 0]),
+        inertia_kg=p_i,
+        inertia_var=var_i,
+        covariance=cov_fi,
+        loss_payload_kg=_loss_payload_kg(fit.windows, calibration),
+        widen=widen,
+    )
     cal_speeds = calibration.plateau_speeds_rpm
     wi = fit.windows
     if cal_speeds and wi.constant.any():
@@ -376,17 +444,46 @@ def weigh(
                     f"{min(cal_speeds):.0f}-{max(cal_speeds):.0f} rpm; the losses are extrapolated",
                 )
             )
-    tlf = transport_loss_factor(recording, prof, params, payload)
+    drifted = loss_drift or LossDrift()
+    combined = _combine(signatures, drifted)
+    tlf = transport_loss_factor(recording, prof, params, combined.payload_kg)
     return WeighResult(
         file=name,
-        payload_kg=payload,
-        uncertainty_kg=unc * widen,
-        payload_friction_kg=p_f,
-        friction_uncertainty_kg=s_f * widen,
-        payload_inertia_kg=inertia,
-        inertia_uncertainty_kg=None if s_i is None else s_i * widen,
-        consistent=consistent,
+        payload_kg=combined.payload_kg,
+        uncertainty_kg=combined.uncertainty_kg,
+        payload_friction_kg=combined.friction_kg,
+        friction_uncertainty_kg=combined.friction_uncertainty_kg,
+        payload_inertia_kg=p_i,
+        inertia_uncertainty_kg=combined.inertia_uncertainty_kg,
+        consistent=combined.consistent,
         segments=segments,
         tlf=tlf,
-        warnings=tuple(warnings),
+        warnings=(*warnings, *combined.warnings),
+        signatures=signatures,
+        loss_drift=drifted,
+    )
+
+
+def reweigh(result: WeighResult, loss_drift: LossDrift) -> WeighResult:
+    """The result combined again with another loss drift (see :func:`weigh`).
+
+    Cheap (no fit): for a drift estimate that became known after the
+    recording was weighed, e.g. on a worker. The TLF is kept (it depends
+    on the payload only weakly).
+    """
+    sig = result.signatures
+    if sig is None:
+        return result
+    combined = _combine(sig, loss_drift)
+    kept = tuple(w for w in result.warnings if w.code != "signatures_disagree")
+    return dataclasses.replace(
+        result,
+        payload_kg=combined.payload_kg,
+        uncertainty_kg=combined.uncertainty_kg,
+        payload_friction_kg=combined.friction_kg,
+        friction_uncertainty_kg=combined.friction_uncertainty_kg,
+        inertia_uncertainty_kg=combined.inertia_uncertainty_kg,
+        consistent=combined.consistent,
+        warnings=(*kept, *combined.warnings),
+        loss_drift=loss_drift,
     )

@@ -44,3 +44,7 @@ def test_with_the_drift_allowance_the_uncertainty_is_honest_over_random_conveyor
             assert s["within_2u"] >= 0.85, s
             assert s["beyond_5u"] <= 0.02, s
             assert s["mu_median_rel_error"] < 0.02, s
+    # a reference load measures the payload's torque: a belt mass 3 % off in the
+    # profile does not move the weight; empty runs alone lean on the profile
+    assert rows["several_loads", "none", "trusted"]["belt_mass_3pct_median_kg"] < 0.05
+    assert rows["one_load_several_speeds", "none", "trusted"]["belt_mass_3pct_median_kg"] > 0.1

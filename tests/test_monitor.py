@@ -190,6 +190,19 @@ def test_fault_series_alarm_with_the_right_cause(
     assert first.causes[0]["since"] <= first.recorded_at
     opened = mon.open_alarms()
     assert [a.cause for a in opened if a.feature == feature] == [cause]
+    # from the alarm on, a friction rise must not read as payload: the
+    # payload is the inertia signature's, within its uncertainty of the truth
+    truth = {
+        Path(t["file"]).name: t["payload_kg"]
+        for t in map(json.loads, (series[name] / "truth.jsonl").read_text().splitlines())
+    }
+    later = [r for r in results if (r.recorded_at or "") > (first.recorded_at or "")]
+    by_inertia = [r for r in later if "weighed_by_inertia" in {w["code"] for w in r.warnings}]
+    assert later and len(by_inertia) >= len(later) // 2
+    for r in by_inertia:
+        if r.payload_kg is not None:
+            assert r.uncertainty_kg is not None
+            assert abs(r.payload_kg - truth[Path(r.file).name]) < 4 * r.uncertainty_kg, r.file
 
 
 def test_state_round_trip_continues_where_it_stopped(
@@ -248,6 +261,11 @@ def test_without_calibration_one_is_learned(series: dict[str, Path]) -> None:
     # friction is well learned: the learned model reads mu within 10 %
     assert mon.calibration is not None
     assert mon.calibration.parameters["mu"] == pytest.approx(0.23, rel=0.1)
+    # its case says where it comes from, and which runs would make it a weighing one
+    assert mon.calibration.case == "learned"
+    note = mon.calibration.recommendation()
+    assert note is not None and "both directions" in note
+    assert "calibration_weak" in {w.code for w in mon.calibration.warnings}
 
 
 # ---------------------------------------------------------------- command line

@@ -278,10 +278,87 @@ def test_coefficient_layout_is_one_table() -> None:
     names = [name for name, _ in _kernel.COEFFICIENTS]
     assert len(set(names)) == len(names) == _kernel.N_COEF
     assert _kernel.layout.C_DT == 0
-    assert _kernel.layout.C_STEP_SCALE == _kernel.N_COEF - 1
+    assert _kernel.layout.C_STRIBECK_V == _kernel.N_COEF - 1
     values = {name: float(i) for i, name in enumerate(names)}
     np.testing.assert_array_equal(_kernel.pack(values), np.arange(_kernel.N_COEF, dtype=float))
     with pytest.raises(ModelError, match="missing \\['dt'\\]"):
         _kernel.pack({name: 0.0 for name in names[1:]})
     with pytest.raises(ModelError, match="unknown \\['speed'\\]"):
         _kernel.pack({**values, "speed": 1.0})
+
+
+@pytest.mark.parametrize("elastic", [False, True])
+def test_stribeck_friction_by_hand(plant: PlantParameters, elastic: bool) -> None:
+    """At belt speed v the sliding friction is fc + (fs − fc)·exp(−(v/vs)²)."""
+    vs = 0.05
+    p = plant.replace(stick_slip=True, elastic=elastic, stribeck_speed_m_s=vs)
+    krv = p.belt_speed_per_motor_speed
+    w = vs / krv  # the plateau's belt speed is vs: the extra friction is (fs − fc)/e
+    sp = trapezoid(speed_rad_s=w, accel_rad_s2=w / 0.2, hold_s=3.0)
+    with_ = simulate(p, sp)
+    without = simulate(p.replace(stribeck_speed_m_s=0.0), sp)
+    plateau = (with_.time > 1.5) & (with_.time < 3.0)
+    extra = float(np.mean(with_.torque[plateau] - without.torque[plateau]))
+    fc = p.mu * 9.80665 * math.cos(p.incline_rad) * p.moving_mass_kg
+    expected = (p.static_friction_ratio - 1.0) * fc * math.exp(-1.0) * krv / p.efficiency
+    assert extra == pytest.approx(expected, rel=0.02)
+    # far above the Stribeck speed it is Coulomb friction again
+    fast = trapezoid(speed_rad_s=NOMINAL, accel_rad_s2=NOMINAL / 0.5, hold_s=1.0)
+    a, b = simulate(p, fast), simulate(p.replace(stribeck_speed_m_s=0.0), fast)
+    steady = (a.time > 1.0) & (a.time < 1.4)
+    assert np.mean(a.torque[steady]) == pytest.approx(np.mean(b.torque[steady]), rel=1e-3)
+
+
+def test_back_efficiency_where_the_belt_drives_the_motor(plant: PlantParameters) -> None:
+    """Downhill at constant speed the gear passes f·η_back on to the motor (generating)."""
+    down = plant.replace(incline_rad=-0.35, mu=0.1)
+    sp = trapezoid(speed_rad_s=NOMINAL, accel_rad_s2=NOMINAL / 0.5, hold_s=1.5)
+    krv = down.belt_speed_per_motor_speed
+    g = 9.80665
+    f = (
+        krv
+        * g
+        * (
+            down.mu * math.cos(down.incline_rad) * down.moving_mass_kg
+            + math.sin(down.incline_rad) * down.carried_mass_kg
+        )
+    )
+    assert f < 0.0  # the load drives the motor
+    loss = (
+        down.loss_constant_nm
+        + down.loss_viscous_nm_s_rad * NOMINAL
+        + down.loss_quadratic_nm_s2_rad2 * NOMINAL**2
+    )
+    for eta_back in (0.0, 0.6):
+        res = simulate(down.replace(back_efficiency=eta_back), sp)
+        steady = (res.time > 1.2) & (res.time < 1.9)
+        eta = eta_back or down.efficiency
+        assert np.mean(res.torque[steady]) == pytest.approx(f * eta + loss, rel=0.01)
+    with pytest.raises(ModelError, match="back_efficiency"):
+        plant.replace(back_efficiency=1.5)
+
+
+def test_later_model_fields_reach_the_plant_and_keep_old_hashes(profile: ConveyorProfile) -> None:
+    import hashlib
+    import json
+
+    plain = profile.model_copy(update={"model": ModelSpec()})
+    # the hash of a profile written before these fields existed is unchanged
+    data = plain.model_dump(mode="json")
+    for name in ModelSpec.LATER_FIELDS:
+        del data["model"][name]
+    old = hashlib.sha256(
+        json.dumps(data, sort_keys=True, separators=(",", ":")).encode()
+    ).hexdigest()
+    assert plain.content_hash() == old
+    richer = profile.model_copy(
+        update={
+            "model": ModelSpec(
+                back_efficiency=0.7, stribeck_speed_m_s=0.03, unlisted_inertia_kgm2=2e-4
+            )
+        }
+    )
+    assert richer.content_hash() != old
+    p = PlantParameters.from_profile(richer, payload_kg=0.0)
+    assert p.back_efficiency == 0.7 and p.stribeck_speed_m_s == 0.03
+    assert p.gear_inertia_kgm2 == pytest.approx(profile.gear.inertia_kgm2 + 2e-4)

@@ -26,6 +26,7 @@ from chaintwin.read.columns import ColumnMap, load_column_map
 from chaintwin.read.profile import ConveyorProfile, load_profile
 from chaintwin.read.recording import Recording
 from chaintwin.validate.checks import Inspection, load_recording
+from chaintwin.weigh.drift import LOSS_DRIFT_REL, LossDrift
 from chaintwin.weigh.weigh import weigh
 
 __all__ = ["identify_dict", "register"]
@@ -257,18 +258,31 @@ def register(app: typer.Typer) -> None:
         ],
         as_json: Annotated[bool, typer.Option("--json", help="Print one JSON list.")] = False,
         columns: ColumnsOption = None,
+        loss_drift: Annotated[
+            float,
+            typer.Option(
+                "--loss-drift",
+                min=0.0,
+                max=0.5,
+                help="Standard uncertainty of the gear losses relative to the calibration's "
+                "(0.06: a drift within ±10 %, the default; 0 trusts the calibration's losses).",
+            ),
+        ] = LOSS_DRIFT_REL,
     ) -> None:
         """Weigh the payload of each recording from torque alone, with an uncertainty.
 
-        Exit code 2 after the others are done when a file was refused.
+        A recording that cannot be weighed gets payload null and the warning
+        `unweighable` with its reason (exit code 0). Exit code 2 after the
+        others are done when a file was refused.
         """
         cal = load_calibration(calibration)
+        drift = LossDrift(0.0, loss_drift)
         cmap = load_column_map(columns) if columns is not None else None
         results: list[dict[str, Any]] = []
         for f in expand_recordings(files):
             try:
                 ins = _inspect(f, cal.profile, cmap)
-                results.append(weigh(ins, cal, source=f).to_dict())
+                results.append(weigh(ins, cal, source=f, loss_drift=drift).to_dict())
             except EstimationError as exc:
                 message = error_message(exc)
                 if not message.startswith(f):
@@ -278,6 +292,8 @@ def register(app: typer.Typer) -> None:
                 results.append({"file": f, "error": error_message(exc)})
         if as_json:
             print_json(results)
+            # the summary beside the JSON, so that the list stays one document
+            typer.echo(_weigh_summary(results), err=True)
         else:
             console = Console()
             table = Table(title=f"chaintwin weigh: {safe(cal.profile.id)}")
@@ -286,6 +302,9 @@ def register(app: typer.Typer) -> None:
             for r in results:
                 if "error" in r:
                     table.add_row(safe(r["file"]), "[red]refused[/red]", "", "", "", "", "")
+                    continue
+                if r["payload_kg"] is None:
+                    table.add_row(safe(r["file"]), "[yellow]unweighable[/yellow]", *[""] * 5)
                     continue
                 inertia = r["payload_inertia_kg"]
                 table.add_row(
@@ -303,5 +322,14 @@ def register(app: typer.Typer) -> None:
                     _print_refused(console, [r])
                 for w in r.get("warnings", []):
                     print_warning(console, r["file"], w["code"], w["message"])
+            console.print(_weigh_summary(results), highlight=False)
         if any("error" in r for r in results):
             raise typer.Exit(2)
+
+
+def _weigh_summary(results: list[dict[str, Any]]) -> str:
+    """``N weighed, M unweighable, K refused`` for the end of ``weigh``'s table."""
+    refused = sum(1 for r in results if "error" in r)
+    unweighable = sum(1 for r in results if "error" not in r and r["payload_kg"] is None)
+    weighed = len(results) - refused - unweighable
+    return f"{weighed} weighed, {unweighable} unweighable, {refused} refused"

@@ -73,7 +73,8 @@ from chaintwin.model.rigid import model_torque, motoring_mask
 from chaintwin.model.windows import WindowIntegrals, window_integrals
 from chaintwin.read.recording import Recording, RecordingWarning
 from chaintwin.validate.checks import Inspection
-from chaintwin.weigh.weigh import WeighResult, weigh
+from chaintwin.weigh.drift import LossDrift
+from chaintwin.weigh.weigh import WeighResult, reweigh, weigh
 
 from .lines import band_amplitudes
 from .residuals import belt_position_m, position_profile, residual_analysis
@@ -123,9 +124,12 @@ class FeatureSpec:
         Floor of the baseline's robust scale (feature units), for features
         whose baseline can hold few distinct values.
     regressor : str
-        The payload estimate the baseline regresses on: ``payload_kg`` (the
-        weighing's), or ``payload_inertia_kg`` for a feature that a friction
-        change moves together with the friction payload (which would hide it).
+        The payload estimate the baseline regresses on: ``load_kg`` (the
+        weighing's signatures combined trusting the calibration's losses:
+        the most precise load reading, which a slow loss drift moves a little
+        but smoothly), or ``payload_inertia_kg`` for a feature that a
+        friction change moves together with the friction payload (which
+        would hide it).
     """
 
     cause: str | None
@@ -133,7 +137,7 @@ class FeatureSpec:
     unit: str
     payload_dependent: bool = False
     min_scale: float = 0.0
-    regressor: str = "payload_kg"
+    regressor: str = "load_kg"
 
 
 FEATURES: dict[str, FeatureSpec] = {
@@ -150,6 +154,7 @@ FEATURES: dict[str, FeatureSpec] = {
     "unexplained_peak": FeatureSpec("bearing", 1.0, "-"),
     "belt_bump": FeatureSpec("obstruction", 1.5, "-", min_scale=0.5),
     "payload_kg": FeatureSpec(None, 0.0, "kg"),
+    "load_kg": FeatureSpec(None, 0.0, "kg"),
     "payload_inertia_kg": FeatureSpec(None, 0.0, "kg"),
     "tlf": FeatureSpec(None, 0.0, "-"),
 }
@@ -164,6 +169,20 @@ def feature_spec(name: str) -> FeatureSpec:
     if name.startswith("comb_"):
         return COMB_SPEC
     return FEATURES[name]
+
+
+def _load_kg(w: WeighResult) -> float:
+    """The load regressor of the baselines: the signatures combined trusting the losses.
+
+    The reported payload allows for a loss drift (honest, but leaning on the
+    noisier inertia signature); a baseline regression wants the precise
+    reading. Where that is unweighable, the payload; else NaN.
+    """
+    trusted = reweigh(w, LossDrift())
+    for p in (trusted.payload_kg, w.payload_kg):
+        if p is not None:
+            return p
+    return float("nan")
 
 
 @dataclass(frozen=True)
@@ -323,12 +342,20 @@ def recording_features(inspection: Inspection, calibration: Calibration) -> Reco
     except EstimationError:
         every = None
     w = weigh(inspection, calibration, motoring=mot, windows=every)
+    if w.signatures is None:
+        # nothing to fit the model to (no motion, no usable window)
+        raise EstimationError(f"{recording.source}: {w.unweighable}")
+    # the load the model torque is computed with: the payload, or where
+    # there is none (the signatures disagree) what the friction fits best
+    load_kg = w.payload_kg if w.payload_kg is not None else w.signatures.friction_kg
     tray = recording.metadata.tray_kg
     tray = prof.tray_mass_kg if tray is None else tray
     m0 = prof.belt_mass_kg + tray
     nan = float("nan")
     values: dict[str, float] = {
-        "payload_kg": w.payload_kg,
+        "payload_kg": nan if w.payload_kg is None else w.payload_kg,
+        # what the baselines regress on: precise rather than drift-proof
+        "load_kg": _load_kg(w),
         "payload_inertia_kg": nan if w.payload_inertia_kg is None else w.payload_inertia_kg,
         "tlf": nan if w.tlf is None else w.tlf,
     }
@@ -350,7 +377,7 @@ def recording_features(inspection: Inspection, calibration: Calibration) -> Reco
             1.0 + float(cond.estimate[2]) * omega / loss if loss > 0 and omega > 0 else nan
         )
 
-    model = model_torque(recording, prof, params, w.payload_kg, tray_kg=tray, motoring=mot)
+    model = model_torque(recording, prof, params, load_kg, tray_kg=tray, motoring=mot)
     report = residual_analysis(recording, model, phases=phases)
     steady = report.by_phase.get("constant")
     values["residual_std"] = steady.std if steady else nan

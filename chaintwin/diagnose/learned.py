@@ -61,8 +61,9 @@ def learn_calibration(
     Returns
     -------
     Calibration
-        With ``method`` :data:`LEARNED_METHOD` and a ``learned_calibration``
-        warning.
+        With ``case`` ``learned``, ``method`` :data:`LEARNED_METHOD` and the
+        warnings ``learned_calibration`` and ``calibration_weak`` (which run
+        to record).
 
     Raises
     ------
@@ -93,4 +94,7 @@ def learn_calibration(
         "from their inertia and the profile's datasheet inertia; payloads are offset by that "
         "inertia's error, features are compared with this conveyor's own baseline",
     )
-    return dataclasses.replace(cal, method=LEARNED_METHOD, warnings=(*cal.warnings, note))
+    cal = dataclasses.replace(cal, case="learned", method=LEARNED_METHOD)
+    weak = RecordingWarning("calibration_weak", cal.recommendation() or "")
+    kept = tuple(w for w in cal.warnings if w.code != "calibration_weak")
+    return dataclasses.replace(cal, warnings=(*kept, note, weak))

@@ -41,6 +41,7 @@ from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording, RecordingWarning
 from chaintwin.validate.checks import Inspection
 from chaintwin.validate.phases import Phase, segment
+from chaintwin.weigh.weigh import reweigh
 
 from . import alarms, baseline, beltmap, monitor_state
 from .causes import cause_priority, resolve_causes
@@ -61,7 +62,12 @@ from .records import (
 from .spectra import Spectrum
 from .state import apply_events, close_alarms, new_event
 
-__all__ = ["ConveyorMonitor"]
+__all__ = ["FRICTION_CAUSES", "ConveyorMonitor"]
+
+FRICTION_CAUSES = frozenset({"friction", "lubrication", "obstruction"})
+"""Causes under which the friction signature is not trusted for the payload."""
+
+_BY_INERTIA = ("weighed_by_inertia", "unweighable")
 
 
 class ConveyorMonitor:
@@ -414,9 +420,6 @@ class ConveyorMonitor:
                     "known loads: it may be offset by several kg (see chaintwin calibrate)",
                 ).to_dict()
             )
-        base.payload_kg = finite_or_none(w.payload_kg)
-        base.uncertainty_kg = finite_or_none(w.uncertainty_kg)
-        base.tlf = finite_or_none(w.tlf)
         causes: list[dict[str, Any]] = []
         if w.segments:
             first, last = w.segments[0], w.segments[-1]
@@ -485,6 +488,16 @@ class ConveyorMonitor:
                 causes.append(detail)
             self._close_alarms(when)
             base.alarm = bool(met)
+            if any(feature_spec(e).cause in FRICTION_CAUSES for e in exceeded) or any(
+                a.cause in FRICTION_CAUSES for a in self.open_alarms()
+            ):
+                # a friction rise must not read as payload: weigh by inertia
+                w = reweigh(w, w.loss_drift, friction=False)
+                warnings = [x for x in warnings if x.get("code") not in _BY_INERTIA]
+                warnings += [x.to_dict() for x in w.warnings if x.code in _BY_INERTIA]
+        base.payload_kg = finite_or_none(w.payload_kg)
+        base.uncertainty_kg = finite_or_none(w.uncertainty_kg)
+        base.tlf = finite_or_none(w.tlf)
         causes.sort(key=lambda c: (cause_priority(c["cause"]), -abs(c["change"] or 0.0)))
         base.causes = causes
         base.warnings = warnings

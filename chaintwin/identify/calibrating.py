@@ -246,6 +246,10 @@ def calibrate(
             if wi.constant.any()
             else None
         )
+        # directions of travel: where the motor turns at half its top speed or more
+        speed = rec.speed
+        fast = speed[np.abs(speed) >= 0.5 * float(np.max(np.abs(speed)))]
+        signs = [s for s in (1, -1) if int(np.count_nonzero(np.sign(fast) == s)) >= 10]
         rec_info.append(
             {
                 "file": rec.source,
@@ -257,6 +261,7 @@ def calibrate(
                 if rec.metadata.recorded_at
                 else None,
                 "plateau_speed_rpm": plateau,
+                "directions": signs,
             }
         )
     warnings = list(est.warnings_) + lag_warn + ramp_notes

@@ -21,6 +21,12 @@ Which case the data is in
     One load at one speed (the published method): μ is separated from the
     speed-dependent losses only by the ramps, the least clean part of the
     recording; the sensitivity's uncertainty says how much that costs.
+``learned``
+    Learned from the conveyor's operation, payloads unknown
+    (:func:`chaintwin.diagnose.learned.learn_calibration`): each payload is
+    read from its recording's inertia with the datasheet inertia, so every
+    weight is offset by that inertia's error. Good for monitoring against
+    the conveyor's own baseline, not for weighing.
 
 The calibration file is JSON (``format: chaintwin.calibration``, versioned),
 self-contained: it embeds the profile and its hash so that weighing needs
@@ -54,6 +60,7 @@ from chaintwin.read.recording import RecordingWarning
 from chaintwin.units import RPM_TO_RAD_S
 
 __all__ = [
+    "CALIBRATION_CASES",
     "CALIBRATION_FORMAT",
     "CALIBRATION_VERSION",
     "Calibration",
@@ -61,6 +68,9 @@ __all__ = [
     "load_calibration",
     "sensitivity_nm_per_kg",
 ]
+
+CALIBRATION_CASES = ("one_load_one_speed", "one_load_several_speeds", "several_loads", "learned")
+"""The protocols a calibration can come from (its ``case``)."""
 
 CALIBRATION_FORMAT = "chaintwin.calibration"
 CALIBRATION_VERSION = 1
@@ -111,7 +121,8 @@ class Calibration:
     parameters : RigidParameters
         J_d (kg·m²), μ, BmA (Nm), BmB (Nm·s/rad), BmC (Nm·s²/rad²), covariance.
     case : str
-        ``several_loads``, ``one_load_several_speeds`` or ``one_load_one_speed``.
+        ``several_loads``, ``one_load_several_speeds``, ``one_load_one_speed``
+        or ``learned`` (see the module docstring).
     recordings : list of dict
         ``file``, ``sha256``, ``payload_kg``, ``tray_kg``, ``sample_time_s``,
         ``recorded_at``, ``plateau_speed_rpm`` of each recording used.
@@ -191,10 +202,33 @@ class Calibration:
         speeds = [r["plateau_speed_rpm"] for r in self.recordings if r["plateau_speed_rpm"]]
         return speed_clusters(speeds)
 
+    @property
+    def directions(self) -> frozenset[int]:
+        """Directions of travel the calibration ran in (+1, -1); empty if not known.
+
+        From each recording's constant-speed windows (``directions``), or, in
+        files written before that field, the sign of its plateau speed.
+        """
+        out: set[int] = set()
+        for r in self.recordings:
+            if not isinstance(r, dict):
+                continue
+            if "directions" in r:
+                out.update(int(d) for d in r["directions"])
+            elif r.get("plateau_speed_rpm"):
+                out.add(1 if r["plateau_speed_rpm"] > 0 else -1)
+        return frozenset(out)
+
     def recommendation(self) -> str | None:
         """The run that would improve this calibration, or None."""
         if self.case == "several_loads":
             return None
+        if self.case == "learned":
+            return (
+                "learned from operation with unknown payloads: weights are offset by the "
+                "datasheet inertia's error (several kg). Record empty runs at 30, 60 and "
+                "100 % speed in both directions and calibrate with `chaintwin calibrate`"
+            )
         rel = self.sensitivity_rel_uncertainty
         text = (
             f"the payload sensitivity is known to ±{rel:.1%} (1 sigma), i.e. about "
@@ -320,6 +354,10 @@ class Calibration:
                 created_at=str(data.get("created_at", "")),
                 chaintwin_version=str(data.get("chaintwin_version", "")),
             )
+            if cal.case not in CALIBRATION_CASES:
+                raise ValueError(f"case {cal.case!r} is not one of {', '.join(CALIBRATION_CASES)}")
+            if not cal.directions <= {1, -1}:
+                raise ValueError("recording directions must be 1 or -1")
         except (KeyError, TypeError, ValueError) as exc:
             raise CalibrationError(
                 f"{source}: calibration file is incomplete or damaged ({exc}); calibrate again"

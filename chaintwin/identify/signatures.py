@@ -38,6 +38,9 @@ class SignatureFit:
     """Raw inertia payload from every window (ramp interiors too), kg: a second
     estimator whose disagreement with the primary one measures the inertia
     signature's model error on this recording."""
+    loss_gradient: FloatArray | None = None
+    """How the estimates move when the gear losses are (1 + δ) times the
+    calibration's: d estimate / dδ, kg (:func:`fit_signatures` only)."""
 
 
 def _columns(
@@ -139,6 +142,9 @@ def _fit(
         per_kg = np.where(np.abs(xf) > 0, rest / xf, np.nan)
     return SignatureFit(coef[:k], cov[:k, :k], has_inertia, wi, per_kg, weights)
 
+
+LOSS_STEP = 0.05
+"""Relative step of the losses for their gradient in :func:`fit_signatures`, 1."""
 
 WELL_CONDITIONED = 1e-8
 """Smallest eigenvalue ratio of a normal matrix :func:`_estimates` solves directly.
@@ -334,10 +340,18 @@ def fit_signatures(
         moved.append(j)
         steps.append(step)
         shifted += [up, dn]
-    if moved:
-        est = _estimates(wi, prof, np.stack(shifted), tray, ramp_rate)
-        for m, (j, step) in enumerate(zip(moved, steps, strict=True)):
-            jac[:, j] = (est[2 * m] - est[2 * m + 1]) / (2 * step)
+    # and the losses scaled by 1 ± LOSS_STEP, for the loss drift's effect
+    for sign in (1.0, -1.0):
+        scaled = params.values.copy()
+        scaled[2:] *= 1.0 + sign * LOSS_STEP
+        shifted.append(scaled)
+    est = _estimates(wi, prof, np.stack(shifted), tray, ramp_rate)
+    for m, (j, step) in enumerate(zip(moved, steps, strict=True)):
+        jac[:, j] = (est[2 * m] - est[2 * m + 1]) / (2 * step)
+    # the model subtracts the calibrated losses: when the plant's are (1 + δ)
+    # times those, the estimates move as if the calibrated ones were (1 - δ)
+    gradient = -(est[-2] - est[-1]) / (2.0 * LOSS_STEP)
+    base = replace(base, loss_gradient=gradient)
     return base, base.covariance + jac @ params.covariance @ jac.T
 
 

@@ -39,7 +39,7 @@ import hashlib
 import json
 import math
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, ClassVar
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -175,6 +175,23 @@ class ModelSpec(_Spec):
     """Belt stiffness k, N/m (default: E·A/L from the belt data)."""
     belt_damping_n_s_m: NonNegative = 200.0
     """Belt damping, N·s/m."""
+    back_efficiency: Annotated[float, Field(gt=0.0, le=1.0)] | None = None
+    """Gear efficiency when the belt drives the motor (decline, braking), 1
+    (default: the gear's ``efficiency``)."""
+    stribeck_speed_m_s: NonNegative = 0.0
+    """Belt speed over which the sliding friction falls from static to
+    kinetic (Stribeck curve), m/s (0: none)."""
+    unlisted_inertia_kgm2: NonNegative = 0.0
+    """Inertia at the motor shaft the profile does not list (sprockets,
+    shafts, couplings), kg·m²."""
+
+    #: Fields added after calibration files embedding profiles existed: left
+    #: out of :meth:`ConveyorProfile.content_hash` while at their defaults.
+    LATER_FIELDS: ClassVar[dict[str, object]] = {
+        "back_efficiency": None,
+        "stribeck_speed_m_s": 0.0,
+        "unlisted_inertia_kgm2": 0.0,
+    }
 
 
 MAX_ID_LENGTH = 100
@@ -304,8 +321,18 @@ class ConveyorProfile(_Spec):
         return None
 
     def content_hash(self) -> str:
-        """SHA-256 of the profile's canonical JSON form (defaults filled in)."""
-        text = json.dumps(self.model_dump(mode="json"), sort_keys=True, separators=(",", ":"))
+        """SHA-256 of the profile's canonical JSON form (defaults filled in).
+
+        Model fields added later are hashed only when set, so that the
+        hashes of profiles written before them stay what they were.
+        """
+        data = self.model_dump(mode="json")
+        model = data.get("model")
+        if isinstance(model, dict):
+            for name, default in ModelSpec.LATER_FIELDS.items():
+                if model.get(name) == default:
+                    del model[name]
+        text = json.dumps(data, sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode()).hexdigest()
 
 

@@ -161,8 +161,9 @@ def _coefficients(
         b_lag = tau * a_lag / dt
     else:
         a_lag, b_lag = 1.0, 0.0
-    eta = p.efficiency
-    inv_eta = 1.0 / eta
+    # the kernels use η where the belt drives the motor and 1/η where the motor drives
+    eta = p.back_efficiency or p.efficiency
+    inv_eta = 1.0 / p.efficiency
     jd = p.drive_inertia_kgm2
     bma = p.loss_constant_nm
     payload = p.payload_kg
@@ -231,6 +232,7 @@ def _coefficients(
         "nrip": float(len(p.ripple_orders)),
         "tau": tau,
         "step_scale": step_scale,
+        "stribeck_v": p.stribeck_speed_m_s if p.stick_slip else 0.0,
     }
     values.update(zip(_TERMS_BEFORE, before, strict=True))
     values.update(zip(_TERMS_AFTER, after, strict=True))

@@ -134,6 +134,13 @@ class PlantParameters:
         (< 0: never). The belt side keeps its momentum.
     payload_step_kg : float
         Mass added at ``payload_step_time_s``, kg (negative: removed).
+    back_efficiency : float
+        Gear efficiency when the belt drives the motor (power flowing back:
+        a decline, a braking ramp), in (0, 1]; 0: the same as ``efficiency``.
+        Often lower than the forward one (worm stages far lower).
+    stribeck_speed_m_s : float
+        With ``stick_slip``: belt speed over which the sliding friction falls
+        from the static to the kinetic level (Stribeck curve), m/s; 0: none.
 
     Raises
     ------
@@ -178,6 +185,8 @@ class PlantParameters:
     obstruction_force_n: float = 0.0
     payload_step_time_s: float = -1.0
     payload_step_kg: float = 0.0
+    back_efficiency: float = 0.0
+    stribeck_speed_m_s: float = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "ripple_orders", tuple(float(v) for v in self.ripple_orders))
@@ -193,6 +202,12 @@ class PlantParameters:
             (self.gear_inertia_kgm2 >= 0.0, "gear_inertia_kgm2", "must not be negative"),
             (self.ratio > 0.0, "ratio", "must be positive"),
             (0.0 < self.efficiency <= 1.0, "efficiency", "must lie in (0, 1]"),
+            (
+                0.0 <= self.back_efficiency <= 1.0,
+                "back_efficiency",
+                "must lie in (0, 1] (0: as efficiency)",
+            ),
+            (self.stribeck_speed_m_s >= 0.0, "stribeck_speed_m_s", "must not be negative"),
             (self.pitch_radius_m > 0.0, "pitch_radius_m", "must be positive"),
             (self.teeth == 0 or self.teeth >= 3, "teeth", "must be 0 (unknown) or at least 3"),
             (self.belt_mass_kg >= 0.0, "belt_mass_kg", "must not be negative"),
@@ -328,7 +343,8 @@ class PlantParameters:
         c = profile.controller
         base = cls(
             motor_inertia_kgm2=profile.motor.inertia_kgm2,
-            gear_inertia_kgm2=profile.gear.inertia_kgm2,
+            # what the profile does not list (sprockets, shafts) turns with the gear
+            gear_inertia_kgm2=profile.gear.inertia_kgm2 + spec.unlisted_inertia_kgm2,
             ratio=profile.kinematic_ratio,
             efficiency=profile.gear.efficiency,
             pitch_radius_m=profile.pitch_radius_m,
@@ -351,6 +367,8 @@ class PlantParameters:
             torque_limit_nm=limit if limit is not None else 1.0,
             belt_stiffness_n_m=stiffness,
             belt_damping_n_s_m=spec.belt_damping_n_s_m,
+            back_efficiency=spec.back_efficiency or 0.0,
+            stribeck_speed_m_s=spec.stribeck_speed_m_s,
         )
         return base.replace(**overrides) if overrides else base
 
@@ -410,6 +428,7 @@ class PlantParameters:
         """
         return not (
             self.elastic
+            or (self.stick_slip and self.stribeck_speed_m_s > 0.0)
             or self.polygon_active
             or self.ripple_orders
             or self.impulse_amplitude_nm != 0.0

@@ -12,15 +12,23 @@ measured torque (window integrals, see :mod:`chaintwin.model.windows`)
 and fits what is left with the two signatures as separate unknowns, plus
 the polygon effect's tooth-pass ripple as nuisance terms. The two estimates
 are reported separately; when they disagree beyond their combined
-uncertainty (3 sigma) the recording is flagged inconsistent and the payload
-is the inertia estimate, which a friction change cannot move. Otherwise
-the payload is their covariance-weighted combination (in practice the
-friction one, the more precise).
+uncertainty (3 sigma) the recording is **unweighable**: something other
+than the load has changed (rail friction, losses beyond the allowed drift)
+and no number can be stood behind, so ``payload_kg`` is None with the
+warning ``unweighable`` and its reason. Otherwise the payload is their
+covariance-weighted combination.
 
-Uncertainties are standard (1 sigma): the fit's, inflated for serial
-correlation of the residuals, plus the calibration's parameter covariance
-propagated through the estimate (numerical Jacobian). Incomplete cycles
-are weighed from what they hold and their uncertainty doubled.
+A recording is unweighable too when it does not move, holds no usable
+window, or runs in a direction the calibration never saw (the incline and
+the gear's efficiency act differently there).
+
+Uncertainties are standard (1 sigma) and include every known source: the
+fit's, inflated for serial correlation of the residuals; the calibration's
+parameter covariance propagated through the estimate (numerical Jacobian);
+the inertia signature's model error; and the drift of the gear losses since
+the calibration (:mod:`chaintwin.weigh.drift`; by default ±10 % allowed
+for, :meth:`LossDrift.unknown`). Incomplete cycles are weighed from what
+they hold and their uncertainty doubled.
 
 A load that changes during the movement (a tray placed on the moving belt)
 is found as a step in the friction payload of successive constant-speed
@@ -39,7 +47,6 @@ import numpy as np
 from chaintwin.errors import EstimationError
 from chaintwin.identify.calibration import INERTIA_MODEL_REL, Calibration
 from chaintwin.identify.signatures import SignatureFit, fit_signatures
-from chaintwin.model.physics import loss_torque_nm, payload_sensitivity_nm_kg
 from chaintwin.model.rigid import motoring_mask
 from chaintwin.model.windows import WindowIntegrals
 from chaintwin.read.recording import RecordingWarning
@@ -48,7 +55,18 @@ from chaintwin.validate.checks import Inspection
 from chaintwin.weigh.drift import LossDrift
 from chaintwin.weigh.tlf import transport_loss_factor
 
-__all__ = ["CONSISTENCY_SIGMA", "Segment", "Signatures", "WeighResult", "reweigh", "weigh"]
+__all__ = [
+    "CONSISTENCY_SIGMA",
+    "UNWEIGHABLE",
+    "Segment",
+    "Signatures",
+    "WeighResult",
+    "reweigh",
+    "weigh",
+]
+
+UNWEIGHABLE = "unweighable"
+"""Warning code of a recording whose payload is None."""
 
 CONSISTENCY_SIGMA = 3.0
 """Friction and inertia estimates disagree beyond this many combined sigmas."""
@@ -58,32 +76,6 @@ STEP_MIN_KG = 2.0
 
 STEP_SIGMA = 6.0
 """A load change must stand this many sigmas above the windows' scatter."""
-
-
-def _loss_payload_kg(windows: WindowIntegrals, calibration: Calibration) -> float:
-    """The calibrated loss torque at the plateau speed as payload, kg.
-
-    Loss over the payload sensitivity in the direction of travel
-    (``μ·cosβ ± sinβ``; near zero on a decline, where the friction signature
-    knows nothing): what a loss drift of 100 % moves the friction signature by.
-    """
-    speeds = windows.mean_speed[windows.constant] if windows.constant.any() else windows.mean_speed
-    if speeds.size == 0:
-        return 0.0
-    w = float(np.median(speeds))
-    prof = calibration.id_profile
-    params = calibration.parameters
-    loss = abs(loss_torque_nm(w, *params.losses))
-    sens = abs(
-        payload_sensitivity_nm_kg(
-            mu=params["mu"],
-            incline_rad=prof.incline_rad * (1.0 if w >= 0 else -1.0),
-            radius_m=prof.chordal_radius_m,
-            ratio=prof.kinematic_ratio,
-            efficiency=prof.gear.efficiency,
-        )
-    )
-    return loss / max(sens, 1e-9)
 
 
 @dataclass(frozen=True, slots=True)
@@ -100,8 +92,11 @@ class Signatures:
         Inertia-signature payload (kg) and variance (kg²); None without a ramp.
     covariance : float
         Their covariance, kg².
-    loss_payload_kg : float
-        The calibrated loss torque at the recording's speed as payload, kg.
+    drift_friction_kg, drift_inertia_kg : float
+        How far each payload moves when the gear losses are (1 + δ) times the
+        calibration's: d payload / dδ, kg (the friction one is the loss torque
+        at speed over the payload sensitivity: tens of kg on most conveyors;
+        the inertia one is small, from the ramps).
     widen : float
         Factor on every uncertainty (2 for an incomplete cycle).
     """
@@ -111,36 +106,59 @@ class Signatures:
     inertia_kg: float | None
     inertia_var: float | None
     covariance: float
-    loss_payload_kg: float
+    drift_friction_kg: float
+    drift_inertia_kg: float = 0.0
     widen: float = 1.0
 
 
 @dataclass(frozen=True, slots=True)
 class _Combined:
-    payload_kg: float
-    uncertainty_kg: float
-    friction_kg: float
-    friction_uncertainty_kg: float
+    payload_kg: float | None
+    uncertainty_kg: float | None
+    friction_kg: float | None
+    friction_uncertainty_kg: float | None
     inertia_uncertainty_kg: float | None
     consistent: bool
     warnings: tuple[RecordingWarning, ...]
 
 
-def _combine(sig: Signatures, drift: LossDrift) -> _Combined:
-    """The payload from both signatures, the friction one corrected for the loss drift.
+def _unweighable(reason: str) -> RecordingWarning:
+    return RecordingWarning(UNWEIGHABLE, f"no payload: {reason}")
 
-    The friction signature is moved by ``drift.mean`` times the loss payload
-    and its variance grows by ``(drift.sigma · loss payload)²``. When the
-    two disagree beyond :data:`CONSISTENCY_SIGMA` combined sigmas the
-    payload is the inertia estimate; else their covariance-weighted mean.
+
+def _combine(sig: Signatures, drift: LossDrift, friction: bool = True) -> _Combined:
+    """The payload from both signatures, corrected for the loss drift.
+
+    Each signature is moved by ``drift.mean`` times its drift gradient and
+    the drift's uncertainty is carried into their variances and covariance
+    (``drift.sigma²`` times the gradients' outer product). When the
+    two disagree beyond :data:`CONSISTENCY_SIGMA` combined sigmas there is
+    no payload (unweighable); else it is their covariance-weighted mean.
+    With ``friction`` False (the rail friction is suspect) the payload is the
+    inertia estimate alone.
     """
-    p_f = sig.friction_kg - drift.mean * sig.loss_payload_kg
-    var_f = sig.friction_var + (drift.sigma * sig.loss_payload_kg) ** 2
+    k_f, k_i = sig.drift_friction_kg, sig.drift_inertia_kg
+    p_f = sig.friction_kg - drift.mean * k_f
+    var_f = sig.friction_var + (drift.sigma * k_f) ** 2
     w = sig.widen
+    if not friction:
+        if sig.inertia_kg is None or sig.inertia_var is None:
+            reason = "the rail friction is suspect and there is no ramp to weigh by inertia"
+            return _Combined(None, None, None, None, None, False, (_unweighable(reason),))
+        p_i_only = sig.inertia_kg - drift.mean * k_i
+        s_i = float(np.sqrt(sig.inertia_var + (drift.sigma * k_i) ** 2)) * w
+        note = RecordingWarning(
+            "weighed_by_inertia",
+            "a friction, lubrication or obstruction alarm is open or developing: the "
+            "payload is the inertia signature's, which friction cannot move",
+        )
+        return _Combined(p_i_only, s_i, p_f, float(np.sqrt(var_f)) * w, s_i, True, (note,))
     if sig.inertia_kg is None or sig.inertia_var is None:
         s_f = float(np.sqrt(var_f))
         return _Combined(p_f, s_f * w, p_f, s_f * w, None, True, ())
-    p_i, var_i, cov = sig.inertia_kg, sig.inertia_var, sig.covariance
+    p_i = sig.inertia_kg - drift.mean * k_i
+    var_i = sig.inertia_var + (drift.sigma * k_i) ** 2
+    cov = sig.covariance + drift.sigma**2 * k_f * k_i
     diff_var = var_f + var_i - 2.0 * cov
     warnings: tuple[RecordingWarning, ...] = ()
     consistent = abs(p_f - p_i) <= CONSISTENCY_SIGMA * float(np.sqrt(diff_var))
@@ -152,15 +170,15 @@ def _combine(sig: Signatures, drift: LossDrift) -> _Combined:
         payload = float(var * (ones @ inv @ np.array([p_f, p_i])))
         unc = float(np.sqrt(var))
     else:
-        payload, unc = p_i, float(np.sqrt(var_i))
         warnings = (
-            RecordingWarning(
-                "signatures_disagree",
-                f"friction says {p_f:.1f} kg, inertia {p_i:.1f} kg (±{np.sqrt(diff_var):.1f}"
-                " kg on the difference): the rail friction or the losses have changed "
-                "since calibration, not the load; the payload is the inertia estimate",
+            _unweighable(
+                f"the friction signature says {p_f:.1f} kg, the inertia signature "
+                f"{p_i:.1f} kg (±{np.sqrt(diff_var):.1f} kg on the difference): the rail "
+                "friction or the gear losses have changed since the calibration, not only "
+                "the load; check the conveyor (chaintwin monitor) or recalibrate"
             ),
         )
+        return _Combined(None, None, None, None, None, False, warnings)
     return _Combined(
         payload,
         unc * w,
@@ -193,14 +211,16 @@ class WeighResult:
     ----------
     file : str
         The recording as given.
-    payload_kg, uncertainty_kg : float
-        Payload and its standard uncertainty (1 sigma), kg.
-    payload_friction_kg, friction_uncertainty_kg : float
-        Friction-signature estimate, kg.
+    payload_kg, uncertainty_kg : float or None
+        Payload and its standard uncertainty (1 sigma), kg; None when the
+        recording is unweighable (a warning ``unweighable`` says why).
+    payload_friction_kg, friction_uncertainty_kg : float or None
+        Friction-signature estimate (corrected for the loss drift), kg; None
+        when unweighable.
     payload_inertia_kg, inertia_uncertainty_kg : float or None
-        Inertia-signature estimate (None without a ramp), kg.
+        Inertia-signature estimate (None without a ramp or when unweighable), kg.
     consistent : bool
-        False when the two signatures disagree beyond 3 sigma.
+        False when the two signatures disagree beyond 3 sigma (then unweighable).
     segments : tuple of Segment
         Loads of the movement's parts when the load changed; else empty.
     tlf : float or None
@@ -214,10 +234,10 @@ class WeighResult:
     """
 
     file: str
-    payload_kg: float
-    uncertainty_kg: float
-    payload_friction_kg: float
-    friction_uncertainty_kg: float
+    payload_kg: float | None
+    uncertainty_kg: float | None
+    payload_friction_kg: float | None
+    friction_uncertainty_kg: float | None
     payload_inertia_kg: float | None
     inertia_uncertainty_kg: float | None
     consistent: bool
@@ -225,7 +245,15 @@ class WeighResult:
     tlf: float | None = None
     warnings: tuple[RecordingWarning, ...] = field(default_factory=tuple)
     signatures: Signatures | None = None
-    loss_drift: LossDrift = field(default_factory=LossDrift)
+    loss_drift: LossDrift = field(default_factory=LossDrift.unknown)
+
+    @property
+    def unweighable(self) -> str | None:
+        """Why there is no payload, or None when there is one."""
+        for w in self.warnings:
+            if w.code == UNWEIGHABLE:
+                return w.message
+        return None
 
     def to_dict(self) -> dict[str, Any]:
         """The ``weigh --json`` object."""
@@ -276,6 +304,47 @@ def _step(fit: SignatureFit) -> tuple[float, float, float] | None:
     return float(wi.t0[sel[best_j]]), before, after
 
 
+def _no_payload(name: str, warnings: tuple[RecordingWarning, ...], drift: LossDrift) -> WeighResult:
+    """An unweighable result: every number None, the warnings kept."""
+    return WeighResult(
+        file=name,
+        payload_kg=None,
+        uncertainty_kg=None,
+        payload_friction_kg=None,
+        friction_uncertainty_kg=None,
+        payload_inertia_kg=None,
+        inertia_uncertainty_kg=None,
+        consistent=False,
+        warnings=warnings,
+        loss_drift=drift,
+    )
+
+
+def _uncovered_direction(inspection: Inspection, calibration: Calibration) -> str | None:
+    """Why the recording runs where the calibration never ran, or None.
+
+    The direction of travel of each constant-speed phase against the
+    directions of the calibration's plateaus: the incline's sign turns and
+    a gear unit's efficiency differs in reverse, so a calibration in one
+    direction says nothing sure of the other.
+    """
+    covered = calibration.directions
+    if not covered:
+        return None
+    speed = inspection.recording.speed
+    for phase in inspection.phases:
+        if phase.kind != "constant" or phase.stop - phase.start < 2:
+            continue
+        sign = 1 if float(np.median(speed[phase.start : phase.stop])) >= 0.0 else -1
+        if sign not in covered:
+            word = {1: "positive", -1: "negative"}
+            return (
+                f"the conveyor runs in the motor's {word[sign]} direction, the calibration "
+                f"only in the {word[-sign]} one; calibrate with runs in both directions"
+            )
+    return None
+
+
 def weigh(
     inspection: Inspection,
     calibration: Calibration,
@@ -307,29 +376,36 @@ def weigh(
     loss_drift : LossDrift, optional
         How far the losses have drifted since the calibration
         (:mod:`chaintwin.weigh.drift`): the friction signature is corrected
-        by it and its uncertainty carried. None trusts the calibration's
-        losses; :meth:`LossDrift.unknown` allows for a drift of ±10 % when
-        nothing is known of it.
+        by it and its uncertainty carried. Default :meth:`LossDrift.unknown`:
+        a drift of ±10 % allowed for, as nothing is known of it;
+        ``LossDrift()`` trusts the calibration's losses.
 
     Returns
     -------
     WeighResult
-
-    Raises
-    ------
-    EstimationError
-        When the recording cannot be weighed (no motion, no usable window).
+        With ``payload_kg`` None and the warning ``unweighable`` when the
+        recording does not move, holds no usable window, runs in a
+        direction the calibration does not cover, or its two signatures
+        disagree.
     """
     recording = inspection.recording
     phases = list(inspection.phases)
     name = source if source is not None else recording.source
     prof = calibration.id_profile
     params = calibration.parameters
-    if recording.has_warning("no_motion"):
-        raise EstimationError(f"{name}: the conveyor does not move; nothing to weigh")
+    drifted = LossDrift.unknown() if loss_drift is None else loss_drift
     tray = recording.metadata.tray_kg
     tray = prof.tray_mass_kg if tray is None else tray
     warnings: list[RecordingWarning] = list(recording.warnings)
+
+    def nothing(reason: str) -> WeighResult:
+        return _no_payload(name, (*warnings, _unweighable(reason)), drifted)
+
+    if recording.has_warning("no_motion"):
+        return nothing("the conveyor does not move")
+    uncovered = _uncovered_direction(inspection, calibration)
+    if uncovered is not None:
+        return nothing(uncovered)
     mot = (
         motoring
         if motoring is not None
@@ -340,16 +416,19 @@ def weigh(
         )
     )
     rate = calibration.ramp_noise_rate
-    fit, cov = fit_signatures(
-        recording,
-        prof,
-        params,
-        tray,
-        motoring=mot,
-        ramp_rate=rate,
-        windows=windows,
-        phases=phases,
-    )
+    try:
+        fit, cov = fit_signatures(
+            recording,
+            prof,
+            params,
+            tray,
+            motoring=mot,
+            ramp_rate=rate,
+            windows=windows,
+            phases=phases,
+        )
+    except EstimationError as exc:
+        return nothing(str(exc))
 
     segments: tuple[Segment, ...] = ()
     step = _step(fit)
@@ -423,13 +502,15 @@ def weigh(
                 "cannot tell a heavier load from higher friction",
             )
         )
+    grad = fit.loss_gradient if fit.loss_gradient is not None else np.zeros(2)
     signatures = Signatures(
         friction_kg=float(fit.estimate[0]),
         friction_var=float(cov[0, 0]),
         inertia_kg=p_i,
         inertia_var=var_i,
         covariance=cov_fi,
-        loss_payload_kg=_loss_payload_kg(fit.windows, calibration),
+        drift_friction_kg=float(grad[0]),
+        drift_inertia_kg=float(grad[1]) / calibration.inertia_gain if fit.has_inertia else 0.0,
         widen=widen,
     )
     cal_speeds = calibration.plateau_speeds_rpm
@@ -444,8 +525,10 @@ def weigh(
                     f"{min(cal_speeds):.0f}-{max(cal_speeds):.0f} rpm; the losses are extrapolated",
                 )
             )
-    drifted = loss_drift or LossDrift()
     combined = _combine(signatures, drifted)
+    if combined.payload_kg is None:
+        out = _no_payload(name, (*warnings, *combined.warnings), drifted)
+        return dataclasses.replace(out, segments=segments, signatures=signatures)
     tlf = transport_loss_factor(recording, prof, params, combined.payload_kg)
     return WeighResult(
         file=name,
@@ -464,24 +547,29 @@ def weigh(
     )
 
 
-def reweigh(result: WeighResult, loss_drift: LossDrift) -> WeighResult:
+def reweigh(result: WeighResult, loss_drift: LossDrift, *, friction: bool = True) -> WeighResult:
     """The result combined again with another loss drift (see :func:`weigh`).
 
-    Cheap (no fit): for a drift estimate that became known after the
-    recording was weighed, e.g. on a worker. The TLF is kept (it depends
-    on the payload only weakly).
+    Cheap (no fit): for what became known after the recording was weighed,
+    e.g. on a worker: a drift estimate, or (``friction=False``) that the
+    rail friction is suspect, so that the payload is the inertia
+    signature's. The TLF is kept (it depends on the payload only weakly).
     """
     sig = result.signatures
     if sig is None:
         return result
-    combined = _combine(sig, loss_drift)
-    kept = tuple(w for w in result.warnings if w.code != "signatures_disagree")
+    combined = _combine(sig, loss_drift, friction)
+    kept = tuple(w for w in result.warnings if w.code not in (UNWEIGHABLE, "weighed_by_inertia"))
+    if combined.payload_kg is None:
+        out = _no_payload(result.file, (*kept, *combined.warnings), loss_drift)
+        return dataclasses.replace(out, segments=result.segments, signatures=sig)
     return dataclasses.replace(
         result,
         payload_kg=combined.payload_kg,
         uncertainty_kg=combined.uncertainty_kg,
         payload_friction_kg=combined.friction_kg,
         friction_uncertainty_kg=combined.friction_uncertainty_kg,
+        payload_inertia_kg=sig.inertia_kg,
         inertia_uncertainty_kg=combined.inertia_uncertainty_kg,
         consistent=combined.consistent,
         warnings=(*kept, *combined.warnings),

@@ -43,6 +43,7 @@ from chaintwin.simulate._kernel.layout import (
     C_STEP_K,
     C_STEP_KG,
     C_STIFF,
+    C_STRIBECK_V,
     C_TAU,
     C_TEETH,
     C_THETA0,
@@ -70,6 +71,7 @@ from chaintwin.simulate._kernel.pieces import (
     in_bump,
     polygon,
     settle,
+    stribeck,
 )
 
 keep_cache_fresh(__file__, *(str(Path(__file__).with_name(f)) for f in ("layout.py", "pieces.py")))
@@ -111,6 +113,7 @@ def elastic_kernel(
     carried = coef[C_CARRIED]
     mu_g_cos = coef[C_MU_G_COS]
     static = coef[C_STATIC]
+    vs = coef[C_STRIBECK_V]
     g_sin = coef[C_G_SIN]
     krv = coef[C_KRV]
     pitch_r = coef[C_PITCH_R]
@@ -214,8 +217,9 @@ def elastic_kernel(
             loss = bma * se + omega * (bmb + bmc * abs(omega))
             w = omega + h * (net - loss) * inv_jd
             w = settle(w, omega, se, STOP_RAD_S)
-            # belt side: friction (static until breakaway), incline, obstruction
-            fck = fc2
+            # belt side: friction (static until breakaway, then the Stribeck
+            # curve), incline, obstruction
+            fck = stribeck(fc2, fs2, xd, vs)
             fsk = fs2
             if has_obs and in_bump(x, obs_pos, obs_w, loop):
                 fck += obs_f

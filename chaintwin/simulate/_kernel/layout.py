@@ -84,6 +84,9 @@ C_HJG1 = _coef("hjg1", "hjg0 after the payload step, s/(kg·m²)")
 C_BRKP1 = _coef("brkp1", "brkp0 after the payload step, Nm")
 C_BRKN1 = _coef("brkn1", "brkn0 after the payload step, Nm")
 C_STEP_SCALE = _coef("step_scale", "speed factor at the payload step (momentum kept)")
+C_STRIBECK_V = _coef(
+    "stribeck_v", "Stribeck speed: the friction falls from static to kinetic over it, m/s (0: none)"
+)
 N_COEF = len(COEFFICIENTS)
 _COEF_NAMES = tuple(name for name, _ in COEFFICIENTS)
 

@@ -54,6 +54,20 @@ instruction, vectorises). Only inside compiled functions."""
 
 
 @njit(inline="always", fastmath=FASTMATH, error_model="numpy", cache=True)
+def stribeck(fc: float, fs: float, v: float, vs: float) -> float:
+    """Sliding friction at belt speed ``v``: from ``fs`` at rest down to ``fc``.
+
+    ``fc + (fs − fc)·exp(−(v/vs)²)`` (the Stribeck curve without its viscous
+    part, which the gear losses hold); ``vs`` the Stribeck speed, m/s
+    (0: Coulomb friction ``fc``). Any unit of force or torque.
+    """
+    if vs <= 0.0:
+        return fc
+    r = v / vs
+    return fc + (fs - fc) * math.exp(-r * r)
+
+
+@njit(inline="always", fastmath=FASTMATH, error_model="numpy", cache=True)
 def mass_terms(
     mass: float, carried: float, mu_g_cos: float, static: float, g_sin: float, k: float
 ) -> tuple[float, float, float, float]:

@@ -59,6 +59,7 @@ from chaintwin.simulate._kernel.layout import (
     C_STEP_K,
     C_STEP_KG,
     C_STEP_SCALE,
+    C_STRIBECK_V,
     C_TEETH,
     C_THETA0,
     C_TLIM,
@@ -88,6 +89,7 @@ from chaintwin.simulate._kernel.pieces import (
     polygon,
     rigid_core,
     step_gains,
+    stribeck,
 )
 
 keep_cache_fresh(__file__, *(str(Path(__file__).with_name(f)) for f in ("layout.py", "pieces.py")))
@@ -126,6 +128,7 @@ def rigid_kernel(
     carried = coef[C_CARRIED]
     mu_g_cos = coef[C_MU_G_COS]
     static = coef[C_STATIC]
+    vs = coef[C_STRIBECK_V]
     g_sin = coef[C_G_SIN]
     krv = coef[C_KRV]
     inv_krv = 1.0 / krv
@@ -194,6 +197,8 @@ def rigid_kernel(
             cen = 0.0
             hjm_k = hjm
             hjg_k = hjg
+        # Stribeck: sliding friction falls from static to kinetic with belt speed
+        fck = stribeck(fck, fsk, kk * omega, vs)
         if has_obs and in_bump(x, obs_pos, obs_w, loop):
             fck += obs_f * kk
             fsk += obs_f * kk

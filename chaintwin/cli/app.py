@@ -68,6 +68,7 @@ def _register() -> None:
         inspect_cmd,
         monitor_cmd,
         report_cmd,
+        serve_cmd,
         simulate_cmd,
         spectrum_cmd,
         store_cmd,
@@ -82,6 +83,7 @@ def _register() -> None:
     store_cmd.register(app)
     report_cmd.register(app)
     db_cmd.register(app)
+    serve_cmd.register(app)
 
 
 _register()

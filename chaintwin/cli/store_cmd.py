@@ -51,6 +51,7 @@ EXPORT_COLUMNS: tuple[str, ...] = (
     "unexplained_peak",
     "belt_bump",
     "warnings",
+    "recording_id",
 )
 """Columns of ``export --format csv`` (features as their own columns)."""
 
@@ -168,7 +169,7 @@ def register(app: typer.Typer) -> None:
                     f"the store holds no conveyor '{conveyor}' "
                     f"(it holds: {', '.join(store.conveyors()) or 'none'})"
                 )
-            rows = store.results(conveyor)
+            rows = store.results(conveyor, with_ids=True)
         finally:
             store.close()
         if fmt == "json":

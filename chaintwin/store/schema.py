@@ -19,6 +19,12 @@ table              what a row holds
                    windows): :meth:`ConveyorMonitor.to_state` as JSON
 ``alarms``         alarms with their life: opened, acknowledged, closed
 ``events``         maintenance events with who, when, why
+``api_tokens``     the web service's access tokens: name, role, a keyed SHA-256
+                   of the token (never the token), created, expires, revoked
+``audit_log``      who did what when through the web service (logins, changes)
+``secrets``        random keys the web service needs, created on first use and
+                   shared by every process on the store (token-hash key,
+                   session-cookie key)
 =================  =============================================================
 
 One recording is stored in one transaction together with its result and the
@@ -46,6 +52,7 @@ from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 __all__ = [
     "SCHEMA_VERSION",
     "AlarmRow",
+    "AuditRow",
     "Base",
     "CalibrationRow",
     "ConveyorRow",
@@ -54,6 +61,8 @@ __all__ = [
     "RecordingRow",
     "ResultRow",
     "SchemaRow",
+    "SecretRow",
+    "TokenRow",
 ]
 
 SCHEMA_VERSION = 2
@@ -121,6 +130,8 @@ class ResultRow(Base):
     payload_kg: Mapped[float | None] = mapped_column(Float)
     tlf: Mapped[float | None] = mapped_column(Float)
     content: Mapped[dict[str, Any]] = mapped_column(JSON)
+    stored_at: Mapped[str | None] = mapped_column(String(40), nullable=True)
+    """When the result was written (UTC, ISO 8601); None in stores before revision 0003."""
 
     __table_args__ = (Index("ix_results_conveyor_recorded", "conveyor_id", "recorded_at"),)
 
@@ -159,3 +170,34 @@ class EventRow(Base):
     kind: Mapped[str] = mapped_column(String(20))
     at: Mapped[str] = mapped_column(String(40))
     content: Mapped[dict[str, Any]] = mapped_column(JSON)
+
+
+class TokenRow(Base):
+    """An access token of the web service (its hash only)."""
+
+    __tablename__ = "api_tokens"
+    name: Mapped[str] = mapped_column(String(100), primary_key=True)
+    role: Mapped[str] = mapped_column(String(20))
+    token_hash: Mapped[str] = mapped_column(String(64), unique=True)
+    created_at: Mapped[str] = mapped_column(String(40))
+    expires_at: Mapped[str | None] = mapped_column(String(40), nullable=True)
+    revoked_at: Mapped[str | None] = mapped_column(String(40), nullable=True)
+
+
+class AuditRow(Base):
+    """One login or change made through the web service."""
+
+    __tablename__ = "audit_log"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    at: Mapped[str] = mapped_column(String(40), index=True)
+    who: Mapped[str] = mapped_column(String(100))
+    action: Mapped[str] = mapped_column(String(40))
+    detail: Mapped[dict[str, Any]] = mapped_column(JSON)
+
+
+class SecretRow(Base):
+    """A random key of the web service (hex), created on first use."""
+
+    __tablename__ = "secrets"
+    name: Mapped[str] = mapped_column(String(40), primary_key=True)
+    value: Mapped[str] = mapped_column(String(128))

@@ -359,6 +359,7 @@ class Store:
                     )
                     ids.update({str(sha): int(rid) for sha, rid in s.execute(q)})
                 if items:
+                    stored_at = _now()
                     s.execute(
                         insert(ResultRow),
                         [
@@ -371,6 +372,7 @@ class Store:
                                 "payload_kg": item.result.payload_kg,
                                 "tlf": item.result.tlf,
                                 "content": item.result.to_dict(),  # null for NaN: _to_json
+                                "stored_at": stored_at,
                             }
                             for item in items
                         ],
@@ -387,18 +389,31 @@ class Store:
         return 1 if version == 0 else version + 1
 
     # ------------------------------------------------------------ reading
-    def results(self, conveyor: str | None = None) -> list[dict[str, Any]]:
+    def results(
+        self, conveyor: str | None = None, *, with_ids: bool = False
+    ) -> list[dict[str, Any]]:
         """Stored results (``monitor --json`` objects), per conveyor in the order monitored.
 
         That is recorded order (ingest sorts by ``recorded_at``; a recording
         without one follows its predecessor in the batch), the same on every
-        database.
+        database. ``with_ids`` adds ``recording_id`` (the recording's content
+        SHA-256, the key the store and the web API know it by) and
+        ``stored_at``.
         """
         with Session(self.engine) as s:
-            q = select(ResultRow).order_by(ResultRow.conveyor_id, ResultRow.id)
+            q = (
+                select(ResultRow, RecordingRow.sha256)
+                .join(RecordingRow, RecordingRow.id == ResultRow.recording_id)
+                .order_by(ResultRow.conveyor_id, ResultRow.id)
+            )
             if conveyor is not None:
                 q = q.where(ResultRow.conveyor_id == conveyor)
-            return [dict(r.content) for r in s.scalars(q)]
+            if not with_ids:
+                return [dict(r.content) for r, _sha in s.execute(q)]
+            return [
+                dict(r.content) | {"recording_id": sha, "stored_at": r.stored_at}
+                for r, sha in s.execute(q)
+            ]
 
     def profile(self, conveyor: str) -> ConveyorProfile | None:
         """A stored conveyor's profile, if the conveyor is stored."""

@@ -1,0 +1,160 @@
+"""Read queries the web service needs beyond :class:`~chaintwin.store.store.Store`'s.
+
+Paged results newest first (a cursor of the last row's recording time and
+id), a recording and its result by content hash, and a light per-conveyor
+summary for the fleet overview (one query per table, not one per conveyor).
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+from dataclasses import dataclass
+from typing import Any
+
+from sqlalchemy import and_, func, or_, select
+from sqlalchemy.orm import Session
+
+from chaintwin.errors import StoreError
+from chaintwin.read.recording import Recording
+from chaintwin.store.schema import AlarmRow, ConveyorRow, RecordingRow, ResultRow
+from chaintwin.store.store import Store
+
+__all__ = ["Page", "fleet_rows", "recording_by_hash", "results_page"]
+
+_NULL_TIME = ""
+"""Sort key of a recording without a time (oldest)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Page:
+    """One page of results, newest first, and the cursor of the next (None: no more)."""
+
+    items: list[dict[str, Any]]
+    next_cursor: str | None
+
+
+def _cursor(recorded_at: str | None, row_id: int) -> str:
+    raw = json.dumps([recorded_at or _NULL_TIME, row_id]).encode()
+    return base64.urlsafe_b64encode(raw).decode().rstrip("=")
+
+
+def _uncursor(cursor: str) -> tuple[str, int]:
+    try:
+        raw = base64.urlsafe_b64decode(cursor + "=" * (-len(cursor) % 4))
+        at, row_id = json.loads(raw)
+        return str(at), int(row_id)
+    except (ValueError, TypeError) as exc:
+        raise StoreError(
+            f"cursor '{cursor[:40]}' is not one this service gave ({exc.__class__.__name__}); "
+            "start again without a cursor",
+            field="cursor",
+        ) from None
+
+
+def results_page(
+    store: Store,
+    conveyor: str,
+    *,
+    since: str | None = None,
+    until: str | None = None,
+    limit: int = 100,
+    cursor: str | None = None,
+) -> Page:
+    """A conveyor's stored results, newest first by recording time.
+
+    Each item is the stored result (the ``export --format json`` object) with
+    ``recording_id`` (the recording's content SHA-256) and ``stored_at``.
+    ``since``/``until`` bound ``recorded_at`` (ISO 8601, inclusive);
+    recordings without a time sort as the oldest.
+    """
+    key = func.coalesce(ResultRow.recorded_at, _NULL_TIME)
+    q = (
+        select(ResultRow, RecordingRow.sha256)
+        .join(RecordingRow, RecordingRow.id == ResultRow.recording_id)
+        .where(ResultRow.conveyor_id == conveyor)
+    )
+    if since is not None:
+        q = q.where(ResultRow.recorded_at >= since)
+    if until is not None:
+        q = q.where(ResultRow.recorded_at <= until)
+    if cursor is not None:
+        at, row_id = _uncursor(cursor)
+        q = q.where(or_(key < at, and_(key == at, ResultRow.id < row_id)))
+    q = q.order_by(key.desc(), ResultRow.id.desc()).limit(limit + 1)
+    with Session(store.engine) as s:
+        rows = list(s.execute(q))
+    items = []
+    for row, sha in rows[:limit]:
+        items.append(
+            dict(row.content)
+            | {"conveyor": conveyor, "recording_id": sha, "stored_at": row.stored_at}
+        )
+    more = len(rows) > limit
+    last = rows[limit - 1][0] if more else None
+    return Page(items, _cursor(last.recorded_at, last.id) if last is not None else None)
+
+
+def recording_by_hash(store: Store, sha256: str) -> tuple[dict[str, Any], Recording] | None:
+    """A stored recording's result (with ``recording_id``, ``stored_at``) and samples, or None."""
+    with Session(store.engine) as s:
+        found = s.execute(
+            select(ResultRow, RecordingRow.id)
+            .join(RecordingRow, RecordingRow.id == ResultRow.recording_id)
+            .where(RecordingRow.sha256 == sha256)
+        ).first()
+    if found is None:
+        return None
+    row, rec_id = found
+    result = dict(row.content) | {
+        "conveyor": row.conveyor_id,
+        "recording_id": sha256,
+        "stored_at": row.stored_at,
+    }
+    return result, store.recording(int(rec_id))
+
+
+def fleet_rows(store: Store) -> list[dict[str, Any]]:
+    """Per conveyor: its latest result's numbers, open alarms, recording count.
+
+    Three queries whatever the number of conveyors.
+    """
+    latest_id = (
+        select(ResultRow.conveyor_id, func.max(ResultRow.id).label("last"))
+        .where(ResultRow.status != "refused")
+        .group_by(ResultRow.conveyor_id)
+        .subquery()
+    )
+    with Session(store.engine) as s:
+        ids = [str(c) for c in s.scalars(select(ConveyorRow.id).order_by(ConveyorRow.id))]
+        latest = {
+            str(r.conveyor_id): r
+            for r in s.scalars(select(ResultRow).join(latest_id, ResultRow.id == latest_id.c.last))
+        }
+        counts = dict(
+            s.execute(
+                select(ResultRow.conveyor_id, func.count()).group_by(ResultRow.conveyor_id)
+            ).all()
+        )
+        open_alarms: dict[str, list[dict[str, Any]]] = {}
+        for a in s.scalars(select(AlarmRow).where(AlarmRow.status != "closed")):
+            open_alarms.setdefault(str(a.conveyor_id), []).append(
+                {"id": a.id, "feature": a.feature, "cause": a.cause, "since": a.since}
+            )
+    out = []
+    for cid in ids:
+        row = latest.get(cid)
+        content = dict(row.content) if row is not None else {}
+        out.append(
+            {
+                "id": cid,
+                "recordings": int(counts.get(cid, 0)),
+                "last_recorded_at": row.recorded_at if row is not None else None,
+                "payload_kg": row.payload_kg if row is not None else None,
+                "tlf": row.tlf if row is not None else None,
+                "status": content.get("status"),
+                "alarm": bool(row.alarm) if row is not None else False,
+                "open_alarms": open_alarms.get(cid, []),
+            }
+        )
+    return out

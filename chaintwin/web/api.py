@@ -1,0 +1,417 @@
+"""The JSON API, ``/api/v1`` (OpenAPI at ``/openapi.json``, docs at ``/docs``).
+
+Reading needs the role ``viewer``, acknowledging, maintenance and uploads
+``maintainer``, tokens and the audit log ``admin``; ``/api/v1/health``
+needs none. A browser session's changes carry ``X-CSRF-Token``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import re
+import tempfile
+import threading
+from datetime import datetime
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from fastapi import APIRouter, File, Query, Request, UploadFile
+from fastapi.concurrency import run_in_threadpool
+from pydantic import BaseModel, Field
+
+from chaintwin import __version__
+from chaintwin.diagnose.state import acknowledge_alarm, add_maintenance
+from chaintwin.errors import ChaintwinError, StoreError
+from chaintwin.store.access import (
+    audit,
+    audit_entries,
+    create_token,
+    list_tokens,
+    revoke_token,
+)
+from chaintwin.store.engine import safe_url
+from chaintwin.store.queries import fleet_rows, recording_by_hash, results_page
+from chaintwin.web.security import ApiError, Principal, require
+
+__all__ = ["router"]
+
+router = APIRouter(prefix="/api/v1", tags=["api"])
+
+PLOT_POINTS = 1000
+"""Most samples of a channel returned for plotting (evenly thinned)."""
+
+_upload_lock = threading.Lock()
+
+
+def _web(request: Request) -> Any:
+    return request.app.state.web
+
+
+def who(request: Request, role: str, *, changes: bool = False) -> Principal:
+    """The request's principal with at least ``role`` (ApiError 401/403 otherwise)."""
+    csrf = request.headers.get("x-csrf-token")
+    return require(_web(request).principal(request), role, changes=changes, csrf=csrf)
+
+
+def _finite(x: Any) -> Any:
+    return None if isinstance(x, float) and not math.isfinite(x) else x
+
+
+# ------------------------------------------------------------------ models
+class Health(BaseModel):
+    """The service's state."""
+
+    status: Literal["ok"]
+    version: str
+    store: dict[str, Any]
+
+
+class AcknowledgeBody(BaseModel):
+    """Why an alarm is acknowledged."""
+
+    why: str = Field(min_length=1, max_length=2000)
+
+
+class MaintenanceBody(BaseModel):
+    """A maintenance event (the CLI's kinds)."""
+
+    kind: str = Field(min_length=1, max_length=20)
+    why: str = Field(min_length=1, max_length=2000)
+    at: datetime | None = None
+
+
+class TokenBody(BaseModel):
+    """A token to create."""
+
+    name: str = Field(min_length=1, max_length=100)
+    role: Literal["viewer", "maintainer", "admin"]
+    expires_days: float | None = Field(default=None, gt=0)
+
+
+class UploadedFile(BaseModel):
+    """What became of one uploaded file."""
+
+    file: str
+    status: Literal["stored", "already_stored", "refused"]
+    reason: str | None = None
+    recording_id: str | None = None
+
+
+class UploadResult(BaseModel):
+    """What became of each uploaded file."""
+
+    files: list[UploadedFile]
+
+
+# ------------------------------------------------------------------ reading
+@router.get("/health", response_model=Health)
+def health(request: Request) -> dict[str, Any]:
+    """The service and its store (no token needed)."""
+    web = _web(request)
+    counts = web.store.counts()
+    return {
+        "status": "ok",
+        "version": __version__,
+        "store": {"url": safe_url(web.store.url), **counts},
+    }
+
+
+@router.get("/conveyors")
+def conveyors(request: Request) -> list[dict[str, Any]]:
+    """Each conveyor: health, open alarms, latest payload and TLF, last recording time."""
+    who(request, "viewer")
+    out = []
+    for row in fleet_rows(_web(request).store):
+        if row["open_alarms"]:
+            row["health"] = "alarm"
+        elif row["status"] in (None, "baseline", "learning"):
+            row["health"] = "learning"
+        else:
+            row["health"] = "ok"
+        out.append(row)
+    return out
+
+
+def _conveyor(request: Request, conveyor_id: str) -> Any:
+    from chaintwin.report.data import conveyor_data
+
+    store = _web(request).store
+    if store.profile(conveyor_id) is None:
+        raise ApiError(404, "not_found", f"no conveyor '{conveyor_id}' in the store")
+    return conveyor_data(store, conveyor_id, waterfall=0)
+
+
+@router.get("/conveyors/{conveyor_id:path}/recordings")
+def recordings(
+    request: Request,
+    conveyor_id: str,
+    since: str | None = None,
+    until: str | None = None,
+    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+    cursor: str | None = None,
+) -> dict[str, Any]:
+    """Stored results, newest first by recording time, cursor-paginated."""
+    who(request, "viewer")
+    store = _web(request).store
+    if store.profile(conveyor_id) is None:
+        raise ApiError(404, "not_found", f"no conveyor '{conveyor_id}' in the store")
+    page = results_page(store, conveyor_id, since=since, until=until, limit=limit, cursor=cursor)
+    return {"items": page.items, "next_cursor": page.next_cursor}
+
+
+@router.get("/conveyors/{conveyor_id:path}/trends")
+def trends(request: Request, conveyor_id: str, feature: str) -> dict[str, Any]:
+    """A feature's series with its baseline band and alarm markers."""
+    who(request, "viewer")
+    data = _conveyor(request, conveyor_id)
+    trend = next((t for t in data.trends if t.name == feature), None)
+    if trend is None:
+        names = ", ".join(t.name for t in data.trends) or "none yet"
+        raise ApiError(404, "not_found", f"no feature '{feature}' (tracked: {names})")
+    points = []
+    for k, v, ex in zip(trend.index, trend.values, trend.exceeded, strict=False):
+        t = data.times[k]
+        points.append(
+            {
+                "recorded_at": None if t is None else t.isoformat(),
+                "value": _finite(float(v)),
+                "exceeded": bool(ex),
+            }
+        )
+    marks = [
+        {"id": a.id, "since": a.since, "closed_at": a.closed_at, "cause": a.cause}
+        for a in data.alarms
+        if a.feature == feature
+    ]
+    return {
+        "conveyor": conveyor_id,
+        "feature": feature,
+        "cause": trend.cause,
+        "unit": trend.unit,
+        "expected": trend.expected,
+        "limit": trend.limit,
+        "points": points,
+        "alarms": marks,
+    }
+
+
+@router.get("/conveyors/{conveyor_id:path}")
+def conveyor(request: Request, conveyor_id: str) -> dict[str, Any]:
+    """Profile, calibration summary, baselines and health of one conveyor."""
+    who(request, "viewer")
+    data = _conveyor(request, conveyor_id)
+    cal = data.calibration
+    calibration = None
+    if cal is not None:
+        calibration = {
+            "case": cal.case,
+            "created_at": cal.created_at,
+            "mu": cal.parameters["mu"],
+            "mu_stderr": cal.parameters.stderr("mu"),
+            "payload_sensitivity_rel_uncertainty": cal.sensitivity_rel_uncertainty,
+            "recommendation": cal.recommendation(),
+            "directions": sorted(cal.directions),
+        }
+    return {
+        "id": conveyor_id,
+        "profile": data.profile.model_dump(mode="json"),
+        "calibration": calibration,
+        "baseline_since": data.baseline_since,
+        "summary": data.summary,
+        "forecasts": data.forecasts,
+        "health_index": _finite(float(data.health_index)),
+        "status": data.status,
+        "features": [t.name for t in data.trends],
+        "open_alarms": [a.to_dict() for a in data.open_alarms()],
+        "recordings": len(data.results),
+        "notes": data.notes,
+    }
+
+
+@router.get("/alarms")
+def alarms(
+    request: Request,
+    state: Literal["open", "closed"] | None = None,
+    acknowledged: bool | None = None,
+) -> list[dict[str, Any]]:
+    """Alarms of every conveyor, oldest first, optionally filtered."""
+    who(request, "viewer")
+    out = []
+    for a in _web(request).store.alarms():
+        if state is not None and (a.is_open != (state == "open")):
+            continue
+        if acknowledged is not None and ((a.acknowledged is not None) != acknowledged):
+            continue
+        out.append(a.to_dict())
+    return out
+
+
+@router.get("/recordings/{recording_id}")
+def recording(request: Request, recording_id: str) -> dict[str, Any]:
+    """A stored result with its measured and model torque and speed, thinned for plotting."""
+    who(request, "viewer")
+    if not re.fullmatch(r"[0-9a-f]{64}", recording_id):
+        raise ApiError(404, "not_found", f"no recording '{recording_id[:80]}'")
+    store = _web(request).store
+    found = recording_by_hash(store, recording_id)
+    if found is None:
+        raise ApiError(404, "not_found", f"no recording '{recording_id}'")
+    result, rec = found
+    step = max(1, math.ceil(rec.samples / PLOT_POINTS))
+    series: dict[str, Any] = {
+        "time_s": rec.time[::step].tolist(),
+        "speed_rpm": (rec.speed[::step] * 60.0 / (2.0 * math.pi)).tolist(),
+        "torque_nm": rec.torque[::step].tolist(),
+        "model_torque_nm": None,
+    }
+    cal = store.calibration(result["conveyor"])
+    payload = result.get("payload_kg")
+    if cal is not None and payload is not None:
+        from chaintwin.model.rigid import model_torque
+
+        model = model_torque(rec, cal.id_profile, cal.parameters, float(payload))
+        series["model_torque_nm"] = np.asarray(model)[::step].tolist()
+    return {"result": result, "series": series}
+
+
+# ------------------------------------------------------------------ changes
+@router.post("/alarms/{alarm_id}/acknowledge")
+def acknowledge(request: Request, alarm_id: str, body: AcknowledgeBody) -> dict[str, Any]:
+    """Acknowledge an open alarm (maintainer): it stays open, no longer fails scripts."""
+    p = who(request, "maintainer", changes=True)
+    store = _web(request).store
+    try:
+        conveyor_id = store.alarm_conveyor(alarm_id)
+    except StoreError as exc:
+        raise ApiError(404, "not_found", str(exc)) from None
+    alarm = store.edit_state(
+        conveyor_id, lambda d: acknowledge_alarm(d, alarm_id, p.name, body.why)
+    )
+    audit(store, p.name, "acknowledge", {"alarm": alarm_id, "why": body.why})
+    out: dict[str, Any] = alarm.to_dict()
+    return out
+
+
+@router.post("/conveyors/{conveyor_id:path}/maintenance")
+def maintenance(request: Request, conveyor_id: str, body: MaintenanceBody) -> dict[str, Any]:
+    """Record a maintenance event (maintainer): the baseline restarts after it."""
+    p = who(request, "maintainer", changes=True)
+    store = _web(request).store
+    if store.profile(conveyor_id) is None:
+        raise ApiError(404, "not_found", f"no conveyor '{conveyor_id}' in the store")
+    event = store.edit_state(
+        conveyor_id, lambda d: add_maintenance(d, conveyor_id, body.kind, p.name, body.why, body.at)
+    )
+    audit(store, p.name, "maintenance", {"conveyor": conveyor_id, "kind": body.kind})
+    out: dict[str, Any] = event.to_dict()
+    return out
+
+
+_SAFE_NAME = re.compile(r"[^A-Za-z0-9._-]+")
+
+
+def ingest_uploads(web: Any, named: list[tuple[str, bytes]], who_name: str) -> list[UploadedFile]:
+    """Store uploaded files exactly as ``chaintwin ingest`` would; what became of each."""
+    from chaintwin.store.ingest import ingest
+
+    profiles = {cid: p for cid in web.store.conveyors() if (p := web.store.profile(cid))}
+    profiles |= web.profiles
+    out: list[UploadedFile] = []
+    with tempfile.TemporaryDirectory(prefix="chaintwin-upload-") as folder, _upload_lock:
+        paths: dict[str, tuple[str, str]] = {}
+        for k, (name, raw) in enumerate(named):
+            base = _SAFE_NAME.sub("_", Path(name).name)[-120:] or "upload.csv"
+            path = str(Path(folder) / f"{k:03d}-{base}")
+            Path(path).write_bytes(raw)
+            paths[path] = (name, hashlib.sha256(raw).hexdigest())
+        known = web.store.known(sha for _n, sha in paths.values())
+        summary = ingest(list(paths), profiles, web.store, workers=1)
+        refused = {r["file"]: r["error"] for r in summary.refusals}
+        for path, (name, sha) in paths.items():
+            if path in refused:
+                reason = refused[path].replace(path, name)
+                out.append(UploadedFile(file=name, status="refused", reason=reason))
+            elif sha in known:
+                out.append(UploadedFile(file=name, status="already_stored", recording_id=sha))
+            else:
+                out.append(UploadedFile(file=name, status="stored", recording_id=sha))
+    audit(
+        web.store,
+        who_name,
+        "upload",
+        {"files": [f.file for f in out], "stored": sum(f.status == "stored" for f in out)},
+    )
+    return out
+
+
+async def read_uploads(web: Any, files: list[UploadFile]) -> list[tuple[str, bytes]]:
+    """The uploaded files' names and contents; ApiError 413 beyond the size limit."""
+    named: list[tuple[str, bytes]] = []
+    total = 0
+    for f in files:
+        raw = await f.read()
+        total += len(raw)
+        if total > web.max_upload_bytes:
+            raise ApiError(
+                413,
+                "too_large",
+                f"the upload is larger than {web.max_upload_bytes // (1024 * 1024)} MB; "
+                "send fewer files at once",
+            )
+        named.append((f.filename or "upload.csv", raw))
+    return named
+
+
+@router.post("/recordings", response_model=UploadResult)
+async def upload(request: Request, files: Annotated[list[UploadFile], File()]) -> dict[str, Any]:
+    """Upload recordings (maintainer), ingested as ``chaintwin ingest`` would."""
+    p = who(request, "maintainer", changes=True)
+    web = _web(request)
+    named = await read_uploads(web, files)
+    done = await run_in_threadpool(ingest_uploads, web, named, p.name)
+    return {"files": [f.model_dump() for f in done]}
+
+
+# ------------------------------------------------------------------ admin
+@router.get("/tokens")
+def tokens(request: Request) -> list[dict[str, Any]]:
+    """Every token (names, roles, lifetimes; never the tokens), admin."""
+    who(request, "admin")
+    return [t.to_dict() for t in list_tokens(_web(request).store)]
+
+
+@router.post("/tokens")
+def new_token(request: Request, body: TokenBody) -> dict[str, Any]:
+    """Create a token (admin); the response is the only time it is shown."""
+    p = who(request, "admin", changes=True)
+    store = _web(request).store
+    try:
+        token = create_token(store, body.name, body.role, body.expires_days)
+    except ChaintwinError as exc:
+        raise ApiError(409, "conflict", str(exc)) from None
+    audit(store, p.name, "token_create", {"name": body.name, "role": body.role})
+    return {"token": token, "name": body.name, "role": body.role}
+
+
+@router.post("/tokens/{name}/revoke")
+def revoke(request: Request, name: str) -> dict[str, Any]:
+    """Revoke a token by name (admin); its sessions end at once."""
+    p = who(request, "admin", changes=True)
+    store = _web(request).store
+    try:
+        info = revoke_token(store, name)
+    except StoreError as exc:
+        raise ApiError(404, "not_found", str(exc)) from None
+    audit(store, p.name, "token_revoke", {"name": name})
+    return info.to_dict()
+
+
+@router.get("/audit")
+def audit_log(
+    request: Request, limit: Annotated[int, Query(ge=1, le=5000)] = 500
+) -> list[dict[str, Any]]:
+    """The audit log, newest first (admin)."""
+    who(request, "admin")
+    return audit_entries(_web(request).store, limit)

@@ -1,0 +1,182 @@
+"""The web service: dashboard pages and the JSON API over a results store.
+
+:func:`create_app` builds the FastAPI application; ``chaintwin serve`` runs
+it under uvicorn. Everything it loads in a browser comes from the package
+(Plotly's and Swagger UI's JavaScript under ``/static``), nothing from the
+network.
+
+Every error of the API has one shape, ``{"error": {"code", "message"}}``;
+a page answers a missing login with a redirect to ``/login``.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import jinja2
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.openapi.docs import get_swagger_ui_html
+from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Response
+from fastapi.staticfiles import StaticFiles
+from fastapi.templating import Jinja2Templates
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from chaintwin import __version__
+from chaintwin.errors import ChaintwinError
+from chaintwin.read.profile import ConveyorProfile
+from chaintwin.store.access import secret
+from chaintwin.store.store import Store
+from chaintwin.web.security import ApiError, Principal, principal_of
+
+__all__ = ["WebState", "create_app"]
+
+_HERE = Path(__file__).parent
+
+
+@dataclass
+class WebState:
+    """What the request handlers share: the store, the profiles, the settings."""
+
+    store: Store
+    profiles: dict[str, ConveyorProfile]
+    max_upload_bytes: int
+    session_key: bytes
+    templates: Jinja2Templates
+    secure_cookies: bool = False
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def principal(self, request: Request) -> Principal | None:
+        """Who is asking (None: nobody known)."""
+        return principal_of(request, self.store, self.session_key)
+
+
+def _static_dirs() -> dict[str, Path]:
+    import plotly  # type: ignore[import-untyped]
+    import swagger_ui_bundle  # type: ignore[import-untyped]
+
+    return {
+        "plotly": Path(plotly.__file__).parent / "package_data",
+        "swagger": Path(swagger_ui_bundle.swagger_ui_path),
+        "app": _HERE / "static",
+    }
+
+
+def _error(status: int, code: str, message: str) -> JSONResponse:
+    return JSONResponse({"error": {"code": code, "message": message}}, status_code=status)
+
+
+def _is_api(request: Request) -> bool:
+    return request.url.path.startswith("/api/")
+
+
+def create_app(
+    store: Store,
+    profiles: dict[str, ConveyorProfile] | None = None,
+    *,
+    max_upload_mb: float = 20.0,
+    secure_cookies: bool = False,
+) -> FastAPI:
+    """The web application over ``store``.
+
+    Parameters
+    ----------
+    store : Store
+        An open results store (written to: acknowledgements, maintenance,
+        uploads, the audit log).
+    profiles : dict, optional
+        Profiles by conveyor id that uploads are weighed and monitored with
+        (with the store's own for conveyors it holds).
+    max_upload_mb : float
+        Largest upload request, MB (413 beyond).
+    secure_cookies : bool
+        Mark the session cookie ``Secure`` (behind TLS).
+    """
+    from chaintwin.web import api, pages
+
+    app = FastAPI(
+        title="chaintwin",
+        version=__version__,
+        summary="Condition monitoring and dynamic weighing of chain conveyors",
+        docs_url=None,
+        redoc_url=None,
+    )
+    # every value escaped, whatever the templates' file names end with
+    env = jinja2.Environment(
+        loader=jinja2.FileSystemLoader(str(_HERE / "templates")), autoescape=True
+    )
+    templates = Jinja2Templates(env=env)
+    state = WebState(
+        store=store,
+        profiles=dict(profiles or {}),
+        max_upload_bytes=int(max_upload_mb * 1024 * 1024),
+        session_key=secret(store, "session_key"),
+        templates=templates,
+        secure_cookies=secure_cookies,
+    )
+    app.state.web = state
+    for name, folder in _static_dirs().items():
+        app.mount(f"/static/{name}", StaticFiles(directory=str(folder)), name=f"static-{name}")
+
+    @app.exception_handler(ApiError)
+    async def api_error(request: Request, exc: ApiError) -> Response:
+        if not _is_api(request) and exc.status == 401:
+            return RedirectResponse("/login", status_code=303)
+        if not _is_api(request):
+            return pages.error_page(request, exc.status, exc.message)
+        return _error(exc.status, exc.code, exc.message)
+
+    @app.exception_handler(ChaintwinError)
+    async def bad_input(request: Request, exc: ChaintwinError) -> Response:
+        message = str(exc).splitlines()[0] if str(exc) else exc.__class__.__name__
+        if not _is_api(request):
+            return pages.error_page(request, 400, message)
+        return _error(400, "bad_request", message)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def http_error(request: Request, exc: StarletteHTTPException) -> Response:
+        code = {404: "not_found", 405: "method_not_allowed", 413: "too_large"}.get(
+            exc.status_code, "http_error"
+        )
+        if not _is_api(request):
+            return pages.error_page(request, exc.status_code, str(exc.detail))
+        return _error(exc.status_code, code, str(exc.detail))
+
+    @app.exception_handler(RequestValidationError)
+    async def invalid(request: Request, exc: RequestValidationError) -> Response:
+        first = exc.errors()[0] if exc.errors() else {}
+        where = ".".join(str(p) for p in first.get("loc", ()))
+        message = f"{where}: {first.get('msg', 'invalid request')}" if where else "invalid request"
+        if not _is_api(request):
+            return pages.error_page(request, 422, message)
+        return _error(422, "invalid", message)
+
+    @app.get("/docs", include_in_schema=False)
+    async def docs() -> HTMLResponse:
+        return get_swagger_ui_html(
+            openapi_url="/openapi.json",
+            title="chaintwin API",
+            swagger_js_url="/static/swagger/swagger-ui-bundle.js",
+            swagger_css_url="/static/swagger/swagger-ui.css",
+            swagger_favicon_url="/static/swagger/favicon-32x32.png",
+        )
+
+    app.include_router(api.router)
+    app.include_router(pages.router)
+    return app
+
+
+def app_from_environment() -> FastAPI:  # pragma: no cover - used by uvicorn --factory
+    """The app for ``uvicorn --factory chaintwin.web.app:app_from_environment``.
+
+    Reads ``CHAINTWIN_DB`` and optionally ``CHAINTWIN_PROFILES``.
+    """
+    from chaintwin.cli.monitor_cmd import load_profiles
+    from chaintwin.store.engine import store_url
+
+    folder = os.environ.get("CHAINTWIN_PROFILES")
+    profiles = load_profiles(None, Path(folder)) if folder else {}
+    return create_app(Store(store_url(None)), profiles)

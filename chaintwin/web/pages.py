@@ -1,0 +1,249 @@
+"""The dashboard's pages: login, fleet, conveyor, alarms, upload, audit.
+
+Server-rendered (Jinja2, every value escaped); the charts are drawn in the
+browser by Plotly (served from the package) from the JSON API, which the
+pages call with the session cookie and their CSRF token. Forms that change
+something carry the CSRF token as the field ``csrf``.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Annotated, Any
+
+from fastapi import APIRouter, File, Form, Request, UploadFile
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import HTMLResponse, RedirectResponse, Response
+
+from chaintwin import __version__
+from chaintwin.diagnose.state import MAINTENANCE_KINDS, acknowledge_alarm, add_maintenance
+from chaintwin.errors import ChaintwinError
+from chaintwin.store.access import (
+    audit,
+    audit_entries,
+    create_token,
+    list_tokens,
+    revoke_token,
+    role_at_least,
+    verify_token,
+)
+from chaintwin.store.queries import fleet_rows
+from chaintwin.web.api import ingest_uploads, read_uploads
+from chaintwin.web.security import COOKIE, SESSION_SECONDS, Principal, make_session_cookie, require
+
+__all__ = ["error_page", "router"]
+
+router = APIRouter(include_in_schema=False)
+
+
+def _web(request: Request) -> Any:
+    return request.app.state.web
+
+
+def _render(
+    request: Request, name: str, principal: Principal | None, code: int = 200, **context: Any
+) -> HTMLResponse:
+    web = _web(request)
+    base = {
+        "principal": principal,
+        "csrf": principal.csrf if principal is not None else "",
+        "version": __version__,
+        "can": (lambda role: principal is not None and role_at_least(principal.role, role)),
+    }
+    page: HTMLResponse = web.templates.TemplateResponse(
+        request, name, base | context, status_code=code
+    )
+    return page
+
+
+def error_page(request: Request, status: int, message: str) -> HTMLResponse:
+    """An error as a page (the API answers JSON instead)."""
+    principal = _web(request).principal(request)
+    return _render(request, "error.html.j2", principal, status, status=status, message=message)
+
+
+def _viewer(request: Request) -> Principal:
+    return require(_web(request).principal(request), "viewer")
+
+
+# ------------------------------------------------------------------ login
+@router.get("/login", response_class=HTMLResponse)
+def login_form(request: Request) -> HTMLResponse:
+    """The login form: paste a token."""
+    return _render(request, "login.html.j2", None, message=None)
+
+
+@router.post("/login")
+def login(request: Request, token: Annotated[str, Form()]) -> Response:
+    """Check the token, set the session cookie, go to the fleet."""
+    web = _web(request)
+    info = verify_token(web.store, token.strip())
+    if info is None:
+        return _render(
+            request, "login.html.j2", None, 401, message="unknown, revoked or expired token"
+        )
+    value, _nonce = make_session_cookie(web.session_key, info.name)
+    audit(web.store, info.name, "login", {"role": info.role})
+    out = RedirectResponse("/", status_code=303)
+    out.set_cookie(
+        COOKIE,
+        value,
+        max_age=SESSION_SECONDS,
+        httponly=True,
+        samesite="strict",
+        secure=web.secure_cookies,
+        path="/",
+    )
+    return out
+
+
+@router.post("/logout")
+def logout(request: Request, csrf: Annotated[str, Form()] = "") -> Response:
+    """End the session (clears the cookie)."""
+    principal = _web(request).principal(request)
+    if principal is not None:
+        require(principal, "viewer", changes=True, csrf=csrf)
+    out = RedirectResponse("/login", status_code=303)
+    out.delete_cookie(COOKIE, path="/")
+    return out
+
+
+# ------------------------------------------------------------------ pages
+@router.get("/", response_class=HTMLResponse)
+def fleet(request: Request) -> HTMLResponse:
+    """The fleet: health, open alarms, TLF ranking; refreshes itself."""
+    p = _viewer(request)
+    rows = fleet_rows(_web(request).store)
+    return _render(request, "fleet.html.j2", p, rows=rows)
+
+
+@router.get("/conveyors/{conveyor_id:path}", response_class=HTMLResponse)
+def conveyor_page(request: Request, conveyor_id: str) -> HTMLResponse:
+    """One conveyor: trends with baseline bands and alarms, payloads, latest recording."""
+    from chaintwin.report.data import conveyor_data
+
+    p = _viewer(request)
+    store = _web(request).store
+    if store.profile(conveyor_id) is None:
+        return error_page(request, 404, f"no conveyor '{conveyor_id}' in the store")
+    data = conveyor_data(store, conveyor_id, waterfall=0)
+    return _render(request, "conveyor.html.j2", p, conveyor_id=conveyor_id, data=data)
+
+
+@router.get("/alarms", response_class=HTMLResponse)
+def alarms_page(request: Request) -> HTMLResponse:
+    """Every alarm; maintainers acknowledge and record maintenance here."""
+    p = _viewer(request)
+    store = _web(request).store
+    alarms = sorted(store.alarms(), key=lambda a: (not a.is_open, a.since or ""), reverse=False)
+    return _render(
+        request,
+        "alarms.html.j2",
+        p,
+        alarms=alarms,
+        conveyors=store.conveyors(),
+        kinds=MAINTENANCE_KINDS,
+    )
+
+
+@router.post("/alarms/{alarm_id}/acknowledge")
+def acknowledge_form(
+    request: Request, alarm_id: str, why: Annotated[str, Form()], csrf: Annotated[str, Form()] = ""
+) -> Response:
+    """The acknowledge form (maintainer)."""
+    p = require(_web(request).principal(request), "maintainer", changes=True, csrf=csrf)
+    store = _web(request).store
+    conveyor = store.alarm_conveyor(alarm_id)
+    store.edit_state(conveyor, lambda d: acknowledge_alarm(d, alarm_id, p.name, why))
+    audit(store, p.name, "acknowledge", {"alarm": alarm_id, "why": why})
+    return RedirectResponse("/alarms", status_code=303)
+
+
+@router.post("/conveyors/{conveyor_id:path}/maintenance")
+def maintenance_form(
+    request: Request,
+    conveyor_id: str,
+    kind: Annotated[str, Form()],
+    why: Annotated[str, Form()],
+    csrf: Annotated[str, Form()] = "",
+) -> Response:
+    """The maintenance form (maintainer): the baseline restarts."""
+    p = require(_web(request).principal(request), "maintainer", changes=True, csrf=csrf)
+    store = _web(request).store
+    store.edit_state(
+        conveyor_id,
+        lambda d: add_maintenance(d, conveyor_id, kind, p.name, why, datetime.now().astimezone()),
+    )
+    audit(store, p.name, "maintenance", {"conveyor": conveyor_id, "kind": kind})
+    return RedirectResponse("/alarms", status_code=303)
+
+
+@router.get("/upload", response_class=HTMLResponse)
+def upload_form(request: Request) -> HTMLResponse:
+    """The upload page (maintainer)."""
+    p = require(_web(request).principal(request), "maintainer")
+    return _render(request, "upload.html.j2", p, done=None)
+
+
+@router.post("/upload", response_class=HTMLResponse)
+async def upload_files(
+    request: Request,
+    files: Annotated[list[UploadFile], File()],
+    csrf: Annotated[str, Form()] = "",
+) -> HTMLResponse:
+    """Ingest the uploaded files and show what became of each."""
+    p = require(_web(request).principal(request), "maintainer", changes=True, csrf=csrf)
+    web = _web(request)
+    named = await read_uploads(web, files)
+    done = await run_in_threadpool(ingest_uploads, web, named, p.name)
+    return _render(request, "upload.html.j2", p, done=done)
+
+
+@router.get("/audit", response_class=HTMLResponse)
+def audit_page(request: Request) -> HTMLResponse:
+    """The audit log and the tokens (admin)."""
+    p = require(_web(request).principal(request), "admin")
+    store = _web(request).store
+    return _render(
+        request,
+        "audit.html.j2",
+        p,
+        entries=audit_entries(store),
+        tokens=list_tokens(store),
+        created=None,
+    )
+
+
+@router.post("/tokens", response_class=HTMLResponse)
+def create_token_form(
+    request: Request,
+    name: Annotated[str, Form()],
+    role: Annotated[str, Form()],
+    csrf: Annotated[str, Form()] = "",
+) -> HTMLResponse:
+    """Create a token from the browser (admin); shown once."""
+    p = require(_web(request).principal(request), "admin", changes=True, csrf=csrf)
+    store = _web(request).store
+    try:
+        token = create_token(store, name, role)
+    except ChaintwinError as exc:
+        return error_page(request, 409, str(exc))
+    audit(store, p.name, "token_create", {"name": name, "role": role})
+    return _render(
+        request,
+        "audit.html.j2",
+        p,
+        entries=audit_entries(store),
+        tokens=list_tokens(store),
+        created={"name": name, "role": role, "token": token},
+    )
+
+
+@router.post("/tokens/{name}/revoke")
+def revoke_token_form(request: Request, name: str, csrf: Annotated[str, Form()] = "") -> Response:
+    """Revoke a token from the browser (admin)."""
+    p = require(_web(request).principal(request), "admin", changes=True, csrf=csrf)
+    store = _web(request).store
+    revoke_token(store, name)
+    audit(store, p.name, "token_revoke", {"name": name})
+    return RedirectResponse("/audit", status_code=303)

@@ -1,0 +1,123 @@
+/* chaintwin dashboard: charts from the JSON API (Plotly, served locally), live fleet table. */
+"use strict";
+window.chaintwin = (function () {
+  const csrf = () => document.querySelector('meta[name="csrf-token"]').content;
+
+  async function api(path) {
+    const r = await fetch(path, { credentials: "same-origin", headers: { "X-CSRF-Token": csrf() } });
+    if (r.status === 401) { window.location = "/login"; return null; }
+    if (!r.ok) { throw new Error((await r.json()).error.message); }
+    return r.json();
+  }
+
+  function text(value, digits) {
+    return value === null || value === undefined ? "\u2013" : Number(value).toFixed(digits);
+  }
+
+  function health(row) {
+    if (row.open_alarms.length) return "alarm";
+    return row.health;
+  }
+
+  function sortable(table) {
+    table.querySelectorAll("th").forEach((th, col) => {
+      th.addEventListener("click", () => {
+        const body = table.tBodies[0];
+        const rows = Array.from(body.rows);
+        const num = th.hasAttribute("data-num");
+        const dir = th.dataset.dir === "asc" ? -1 : 1;
+        th.dataset.dir = dir === 1 ? "asc" : "desc";
+        rows.sort((a, b) => {
+          const x = a.cells[col].textContent, y = b.cells[col].textContent;
+          if (num) return dir * ((parseFloat(x) || -Infinity) - (parseFloat(y) || -Infinity));
+          return dir * x.localeCompare(y);
+        });
+        rows.forEach((r) => body.appendChild(r));
+      });
+    });
+  }
+
+  function tlfChart(rows) {
+    const have = rows.filter((r) => r.tlf !== null).sort((a, b) => b.tlf - a.tlf);
+    Plotly.react("tlf-chart", [{ type: "bar", x: have.map((r) => r.id), y: have.map((r) => r.tlf) }],
+      { margin: { t: 10 }, yaxis: { title: "TLF" } }, { responsive: true });
+  }
+
+  async function fleetPage() {
+    const table = document.getElementById("fleet");
+    sortable(table);
+    const filter = document.getElementById("filter");
+    filter.addEventListener("input", () => {
+      const q = filter.value.toLowerCase();
+      Array.from(table.tBodies[0].rows).forEach((r) => {
+        r.hidden = !r.textContent.toLowerCase().includes(q);
+      });
+    });
+    async function refresh() {
+      const rows = await api("/api/v1/conveyors");
+      if (!rows) return;
+      const byId = new Map(Array.from(table.tBodies[0].rows).map((r) => [r.dataset.id, r]));
+      rows.forEach((row) => {
+        const tr = byId.get(row.id);
+        if (!tr) { window.location.reload(); return; }  // a new conveyor: the whole table
+        tr.querySelector(".health").textContent = health(row);
+        tr.querySelector(".alarms").textContent =
+          row.open_alarms.map((a) => `${a.cause} (${a.feature})`).join(", ");
+        tr.querySelector(".payload").textContent = text(row.payload_kg, 1);
+        tr.querySelector(".tlf").textContent = text(row.tlf, 3);
+        tr.querySelector(".last").textContent = row.last_recorded_at || "\u2013";
+        tr.querySelector(".recordings").textContent = row.recordings;
+      });
+      tlfChart(rows);
+    }
+    await refresh();
+    setInterval(refresh, 10000);
+  }
+
+  async function trendChart(holder, conveyor, feature) {
+    const t = await api(`/api/v1/conveyors/${encodeURIComponent(conveyor)}/trends?feature=${encodeURIComponent(feature)}`);
+    const div = document.createElement("div");
+    div.className = "chart trend";
+    div.dataset.feature = feature;
+    holder.appendChild(div);
+    const x = t.points.map((p) => p.recorded_at);
+    const traces = [{ x, y: t.points.map((p) => p.value), mode: "lines+markers", name: feature,
+      marker: { color: t.points.map((p) => (p.exceeded ? "#c0392b" : "#2c3e50")), size: 5 } }];
+    const shapes = [];
+    if (t.expected !== null && t.limit !== null && x.length) {
+      traces.push({ x: [x[0], x[x.length - 1]], y: [t.limit, t.limit], mode: "lines",
+        name: "alarm limit", line: { dash: "dash", color: "#c0392b" } });
+      shapes.push({ type: "rect", xref: "paper", x0: 0, x1: 1, y0: t.expected, y1: t.limit,
+        fillcolor: "rgba(46, 204, 113, 0.12)", line: { width: 0 } });
+    }
+    t.alarms.forEach((a) => {
+      if (a.since) shapes.push({ type: "line", x0: a.since, x1: a.since, yref: "paper", y0: 0, y1: 1,
+        line: { color: "#c0392b", width: 1 } });
+    });
+    Plotly.newPlot(div, traces, { title: { text: `${feature} (${t.unit}) \u2192 ${t.cause || "tracked"}` },
+      margin: { t: 40 }, shapes, height: 260, showlegend: false }, { responsive: true });
+  }
+
+  async function conveyorPage() {
+    const holder = document.getElementById("trends");
+    const conveyor = holder.dataset.conveyor;
+    const features = JSON.parse(holder.dataset.features);
+    for (const f of features) await trendChart(holder, conveyor, f);
+    const page = await api(`/api/v1/conveyors/${encodeURIComponent(conveyor)}/recordings?limit=1000`);
+    const payloads = page.items.map((r) => r.payload_kg).filter((p) => p !== null);
+    Plotly.newPlot("payloads", [{ type: "histogram", x: payloads }],
+      { margin: { t: 10 }, xaxis: { title: "payload kg" }, height: 260 }, { responsive: true });
+    if (page.items.length) {
+      const rec = await api(`/api/v1/recordings/${page.items[0].recording_id}`);
+      const s = rec.series;
+      const traces = [{ x: s.time_s, y: s.torque_nm, name: "measured torque" }];
+      if (s.model_torque_nm) traces.push({ x: s.time_s, y: s.model_torque_nm, name: "model torque" });
+      traces.push({ x: s.time_s, y: s.speed_rpm, name: "speed rpm", yaxis: "y2" });
+      Plotly.newPlot("latest", traces, { margin: { t: 10 }, height: 320,
+        xaxis: { title: "s" }, yaxis: { title: "Nm" },
+        yaxis2: { title: "rpm", overlaying: "y", side: "right" } }, { responsive: true });
+    }
+  }
+
+  return { fleetPage, conveyorPage };
+})();

@@ -1,0 +1,362 @@
+"""The web service over HTTP: a real uvicorn server on a real store (SQLite and PostgreSQL).
+
+The store holds a conveyor whose rail friction rises from its third day, so
+that an alarm is open for the dashboard to show and a maintainer to
+acknowledge.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+import uvicorn
+from conftest import REFERENCE_PROFILE
+
+from chaintwin.cli.app import main
+from chaintwin.diagnose.records import MonitorSettings
+from chaintwin.identify.calibrating import calibrate
+from chaintwin.read.profile import load_profile
+from chaintwin.read.writer import write_recording
+from chaintwin.simulate.faults import Fault
+from chaintwin.simulate.fleet import generate
+from chaintwin.simulate.virtual import run_virtual
+from chaintwin.store.access import create_token
+from chaintwin.store.ingest import ingest
+from chaintwin.store.store import Store
+from chaintwin.validate import load_recording
+from chaintwin.web import create_app
+
+PROFILE = load_profile(REFERENCE_PROFILE)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Recordings of one conveyor, friction rising from day 2, and its calibration runs."""
+    folder = tmp_path_factory.mktemp("fleet")
+    generate(
+        PROFILE, folder, days=6, per_day=5, faults=[Fault("friction", 0.8)], onset_day=2, seed=5
+    )
+    return folder
+
+
+def start_server(app: Any) -> tuple[str, uvicorn.Server, threading.Thread]:
+    """Serve ``app`` with uvicorn in a thread on a free port; its base URL."""
+    port = _free_port()
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 20
+    while not server.started:
+        assert time.monotonic() < deadline, "the server did not start"
+        time.sleep(0.02)
+    return f"http://127.0.0.1:{port}", server, thread
+
+
+class Served:
+    """A store served by uvicorn in a thread, with a token per role."""
+
+    def __init__(self, url: str, fleet: Path) -> None:
+        self.url = url
+        self.clients: list[httpx.Client] = []
+        self.store = Store(url)
+        cal_files = sorted((fleet / "calibration").glob("*.csv"))
+        recs = [load_recording(f, profile=PROFILE).recording for f in cal_files]
+        self.store.put_calibration(calibrate(recs, PROFILE))
+        files = sorted(str(f) for f in fleet.glob("*.csv"))
+        ingest(
+            files, {PROFILE.id: PROFILE}, self.store, settings=MonitorSettings(baseline_n=10),
+            workers=1,
+        )  # fmt: skip
+        self.tokens = {
+            role: create_token(self.store, f"{role}-1", role)
+            for role in ("viewer", "maintainer", "admin")
+        }
+        self.app = create_app(self.store, {PROFILE.id: PROFILE})
+        self.base, self.server, self.thread = start_server(self.app)
+
+    def client(self, role: str | None = None) -> httpx.Client:
+        """A client with the role's token (closed with the server)."""
+        headers = {} if role is None else {"Authorization": f"Bearer {self.tokens[role]}"}
+        client = httpx.Client(base_url=self.base, headers=headers, timeout=30)
+        self.clients.append(client)
+        return client
+
+    def close(self) -> None:
+        for client in self.clients:
+            client.close()
+        self.server.should_exit = True
+        self.thread.join(10)
+        self.store.close()
+
+
+@pytest.fixture(scope="module", params=["sqlite", "postgresql"])
+def served(
+    request: pytest.FixtureRequest, fleet: Path, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[Served]:
+    if request.param == "sqlite":
+        url = f"sqlite:///{tmp_path_factory.mktemp('web') / 'plant.db'}"
+    else:
+        import os
+
+        import psycopg
+
+        base: str = request.getfixturevalue("postgres")
+        name = f"web{os.getpid()}_{int(time.time() * 1e6) % 10**9}"
+        with psycopg.connect(base, autocommit=True) as c:
+            c.execute(f"CREATE DATABASE {name}")
+        url = base.rsplit("/", 1)[0] + "/" + name
+    s = Served(url, fleet)
+    yield s
+    s.close()
+
+
+def _error(response: httpx.Response, status: int, code: str) -> str:
+    assert response.status_code == status, response.text
+    body = response.json()
+    assert set(body) == {"error"} and set(body["error"]) == {"code", "message"}
+    assert body["error"]["code"] == code
+    message: str = body["error"]["message"]
+    return message
+
+
+def test_reading_the_api_needs_a_token_and_pages_through_results(served: Served) -> None:
+    anon = served.client()
+    health = anon.get("/api/v1/health").json()
+    assert health["status"] == "ok" and health["store"]["results"] == 30
+    _error(anon.get("/api/v1/conveyors"), 401, "unauthorized")
+    with httpx.Client(base_url=served.base, headers={"Authorization": "Bearer ct_nope"}) as bad:
+        _error(bad.get("/api/v1/conveyors"), 401, "unauthorized")
+
+    viewer = served.client("viewer")
+    (row,) = viewer.get("/api/v1/conveyors").json()
+    assert row["id"] == PROFILE.id and row["recordings"] == 30
+    assert row["health"] == "alarm" and row["open_alarms"][0]["cause"] == "friction"
+    assert row["last_recorded_at"] and row["payload_kg"] is not None
+    detail = viewer.get(f"/api/v1/conveyors/{PROFILE.id}").json()
+    assert detail["calibration"]["case"] == "several_loads"
+    assert "friction" in detail["features"] and detail["recordings"] == 30
+    _error(viewer.get("/api/v1/conveyors/nope"), 404, "not_found")
+
+    # cursor pagination, newest first, every result once
+    seen: list[dict[str, Any]] = []
+    cursor = None
+    while True:
+        params: dict[str, Any] = {"limit": 7} | ({"cursor": cursor} if cursor else {})
+        page = viewer.get(f"/api/v1/conveyors/{PROFILE.id}/recordings", params=params).json()
+        seen += page["items"]
+        cursor = page["next_cursor"]
+        if cursor is None:
+            break
+    times = [r["recorded_at"] for r in seen]
+    assert len(seen) == 30 and times == sorted(times, reverse=True)
+    assert len({r["recording_id"] for r in seen}) == 30
+    assert all(r["stored_at"] for r in seen)
+    since = times[9]
+    recent = viewer.get(
+        f"/api/v1/conveyors/{PROFILE.id}/recordings", params={"since": since}
+    ).json()
+    assert [r["recorded_at"] for r in recent["items"]] == times[:10]
+    _error(
+        viewer.get(f"/api/v1/conveyors/{PROFILE.id}/recordings", params={"cursor": "!!"}),
+        400,
+        "bad_request",
+    )
+
+    trend = viewer.get(
+        f"/api/v1/conveyors/{PROFILE.id}/trends", params={"feature": "friction"}
+    ).json()
+    assert len(trend["points"]) == 30 and trend["limit"] > trend["expected"]
+    assert trend["alarms"] and any(p["exceeded"] for p in trend["points"])
+    _error(
+        viewer.get(f"/api/v1/conveyors/{PROFILE.id}/trends", params={"feature": "x"}),
+        404,
+        "not_found",
+    )
+
+    rec = viewer.get(f"/api/v1/recordings/{seen[0]['recording_id']}").json()
+    series = rec["series"]
+    assert 0 < len(series["time_s"]) <= 1000
+    assert len(series["model_torque_nm"]) == len(series["torque_nm"]) == len(series["time_s"])
+    assert rec["result"]["recording_id"] == seen[0]["recording_id"]
+
+    opened = viewer.get("/api/v1/alarms", params={"state": "open"}).json()
+    assert opened and all(a["status"] == "open" for a in opened)
+    assert viewer.get("/api/v1/alarms", params={"state": "closed"}).json() == []
+
+    schema = anon.get("/openapi.json").json()
+    assert "/api/v1/conveyors/{conveyor_id}/recordings" in schema["paths"]
+    docs = anon.get("/docs").text
+    assert re.findall(r'(?:src|href)="(https?:)', docs) == []  # nothing from the network
+    assert anon.get("/static/plotly/plotly.min.js").status_code == 200
+
+
+def test_changes_need_their_role_and_are_audited(served: Served, fleet: Path) -> None:
+    viewer, maintainer, admin = (served.client(r) for r in ("viewer", "maintainer", "admin"))
+    alarm = viewer.get("/api/v1/alarms", params={"state": "open"}).json()[0]
+    path = f"/api/v1/alarms/{alarm['id']}/acknowledge"
+    _error(viewer.post(path, json={"why": "seen"}), 403, "forbidden")
+    _error(maintainer.post(path, json={}), 422, "invalid")
+    done = maintainer.post(path, json={"why": "rails to be cleaned on Friday"}).json()
+    assert done["acknowledged"]["by"] == "maintainer-1"
+    _error(maintainer.post(path, json={"why": "again"}), 400, "bad_request")
+    acked = viewer.get("/api/v1/alarms", params={"acknowledged": "true"}).json()
+    assert [a["id"] for a in acked] == [alarm["id"]]
+
+    # uploads: a new recording, one already stored, one refused
+    new = run_virtual(PROFILE, payload_kg=20.0, seed=99).recording
+    new_file = write_recording(new, fleet.parent / "new.csv")
+    old_file = sorted(fleet.glob("*.csv"))[0]
+    files = [
+        ("files", ("new.csv", new_file.read_bytes(), "text/csv")),
+        ("files", (old_file.name, old_file.read_bytes(), "text/csv")),
+        ("files", ("<b>bad</b>.csv", b"not a recording\n", "text/csv")),
+    ]
+    _error(viewer.post("/api/v1/recordings", files=files), 403, "forbidden")
+    out = maintainer.post("/api/v1/recordings", files=files).json()["files"]
+    assert [f["status"] for f in out] == ["stored", "already_stored", "refused"]
+    assert out[0]["recording_id"] and len(out[0]["recording_id"]) == 64
+    assert out[2]["reason"] and "<b>bad</b>.csv" in out[2]["reason"]
+    again = maintainer.post("/api/v1/recordings", files=files[:1]).json()["files"]
+    assert again[0]["status"] == "already_stored"
+    _error(maintainer.post("/api/v1/recordings", data={"x": "1"}), 422, "invalid")
+    assert viewer.get("/api/v1/health").json()["store"]["results"] == 31
+
+    # maintenance restarts the baseline and closes the alarm
+    when = "2027-01-01T00:00:00+00:00"
+    body = {"kind": "cleaning", "why": "rails cleaned", "at": when}
+    _error(viewer.post(f"/api/v1/conveyors/{PROFILE.id}/maintenance", json=body), 403, "forbidden")
+    event = maintainer.post(f"/api/v1/conveyors/{PROFILE.id}/maintenance", json=body).json()
+    assert event["kind"] == "cleaning" and event["by"] == "maintainer-1"
+    assert viewer.get("/api/v1/alarms", params={"state": "open"}).json() == []
+
+    # tokens and the audit log: admins only; no token appears in clear
+    _error(maintainer.get("/api/v1/audit"), 403, "forbidden")
+    log = admin.get("/api/v1/audit").json()
+    assert {"acknowledge", "upload", "maintenance"} <= {e["action"] for e in log}
+    made = admin.post("/api/v1/tokens", json={"name": "screen", "role": "viewer"}).json()
+    assert made["token"].startswith("ct_")
+    _error(admin.post("/api/v1/tokens", json={"name": "screen", "role": "viewer"}), 409, "conflict")
+    with httpx.Client(
+        base_url=served.base, headers={"Authorization": f"Bearer {made['token']}"}
+    ) as screen:
+        assert screen.get("/api/v1/conveyors").status_code == 200
+        admin.post("/api/v1/tokens/screen/revoke")
+        _error(screen.get("/api/v1/conveyors"), 401, "unauthorized")
+    listed = json.dumps(admin.get("/api/v1/tokens").json())
+    assert "ct_" not in listed
+    if served.url.startswith("sqlite:///"):
+        raw = Path(served.url.removeprefix("sqlite:///")).read_bytes()
+        for token in [*served.tokens.values(), made["token"]]:
+            assert token.encode() not in raw
+
+
+def test_too_large_an_upload_is_refused_with_413(served: Served) -> None:
+    base, server, thread = start_server(create_app(served.store, max_upload_mb=0.001))
+    headers = {"Authorization": f"Bearer {served.tokens['maintainer']}"}
+    try:
+        with httpx.Client(base_url=base, headers=headers, timeout=30) as c:
+            big = [("files", ("big.csv", b"x" * 5000, "text/csv"))]
+            _error(c.post("/api/v1/recordings", files=big), 413, "too_large")
+            assert c.get("/api/v1/health").json()["store"]["results"] >= 30  # nothing lost
+    finally:
+        server.should_exit = True
+        thread.join(10)
+
+
+def _csrf(page: str) -> str:
+    found = re.search(r'name="csrf-token" content="([^"]+)"', page)
+    assert found is not None
+    return found.group(1)
+
+
+def test_the_browser_logs_in_with_a_cookie_and_every_change_carries_csrf(
+    served: Served,
+) -> None:
+    if not served.url.startswith("sqlite"):
+        pytest.skip("the pages read the same store whichever database holds it")
+    with httpx.Client(base_url=served.base, timeout=30) as browser:
+        first = browser.get("/")
+        assert first.status_code == 303 and first.headers["location"] == "/login"
+        refused = browser.post("/login", data={"token": "ct_wrong"})
+        assert refused.status_code == 401 and "unknown, revoked or expired" in refused.text
+        ok = browser.post("/login", data={"token": served.tokens["maintainer"]})
+        assert ok.status_code == 303
+        cookie = ok.headers["set-cookie"].lower()
+        assert "httponly" in cookie and "samesite=strict" in cookie
+        fleet_page = browser.get("/")
+        assert fleet_page.status_code == 200 and PROFILE.id in fleet_page.text
+        assert "/static/plotly/plotly.min.js" in fleet_page.text
+        page = browser.get(f"/conveyors/{PROFILE.id}")
+        assert page.status_code == 200 and 'id="trends"' in page.text
+        csrf = _csrf(page.text)
+        # the pages' own API calls use the cookie; a change without the CSRF header is refused
+        assert browser.get("/api/v1/conveyors").status_code == 200
+        body = {"kind": "other", "why": "look"}
+        _error(browser.post(f"/api/v1/conveyors/{PROFILE.id}/maintenance", json=body), 403, "csrf")
+        # a form posted without its CSRF token is refused, with it accepted
+        form = {"kind": "other", "why": "<script>alert(1)</script>"}
+        no_csrf = browser.post(f"/conveyors/{PROFILE.id}/maintenance", data=form)
+        assert no_csrf.status_code == 403
+        done = browser.post(f"/conveyors/{PROFILE.id}/maintenance", data=form | {"csrf": csrf})
+        assert done.status_code == 303
+        alarms_page = browser.get("/alarms").text
+        assert "<script>alert(1)</script>" not in alarms_page
+        upload_page = browser.get("/upload")
+        assert upload_page.status_code == 200
+        out = browser.post("/logout", data={"csrf": csrf})
+        assert out.status_code == 303
+        assert browser.get("/").status_code == 303
+    # a viewer sees no upload page
+    with httpx.Client(base_url=served.base, timeout=30) as viewer:
+        viewer.post("/login", data={"token": served.tokens["viewer"]})
+        assert viewer.get("/upload").status_code == 403
+        assert viewer.get("/audit").status_code == 403
+
+
+def test_ids_and_comments_are_shown_escaped(served: Served) -> None:
+    if not served.url.startswith("sqlite"):
+        pytest.skip("escaping does not depend on the database")
+    evil = PROFILE.model_copy(update={"id": '<img src=x onerror="alert(1)">&'})
+    served.store.put_profile(evil)
+    with httpx.Client(base_url=served.base, timeout=30) as browser:
+        browser.post("/login", data={"token": served.tokens["admin"]})
+        fleet_page = browser.get("/").text
+        assert '<img src=x onerror="alert(1)">' not in fleet_page
+        assert "&lt;img src=x onerror=&#34;alert(1)&#34;&gt;&amp;" in fleet_page
+        audit_page = browser.get("/audit")
+        assert audit_page.status_code == 200 and "<script>" not in audit_page.text
+
+
+def test_token_commands(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    db = f"sqlite:///{tmp_path / 't.db'}"
+    assert (
+        main(["token", "create", "--db", db, "--name", "wall", "--role", "viewer", "--json"]) == 0
+    )
+    made = json.loads(capsys.readouterr().out)
+    assert made["name"] == "wall" and made["role"] == "viewer" and made["token"].startswith("ct_")
+    assert main(["token", "create", "--db", db, "--name", "wall"]) == 2
+    assert "exists already" in capsys.readouterr().err
+    assert main(["token", "create", "--db", db, "--name", "x", "--role", "boss"]) == 2
+    assert main(["token", "list", "--db", db, "--json"]) == 0
+    (listed,) = json.loads(capsys.readouterr().out)
+    assert listed["active"] and "token" not in listed
+    assert main(["token", "revoke", "wall", "--db", db]) == 0
+    assert "token 'wall' revoked" in capsys.readouterr().out
+    assert main(["token", "list", "--db", db, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)[0]["active"] is False
+    assert main(["token", "revoke", "nope", "--db", db]) == 2

@@ -26,10 +26,10 @@ demo: $(VENV)/.installed-run
 	$(BIN)/chaintwin demo
 
 ## test: formatter check, linter, type checker, tests and doctests (warnings as errors)
-## with a coverage floor; installs PostgreSQL's binaries if missing (the store's tests
-## start a server of their own)
+## with a coverage floor; installs PostgreSQL and Chromium if missing (the store's and the
+## dashboard's tests use them)
 test: $(VENV)/.installed-dev
-	bash scripts/ensure_postgres.sh
+	bash scripts/ensure_test_tools.sh
 	$(BIN)/ruff format --check $(SOURCES)
 	$(BIN)/ruff check $(SOURCES)
 	$(BIN)/mypy chaintwin

@@ -142,6 +142,21 @@ def test_demo_runs_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture[str]
         "short-fast-03.html",
     }
     assert (out / "plant.db").exists()
+    # it ends with the command that serves the store and a viewer token that works there
+    assert f"chaintwin serve --db sqlite:///{out / 'plant.db'}" in text.replace("\n", "")
+    import re
+
+    from chaintwin.store.access import verify_token
+    from chaintwin.store.store import Store
+
+    found = re.search(r"ct_[A-Za-z0-9_-]{40,}", text)
+    assert found is not None
+    store = Store(f"sqlite:///{out / 'plant.db'}", create=False)
+    try:
+        info = verify_token(store, found.group(0))
+        assert info is not None and info.role == "viewer"
+    finally:
+        store.close()
     # a second run rebuilds the demo's own folder; a foreign folder is refused
     assert main(args) == 0
     foreign = tmp_path / "mine"

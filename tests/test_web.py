@@ -360,3 +360,96 @@ def test_token_commands(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> N
     assert main(["token", "list", "--db", db, "--json"]) == 0
     assert json.loads(capsys.readouterr().out)[0]["active"] is False
     assert main(["token", "revoke", "nope", "--db", db]) == 2
+
+
+# ------------------------------------------------------------------ property-based
+import schemathesis  # noqa: E402
+from hypothesis import HealthCheck, settings  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def api_schema(fleet: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Any]:
+    s = Served(f"sqlite:///{tmp_path_factory.mktemp('schema') / 'plant.db'}", fleet)
+    schema = schemathesis.openapi.from_url(f"{s.base}/openapi.json")
+    schema.config.update(headers={"Authorization": f"Bearer {s.tokens['admin']}"})
+    yield schema
+    s.close()
+
+
+def test_every_operation_answers_as_its_schema_says(api_schema: Any) -> None:
+    """Property-based, from the OpenAPI schema: no 5xx, every response as declared.
+
+    Run operation by operation with Hypothesis directly (schemathesis's
+    pytest plugin does not support this pytest).
+    """
+    from hypothesis import given
+
+    operations = [result.ok() for result in api_schema.get_all_operations()]
+    assert len(operations) >= 12
+    for operation in operations:
+
+        @given(case=operation.as_strategy())
+        @settings(
+            max_examples=20, deadline=None, suppress_health_check=list(HealthCheck), database=None
+        )
+        def check(case: Any) -> None:
+            case.call_and_validate()
+
+        check()
+
+
+# ------------------------------------------------------------------ in a browser
+CHROMIUM = Path("/usr/bin/chromium")
+
+
+def test_in_a_browser_log_in_see_charts_acknowledge_and_a_viewer_refused(
+    fleet: Path, tmp_path: Path
+) -> None:
+    """Chromium (the distribution's, installed by the test setup) driven by Playwright."""
+    if not CHROMIUM.exists():
+        pytest.fail("Chromium not found at /usr/bin/chromium: `make test` installs it")
+    from playwright.sync_api import sync_playwright
+
+    served = Served(f"sqlite:///{tmp_path / 'plant.db'}", fleet)
+    outside: list[str] = []
+    broken: list[str] = []
+    try:
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=str(CHROMIUM))
+            page = browser.new_page()
+            page.on(
+                "request",
+                lambda r: None if r.url.startswith(served.base) else outside.append(r.url),
+            )
+            page.on("console", lambda m: broken.append(m.text) if m.type == "error" else None)
+            page.goto(served.base + "/")
+            assert page.url.endswith("/login")
+            page.fill("#token", served.tokens["maintainer"])
+            page.click("form.login button")
+            page.wait_for_url(served.base + "/")
+            page.wait_for_selector("#tlf-chart .main-svg")
+            assert page.locator("#fleet tbody tr").count() == 1
+            page.click(f"#fleet a:text('{PROFILE.id}')")
+            page.wait_for_selector("#trends .trend .main-svg", timeout=30000)
+            page.wait_for_selector("#latest .main-svg", timeout=30000)
+            assert page.locator("#trends .trend").count() >= 3
+            # acknowledge the open alarm as maintainer
+            page.goto(served.base + "/alarms")
+            page.fill("form.inline input[name=why]", "rails to be cleaned")
+            page.click("form.inline button")
+            page.wait_for_url(served.base + "/alarms")
+            assert "acknowledged by maintainer-1" in page.content()
+            # a viewer cannot open the upload page
+            viewer = browser.new_page()
+            viewer.goto(served.base + "/login")
+            viewer.fill("#token", served.tokens["viewer"])
+            viewer.click("form.login button")
+            viewer.wait_for_url(served.base + "/")
+            answer = viewer.goto(served.base + "/upload")
+            assert answer is not None and answer.status == 403
+            assert "needs the role maintainer" in viewer.content()
+            browser.close()
+    finally:
+        served.close()
+    assert outside == [], "nothing may load from the network"
+    assert broken == []

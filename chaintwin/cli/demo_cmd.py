@@ -205,6 +205,19 @@ def run_demo(out: Path, *, days: int, per_day: int, workers: int | None, console
     return open_alarms
 
 
+def demo_token(out: Path) -> str:
+    """A new viewer token on the demo's store (a new one each run: tokens are shown once)."""
+    from chaintwin.store.access import create_token, list_tokens
+    from chaintwin.store.store import Store
+
+    store = Store(f"sqlite:///{out / 'plant.db'}")
+    try:
+        n = len(list_tokens(store))
+        return create_token(store, f"demo-viewer-{n + 1}", "viewer")
+    finally:
+        store.close()
+
+
 def _weights_right(results: list[dict[str, Any]], truth_file: Path) -> str:
     """Share of weighed recordings within 2 uncertainties of the truth, and the median error.
 
@@ -245,6 +258,10 @@ def register(app: typer.Typer) -> None:
         workers: Annotated[
             int | None, typer.Option("--workers", help="Worker processes (default: one per core).")
         ] = None,
+        serve: Annotated[
+            bool, typer.Option("--serve", help="Then serve the store's dashboard (Ctrl-C stops).")
+        ] = False,
+        port: Annotated[int, typer.Option("--port", help="Port for --serve.")] = 8000,
     ) -> None:
         """The main job on a virtual plant: simulate, calibrate, ingest, monitor, report.
 
@@ -252,9 +269,25 @@ def register(app: typer.Typer) -> None:
         every realism effect on, one of them developing a fault; each is
         calibrated from its calibration runs, all recordings are ingested into
         an embedded SQLite store (weighed and monitored), and HTML reports are
-        written. Prints a summary table and where the reports are.
+        written. Prints a summary table, where the reports are, and the
+        command that serves the dashboard with a new token (--serve runs it).
         """
-        run_demo(out, days=days, per_day=per_day, workers=workers, console=Console())
+        console = Console()
+        run_demo(out, days=days, per_day=per_day, workers=workers, console=console)
+        token = demo_token(out)
+        db = f"sqlite:///{out / 'plant.db'}"
+        console.print(
+            f"dashboard: [bold]chaintwin serve --db {db} --port {port}[/], then open "
+            f"http://127.0.0.1:{port}/ and log in with this viewer token (new on each run):"
+            f"\n{token}\nTo acknowledge alarms and upload: chaintwin token create --db {db} "
+            "--name me --role maintainer",
+            highlight=False,
+            soft_wrap=True,
+        )
+        if serve:
+            from chaintwin.cli.serve_cmd import serve as run_service
+
+            run_service(db, examples_dir() / "profiles", "127.0.0.1", port, 20.0)
 
     @app.command("examples")
     def examples(

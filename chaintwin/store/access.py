@@ -47,6 +47,9 @@ TOKEN_PREFIX = "ct_"
 MAX_NAME_LENGTH = 100
 """Longest token name, characters."""
 
+MAX_DAYS = 36500
+"""Longest token lifetime, days."""
+
 
 @dataclass(frozen=True, slots=True)
 class TokenInfo:
@@ -124,8 +127,11 @@ def create_token(store: Store, name: str, role: str, expires_days: float | None 
         raise StoreError(
             f"token name must be 1-{MAX_NAME_LENGTH} printable characters", field="name"
         )
-    if expires_days is not None and not expires_days > 0:
-        raise StoreError(f"--expires-days {expires_days} must be positive", field="expires_days")
+    if expires_days is not None and not 0 < expires_days <= MAX_DAYS:
+        raise StoreError(
+            f"--expires-days {expires_days} must be from 0 to {MAX_DAYS} (100 years)",
+            field="expires_days",
+        )
     token = TOKEN_PREFIX + secrets.token_urlsafe(32)
     now = datetime.now(UTC)
     expires = None if expires_days is None else (now + timedelta(days=expires_days)).isoformat()

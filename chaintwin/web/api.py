@@ -37,7 +37,34 @@ from chaintwin.web.security import ApiError, Principal, require
 
 __all__ = ["router"]
 
-router = APIRouter(prefix="/api/v1", tags=["api"])
+
+class ErrorDetail(BaseModel):
+    """What went wrong: a stable code and a one-line message."""
+
+    code: str
+    message: str
+
+
+class ErrorBody(BaseModel):
+    """Every error of the API."""
+
+    error: ErrorDetail
+
+
+_ERRORS: dict[int | str, dict[str, Any]] = {
+    status: {"model": ErrorBody, "description": text}
+    for status, text in (
+        (400, "Bad input (the message says what to do)"),
+        (401, "No or an unknown token"),
+        (403, "The token's role is too low, or a browser change lacks its CSRF token"),
+        (404, "No such conveyor, alarm, feature or recording"),
+        (409, "A token of that name exists"),
+        (413, "The upload is too large"),
+        (422, "The request does not match its schema"),
+    )
+}
+
+router = APIRouter(prefix="/api/v1", tags=["api"], responses=_ERRORS)
 
 PLOT_POINTS = 1000
 """Most samples of a channel returned for plotting (evenly thinned)."""
@@ -87,7 +114,7 @@ class TokenBody(BaseModel):
 
     name: str = Field(min_length=1, max_length=100)
     role: Literal["viewer", "maintainer", "admin"]
-    expires_days: float | None = Field(default=None, gt=0)
+    expires_days: float | None = Field(default=None, gt=0, le=36500)
 
 
 class UploadedFile(BaseModel):
@@ -357,7 +384,7 @@ async def read_uploads(web: Any, files: list[UploadFile]) -> list[tuple[str, byt
             raise ApiError(
                 413,
                 "too_large",
-                f"the upload is larger than {web.max_upload_bytes // (1024 * 1024)} MB; "
+                f"the upload is larger than {web.max_upload_bytes / (1024 * 1024):g} MB; "
                 "send fewer files at once",
             )
         named.append((f.filename or "upload.csv", raw))
@@ -365,7 +392,9 @@ async def read_uploads(web: Any, files: list[UploadFile]) -> list[tuple[str, byt
 
 
 @router.post("/recordings", response_model=UploadResult)
-async def upload(request: Request, files: Annotated[list[UploadFile], File()]) -> dict[str, Any]:
+async def upload(
+    request: Request, files: Annotated[list[UploadFile], File(min_length=1)]
+) -> dict[str, Any]:
     """Upload recordings (maintainer), ingested as ``chaintwin ingest`` would."""
     p = who(request, "maintainer", changes=True)
     web = _web(request)

@@ -20,7 +20,13 @@ import jinja2
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.openapi.docs import get_swagger_ui_html
-from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Response
+from fastapi.responses import (
+    FileResponse,
+    HTMLResponse,
+    JSONResponse,
+    RedirectResponse,
+    Response,
+)
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
 from starlette.exceptions import HTTPException as StarletteHTTPException
@@ -118,6 +124,28 @@ def create_app(
         secure_cookies=secure_cookies,
     )
     app.state.web = state
+
+    @app.middleware("http")
+    async def limit_uploads(request: Request, call_next: Any) -> Response:
+        # refuse an oversized upload before its body is read, from its declared length
+        length = request.headers.get("content-length")
+        if (
+            request.method == "POST"
+            and request.url.path in ("/api/v1/recordings", "/upload")
+            and length is not None
+            and length.isdigit()
+            and int(length) > state.max_upload_bytes
+        ):
+            message = (
+                f"the upload is larger than {state.max_upload_bytes / (1024 * 1024):g} MB; "
+                "send fewer files at once"
+            )
+            if _is_api(request):
+                return _error(413, "too_large", message)
+            return pages.error_page(request, 413, message)
+        out: Response = await call_next(request)
+        return out
+
     for name, folder in _static_dirs().items():
         app.mount(f"/static/{name}", StaticFiles(directory=str(folder)), name=f"static-{name}")
 
@@ -153,6 +181,10 @@ def create_app(
         if not _is_api(request):
             return pages.error_page(request, 422, message)
         return _error(422, "invalid", message)
+
+    @app.get("/favicon.ico", include_in_schema=False)
+    async def favicon() -> FileResponse:
+        return FileResponse(_static_dirs()["swagger"] / "favicon-32x32.png")
 
     @app.get("/docs", include_in_schema=False)
     async def docs() -> HTMLResponse:

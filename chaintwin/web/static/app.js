@@ -102,6 +102,24 @@ window.chaintwin = (function () {
     const holder = document.getElementById("trends");
     const conveyor = holder.dataset.conveyor;
     const features = JSON.parse(holder.dataset.features);
+    const newest = async () => {
+      const p = await api(`/api/v1/conveyors/${encodeURIComponent(conveyor)}/recordings?limit=1`);
+      return p && p.items.length ? p.items[0].recording_id : null;
+    };
+    let shown = await newest();
+    await drawConveyor(holder, conveyor, features);
+    // redraw when a new recording is stored (polling, no full reload)
+    setInterval(async () => {
+      const now = await newest();
+      if (now !== shown) {
+        shown = now;
+        holder.replaceChildren();
+        await drawConveyor(holder, conveyor, features);
+      }
+    }, 15000);
+  }
+
+  async function drawConveyor(holder, conveyor, features) {
     for (const f of features) await trendChart(holder, conveyor, f);
     const page = await api(`/api/v1/conveyors/${encodeURIComponent(conveyor)}/recordings?limit=1000`);
     const payloads = page.items.map((r) => r.payload_kg).filter((p) => p !== null);

@@ -7,6 +7,7 @@ ingest's code path is the same on all three.
 from __future__ import annotations
 
 import os
+import signal
 import sys
 import threading
 from collections.abc import Callable, Iterator
@@ -18,7 +19,13 @@ from chaintwin.errors import StoreError
 
 from . import forkserver
 
-__all__ = ["SWITCH_INTERVAL_S", "InlineExecutor", "executor", "runs_inline"]
+__all__ = [
+    "SWITCH_INTERVAL_S",
+    "InlineExecutor",
+    "executor",
+    "runs_inline",
+    "signals_deferred",
+]
 
 
 class InlineExecutor(Executor):
@@ -125,3 +132,22 @@ def executor(workers: int | None, scheduler: str | None) -> Iterator[Executor]:
             yield client.get_executor()  # type: ignore[no-untyped-call]
         finally:
             client.close()  # type: ignore[no-untyped-call]
+
+
+@contextmanager
+def signals_deferred() -> Iterator[None]:
+    """Hold SIGTERM and SIGINT back while a group is committed and counted.
+
+    The stop message counts what is stored; a signal handled between the
+    commit and the count would make it say less than the store holds. In
+    the main thread (where Python handles signals) they are blocked and
+    delivered right after; elsewhere nothing changes.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM, signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)

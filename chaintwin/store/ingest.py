@@ -43,7 +43,7 @@ from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
 
 from .engine import safe_url
-from .executors import InlineExecutor, executor, runs_inline
+from .executors import InlineExecutor, executor, runs_inline, signals_deferred
 from .store import Finished, StateConflict, Store, Waiting
 from .worker import Prepared, prepare, prepare_many
 
@@ -198,6 +198,10 @@ class _Conveyor:
         After a lost race with another ingest, the recordings go again on the
         newer health model.
         """
+        with signals_deferred():  # a stop lands after the bookkeeping, never between
+            self._flush()
+
+    def _flush(self) -> None:
         while True:
             done = {fin.result.file for fin in self.finished}
             waiting = [

@@ -115,46 +115,46 @@ def recording_by_hash(store: Store, sha256: str) -> tuple[dict[str, Any], Record
 
 
 def fleet_rows(store: Store) -> list[dict[str, Any]]:
-    """Per conveyor: its latest result's numbers, open alarms, recording count.
+    """Per conveyor: its latest result's numbers and its open alarms.
 
-    Three queries whatever the number of conveyors.
+    The latest result is the conveyor's last one monitored (the highest id:
+    ingest monitors in recorded order), found by an index seek per conveyor
+    (``ix_results_conveyor_id_id``), so the cost grows with the number of
+    conveyors, not of results.
     """
     latest_id = (
-        select(ResultRow.conveyor_id, func.max(ResultRow.id).label("last"))
-        .where(ResultRow.status != "refused")
-        .group_by(ResultRow.conveyor_id)
-        .subquery()
+        select(ResultRow.id)
+        .where(ResultRow.conveyor_id == ConveyorRow.id, ResultRow.status != "refused")
+        .order_by(ResultRow.id.desc())
+        .limit(1)
+        .correlate(ConveyorRow)
+        .scalar_subquery()
     )
     with Session(store.engine) as s:
-        ids = [str(c) for c in s.scalars(select(ConveyorRow.id).order_by(ConveyorRow.id))]
+        pairs = s.execute(select(ConveyorRow.id, latest_id).order_by(ConveyorRow.id)).all()
+        wanted = [int(rid) for _cid, rid in pairs if rid is not None]
         latest = {
             str(r.conveyor_id): r
-            for r in s.scalars(select(ResultRow).join(latest_id, ResultRow.id == latest_id.c.last))
+            for r in s.scalars(select(ResultRow).where(ResultRow.id.in_(wanted)))
         }
-        counts = dict(
-            s.execute(
-                select(ResultRow.conveyor_id, func.count()).group_by(ResultRow.conveyor_id)
-            ).all()
-        )
         open_alarms: dict[str, list[dict[str, Any]]] = {}
         for a in s.scalars(select(AlarmRow).where(AlarmRow.status != "closed")):
             open_alarms.setdefault(str(a.conveyor_id), []).append(
                 {"id": a.id, "feature": a.feature, "cause": a.cause, "since": a.since}
             )
     out = []
-    for cid in ids:
-        row = latest.get(cid)
+    for cid, _rid in pairs:
+        row = latest.get(str(cid))
         content = dict(row.content) if row is not None else {}
         out.append(
             {
-                "id": cid,
-                "recordings": int(counts.get(cid, 0)),
+                "id": str(cid),
                 "last_recorded_at": row.recorded_at if row is not None else None,
                 "payload_kg": row.payload_kg if row is not None else None,
                 "tlf": row.tlf if row is not None else None,
                 "status": content.get("status"),
                 "alarm": bool(row.alarm) if row is not None else False,
-                "open_alarms": open_alarms.get(cid, []),
+                "open_alarms": open_alarms.get(str(cid), []),
             }
         )
     return out

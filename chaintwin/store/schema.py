@@ -133,7 +133,10 @@ class ResultRow(Base):
     stored_at: Mapped[str | None] = mapped_column(String(40), nullable=True)
     """When the result was written (UTC, ISO 8601); None in stores before revision 0003."""
 
-    __table_args__ = (Index("ix_results_conveyor_recorded", "conveyor_id", "recorded_at"),)
+    __table_args__ = (
+        Index("ix_results_conveyor_recorded", "conveyor_id", "recorded_at"),
+        Index("ix_results_conveyor_id_id", "conveyor_id", "id"),
+    )
 
 
 class MonitorStateRow(Base):

@@ -66,7 +66,6 @@ window.chaintwin = (function () {
         tr.querySelector(".payload").textContent = text(row.payload_kg, 1);
         tr.querySelector(".tlf").textContent = text(row.tlf, 3);
         tr.querySelector(".last").textContent = row.last_recorded_at || "\u2013";
-        tr.querySelector(".recordings").textContent = row.recordings;
       });
       tlfChart(rows);
     }

@@ -3,7 +3,8 @@
 ``api_tokens`` holds each token's name, role and keyed SHA-256 (never the
 token); ``audit_log`` who did what when through the web service;
 ``secrets`` the random keys every ``serve`` process on the store shares;
-``results.stored_at`` when a result was written (None for older rows).
+``results.stored_at`` when a result was written (None for older rows), and
+an index that finds each conveyor's latest result without a scan.
 
 Revision ID: 0003
 Revises: 0002
@@ -47,9 +48,12 @@ def upgrade() -> None:
     )
     with op.batch_alter_table("results") as batch:
         batch.add_column(sa.Column("stored_at", sa.String(40), nullable=True))
+    # the dashboard's fleet: each conveyor's latest result by an index seek
+    op.create_index("ix_results_conveyor_id_id", "results", ["conveyor_id", "id"])
 
 
 def downgrade() -> None:
+    op.drop_index("ix_results_conveyor_id_id", table_name="results")
     with op.batch_alter_table("results") as batch:
         batch.drop_column("stored_at")
     op.drop_table("secrets")

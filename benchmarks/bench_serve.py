@@ -139,6 +139,7 @@ def median_ms(client: httpx.Client, path: str, n: int) -> float:
 def polling(base: str, token: str, clients: int, period: float, seconds: float) -> list[float]:
     """``clients`` threads each polling the fleet every ``period`` s; request times, ms."""
     out: list[float] = []
+    errors: list[int] = []
     lock = threading.Lock()
     stop = time.monotonic() + seconds
 
@@ -149,7 +150,11 @@ def polling(base: str, token: str, clients: int, period: float, seconds: float) 
             time.sleep(period * k / clients)  # spread the clients over the period
             while time.monotonic() < stop:
                 t0 = time.perf_counter()
-                c.get("/api/v1/conveyors").raise_for_status()
+                try:
+                    c.get("/api/v1/conveyors").raise_for_status()
+                except httpx.HTTPError:
+                    with lock:
+                        errors.append(1)
                 dt = time.perf_counter() - t0
                 with lock:
                     out.append(1e3 * dt)
@@ -160,6 +165,8 @@ def polling(base: str, token: str, clients: int, period: float, seconds: float) 
         t.start()
     for t in threads:
         t.join()
+    if errors:
+        print(f"{len(errors)} of {len(out)} polls failed", file=sys.stderr)
     return out
 
 

@@ -43,6 +43,7 @@ SERIES: list[tuple[str, list[Fault], int]] = [
     ("bearing", [Fault("bearing", 0.5)], 6),
     ("gear_tooth", [Fault("gear_tooth", 0.5)], 6),
     ("obstruction", [Fault("obstruction", 0.5)], 6),
+    ("rail_obstacle", [Fault("rail_obstacle", 1.0)], 6),
     ("elongation", [Fault("elongation", 1.0)], 6),
 ]
 """(name, faults at their final severity, onset day)."""
@@ -53,6 +54,7 @@ EXPECTED = {
     "bearing": "bearing",
     "gear_tooth": "gear",
     "obstruction": "obstruction",
+    "rail_obstacle": "obstruction",
     "elongation": "elongation",
 }
 

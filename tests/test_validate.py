@@ -184,3 +184,40 @@ def test_profile_mismatch(reference_profile: ConveyorProfile) -> None:
     text = make_text(meta={"conveyor": "other-belt"})
     ins = inspect_recording(parse_recording(text, "r.csv"), reference_profile)
     assert "profile_mismatch" in codes(ins)
+
+
+def test_a_hard_ramp_at_12_ms_is_flagged_saturated_and_wound_up(
+    reference_profile: ConveyorProfile,
+) -> None:
+    """The issue's case: a 24 ms ramp with 80 kg, scoped at 12 ms."""
+    from chaintwin.simulate.setpoints import trapezoid
+    from chaintwin.simulate.virtual import run_virtual
+
+    w = 1415 * 2 * np.pi / 60
+    sp = trapezoid(speed_rad_s=w, accel_rad_s2=w / 0.024, hold_s=3.0)
+    rec = run_virtual(reference_profile, payload_kg=80, sample_time_s=0.012, setpoints=sp).recording
+    for profile in (reference_profile, None):
+        found = codes(inspect_recording(rec, profile))
+        assert "torque_saturated" in found and "speed_windup" in found, (profile, found)
+    # the default ramp of the same conveyor neither saturates nor winds up
+    calm = run_virtual(reference_profile, payload_kg=80, sample_time_s=0.012).recording
+    found = codes(inspect_recording(calm, reference_profile))
+    assert "torque_saturated" not in found and "speed_windup" not in found
+
+
+def test_two_samples_at_the_limit_are_enough(reference_profile: ConveyorProfile) -> None:
+    import dataclasses
+
+    from chaintwin.simulate.virtual import run_virtual
+
+    rec = run_virtual(reference_profile, payload_kg=40, sample_time_s=0.012, seed=4).recording
+    assert rec.torque_setpoint is not None
+    tsp = rec.torque_setpoint.copy()
+    k = int(np.argmax(tsp))
+    limit = reference_profile.torque_limit_nm
+    assert limit is not None
+    tsp[k : k + 2] = limit  # clamped for two 12 ms samples of the ramp
+    clamped = dataclasses.replace(rec, channels={**rec.channels, "torque_setpoint": tsp})
+    ins = inspect_recording(clamped, reference_profile)
+    w = next(w for w in ins.warnings if w.code == "torque_saturated")
+    assert "for 24 ms" in w.message

@@ -191,10 +191,12 @@ def test_generate_writes_recordings_and_truth(
     stamps = [r.metadata.recorded_at for r in recs]
     assert stamps == sorted(stamps)
     assert all(r.metadata.payload_kg is None for r in recs)
-    # absolute positions carry over from one recording to the next
-    for a, b in itertools.pairwise(recs):
-        assert a.position is not None and b.position is not None
-        assert b.position[0] >= a.position[-1]
+    # as drives export them, positions start at an offset of their own in every
+    # recording: most near zero (the counter reset at the trigger), some anywhere
+    starts = [r.position[0] for r in recs if r.position is not None]
+    near_zero = [p for p in starts if 0.0 <= p <= 50 * 2 * np.pi / 4096]
+    assert len(starts) == len(recs) and len(recs) // 3 <= len(near_zero) < len(recs)
+    assert any(b.position[0] < a.position[-1] for a, b in itertools.pairwise(recs))  # type: ignore[index]
     cal = read_recording(tmp_path / cal_rows[3]["file"])
     assert cal.metadata.payload_kg == cal_rows[3]["payload_kg"]
 

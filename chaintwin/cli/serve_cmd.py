@@ -63,6 +63,9 @@ def serve(
             ssl_certfile=str(ssl_certfile) if ssl_certfile else None,
             ssl_keyfile=str(ssl_keyfile) if ssl_keyfile else None,
             proxy_headers=True,
+            # dashboards poll every few seconds: keep their connections open
+            # longer than that (uvicorn's default of 5 s races a 5 s poll)
+            timeout_keep_alive=75,
         )
         uvicorn.Server(config).run()
     finally:

@@ -51,7 +51,6 @@ above the Nyquist frequency of the scope are looked for where they fold
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -59,6 +58,7 @@ from typing import Any
 import numpy as np
 
 from chaintwin._types import FloatArray
+from chaintwin.diagnose.impacts import Impact, detect_impacts, impact_features
 from chaintwin.errors import EstimationError
 from chaintwin.identify.calibration import Calibration
 from chaintwin.identify.signatures import fit_condition
@@ -71,13 +71,13 @@ from chaintwin.model.frequencies import (
 from chaintwin.model.physics import loss_torque_nm
 from chaintwin.model.rigid import model_torque, motoring_mask
 from chaintwin.model.windows import WindowIntegrals, window_integrals
-from chaintwin.read.recording import Recording, RecordingWarning
+from chaintwin.read.recording import RecordingWarning
 from chaintwin.validate.checks import Inspection
 from chaintwin.weigh.drift import LossDrift
 from chaintwin.weigh.weigh import WeighResult, reweigh, weigh
 
 from .lines import band_amplitudes
-from .residuals import belt_position_m, position_profile, residual_analysis
+from .residuals import residual_analysis
 from .spectra import Spectrum, welch_spectrum
 
 __all__ = [
@@ -152,11 +152,17 @@ FEATURES: dict[str, FeatureSpec] = {
     "crest_factor": FeatureSpec(None, 0.0, "-"),
     "tooth_pass": FeatureSpec("elongation", 0.08, "Nm", payload_dependent=True),
     "unexplained_peak": FeatureSpec("bearing", 1.0, "-"),
-    "belt_bump": FeatureSpec("obstruction", 1.5, "-", min_scale=0.5),
+    "belt_bump": FeatureSpec("obstruction", 1.5, "-", min_scale=0.5),  # retired: always NaN
     "payload_kg": FeatureSpec(None, 0.0, "kg"),
     "load_kg": FeatureSpec(None, 0.0, "kg"),
     "payload_inertia_kg": FeatureSpec(None, 0.0, "kg"),
     "tlf": FeatureSpec(None, 0.0, "-"),
+    "impact_count": FeatureSpec(None, 0.0, "-"),
+    "impact_rate_per_m": FeatureSpec(None, 0.0, "1/m"),
+    "impact_energy_max": FeatureSpec(None, 0.0, "J"),
+    "impact_isolated": FeatureSpec(None, 0.0, "-"),
+    "belt_travel_m": FeatureSpec(None, 0.0, "m"),
+    "impact_hits_per_rev": FeatureSpec("obstruction", 0.0, "1/rev", min_scale=0.1),
 }
 """Every tracked feature (``comb_<shaft>`` features are added per profile, cause gear)."""
 
@@ -213,6 +219,7 @@ class RecordingFeatures:
     bump_values: FloatArray = field(default_factory=lambda: np.empty(0))
     residuals: dict[str, Any] = field(default_factory=dict)
     warnings: tuple[RecordingWarning, ...] = ()
+    impacts: tuple[Impact, ...] = ()
 
 
 def _line_centres(
@@ -261,47 +268,6 @@ def _line_sum(spec: Spectrum, orders: list[float], ts: float, avoid: Sequence[fl
     See :func:`_line_centres` for the orders left out.
     """
     return _line_sums(spec, {"": _line_centres(spec, orders, ts, avoid)})[""]
-
-
-def _bump(
-    recording: Recording,
-    calibration: Calibration,
-    residual: FloatArray,
-    constant: np.ndarray,
-    sample_time_s: float | None = None,
-) -> tuple[FloatArray, FloatArray]:
-    """Per belt-position bin, the constant-speed residual's rise above its median, Nm.
-
-    The residual is averaged over one tooth pitch of belt travel (which
-    removes the polygon effect's ripple and its harmonics) before binning.
-    ``sample_time_s`` is the recording's (median) sample time, s, when known.
-    """
-    ts = recording.sample_time_s if sample_time_s is None else sample_time_s
-    prof = calibration.id_profile
-    if not constant.any() or recording.position is None:
-        return np.empty(0), np.empty(0)
-    x = belt_position_m(recording, prof)
-    w = recording.speed
-    v = float(np.median(np.abs(w[constant]))) * prof.chordal_radius_m / prof.kinematic_ratio
-    teeth = prof.sprocket.teeth or 20
-    pitch = math.pi * prof.sprocket.pitch_diameter_m / teeth
-    n = max(1, round(pitch / max(v * ts, 1e-9)))
-    e = residual * np.sign(w)
-    smooth = np.convolve(e, np.ones(n) / n, mode="same")
-    idx = np.flatnonzero(constant)
-    idx = idx[(idx >= n) & (idx < e.shape[0] - n)]
-    if idx.shape[0] < 2 * n:
-        return np.empty(0), np.empty(0)
-    # against the plateau's own slow course (a straight line in time, fitted
-    # robustly: the residual drifts along a plateau as a long belt settles)
-    t = idx.astype(np.float64)
-    slope, level = np.polyfit(t, smooth[idx], 1)
-    trend = level + slope * t
-    rise = smooth[idx] - trend
-    rise -= float(np.median(rise))
-    sums, counts = position_profile(x[idx], rise, prof.loop_length_m)
-    seen = np.flatnonzero(counts > 0)
-    return seen.astype(np.float64), sums[seen] / counts[seen]
 
 
 def recording_features(inspection: Inspection, calibration: Calibration) -> RecordingFeatures:
@@ -383,14 +349,15 @@ def recording_features(inspection: Inspection, calibration: Calibration) -> Reco
     values["residual_std"] = steady.std if steady else nan
     values["residual_kurtosis"] = steady.kurtosis if steady else nan
     values["crest_factor"] = steady.crest_factor if steady else nan
+    impacts = detect_impacts(recording, model, phases)
+    values.update(
+        impact_features(impacts, recording, phases, prof.chordal_radius_m / prof.kinematic_ratio)
+    )
 
-    constant = np.zeros(recording.samples, dtype=bool)
     plateaus = [p for p in phases if p.kind == "constant"]
     spectrum: Spectrum | None = None
     if plateaus:
         longest = max(plateaus, key=lambda p: p.stop - p.start)
-        for p in plateaus:
-            constant[p.start + 3 : p.stop - 3] = True
         try:
             spectrum = welch_spectrum(
                 recording,
@@ -426,7 +393,10 @@ def recording_features(inspection: Inspection, calibration: Calibration) -> Reco
                 "features of this recording are unknown",
             )
         )
-    bins, bump = _bump(recording, calibration, report.residual, constant, ts)
+    # the belt map needs positions that are comparable across recordings; scope
+    # positions start at an offset of their own in every recording, so it stays
+    # empty and belt_bump unknown: rail obstacles are found as impacts instead
+    bins, bump = np.empty(0), np.empty(0)
     return RecordingFeatures(
         weighing=w,
         values=values,
@@ -435,4 +405,5 @@ def recording_features(inspection: Inspection, calibration: Calibration) -> Reco
         bump_values=bump,
         residuals=report.to_dict(),
         warnings=tuple(warnings),
+        impacts=tuple(impacts),
     )

@@ -26,7 +26,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -48,6 +48,7 @@ from .causes import cause_priority, resolve_causes
 from .features import FEATURES, RecordingFeatures, feature_spec
 from .features import recording_features as extract
 from .health import FeatureBaseline
+from .impacts import POOL, hits_per_revolution
 from .learned import learn_calibration
 from .monitor_state import MonitorState
 from .peaks import median_spectrum, spectrum_from_state, unexplained_peak
@@ -407,6 +408,14 @@ class ConveyorMonitor:
         values = dict(feats.values)
         bump, bump_at = self._belt_bump(feats)
         values["belt_bump"] = bump
+        # an obstacle is hit once per belt revolution: isolated impacts pooled
+        # over this recording and the last ones of the conveyor
+        pooled: list[Mapping[str, Any]] = [
+            h.get("features") or {} for h in self.history[-(POOL - 1) :]
+        ]
+        values["impact_hits_per_rev"] = hits_per_revolution(
+            [*pooled, values], self.calibration.id_profile.loop_length_m
+        )
         warnings = [x.to_dict() for x in w.warnings] + [x.to_dict() for x in feats.warnings]
         # features computed elsewhere (an ingest worker) may predate a warning
         # the recording got since (e.g. no_recorded_at): none is lost
@@ -498,6 +507,7 @@ class ConveyorMonitor:
         base.payload_kg = finite_or_none(w.payload_kg)
         base.uncertainty_kg = finite_or_none(w.uncertainty_kg)
         base.tlf = finite_or_none(w.tlf)
+        base.impacts = [i.to_dict() for i in feats.impacts]
         causes.sort(key=lambda c: (cause_priority(c["cause"]), -abs(c["change"] or 0.0)))
         base.causes = causes
         base.warnings = warnings

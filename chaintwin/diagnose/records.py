@@ -110,6 +110,8 @@ class RecordingResult:
     exceeded: list[str] = field(default_factory=list)
     warnings: list[dict[str, str]] = field(default_factory=list)
     error: str | None = None
+    impacts: list[dict[str, Any]] = field(default_factory=list)
+    """Torque impacts of the recording (:mod:`chaintwin.diagnose.impacts`)."""
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready; a refused recording gives ``file`` and ``error`` only."""
@@ -128,6 +130,7 @@ class RecordingResult:
             "uncertainty_kg": self.uncertainty_kg,
             "features": self.features,
             "exceeded": self.exceeded,
+            "impacts": self.impacts,
         }
 
     @classmethod

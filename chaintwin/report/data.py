@@ -233,6 +233,8 @@ def _trends(
             exc.append(name in (r.get("exceeded") or []))
             at = r.get("recorded_at")
             before.append(bool(baseline_since and at and at < baseline_since))
+        if not any(math.isfinite(v) for v in vals):
+            continue  # never known (a retired feature such as belt_bump): no trend to draw
         out.append(
             FeatureTrend(
                 name=name,

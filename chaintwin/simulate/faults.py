@@ -30,6 +30,10 @@ elongation      chain elongation (wear of pins and bushes): pitch longer by
                 and its 2nd and 3rd harmonic of s × 2 % of nominal torque / h
 payload_step    a tray of s × 20 kg is placed on the moving belt at the middle
                 of the constant-speed run
+rail_obstacle   an obstacle fixed to the rail (a bent guide, a screw head) that
+                one tray hits once per belt revolution: a resisting force of
+                s × 3 × the whole belt's rail friction over 10 mm of travel,
+                at a place of the loop that differs per conveyor
 ==============  ==============================================================
 """
 
@@ -58,6 +62,7 @@ FAULT_NAMES = (
     "obstruction",
     "elongation",
     "payload_step",
+    "rail_obstacle",
 )
 """Every fault the virtual conveyor can inject."""
 
@@ -72,6 +77,12 @@ GEAR_TOOTH_AMPLITUDE = 0.20
 
 OBSTRUCTION_WIDTH_M = 0.05
 """Belt travel over which an obstruction acts, m."""
+
+OBSTACLE_WIDTH_M = 0.01
+"""Belt travel over which a rail obstacle acts, m."""
+
+OBSTACLE_FORCE = 3.0
+"""Rail obstacle force per unit severity, in units of the belt's rail friction."""
 
 ELONGATION_PER_SEVERITY = 0.03
 """Chain pitch elongation per unit severity (3 % at severity 1)."""

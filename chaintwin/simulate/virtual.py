@@ -24,6 +24,7 @@ back through the simulated speed controller.
 from __future__ import annotations
 
 import math
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from datetime import datetime
@@ -43,6 +44,8 @@ from chaintwin.simulate.faults import (
     ELONGATION_IMPACT,
     ELONGATION_PER_SEVERITY,
     GEAR_TOOTH_AMPLITUDE,
+    OBSTACLE_FORCE,
+    OBSTACLE_WIDTH_M,
     OBSTRUCTION_WIDTH_M,
     PAYLOAD_STEP_KG,
     Fault,
@@ -90,6 +93,11 @@ class Realism:
         Torque ripple at the first stage's mesh order (needs ``gear.stages``).
     scope_limits : bool
         At most ``max_samples`` samples, trigger ``pretrigger_s`` before the move.
+    position_offset : bool
+        The scope's position channels start at an offset of their own in every
+        recording, as drives export them: near zero in two recordings of three
+        (the counter reset at the trigger), anywhere in the third. Positions
+        are then not comparable across recordings.
     torque_noise : float
         Torque noise standard deviation, share of nominal torque.
     speed_noise_rpm : float
@@ -107,6 +115,7 @@ class Realism:
     polygon: bool = True
     gear_mesh: bool = True
     scope_limits: bool = True
+    position_offset: bool = True
     torque_noise: float = 0.004
     speed_noise_rpm: float = 0.8
     max_samples: int = 2048
@@ -238,6 +247,13 @@ def faulty_plant(
             changes["obstruction_position_m"] = OBSTRUCTION_PLACE * plant.loop_length_m
             changes["obstruction_width_m"] = OBSTRUCTION_WIDTH_M
             changes["obstruction_force_n"] = s * rail
+        elif fault.name == "rail_obstacle":
+            rail = plant.mu * G * (plant.belt_mass_kg + plant.tray_mass_kg)
+            # where on the loop the tray that hits it sits: any place, per conveyor
+            place = (zlib.crc32(profile.id.encode()) % 1000) / 1000.0
+            changes["obstruction_position_m"] = place * plant.loop_length_m
+            changes["obstruction_width_m"] = OBSTACLE_WIDTH_M
+            changes["obstruction_force_n"] = s * OBSTACLE_FORCE * rail
         elif fault.name == "elongation":
             eps = s * ELONGATION_PER_SEVERITY
             changes["pitch_radius_m"] = plant.pitch_radius_m * (1.0 + eps)
@@ -429,6 +445,16 @@ def run_virtual(
         tq = tq + rng.normal(0.0, realism.torque_noise * tn * noise_scale, tq.shape)
         w = w + rng.normal(0.0, realism.speed_noise_rpm * RPM_TO_RAD_S, w.shape)
     inc = 2.0 * math.pi / INCREMENTS_PER_REV
+    if realism.position_offset and th.size:
+        # the scope's counter: reset near the trigger, or anywhere
+        start = th[0]
+        offset = (
+            float(rng.uniform(0.0, 2.0**31 * inc))
+            if rng.random() < 1.0 / 3.0
+            else float(rng.uniform(0.0, 50.0 * inc))
+        )
+        th = th - start + offset
+        th_sp = th_sp - start + offset
     th = np.floor(th / inc) * inc  # encoders count whole increments
     th_sp = np.round(th_sp / inc) * inc
     pct = tn / 100.0

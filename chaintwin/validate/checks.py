@@ -124,15 +124,20 @@ def check_torque_saturation(
     """
     t = recording.time
     dt = recording.sample_time_s
+    # a set point at the known limit is the controller's output clamped: one
+    # sample says so (at 12 ms a hard ramp shows the limit in 1-3 samples);
+    # the actual torque near it, or a flat top without a known limit, needs more
     need = max(3, int(np.ceil(SATURATION_MIN_S / dt - 1e-9)))
     tsp = recording.torque_setpoint
     with np.errstate(all="ignore"):
         if torque_limit_nm is not None:
             signal = tsp if tsp is not None else recording.torque
-            share = 0.99 if tsp is not None else 0.95
+            share = 0.995 if tsp is not None else 0.95
             at_limit = np.abs(signal) >= share * torque_limit_nm
             what = "torque set point" if tsp is not None else "torque"
             level = torque_limit_nm
+            if tsp is not None:
+                need = 1
         else:
             wsp = recording.speed_setpoint
             if tsp is None or wsp is None:
@@ -146,14 +151,49 @@ def check_torque_saturation(
             at_limit = flat & lag
             what = "torque set point (held flat at its extreme while the speed lags)"
             level = extreme
+            need = 2
     start, length = _longest_run(at_limit)
     if length < need:
         return []
-    return [
+    out = [
         RecordingWarning(
             "torque_saturated",
             f"{what} at {level:.4g} Nm for {length * dt * 1e3:.4g} ms from t = {t[start]:.6g} s; "
             "the drive could not deliver the torque asked for, so the speed did not follow",
+        )
+    ]
+    return out + _windup(recording, start + length)
+
+
+def _windup(recording: Recording, after: int) -> list[RecordingWarning]:
+    """``speed_windup`` when the speed overshoots its set point after a saturation.
+
+    While the torque is clamped the speed controller's integral keeps
+    growing; when the limit releases, the stored integral drives the speed
+    past its set point. An overshoot of more than 2 % of the top speed
+    (and 5 rpm) in the second after the saturation, for two samples or
+    more, is that windup.
+    """
+    wsp = recording.speed_setpoint
+    if wsp is None or after >= recording.samples:
+        return []
+    stop = min(recording.samples, after + max(2, int(1.0 / recording.sample_time_s)))
+    w, ref = recording.speed[after:stop], wsp[after:stop]
+    peak = float(np.max(np.abs(wsp)))
+    direction = np.sign(ref)
+    over = (w - ref) * direction
+    limit = max(0.02 * peak, 5.0 * RPM_TO_RAD_S)
+    beyond = (over > limit) & (direction != 0)
+    if int(np.count_nonzero(beyond)) < 2:
+        return []
+    worst = float(np.max(over[beyond])) / RPM_TO_RAD_S
+    k = after + int(np.argmax(beyond))
+    return [
+        RecordingWarning(
+            "speed_windup",
+            f"after the torque limit the speed overshoots its set point by up to {worst:.0f} "
+            f"rpm from t = {recording.time[k]:.6g} s: the controllers wound up while the torque "
+            "was clamped (the position lag or the speed integral); a gentler ramp avoids it",
         )
     ]
 

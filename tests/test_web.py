@@ -137,12 +137,15 @@ def _error(response: httpx.Response, status: int, code: str) -> str:
 def test_reading_the_api_needs_a_token_and_pages_through_results(served: Served) -> None:
     anon = served.client()
     health = anon.get("/api/v1/health").json()
-    assert health["status"] == "ok" and health["store"]["results"] == 30
+    assert health["status"] == "ok" and health["store"]["conveyors"] == 1
+    assert health["store"]["revision"] == "0003"
+    _error(anon.get("/api/v1/store"), 401, "unauthorized")
     _error(anon.get("/api/v1/conveyors"), 401, "unauthorized")
     with httpx.Client(base_url=served.base, headers={"Authorization": "Bearer ct_nope"}) as bad:
         _error(bad.get("/api/v1/conveyors"), 401, "unauthorized")
 
     viewer = served.client("viewer")
+    assert viewer.get("/api/v1/store").json()["results"] == 30
     (row,) = viewer.get("/api/v1/conveyors").json()
     assert row["id"] == PROFILE.id
     assert row["health"] == "alarm" and row["open_alarms"][0]["cause"] == "friction"
@@ -234,7 +237,7 @@ def test_changes_need_their_role_and_are_audited(served: Served, fleet: Path) ->
     again = maintainer.post("/api/v1/recordings", files=files[:1]).json()["files"]
     assert again[0]["status"] == "already_stored"
     _error(maintainer.post("/api/v1/recordings", data={"x": "1"}), 422, "invalid")
-    assert viewer.get("/api/v1/health").json()["store"]["results"] == 31
+    assert viewer.get("/api/v1/store").json()["results"] == 31
 
     # maintenance restarts the baseline and closes the alarm
     when = "2027-01-01T00:00:00+00:00"
@@ -272,7 +275,7 @@ def test_too_large_an_upload_is_refused_with_413(served: Served) -> None:
         with httpx.Client(base_url=base, headers=headers, timeout=30) as c:
             big = [("files", ("big.csv", b"x" * 5000, "text/csv"))]
             _error(c.post("/api/v1/recordings", files=big), 413, "too_large")
-            assert c.get("/api/v1/health").json()["store"]["results"] >= 30  # nothing lost
+            assert c.get("/api/v1/store").json()["results"] >= 30  # nothing lost
     finally:
         server.should_exit = True
         thread.join(10)

@@ -32,6 +32,7 @@ from chaintwin.store.access import (
     revoke_token,
 )
 from chaintwin.store.engine import safe_url
+from chaintwin.store.migrate import revision_of
 from chaintwin.store.queries import fleet_rows, recording_by_hash, results_page
 from chaintwin.web.security import ApiError, Principal, require
 
@@ -135,14 +136,31 @@ class UploadResult(BaseModel):
 # ------------------------------------------------------------------ reading
 @router.get("/health", response_model=Health)
 def health(request: Request) -> dict[str, Any]:
-    """The service and its store (no token needed)."""
+    """The service and its store (no token needed): cheap enough to poll.
+
+    The store's schema revision and number of conveyors (a small table);
+    ``/api/v1/store`` counts the large ones.
+    """
     web = _web(request)
-    counts = web.store.counts()
+    with web.store.engine.connect() as connection:
+        revision = revision_of(connection)
     return {
         "status": "ok",
         "version": __version__,
-        "store": {"url": safe_url(web.store.url), **counts},
+        "store": {
+            "url": safe_url(web.store.url),
+            "revision": revision,
+            "conveyors": len(web.store.conveyors()),
+        },
     }
+
+
+@router.get("/store")
+def store_counts(request: Request) -> dict[str, Any]:
+    """How much the store holds: recordings, results, alarms, calibrations (viewer)."""
+    who(request, "viewer")
+    web = _web(request)
+    return {"url": safe_url(web.store.url), **web.store.counts()}
 
 
 @router.get("/conveyors")

@@ -345,6 +345,34 @@ def test_ids_and_comments_are_shown_escaped(served: Served) -> None:
         assert audit_page.status_code == 200 and "<script>" not in audit_page.text
 
 
+def test_results_without_a_time_come_last_and_page_through(served: Served) -> None:
+    from sqlalchemy import select, update
+    from sqlalchemy.orm import Session
+
+    from chaintwin.store.queries import results_page
+    from chaintwin.store.schema import ResultRow
+
+    with Session(served.store.engine) as s, s.begin():
+        ids = list(s.scalars(select(ResultRow.id).order_by(ResultRow.id).limit(3)))
+        s.execute(update(ResultRow).where(ResultRow.id.in_(ids)).values(recorded_at=None))
+    seen = []
+    cursor = None
+    while True:
+        page = results_page(served.store, PROFILE.id, limit=4, cursor=cursor)
+        seen += page.items
+        if page.next_cursor is None:
+            break
+        cursor = page.next_cursor
+    total = served.store.counts()["results"]
+    assert len(seen) == total and len({r["recording_id"] for r in seen}) == total
+    times = [r["recorded_at"] for r in seen if r["recorded_at"] is not None]
+    # the untimed ones (their stored result keeps its time: the row's column is what sorts)
+    assert times == sorted(times, reverse=True)
+    assert len(results_page(served.store, PROFILE.id, since="2000-01-01", limit=1000).items) == (
+        total - 3
+    )
+
+
 def test_token_commands(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     db = f"sqlite:///{tmp_path / 't.db'}"
     assert (

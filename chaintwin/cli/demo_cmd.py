@@ -27,7 +27,7 @@ def examples_dir() -> Path:
 DEMO_PLANT: tuple[tuple[str, str | None], ...] = (
     ("white-belt-01", None),
     ("incline-line-02", "friction:0.5"),
-    ("short-fast-03", None),
+    ("short-fast-03", "rail_obstacle:1.5"),
 )
 """The demo's virtual plant: conveyor (bundled profile) and the fault it develops."""
 
@@ -94,8 +94,9 @@ def run_demo(out: Path, *, days: int, per_day: int, workers: int | None, console
     onset = days // 3
     console.print(
         f"[bold]1. virtual plant[/]: {len(plant)} conveyors, {days} days x {per_day} recordings "
-        f"each at 6 ms, payload 10-40 kg, every realism effect on; incline-line-02 develops "
-        f"a friction rise (to +50 %) from day {onset + 1}",
+        f"each at 6 ms, payload 10-40 kg, every realism effect on; from day {onset + 1} "
+        "incline-line-02 develops a friction rise (to +50 %) and short-fast-03 a rail obstacle "
+        "that one tray hits once per belt revolution",
         highlight=False,
     )
     files: list[str] = []

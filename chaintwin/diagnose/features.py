@@ -177,6 +177,18 @@ def feature_spec(name: str) -> FeatureSpec:
     return FEATURES[name]
 
 
+IMPACT_MARGIN_S = 0.02
+"""Margin around an impact within which a window counts as touched by it, s."""
+
+
+def _model_load(w: WeighResult) -> float:
+    """The load the model torque is computed with: the payload, else the friction signature's."""
+    if w.payload_kg is not None:
+        return w.payload_kg
+    assert w.signatures is not None
+    return w.signatures.friction_kg
+
+
 def _load_kg(w: WeighResult) -> float:
     """The load regressor of the baselines: the signatures combined trusting the losses.
 
@@ -311,11 +323,32 @@ def recording_features(inspection: Inspection, calibration: Calibration) -> Reco
     if w.signatures is None:
         # nothing to fit the model to (no motion, no usable window)
         raise EstimationError(f"{recording.source}: {w.unweighable}")
-    # the load the model torque is computed with: the payload, or where
-    # there is none (the signatures disagree) what the friction fits best
-    load_kg = w.payload_kg if w.payload_kg is not None else w.signatures.friction_kg
     tray = recording.metadata.tray_kg
     tray = prof.tray_mass_kg if tray is None else tray
+    # impacts (an obstacle hit, a caught item) are no load and no friction: the
+    # windows they touch are left out of the weighing and the condition fit
+    first = model_torque(recording, prof, params, _model_load(w), tray_kg=tray, motoring=mot)
+    impacts = detect_impacts(recording, first, phases)
+    if impacts and every is not None:
+        touched = np.zeros(every.count, dtype=bool)
+        for hit in impacts:
+            lo, hi = hit.t_s - IMPACT_MARGIN_S, hit.t_s + hit.duration_s + IMPACT_MARGIN_S
+            touched |= (every.t0 < hi) & (every.t1 > lo)
+        if touched.any() and not touched.all():
+            every = every.select(~touched)
+            again = weigh(inspection, calibration, motoring=mot, windows=every)
+            if again.signatures is not None:
+                w = again
+                warnings.append(
+                    RecordingWarning(
+                        "impacts_excluded",
+                        f"{int(touched.sum())} window(s) with {len(impacts)} impact(s) left out "
+                        "of the weighing and the condition fit",
+                    )
+                )
+    # the load the model torque is computed with: the payload, or where
+    # there is none (the signatures disagree) what the friction fits best
+    load_kg = _model_load(w)
     m0 = prof.belt_mass_kg + tray
     nan = float("nan")
     values: dict[str, float] = {
@@ -349,7 +382,6 @@ def recording_features(inspection: Inspection, calibration: Calibration) -> Reco
     values["residual_std"] = steady.std if steady else nan
     values["residual_kurtosis"] = steady.kurtosis if steady else nan
     values["crest_factor"] = steady.crest_factor if steady else nan
-    impacts = detect_impacts(recording, model, phases)
     values.update(
         impact_features(impacts, recording, phases, prof.chordal_radius_m / prof.kinematic_ratio)
     )

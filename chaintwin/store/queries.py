@@ -12,7 +12,7 @@ import json
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import and_, func, or_, select
+from sqlalchemy import and_, or_, select
 from sqlalchemy.orm import Session
 
 from chaintwin.errors import StoreError
@@ -68,22 +68,37 @@ def results_page(
     ``since``/``until`` bound ``recorded_at`` (ISO 8601, inclusive);
     recordings without a time sort as the oldest.
     """
-    key = func.coalesce(ResultRow.recorded_at, _NULL_TIME)
-    q = (
+    base = (
         select(ResultRow, RecordingRow.sha256)
         .join(RecordingRow, RecordingRow.id == ResultRow.recording_id)
         .where(ResultRow.conveyor_id == conveyor)
     )
+    at, row_id = _uncursor(cursor) if cursor is not None else (None, None)
+    # the timed results by the (conveyor_id, recorded_at) index, newest first;
+    # then those without a time (the oldest), by id
+    timed = base.where(ResultRow.recorded_at.is_not(None))
     if since is not None:
-        q = q.where(ResultRow.recorded_at >= since)
+        timed = timed.where(ResultRow.recorded_at >= since)
     if until is not None:
-        q = q.where(ResultRow.recorded_at <= until)
-    if cursor is not None:
-        at, row_id = _uncursor(cursor)
-        q = q.where(or_(key < at, and_(key == at, ResultRow.id < row_id)))
-    q = q.order_by(key.desc(), ResultRow.id.desc()).limit(limit + 1)
+        timed = timed.where(ResultRow.recorded_at <= until)
+    if at:
+        timed = timed.where(
+            or_(
+                ResultRow.recorded_at < at,
+                and_(ResultRow.recorded_at == at, ResultRow.id < row_id),
+            )
+        )
     with Session(store.engine) as s:
-        rows = list(s.execute(q))
+        rows = []
+        if at != _NULL_TIME:
+            q = timed.order_by(ResultRow.recorded_at.desc(), ResultRow.id.desc())
+            rows = list(s.execute(q.limit(limit + 1)))
+        if len(rows) <= limit and since is None and until is None:
+            untimed = base.where(ResultRow.recorded_at.is_(None))
+            if at == _NULL_TIME and row_id is not None:
+                untimed = untimed.where(ResultRow.id < row_id)
+            q = untimed.order_by(ResultRow.id.desc()).limit(limit + 1 - len(rows))
+            rows += list(s.execute(q))
     items = []
     for row, sha in rows[:limit]:
         items.append(
@@ -133,9 +148,17 @@ def fleet_rows(store: Store) -> list[dict[str, Any]]:
     with Session(store.engine) as s:
         pairs = s.execute(select(ConveyorRow.id, latest_id).order_by(ConveyorRow.id)).all()
         wanted = [int(rid) for _cid, rid in pairs if rid is not None]
+        columns = (
+            ResultRow.conveyor_id,
+            ResultRow.recorded_at,
+            ResultRow.payload_kg,
+            ResultRow.tlf,
+            ResultRow.status,
+            ResultRow.alarm,
+        )
         latest = {
             str(r.conveyor_id): r
-            for r in s.scalars(select(ResultRow).where(ResultRow.id.in_(wanted)))
+            for r in s.execute(select(*columns).where(ResultRow.id.in_(wanted)))
         }
         open_alarms: dict[str, list[dict[str, Any]]] = {}
         for a in s.scalars(select(AlarmRow).where(AlarmRow.status != "closed")):
@@ -145,14 +168,13 @@ def fleet_rows(store: Store) -> list[dict[str, Any]]:
     out = []
     for cid, _rid in pairs:
         row = latest.get(str(cid))
-        content = dict(row.content) if row is not None else {}
         out.append(
             {
                 "id": str(cid),
                 "last_recorded_at": row.recorded_at if row is not None else None,
                 "payload_kg": row.payload_kg if row is not None else None,
                 "tlf": row.tlf if row is not None else None,
-                "status": content.get("status"),
+                "status": row.status if row is not None else None,
                 "alarm": bool(row.alarm) if row is not None else False,
                 "open_alarms": open_alarms.get(str(cid), []),
             }

@@ -17,7 +17,8 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from fastapi import APIRouter, File, Query, Request, UploadFile
+import orjson
+from fastapi import APIRouter, File, Query, Request, Response, UploadFile
 from fastapi.concurrency import run_in_threadpool
 from pydantic import BaseModel, Field
 
@@ -163,8 +164,13 @@ def store_counts(request: Request) -> dict[str, Any]:
     return {"url": safe_url(web.store.url), **web.store.counts()}
 
 
-@router.get("/conveyors")
-def conveyors(request: Request) -> list[dict[str, Any]]:
+def fast_json(content: Any) -> Response:
+    """A JSON response encoded by orjson at once (the polled lists: no generic encoder)."""
+    return Response(orjson.dumps(content), media_type="application/json")
+
+
+@router.get("/conveyors", response_model=list[dict[str, Any]])
+def conveyors(request: Request) -> Response:
     """Each conveyor: health, open alarms, latest payload and TLF, last recording time."""
     who(request, "viewer")
     out = []
@@ -176,7 +182,7 @@ def conveyors(request: Request) -> list[dict[str, Any]]:
         else:
             row["health"] = "ok"
         out.append(row)
-    return out
+    return fast_json(out)
 
 
 def _conveyor(request: Request, conveyor_id: str) -> Any:
@@ -188,7 +194,7 @@ def _conveyor(request: Request, conveyor_id: str) -> Any:
     return conveyor_data(store, conveyor_id, waterfall=0)
 
 
-@router.get("/conveyors/{conveyor_id:path}/recordings")
+@router.get("/conveyors/{conveyor_id:path}/recordings", response_model=dict[str, Any])
 def recordings(
     request: Request,
     conveyor_id: str,
@@ -196,14 +202,14 @@ def recordings(
     until: str | None = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
     cursor: str | None = None,
-) -> dict[str, Any]:
+) -> Response:
     """Stored results, newest first by recording time, cursor-paginated."""
     who(request, "viewer")
     store = _web(request).store
     if store.profile(conveyor_id) is None:
         raise ApiError(404, "not_found", f"no conveyor '{conveyor_id}' in the store")
     page = results_page(store, conveyor_id, since=since, until=until, limit=limit, cursor=cursor)
-    return {"items": page.items, "next_cursor": page.next_cursor}
+    return fast_json({"items": page.items, "next_cursor": page.next_cursor})
 
 
 @router.get("/conveyors/{conveyor_id:path}/trends")
@@ -326,30 +332,39 @@ def recording(request: Request, recording_id: str) -> dict[str, Any]:
 def acknowledge(request: Request, alarm_id: str, body: AcknowledgeBody) -> dict[str, Any]:
     """Acknowledge an open alarm (maintainer): it stays open, no longer fails scripts."""
     p = who(request, "maintainer", changes=True)
-    store = _web(request).store
+    out: dict[str, Any] = acknowledge_as(_web(request).store, p.name, alarm_id, body.why).to_dict()
+    return out
+
+
+def acknowledge_as(store: Any, name: str, alarm_id: str, why: str) -> Any:
+    """Acknowledge an alarm for the token ``name`` and audit it (API and form alike)."""
     try:
         conveyor_id = store.alarm_conveyor(alarm_id)
     except StoreError as exc:
         raise ApiError(404, "not_found", str(exc)) from None
-    alarm = store.edit_state(
-        conveyor_id, lambda d: acknowledge_alarm(d, alarm_id, p.name, body.why)
+    alarm = store.edit_state(conveyor_id, lambda d: acknowledge_alarm(d, alarm_id, name, why))
+    audit(store, name, "acknowledge", {"alarm": alarm_id, "why": why})
+    return alarm
+
+
+def maintenance_as(
+    store: Any, name: str, conveyor_id: str, kind: str, why: str, at: datetime | None
+) -> Any:
+    """Record maintenance for the token ``name`` and audit it (API and form alike)."""
+    if store.profile(conveyor_id) is None:
+        raise ApiError(404, "not_found", f"no conveyor '{conveyor_id}' in the store")
+    event = store.edit_state(
+        conveyor_id, lambda d: add_maintenance(d, conveyor_id, kind, name, why, at)
     )
-    audit(store, p.name, "acknowledge", {"alarm": alarm_id, "why": body.why})
-    out: dict[str, Any] = alarm.to_dict()
-    return out
+    audit(store, name, "maintenance", {"conveyor": conveyor_id, "kind": kind})
+    return event
 
 
 @router.post("/conveyors/{conveyor_id:path}/maintenance")
 def maintenance(request: Request, conveyor_id: str, body: MaintenanceBody) -> dict[str, Any]:
     """Record a maintenance event (maintainer): the baseline restarts after it."""
     p = who(request, "maintainer", changes=True)
-    store = _web(request).store
-    if store.profile(conveyor_id) is None:
-        raise ApiError(404, "not_found", f"no conveyor '{conveyor_id}' in the store")
-    event = store.edit_state(
-        conveyor_id, lambda d: add_maintenance(d, conveyor_id, body.kind, p.name, body.why, body.at)
-    )
-    audit(store, p.name, "maintenance", {"conveyor": conveyor_id, "kind": body.kind})
+    event = maintenance_as(_web(request).store, p.name, conveyor_id, body.kind, body.why, body.at)
     out: dict[str, Any] = event.to_dict()
     return out
 

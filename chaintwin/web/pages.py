@@ -16,7 +16,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
 from chaintwin import __version__
-from chaintwin.diagnose.state import MAINTENANCE_KINDS, acknowledge_alarm, add_maintenance
+from chaintwin.diagnose.state import MAINTENANCE_KINDS
 from chaintwin.errors import ChaintwinError
 from chaintwin.store.access import (
     audit,
@@ -28,7 +28,7 @@ from chaintwin.store.access import (
     verify_token,
 )
 from chaintwin.store.queries import fleet_rows
-from chaintwin.web.api import ingest_uploads, read_uploads
+from chaintwin.web.api import acknowledge_as, ingest_uploads, maintenance_as, read_uploads
 from chaintwin.web.security import COOKIE, SESSION_SECONDS, Principal, make_session_cookie, require
 
 __all__ = ["error_page", "router"]
@@ -152,10 +152,7 @@ def acknowledge_form(
 ) -> Response:
     """The acknowledge form (maintainer)."""
     p = require(_web(request).principal(request), "maintainer", changes=True, csrf=csrf)
-    store = _web(request).store
-    conveyor = store.alarm_conveyor(alarm_id)
-    store.edit_state(conveyor, lambda d: acknowledge_alarm(d, alarm_id, p.name, why))
-    audit(store, p.name, "acknowledge", {"alarm": alarm_id, "why": why})
+    acknowledge_as(_web(request).store, p.name, alarm_id, why)
     return RedirectResponse("/alarms", status_code=303)
 
 
@@ -169,12 +166,8 @@ def maintenance_form(
 ) -> Response:
     """The maintenance form (maintainer): the baseline restarts."""
     p = require(_web(request).principal(request), "maintainer", changes=True, csrf=csrf)
-    store = _web(request).store
-    store.edit_state(
-        conveyor_id,
-        lambda d: add_maintenance(d, conveyor_id, kind, p.name, why, datetime.now().astimezone()),
-    )
-    audit(store, p.name, "maintenance", {"conveyor": conveyor_id, "kind": kind})
+    now = datetime.now().astimezone()
+    maintenance_as(_web(request).store, p.name, conveyor_id, kind, why, now)
     return RedirectResponse("/alarms", status_code=303)
 
 

@@ -37,10 +37,10 @@ learned from the conveyor's first recordings, :mod:`chaintwin.diagnose.learned`)
     line at a non-integer order: a bearing); set by the health model, which
     holds the baseline spectrum.
 ``belt_bump``
-    The largest local rise of the constant-speed residual at one place of
-    the belt loop above the loop's median, in robust standard deviations of
-    the belt map the health model keeps (an obstruction at one place of the
-    rails).
+    Retired, always NaN: it mapped the residual by belt position across
+    recordings, but scope positions start at an offset of their own in
+    every recording. ``impact_hits_per_rev`` (set by the health model from
+    :mod:`chaintwin.diagnose.impacts`) finds an obstruction instead.
 
 The spectral features come from a Welch spectrum of the plateau's residual
 averaged with the median over segments, so that a transient seen in one
@@ -57,7 +57,6 @@ from typing import Any
 
 import numpy as np
 
-from chaintwin._types import FloatArray
 from chaintwin.diagnose.impacts import Impact, detect_impacts, impact_features
 from chaintwin.errors import EstimationError
 from chaintwin.identify.calibration import Calibration
@@ -215,9 +214,6 @@ class RecordingFeatures:
         Scalar features (NaN where the recording cannot tell).
     spectrum : Spectrum or None
         Plateau spectrum of the residual (for ``unexplained_peak``).
-    bump_bins, bump_values : FloatArray
-        Belt-position bins this recording covered at constant speed and the
-        residual's local rise there, Nm (for ``belt_bump``).
     residuals : dict
         :meth:`~chaintwin.diagnose.residuals.ResidualReport.to_dict`.
     warnings : tuple of RecordingWarning
@@ -227,8 +223,6 @@ class RecordingFeatures:
     weighing: WeighResult
     values: dict[str, float]
     spectrum: Spectrum | None
-    bump_bins: FloatArray = field(default_factory=lambda: np.empty(0))
-    bump_values: FloatArray = field(default_factory=lambda: np.empty(0))
     residuals: dict[str, Any] = field(default_factory=dict)
     warnings: tuple[RecordingWarning, ...] = ()
     impacts: tuple[Impact, ...] = ()
@@ -425,16 +419,10 @@ def recording_features(inspection: Inspection, calibration: Calibration) -> Reco
                 "features of this recording are unknown",
             )
         )
-    # the belt map needs positions that are comparable across recordings; scope
-    # positions start at an offset of their own in every recording, so it stays
-    # empty and belt_bump unknown: rail obstacles are found as impacts instead
-    bins, bump = np.empty(0), np.empty(0)
     return RecordingFeatures(
         weighing=w,
         values=values,
         spectrum=spectrum,
-        bump_bins=bins,
-        bump_values=bump,
         residuals=report.to_dict(),
         warnings=tuple(warnings),
         impacts=tuple(impacts),

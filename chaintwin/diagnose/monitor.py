@@ -16,8 +16,8 @@ for each one
    recordings, or at a maintenance event (:mod:`.state`).
 
 The parts live beside it: settings and results (:mod:`.records`),
-baselines and forecasts (:mod:`.baseline`), the belt map (:mod:`.beltmap`),
-the saved state (:mod:`.monitor_state`, JSON-ready, so monitoring continues
+baselines and forecasts (:mod:`.baseline`), impacts (:mod:`.impacts`), the
+saved state (:mod:`.monitor_state`, JSON-ready, so monitoring continues
 without recomputing old recordings).
 """
 
@@ -43,7 +43,7 @@ from chaintwin.validate.checks import Inspection
 from chaintwin.validate.phases import Phase, segment
 from chaintwin.weigh.weigh import reweigh
 
-from . import alarms, baseline, beltmap, monitor_state
+from . import alarms, baseline, monitor_state
 from .causes import cause_priority, resolve_causes
 from .features import FEATURES, RecordingFeatures, feature_spec
 from .features import recording_features as extract
@@ -115,6 +115,7 @@ class ConveyorMonitor:
         self.baselines: dict[str, FeatureBaseline] | None = None
         self.baseline_spectrum: tuple[list[float], list[float], float] | None = None
         self.baseline_since: str | None = None
+        # the retired belt map: kept empty, for the state's format
         self.belt_last: list[float | None] = []
         self.belt_prev: list[float | None] = []
         self.windows: dict[str, list[bool]] = {}
@@ -355,19 +356,6 @@ class ConveyorMonitor:
             self._baseline_cache = cached
         return cached[1], cached[2], cached[3]
 
-    def _belt_bump(self, feats: RecordingFeatures) -> tuple[float, float | None]:
-        """Update the belt map with a recording's bump profile (:func:`.beltmap.update`)."""
-        if self.calibration is None:
-            return float("nan"), None
-        self.belt_last, self.belt_prev, bump = beltmap.update(
-            self.belt_last,
-            self.belt_prev,
-            feats.bump_bins,
-            feats.bump_values,
-            self.calibration.id_profile.loop_length_m,
-        )
-        return bump
-
     def _monitor(
         self,
         recording: Recording,
@@ -406,8 +394,8 @@ class ConveyorMonitor:
             return base
         w = feats.weighing
         values = dict(feats.values)
-        bump, bump_at = self._belt_bump(feats)
-        values["belt_bump"] = bump
+        # retired: scope positions are not comparable across recordings
+        values["belt_bump"] = float("nan")
         # an obstacle is hit once per belt revolution: isolated impacts pooled
         # over this recording and the last ones of the conveyor
         pooled: list[Mapping[str, Any]] = [
@@ -490,8 +478,6 @@ class ConveyorMonitor:
                     "change": alarm.change,
                     "since": alarm.since,
                 }
-                if name == "belt_bump" and bump_at is not None:
-                    detail["belt_position_m"] = bump_at
                 if name == "unexplained_peak" and math.isfinite(peak_order):
                     detail["order"] = peak_order
                 causes.append(detail)
@@ -535,8 +521,9 @@ class ConveyorMonitor:
         self.baselines = baseline.fit_features(rows)
 
     def _late_baselines(self, values: dict[str, float]) -> None:
-        """Baselines of features the first recordings could not tell (the belt map
-        needs most of the loop seen), learned from the recordings that follow."""
+        """Baselines of features the first recordings could not tell (no value
+        yet, e.g. no belt travel at constant speed), learned from the recordings
+        that follow."""
         assert self.baselines is not None
         missing = [
             k

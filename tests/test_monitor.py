@@ -120,8 +120,8 @@ def test_settings_are_checked() -> None:
 
 
 # ---------------------------------------------------------------- virtual series
-def _series(folder: Path, faults: list[Fault], seed: int) -> Path:
-    generate(PROFILE, folder, days=6, per_day=6, faults=faults, onset_day=2, seed=seed)
+def _series(folder: Path, faults: list[Fault], seed: int, days: int = 6) -> Path:
+    generate(PROFILE, folder, days=days, per_day=6, faults=faults, onset_day=2, seed=seed)
     return folder
 
 
@@ -131,7 +131,8 @@ def series(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     return {
         "healthy": _series(root / "healthy", [], 11),
         "friction": _series(root / "friction", [Fault("friction", 0.6)], 12),
-        "rail_obstacle": _series(root / "rail_obstacle", [Fault("rail_obstacle", 1.0)], 13),
+        # a hit stands out from about severity 0.8: a longer series reaches it
+        "rail_obstacle": _series(root / "rail_obstacle", [Fault("rail_obstacle", 1.0)], 13, 9),
         "payload_step": _series(root / "payload_step", [Fault("payload_step", 1.0)], 14),
     }
 

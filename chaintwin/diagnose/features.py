@@ -20,13 +20,24 @@ learned from the conveyor's first recordings, :mod:`chaintwin.diagnose.learned`)
     Of the constant-speed residual (measured − model torque,
     :mod:`chaintwin.diagnose.residuals`): broadband noise (bearing).
 ``residual_kurtosis``, ``crest_factor``
-    Of the same residual: impulses. Tracked and reported, not alarmed on:
-    an obstruction passed once in a scope moves them as much as a damaged
-    tooth, so the gear is judged by its shaft comb instead.
+    Of the same residual: impulses. Alarmed when they leave their baseline
+    band, with the probable cause of what made them impulsive (an obstacle,
+    a tooth, a worn sprocket; a bearing when no impact stands out; a
+    payload event, reported and not alarmed, when the impacts drag):
+    :func:`~chaintwin.diagnose.causes.resolve_causes`.
+``impact_count``, ``impact_rate_per_m``, ``impact_energy_max``
+    The recording's impacts (:mod:`chaintwin.diagnose.impacts`): how many,
+    per metre of belt travel, the largest work, J. Alarmed like kurtosis.
 ``tooth_pass``
     Sum of the residual spectrum's amplitudes (Nm) at the sprocket
     tooth-pass order and its 2nd and 3rd harmonic: the chain's engagement
     with the sprocket (elongation).
+``sprocket_comb``
+    Sum of the residual spectrum's amplitudes (Nm) at the 4th to 8th
+    harmonic of the tooth-pass order, away from the shaft combs: a worn
+    sprocket's teeth knock at every engagement, a short impulse whose
+    spectrum spreads to many harmonics, where an elongated chain's smoother
+    engagement ripple stays in the first three (``tooth_pass``).
 ``comb_<shaft>``
     Sum of the amplitudes (Nm) at the first :data:`COMB_HARMONICS`
     harmonics of a gear shaft's order: one damaged tooth on that shaft hits
@@ -57,7 +68,7 @@ from typing import Any
 
 import numpy as np
 
-from chaintwin.diagnose.impacts import Impact, detect_impacts, impact_features
+from chaintwin.diagnose.impacts import Impact, impact_features, scan_impacts
 from chaintwin.errors import EstimationError
 from chaintwin.identify.calibration import Calibration
 from chaintwin.identify.signatures import fit_condition
@@ -82,6 +93,7 @@ from .spectra import Spectrum, welch_spectrum
 __all__ = [
     "COMB_HARMONICS",
     "FEATURES",
+    "IMPULSIVE",
     "FeatureSpec",
     "RecordingFeatures",
     "recording_features",
@@ -92,6 +104,11 @@ COMB_HARMONICS = SHAFT_HARMONICS
 
 TOOTH_PASS_HARMONICS = 3
 """Harmonics of the tooth-pass order summed into ``tooth_pass``."""
+
+SPROCKET_HARMONICS = (4, 5, 6, 7, 8)
+"""Harmonics of the tooth-pass order summed into ``sprocket_comb``: beyond the
+smooth engagement ripple an elongated chain makes (``tooth_pass``), the comb a
+short knock at every tooth engagement (a worn sprocket) spreads to."""
 
 GUARD_BINS = 4
 """Bins (of the zero-padded spectrum) either side of a line that belong to it."""
@@ -139,6 +156,11 @@ class FeatureSpec:
     regressor: str = "load_kg"
 
 
+IMPULSIVE = "impulsive"
+"""Stand-in cause of the features any impulsive torque raises (kurtosis, crest
+factor, the impact features): :func:`~chaintwin.diagnose.causes.resolve_causes`
+names the specific one from what else rose and from the recording's impacts."""
+
 FEATURES: dict[str, FeatureSpec] = {
     "friction": FeatureSpec(
         "friction", 0.05, "-", payload_dependent=True, regressor="payload_inertia_kg"
@@ -147,19 +169,21 @@ FEATURES: dict[str, FeatureSpec] = {
     "residual_std": FeatureSpec(
         "bearing", 0.3, "Nm", payload_dependent=True, regressor="payload_inertia_kg"
     ),
-    "residual_kurtosis": FeatureSpec(None, 0.0, "-"),
-    "crest_factor": FeatureSpec(None, 0.0, "-"),
+    "residual_kurtosis": FeatureSpec(IMPULSIVE, 0.5, "-", min_scale=0.1),
+    "crest_factor": FeatureSpec(IMPULSIVE, 0.3, "-", min_scale=0.1),
     "tooth_pass": FeatureSpec("elongation", 0.08, "Nm", payload_dependent=True),
+    "sprocket_comb": FeatureSpec("sprocket", 0.5, "Nm", payload_dependent=True),
     "unexplained_peak": FeatureSpec("bearing", 1.0, "-"),
     "belt_bump": FeatureSpec("obstruction", 1.5, "-", min_scale=0.5),  # retired: always NaN
     "payload_kg": FeatureSpec(None, 0.0, "kg"),
     "load_kg": FeatureSpec(None, 0.0, "kg"),
     "payload_inertia_kg": FeatureSpec(None, 0.0, "kg"),
     "tlf": FeatureSpec(None, 0.0, "-"),
-    "impact_count": FeatureSpec(None, 0.0, "-"),
-    "impact_rate_per_m": FeatureSpec(None, 0.0, "1/m"),
-    "impact_energy_max": FeatureSpec(None, 0.0, "J"),
+    "impact_count": FeatureSpec(IMPULSIVE, 0.0, "-", min_scale=0.15),
+    "impact_rate_per_m": FeatureSpec(IMPULSIVE, 0.0, "1/m", min_scale=0.01),
+    "impact_energy_max": FeatureSpec(IMPULSIVE, 0.0, "J", min_scale=0.01),
     "impact_isolated": FeatureSpec(None, 0.0, "-"),
+    "impact_drags": FeatureSpec(None, 0.0, "-"),
     "belt_travel_m": FeatureSpec(None, 0.0, "m"),
     "impact_hits_per_rev": FeatureSpec("obstruction", 0.0, "1/rev", min_scale=0.1),
 }
@@ -322,7 +346,14 @@ def recording_features(inspection: Inspection, calibration: Calibration) -> Reco
     # impacts (an obstacle hit, a caught item) are no load and no friction: the
     # windows they touch are left out of the weighing and the condition fit
     first = model_torque(recording, prof, params, _model_load(w), tray_kg=tray, motoring=mot)
-    impacts = detect_impacts(recording, first, phases)
+    # what repeats with the sprocket's teeth or a shaft is no impact
+    orders = characteristic_orders(prof)
+    periodic_orders = [
+        o for name, o in orders.items() if name in ("sprocket_tooth_pass", "output_shaft")
+    ]
+    impacts, looked_at = scan_impacts(
+        recording, first, phases, [*periodic_orders, *shaft_orders(prof).values()]
+    )
     if impacts and every is not None:
         touched = np.zeros(every.count, dtype=bool)
         for hit in impacts:
@@ -377,7 +408,13 @@ def recording_features(inspection: Inspection, calibration: Calibration) -> Reco
     values["residual_kurtosis"] = steady.kurtosis if steady else nan
     values["crest_factor"] = steady.crest_factor if steady else nan
     values.update(
-        impact_features(impacts, recording, phases, prof.chordal_radius_m / prof.kinematic_ratio)
+        impact_features(
+            impacts,
+            recording,
+            phases,
+            prof.chordal_radius_m / prof.kinematic_ratio,
+            looked_at,
+        )
     )
 
     plateaus = [p for p in phases if p.kind == "constant"]
@@ -400,18 +437,25 @@ def recording_features(inspection: Inspection, calibration: Calibration) -> Reco
         tp = orders.get("sprocket_tooth_pass")
         tp_orders = [h * tp for h in range(1, TOOTH_PASS_HARMONICS + 1)] if tp else []
         centres: dict[str, list[float]] = {}
+        shafts = shaft_orders(calibration.id_profile)
         if tp:
             centres["tooth_pass"] = _line_centres(spectrum, tp_orders, ts)
-        for name, order in shaft_orders(calibration.id_profile).items():
+            # a shaft's comb would read as the sprocket's where they meet
+            combs = [h * o for o in shafts.values() for h in range(1, COMB_HARMONICS + 1)]
+            centres["sprocket_comb"] = _line_centres(
+                spectrum, [h * tp for h in SPROCKET_HARMONICS], ts, [*tp_orders, *combs]
+            )
+        for name, order in shafts.items():
             centres[f"comb_{name}"] = _line_centres(
                 spectrum, [h * order for h in range(1, COMB_HARMONICS + 1)], ts, tp_orders
             )
         sums = _line_sums(spectrum, centres)
         values["tooth_pass"] = sums["tooth_pass"] if tp else nan
+        values["sprocket_comb"] = sums["sprocket_comb"] if tp else nan
         for name in shaft_orders(calibration.id_profile):
             values[f"comb_{name}"] = sums[f"comb_{name}"]
     else:
-        values["tooth_pass"] = nan
+        values["tooth_pass"] = values["sprocket_comb"] = nan
         warnings.append(
             RecordingWarning(
                 "no_plateau_spectrum",

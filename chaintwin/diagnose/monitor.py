@@ -44,7 +44,7 @@ from chaintwin.validate.phases import Phase, segment
 from chaintwin.weigh.weigh import reweigh
 
 from . import alarms, baseline, monitor_state
-from .causes import cause_priority, resolve_causes
+from .causes import NOTE_CAUSES, cause_priority, impact_context, resolve_causes
 from .features import FEATURES, RecordingFeatures, feature_spec
 from .features import recording_features as extract
 from .health import FeatureBaseline
@@ -469,7 +469,20 @@ class ConveyorMonitor:
             )
             base.exceeded.extend(exceeded)
             self._late_baselines(values)
-            resolved = resolve_causes(met)
+            context = impact_context(values, exceeded)
+            resolved = resolve_causes(met, context)
+            noted = [n for n in met if resolved[n] in NOTE_CAUSES]
+            met = [n for n in met if n not in noted]
+            for name in noted:
+                # an event of operation (an item caught): reported, not alarmed
+                causes.append(
+                    {
+                        "cause": resolved[name],
+                        "feature": name,
+                        "change": change.get(name),
+                        "since": iso_utc(when),
+                    }
+                )
             for name in met:
                 alarm = self._open_alarm(name, resolved[name], change.get(name), when)
                 detail = {
@@ -490,6 +503,20 @@ class ConveyorMonitor:
                 w = reweigh(w, w.loss_drift, friction=False)
                 warnings = [x for x in warnings if x.get("code") not in _BY_INERTIA]
                 warnings += [x.to_dict() for x in w.warnings if x.code in _BY_INERTIA]
+        if (
+            (values.get("impact_count") or 0.0) > 0.0
+            and impact_context(values, base.exceeded) == "payload_event"
+            and not any(c["cause"] == "payload_event" for c in causes)
+        ):
+            # impacts that are no wear (an item caught, a tray dropped): a note
+            causes.append(
+                {
+                    "cause": "payload_event",
+                    "feature": "impact_count",
+                    "change": None,
+                    "since": iso_utc(when),
+                }
+            )
         base.payload_kg = finite_or_none(w.payload_kg)
         base.uncertainty_kg = finite_or_none(w.uncertainty_kg)
         base.tlf = finite_or_none(w.tlf)

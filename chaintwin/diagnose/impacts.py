@@ -241,6 +241,10 @@ def scan_impacts(
     shortest = max(8, round(MIN_PLATEAU_S / dt))
     nominal = recording.metadata.nominal_torque_nm
     floor = MIN_SHARE * (nominal if nominal else float(np.max(np.abs(recording.torque)) or 1.0))
+    # the motor angle orders are locked to: the position, or the speed integrated
+    angle = recording.position
+    if angle is None:
+        angle = np.cumsum(recording.speed) * dt
     out: list[Impact] = []
     spans: list[tuple[int, int]] = []
     for ph in phases:
@@ -251,7 +255,7 @@ def scan_impacts(
         # what is left of the residual over a robust line through it: a drag
         # lasting a good part of the plateau stays whole (a running median
         # would follow it), and a 1 ms scope's short plateau is looked at too
-        fast = less_periodic(r - _robust_line(r), recording.position[lo:hi], orders)
+        fast = less_periodic(r - _robust_line(r), angle[lo:hi], orders)
         # a soft belt may still ring from the ramp: start where that has died down
         quiet = _quiet_from(fast, max(3, round(RING_WINDOW_S / dt)))
         if fast.shape[0] - quiet < shortest:
@@ -300,9 +304,9 @@ def _quiet_from(x: FloatArray, box: int) -> int:
     """
     env = np.sqrt(uniform_filter1d(x * x, size=box, mode="nearest"))
     loud = env > RING_RATIO * float(np.median(env))
-    if not loud[0]:
+    if not bool(loud[0]):
         return 0
-    half = x.shape[0] // 2
+    half = int(x.shape[0]) // 2
     quiet = np.flatnonzero(~loud[:half])
     # the running RMS lags: a window more and the ringing's tail is past
     return min(int(quiet[0]) + box, half) if quiet.size else half

@@ -95,7 +95,7 @@ RINGING_LEAD = 2.0
 """A ringing's first event is a hit when its peak is this many times the others'."""
 
 MERGE_S = 0.1
-"""Runs closer than this belong to one event (a knock and the drive's ringing after it), s."""
+"""Runs of one sign closer than this belong to one event, s."""
 
 KNOCK_MAX_S = 0.1
 """Longest time above half its peak of an event that is a knock (an obstacle,
@@ -175,14 +175,20 @@ def _robust_line(r: FloatArray) -> FloatArray:
     return line
 
 
-def _merged(runs: list[tuple[int, int]], gap: int) -> list[tuple[int, int]]:
-    """Runs joined where fewer than ``gap`` samples part them."""
+def _merged(runs: list[tuple[int, int]], x: FloatArray, gap: int) -> list[tuple[int, int]]:
+    """Runs of the same sign (of ``x`` at their largest) joined where fewer than ``gap``
+    samples part them; a swing the other way starts a new run (a ringing's half cycles
+    stay apart for :func:`_without_ringing`)."""
     out: list[tuple[int, int]] = []
+    signs: list[float] = []
     for a, b in runs:
-        if out and a - out[-1][1] < gap:
+        seg = x[a:b]
+        sign = float(np.sign(seg[int(np.argmax(np.abs(seg)))]))
+        if out and a - out[-1][1] < gap and sign == signs[-1]:
             out[-1] = (out[-1][0], b)
         else:
             out.append((a, b))
+            signs.append(sign)
     return out
 
 
@@ -277,7 +283,7 @@ def scan_impacts(
         speed = recording.speed[lo:hi]
         direction = 1.0 if float(np.median(speed)) >= 0.0 else -1.0
         found: list[Impact] = []
-        for a, b in _merged(_runs(beyond), round(MERGE_S / dt)):
+        for a, b in _merged(_runs(beyond), fast, round(MERGE_S / dt)):
             seg = fast[a:b]
             k = int(np.argmax(np.abs(seg)))
             energy = float(np.sum(seg * speed[a:b]) * dt)

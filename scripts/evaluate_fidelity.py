@@ -571,6 +571,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--healthy", type=int, default=12, help="monitoring: healthy sequences")
     parser.add_argument("--recordings", type=int, default=200, help="monitoring: per sequence")
     parser.add_argument("--workers", type=int, default=2, help="monitoring: processes")
+    parser.add_argument(
+        "--only", nargs="*", default=None, help="monitoring: fault types (or healthy) to run"
+    )
     args = parser.parse_args(argv)
     args.json = args.json or Path(f"fidelity-{args.what}.json")
     if args.what == "monitoring":

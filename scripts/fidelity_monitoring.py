@@ -217,19 +217,22 @@ def run_monitoring(
     lo, hi = round(0.4 * n), round(0.6 * n)
     tasks: list[dict[str, Any]] = []
     plan = [f for f in FAULT_TYPES for _ in range(args.per_fault)] + [None] * args.healthy
+    only = set(getattr(args, "only", None) or [])
     for k, fault in enumerate(plan):
         conv = draw_conveyor(rng, 100 + k)
+        onset = int(rng.integers(lo, hi + 1)) if fault is not None else 0
+        if only and (fault or "healthy") not in only:
+            continue  # drawn all the same: the others stay the whole run's
         seed = args.seed + 5000 + 17 * k
-        cal = calibration_runs(conv, seed)["several_loads"]
         tasks.append(
             {
                 "conveyor": conv,
                 "fault": fault or "payload_event",
                 "healthy": fault is None,
                 "recordings": n,
-                "onset": int(rng.integers(lo, hi + 1)) if fault is not None else 0,
+                "onset": onset,
                 "seed": seed + 1,
-                "calibration": cal,
+                "calibration": calibration_runs(conv, seed)["several_loads"],
             }
         )
     with ProcessPoolExecutor(max(1, args.workers)) as ex:

@@ -136,12 +136,15 @@ def test_what_repeats_at_a_given_order_is_taken_away_and_a_single_hit_stays(
     k = int(np.searchsorted(rec.time, 5.5))
     torque[k : k + 2] += 0.5
     with_comb = _with(rec, torque)
-    # without knowing the order the comb's knocks read as many impacts
-    assert len(detect_impacts(with_comb, model, phases)) > 5
+    # without knowing the order the comb's knocks read as one long drag
+    (blur,) = [e for e in detect_impacts(with_comb, model, phases) if e.sign > 0]
+    assert blur.duration_s > 5.0
     # a knock narrower than a phase bin leaves some of it either way: what
     # resists the motion (what the features count) is the single hit alone
     resisting = [e for e in detect_impacts(with_comb, model, phases, [order]) if e.sign > 0]
-    assert [e.t_s for e in resisting] == [pytest.approx(rec.time[k])]
+    (hit,) = resisting
+    assert hit.t_s <= rec.time[k] <= hit.t_s + hit.duration_s
+    assert hit.peak_nm == pytest.approx(0.5, abs=0.1) and hit.duration_s < 1.0
     x = np.sin(np.linspace(0.0, 40.0 * np.pi, 4000))
     flat = less_periodic(x, np.linspace(0.0, 40.0 * np.pi, 4000), [1.0])
     assert float(np.max(np.abs(flat))) < 0.05  # a pure line at the order goes

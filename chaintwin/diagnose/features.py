@@ -62,12 +62,14 @@ above the Nyquist frequency of the scope are looked for where they fold
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from chaintwin._types import FloatArray
 from chaintwin.diagnose.impacts import Impact, impact_features, scan_impacts
 from chaintwin.errors import EstimationError
 from chaintwin.identify.calibration import Calibration
@@ -81,13 +83,14 @@ from chaintwin.model.frequencies import (
 from chaintwin.model.physics import loss_torque_nm
 from chaintwin.model.rigid import model_torque, motoring_mask
 from chaintwin.model.windows import WindowIntegrals, window_integrals
-from chaintwin.read.recording import RecordingWarning
+from chaintwin.read.recording import Recording, RecordingWarning
 from chaintwin.validate.checks import Inspection
+from chaintwin.validate.phases import Phase
 from chaintwin.weigh.drift import LossDrift
 from chaintwin.weigh.weigh import WeighResult, reweigh, weigh
 
 from .lines import band_amplitudes
-from .residuals import residual_analysis
+from .residuals import residual_analysis, residual_stats
 from .spectra import Spectrum, welch_spectrum
 
 __all__ = [
@@ -140,12 +143,12 @@ class FeatureSpec:
         Floor of the baseline's robust scale (feature units), for features
         whose baseline can hold few distinct values.
     regressor : str
-        The payload estimate the baseline regresses on: ``load_kg`` (the
-        weighing's signatures combined trusting the calibration's losses:
-        the most precise load reading, which a slow loss drift moves a little
-        but smoothly), or ``payload_inertia_kg`` for a feature that a
-        friction change moves together with the friction payload (which
-        would hide it).
+        The payload estimate the baseline regresses on: ``payload_inertia_kg``
+        (the inertia signature: neither a loss drift nor a friction change
+        moves it), or ``load_kg`` (the signatures combined trusting the
+        calibration's losses: more precise, but a +-10 % loss drift moves it
+        by up to 10 kg on a conveyor with high losses, over random conveyors,
+        which reads as a change of every payload-dependent feature).
     """
 
     cause: str | None
@@ -153,7 +156,7 @@ class FeatureSpec:
     unit: str
     payload_dependent: bool = False
     min_scale: float = 0.0
-    regressor: str = "load_kg"
+    regressor: str = "payload_inertia_kg"
 
 
 IMPULSIVE = "impulsive"
@@ -165,7 +168,7 @@ FEATURES: dict[str, FeatureSpec] = {
     "friction": FeatureSpec(
         "friction", 0.05, "-", payload_dependent=True, regressor="payload_inertia_kg"
     ),
-    "speed_loss": FeatureSpec("lubrication", 0.15, "-", payload_dependent=True),
+    "speed_loss": FeatureSpec("lubrication", 0.3, "-", payload_dependent=True),
     "residual_std": FeatureSpec(
         "bearing", 0.3, "Nm", payload_dependent=True, regressor="payload_inertia_kg"
     ),
@@ -199,6 +202,9 @@ def feature_spec(name: str) -> FeatureSpec:
         return COMB_SPEC
     return FEATURES[name]
 
+
+RINGING_AFTER_S = 0.1
+"""Left out after an impact in the broadband residual: the drive rings after a hit, s."""
 
 IMPACT_MARGIN_S = 0.02
 """Margin around an impact within which a window counts as touched by it, s."""
@@ -250,6 +256,29 @@ class RecordingFeatures:
     residuals: dict[str, Any] = field(default_factory=dict)
     warnings: tuple[RecordingWarning, ...] = ()
     impacts: tuple[Impact, ...] = ()
+
+
+def _std_without(
+    recording: Recording, model: FloatArray, phases: Sequence[Phase], impacts: Sequence[Impact]
+) -> float:
+    """Standard deviation of the constant-speed residual outside the impacts, Nm (NaN: too few).
+
+    The samples of each event from :data:`IMPACT_MARGIN_S` before it to
+    :data:`RINGING_AFTER_S` after it are left out, and the ramp corners as
+    :func:`~chaintwin.diagnose.residuals.residual_analysis` leaves them.
+    """
+    spans = [np.arange(p.start + 3, p.stop - 3) for p in phases if p.kind == "constant"]
+    idx = np.concatenate(spans) if spans else np.empty(0, dtype=np.intp)
+    y = recording.torque[idx].copy()
+    t = recording.time[idx]
+    for hit in impacts:
+        y[(t >= hit.t_s - IMPACT_MARGIN_S) & (t <= hit.t_s + hit.duration_s + RINGING_AFTER_S)] = (
+            np.nan
+        )
+    try:
+        return residual_stats(y, model[idx]).std
+    except EstimationError:
+        return float("nan")
 
 
 def _line_centres(
@@ -405,6 +434,11 @@ def recording_features(inspection: Inspection, calibration: Calibration) -> Reco
     report = residual_analysis(recording, model, phases=phases)
     steady = report.by_phase.get("constant")
     values["residual_std"] = steady.std if steady else nan
+    if steady and impacts:
+        # broadband noise (a bearing) is judged without the impacts: an item
+        # caught for a while is no bearing
+        clean = _std_without(recording, model, phases, impacts)
+        values["residual_std"] = clean if math.isfinite(clean) else values["residual_std"]
     values["residual_kurtosis"] = steady.kurtosis if steady else nan
     values["crest_factor"] = steady.crest_factor if steady else nan
     values.update(

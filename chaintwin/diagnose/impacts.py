@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.ndimage import uniform_filter1d
+from scipy.ndimage import median_filter, uniform_filter1d
 
 from chaintwin._types import FloatArray
 from chaintwin.read.recording import Recording
@@ -94,8 +94,12 @@ RINGING_GAP_S = 0.5
 RINGING_LEAD = 2.0
 """A ringing's first event is a hit when its peak is this many times the others'."""
 
-MERGE_S = 0.1
-"""Runs of one sign closer than this belong to one event, s."""
+MERGE_S = 0.3
+"""Runs of one sign closer than this belong to one event (a drag the drive
+fights in swings, a knock and its echo), s."""
+
+LOCAL_S = 0.5
+"""Neighbourhood whose median level an event must stand out of, s."""
 
 KNOCK_MAX_S = 0.1
 """Longest time above half its peak of an event that is a knock (an obstacle,
@@ -192,10 +196,21 @@ def _merged(runs: list[tuple[int, int]], x: FloatArray, gap: int) -> list[tuple[
     return out
 
 
-def _beyond(x: FloatArray, floor: float) -> np.ndarray:
-    """Samples beyond :data:`THRESHOLD_SIGMA` robust scales of ``x`` (and ``floor``)."""
+def _beyond(x: FloatArray, floor: float, local: int) -> np.ndarray:
+    """Samples beyond :data:`THRESHOLD_SIGMA` robust scales of ``x`` (and ``floor``).
+
+    The scale is the larger of the whole span's and the neighbourhood's
+    (a running median of ``|x|`` over ``local`` samples; 0: the whole span's
+    alone): a hit stands out of its surroundings, a ringing or a rough
+    stretch does not. A drag, lasting as long as the neighbourhood, is looked
+    for averaged and against the whole span.
+    """
     scale = 1.4826 * float(np.median(np.abs(x - np.median(x))))
-    mask: np.ndarray = np.abs(x) > max(THRESHOLD_SIGMA * scale, floor)
+    if local <= 0:
+        whole: np.ndarray = np.abs(x) > max(THRESHOLD_SIGMA * scale, floor)
+        return whole
+    near = 1.4826 * median_filter(np.abs(x), size=max(3, local | 1), mode="nearest")
+    mask: np.ndarray = np.abs(x) > np.maximum(THRESHOLD_SIGMA * np.maximum(scale, near), floor)
     return mask
 
 
@@ -266,18 +281,19 @@ def scan_impacts(
         quiet = _quiet_from(fast, max(3, round(RING_WINDOW_S / dt)))
         if fast.shape[0] - quiet < shortest:
             continue
-        lo, fast = lo + quiet, fast[quiet:]
-        spans.append((lo, hi))
-        beyond = _beyond(fast, floor)
+        # the neighbourhoods reach back into the ringing: its tail stands out of nothing
+        beyond = _beyond(fast, floor, round(LOCAL_S / dt))
         # a bump lasting tens of ms (a guide rubbing) stands out once averaged;
         # its runs count where no sample stood out on its own (a knock keeps
         # its own time and duration, not the averaging's)
         box = max(1, round(SMOOTH_S / dt))
         if box > 1:
-            slow = _beyond(uniform_filter1d(fast, size=box, mode="nearest"), floor / 2.0)
+            slow = _beyond(uniform_filter1d(fast, size=box, mode="nearest"), floor / 2.0, 0)
             for a, b in _runs(slow):
                 if not beyond[a:b].any():
                     beyond[a:b] = True
+        lo, fast, beyond = lo + quiet, fast[quiet:], beyond[quiet:]
+        spans.append((lo, hi))
         if not beyond.any():
             continue
         speed = recording.speed[lo:hi]

@@ -40,8 +40,8 @@ sprocket        a worn drive sprocket (hooked, thinned teeth): the chain snaps
                 the tooth pitch (the tooth-pass order z/i); no friction or
                 radius change (that is ``elongation``)
 payload_event   an item caught between a tray and a guide for part of a
-                cycle: in a recording with probability 0.15, a resisting force
-                of s × 2 × the whole belt's rail friction over 0.2-1.0 s of
+                cycle: in a recording with probability 0.05, a resisting force
+                of s × the whole belt's rail friction over 0.2-1.0 s of
                 travel at a random time of the constant-speed run (a drag, not
                 a knock); nothing in the other recordings
 ==============  ==============================================================
@@ -122,10 +122,10 @@ SPROCKET_IMPACT = 0.15
 SPROCKET_WIDTH = 0.15
 """Worn-sprocket impulse width, share of the tooth pitch (motor angle per tooth pass)."""
 
-PAYLOAD_EVENT_CHANCE = 0.15
+PAYLOAD_EVENT_CHANCE = 0.05
 """Probability that a recording holds a payload event."""
 
-PAYLOAD_EVENT_FORCE = 2.0
+PAYLOAD_EVENT_FORCE = 1.0
 """Payload event force per unit severity, in units of the belt's rail friction."""
 
 PAYLOAD_EVENT_S = (0.2, 1.0)

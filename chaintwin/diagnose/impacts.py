@@ -64,6 +64,11 @@ MIN_SHARE = 0.03
 SETTLE_S = 0.2
 """Left out at the start of a constant phase: the ramp's end still rings, s."""
 
+HEAD_S = 0.5
+"""After :data:`SETTLE_S`, looked at (the neighbourhoods and the averages reach
+into it) but not searched: the drive's settling after a ramp lasts up to half
+a second more on a long, heavy belt and reads as a lump, s."""
+
 RING_WINDOW_S = 0.1
 """Window of the running RMS that tells a ringing head of a plateau, s."""
 
@@ -278,7 +283,7 @@ def scan_impacts(
         # would follow it), and a 1 ms scope's short plateau is looked at too
         fast = less_periodic(r - _robust_line(r), angle[lo:hi], orders)
         # a soft belt may still ring from the ramp: start where that has died down
-        quiet = _quiet_from(fast, max(3, round(RING_WINDOW_S / dt)))
+        quiet = max(_quiet_from(fast, max(3, round(RING_WINDOW_S / dt))), round(HEAD_S / dt))
         if fast.shape[0] - quiet < shortest:
             continue
         # the neighbourhoods reach back into the ringing: its tail stands out of nothing

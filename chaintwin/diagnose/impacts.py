@@ -87,7 +87,7 @@ SMOOTH_S = 0.05
 PERIODIC_CV = 0.15
 """Impacts whose spacings vary by less than this (coefficient of variation) are periodic."""
 
-POOL = 10
+POOL = 20
 """Recordings pooled for the rate of isolated impacts per belt revolution."""
 
 RINGING_MIN = 3

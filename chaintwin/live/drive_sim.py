@@ -24,7 +24,7 @@ import contextlib
 import logging
 import math
 import socket
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from types import TracebackType
@@ -385,14 +385,37 @@ class DriveSim:
         await self.publish(scope)
         return scope
 
-    async def run(self, stop: asyncio.Event) -> None:
-        """Listen and publish a scope every interval until ``stop`` is set, then stop."""
+    async def run(
+        self,
+        stop: asyncio.Event,
+        *,
+        count: int | None = None,
+        on_publish: Callable[[Published], None] | None = None,
+    ) -> None:
+        """Listen and publish a scope every interval until ``stop`` is set, then stop.
+
+        Parameters
+        ----------
+        stop : asyncio.Event
+            Set to stop.
+        count : int, optional
+            Stop by itself after this many scopes (and one more interval, so
+            that clients can read the last one).
+        on_publish : callable, optional
+            Called with each scope once it is published.
+        """
         await self.start()
         loop = asyncio.get_running_loop()
         due = loop.time()
+        published = 0
         try:
             while not stop.is_set():
+                if count is not None and published >= count:
+                    break
                 scope = await self.publish_next()
+                published += 1
+                if on_publish is not None:
+                    on_publish(scope)
                 log.info(
                     "drive-sim %s published scope %d (%s)",
                     self.profile.id,

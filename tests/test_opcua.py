@@ -19,6 +19,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 import pytest
+from conftest import REFERENCE_PROFILE
 
 from chaintwin.errors import ConnectorError, RecordingError
 from chaintwin.live.drive_sim import DriveSim, Published
@@ -36,8 +37,6 @@ from chaintwin.read.recording import Recording
 from chaintwin.read.writer import format_recording, write_recording
 from chaintwin.simulate.faults import Fault
 from chaintwin.validate import inspect_recording
-
-from conftest import REFERENCE_PROFILE
 
 T = TypeVar("T")
 PROFILE = load_profile(REFERENCE_PROFILE)
@@ -141,7 +140,7 @@ class Follower:
 
         self.stop, self.task = loop.run(start())
 
-    def keys(self) -> list[str]:
+    def received(self) -> list[str]:
         return [k for k, _ in self.got]
 
     def recording(self, key: str) -> Recording:
@@ -202,7 +201,7 @@ def test_scope_arrives_as_the_virtual_run_and_a_dead_drive_stops_nothing(
     try:
         wait_until("the connection", lambda: f.status.drives[CONVEYOR].connected)
         scopes = [ua_loop.run(sim.publish_next()) for _ in range(3)]
-        wait_until("the last scope", lambda: key_of(scopes[-1]) in f.keys())
+        wait_until("the last scope", lambda: key_of(scopes[-1]) in f.received())
         scope = scopes[-1]
         got = f.recording(key_of(scope))
         want = scope.recording
@@ -243,13 +242,16 @@ def test_counter_gaps_are_counted_as_missed(
     wait_until("the loss", lambda: not state.connected)
     scopes = [ua_loop.run(sim.publish_next()) for _ in range(3)]  # ... and records 3 scopes
     ua_loop.run(sim.start())
-    wait_until("the newest scope", lambda: key_of(scopes[-1]) in follower.keys())
+    wait_until("the newest scope", lambda: key_of(scopes[-1]) in follower.received())
     assert state.missed == before + 2
-    assert key_of(scopes[0]) not in follower.keys() and key_of(scopes[1]) not in follower.keys()
+    assert (
+        key_of(scopes[0]) not in follower.received()
+        and key_of(scopes[1]) not in follower.received()
+    )
     assert state.scopes_read == read_before + 1
     # and the next scope follows without a gap
     nxt = ua_loop.run(sim.publish_next())
-    wait_until("the next scope", lambda: key_of(nxt) in follower.keys())
+    wait_until("the next scope", lambda: key_of(nxt) in follower.received())
     assert state.missed == before + 2
 
 
@@ -283,17 +285,58 @@ def test_drive_that_disconnects_mid_read_is_reconnected(
     scope = ua_loop.run(publish_and_break())
     wait_until("the read that breaks", fired.is_set)
     wait_until("the loss", lambda: not state.connected)
-    assert key_of(scope) not in follower.keys()
+    assert key_of(scope) not in follower.received()
     time.sleep(0.3)  # a few reconnect attempts against a closed port
     assert state.last_error is not None and not state.connected
     ua_loop.run(sim.start())
-    wait_until("the scope after reconnecting", lambda: key_of(scope) in follower.keys())
+    wait_until("the scope after reconnecting", lambda: key_of(scope) in follower.received())
     assert state.connects == connects + 1 and state.missed == missed
     assert format_recording(follower.recording(key_of(scope))) == format_recording(scope.recording)
     # and it carries on
     nxt = ua_loop.run(sim.publish_next())
-    wait_until("the next scope", lambda: key_of(nxt) in follower.keys())
+    wait_until("the next scope", lambda: key_of(nxt) in follower.received())
     assert state.missed == missed and state.last_error is None
+
+
+def test_a_scope_that_cannot_be_used_is_refused_and_said_why(ua_loop: Loop, sim: DriveSim) -> None:
+    f = Follower(
+        ua_loop,
+        config_for(
+            {"conveyor": "short-fast-03", "endpoint": sim.endpoint},  # the wrong drive
+            {"conveyor": CONVEYOR, "endpoint": sim.endpoint, "nodes": {"speed": "ns=2;s=Nope"}},
+        ),
+    )
+    try:
+        states = f.status.drives
+        wait_until(  # connected, and the scope in the buffer taken (refused) already
+            "both connected",
+            lambda: all(
+                s.connected and (sim.counter == 0 or s.last_counter == sim.counter)
+                for s in states.values()
+            ),
+        )
+        refused = {k: s.refused for k, s in states.items()}
+        scope = ua_loop.run(sim.publish_next())
+        wait_until(
+            "both refusals",
+            lambda: all(s.last_counter == scope.counter for s in states.values()),
+        )
+        assert not f.got
+        wrong, bad_node = states["short-fast-03"], states[CONVEYOR]
+        assert wrong.last_error == (
+            f"opcua:short-fast-03:{scope.counter}: the drive says it is conveyor '{CONVEYOR}', "
+            "the configuration says 'short-fast-03'; correct the endpoint or conveyor in the "
+            "configuration"
+        )
+        assert bad_node.last_error == (
+            f"{key_of(scope)}: node 'speed' (ns=2;s=Nope) cannot be read (BadNodeIdUnknown); "
+            "check 'nodes' in the configuration"
+        )
+        for name, state in states.items():  # refused, counted, and the session kept
+            assert state.refused == refused[name] + 1
+            assert state.connected and state.connects == 1 and state.scopes_read == 0
+    finally:
+        f.close()
 
 
 def test_a_scope_read_twice_is_stored_once(ua_loop: Loop, sim: DriveSim, tmp_path: Path) -> None:
@@ -305,7 +348,7 @@ def test_a_scope_read_twice_is_stored_once(ua_loop: Loop, sim: DriveSim, tmp_pat
     for _ in range(2):  # two services (or one restarted) each read the scope in the buffer
         f = Follower(ua_loop, config_for({"conveyor": CONVEYOR, "endpoint": sim.endpoint}))
         try:
-            wait_until("the scope", lambda f=f: key_of(scope) in f.keys())  # type: ignore[misc]
+            wait_until("the scope", lambda f=f: key_of(scope) in f.received())  # type: ignore[misc]
             reads.append(f.recording(key_of(scope)))
         finally:
             f.close()
@@ -362,7 +405,7 @@ def test_basic256sha256_sign_and_encrypt(
             )
         }
         scope = ua_loop.run(sim.publish_next())
-        wait_until("the scope", lambda: key_of(scope) in f.keys())
+        wait_until("the scope", lambda: key_of(scope) in f.received())
         assert format_recording(f.recording(key_of(scope))) == format_recording(scope.recording)
     finally:
         f.close()

@@ -89,6 +89,8 @@ def register(app: typer.Typer) -> None:
         --opcua` reads by default (docs/opcua.md); faults as for `generate`,
         their onset counted in scopes. Ctrl-C or SIGTERM stops it (exit 0).
         """
+        import logging
+
         from chaintwin.live.drive_sim import DriveSim, Published
         from chaintwin.read.profile import load_profile
         from chaintwin.simulate.faults import parse_faults
@@ -116,6 +118,8 @@ def register(app: typer.Typer) -> None:
             certificate=certificate,
             private_key=private_key,
         )
+        # asyncua's start-up notes (no encrypting policy without a certificate, ...) are noise here
+        logging.getLogger("asyncua").setLevel(logging.ERROR)
         console = Console(stderr=False, highlight=False, soft_wrap=True)
 
         def said(scope: Published) -> None:

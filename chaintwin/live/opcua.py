@@ -477,6 +477,9 @@ class _Follower:
     WATCHDOG_S = 1.0
     """How often asyncua checks that the drive still answers, s."""
 
+    SESSION_TIMEOUT_MS = 600_000
+    """How long a drive keeps a session whose client has gone, ms (asyncua's server maximum)."""
+
     def __init__(
         self, drive: DriveConfig, reconnect: ReconnectConfig, submit: Submit, state: DriveState
     ) -> None:
@@ -522,6 +525,7 @@ class _Follower:
         d = self.drive
         client = Client(d.endpoint, timeout=d.timeout_s, watchdog_intervall=self.WATCHDOG_S)
         client.application_uri = d.application_uri
+        client.session_timeout = self.SESSION_TIMEOUT_MS
         client.name = client.description = f"chaintwin ({d.conveyor})"
         if d.username is not None:
             client.set_user(d.username)
@@ -621,16 +625,22 @@ class _Follower:
         keys = list(nodes)
         values = await client.read_attributes([nodes[k] for k in keys])
         read: dict[str, Any] = {}
+        unreadable: list[str] = []
         for key, dv in zip(keys, values, strict=True):
             good = dv.StatusCode is None or dv.StatusCode.is_good()
             if good and dv.Value is not None:
                 read[key] = dv.Value.Value
             elif key in REQUIRED_NODES:
-                raise ConnectorError(
-                    f"drive {self.drive.conveyor}: node '{key}' ({nodes[key].nodeid.to_string()}) "
-                    f"cannot be read ({dv.StatusCode.name}); check 'nodes' in the configuration",
-                    field="nodes",
+                status = dv.StatusCode.name if dv.StatusCode is not None else "no value"
+                unreadable.append(
+                    f"'{key}' ({nodes[key].nodeid.to_string()}) cannot be read ({status})"
                 )
+        if "counter" not in read:
+            raise ConnectorError(
+                f"drive {self.drive.conveyor}: node {'; node '.join(unreadable)}; "
+                "check 'nodes' in the configuration",
+                field="nodes",
+            )
         counter = read.get("counter")
         if not isinstance(counter, int) or counter <= 0:
             return
@@ -661,16 +671,19 @@ class _Follower:
                 )
         key = f"opcua:{conveyor}:{counter}"
         try:
+            if unreadable:
+                raise ConnectorError(
+                    f"{key}: node {'; node '.join(unreadable)}; check 'nodes' in the configuration",
+                    field="nodes",
+                )
             recording = await asyncio.to_thread(
                 recording_from_scope, read, conveyor=conveyor, source=key, units=self.drive.units
             )
-        except ChaintwinError as exc:
+        except ChaintwinError as exc:  # the scope cannot be used: counted, said, not retried
             st.refused += 1
             st.last_error = str(exc).splitlines()[0]
             st.last_counter = counter
-            log.warning(
-                "refused %s: %s", key, st.last_error, extra={"source": key, "reason": st.last_error}
-            )
+            log.warning("refused %s", st.last_error, extra={"source": key, "reason": st.last_error})
             return
         await self.submit(recording, key)
         st.scopes_read += 1

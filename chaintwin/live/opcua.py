@@ -611,7 +611,11 @@ class _Follower:
                         kind, value = kind2, value2
                 if kind == "lost":
                     raise _Lost(f"connection lost ({value})")
-                if isinstance(value, int) and value > 0 and value != self.state.last_counter:
+                if not isinstance(value, int) or value == self.state.last_counter:
+                    continue
+                if value == 0:  # no scope yet (a new or restarted drive): counted from here
+                    self.state.last_counter = 0
+                else:
                     await self._take(client, nodes)
         finally:
             stopper.cancel()

@@ -117,6 +117,7 @@ def sim(ua_loop: Loop, certs: dict[str, Path]) -> Iterator[DriveSim]:
         onset=2,
         certificate=certs["server_cert"],
         private_key=certs["server_key"],
+        users={"operator": "s3cret"},  # anonymous clients are welcome too
     )
     ua_loop.run(drive.start())
     yield drive
@@ -429,6 +430,25 @@ def test_faults_grow_from_the_onset_counted_in_scopes() -> None:
     assert [step.severities(k)[0].severity for k in range(4)] == [0.0, 0.0, 0.8, 0.8]
 
 
+def test_user_login(ua_loop: Loop, sim: DriveSim) -> None:
+    login = {"conveyor": CONVEYOR, "endpoint": sim.endpoint, "username": "operator"}
+    f = Follower(ua_loop, config_for({**login, "password": "s3cret"}))
+    try:
+        wait_until("the login", lambda: f.status.drives[CONVEYOR].connected)
+        scope = ua_loop.run(sim.publish_next())
+        wait_until("the scope", lambda: key_of(scope) in f.received())
+    finally:
+        f.close()
+    f = Follower(ua_loop, config_for({**login, "password": "wrong"}))
+    try:
+        wait_until("the refusal", lambda: f.status.drives[CONVEYOR].last_error is not None)
+        state = f.status.drives[CONVEYOR]
+        assert "BadUserAccessDenied" in (state.last_error or "")
+        assert not state.connected and state.connects == 0 and not f.got
+    finally:
+        f.close()
+
+
 # ---------------------------------------------------------------- configuration
 def test_minimal_config_loads_with_the_default_layout(tmp_path: Path) -> None:
     path = tmp_path / "opcua.yaml"
@@ -553,3 +573,61 @@ def test_recording_from_scope_converts_units_and_checks_like_the_reader() -> Non
         with pytest.raises(RecordingError, match=needle) as info:
             recording_from_scope({**_values(), **change}, conveyor=CONVEYOR, source="opcua:x:1")
         assert str(info.value).startswith("opcua:x:1")
+
+
+# ---------------------------------------------------------------- the command
+def test_drive_sim_command_serves_the_minimal_config_and_stops_on_sigterm(
+    ua_loop: Loop, tmp_path: Path
+) -> None:
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    port = _free_port()
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": str(root), "PYTHONUNBUFFERED": "1"}
+    args = [sys.executable, "-m", "chaintwin", "drive-sim", "--profile", str(REFERENCE_PROFILE)]
+    args += ["--port", str(port), "--interval", "0.3", "--fault", "friction:0.3", "--onset", "1"]
+    proc = subprocess.Popen(
+        args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path
+    )
+    try:
+        assert proc.stdout is not None
+        lines = [proc.stdout.readline() for _ in range(3)]
+        assert lines[0].startswith(f"drive-sim {CONVEYOR} on opc.tcp://0.0.0.0:{port}")
+        assert lines[1].startswith("scope 1 at ") and lines[1].endswith("faults: friction:0\n")
+        assert lines[2].startswith("scope 2 at ") and lines[2].endswith("faults: friction:0.3\n")
+        config = tmp_path / "opcua.yaml"  # the minimal configuration, as documented
+        config.write_text(
+            f"drives:\n  - conveyor: {CONVEYOR}\n    endpoint: opc.tcp://127.0.0.1:{port}\n"
+        )
+        f = Follower(ua_loop, load_opcua_config(config))
+        try:
+            wait_until("a scope", lambda: bool(f.got))
+            key, rec = f.got[0]
+            assert key.startswith(f"opcua:{CONVEYOR}:")
+            assert rec.metadata.conveyor == CONVEYOR and rec.samples == 2048
+            assert not inspect_recording(rec, PROFILE).recording.has_warning("profile_mismatch")
+        finally:
+            f.close()
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(15) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        for stream in (proc.stdout, proc.stderr):
+            if stream is not None:
+                stream.close()
+
+
+def test_drive_sim_command_refuses_bad_options(capsys: pytest.CaptureFixture[str]) -> None:
+    from chaintwin.cli.app import main
+
+    base = ["drive-sim", "--profile", str(REFERENCE_PROFILE)]
+    assert main([*base, "--fault", "rust:1"]) == 2
+    assert "unknown fault 'rust'" in capsys.readouterr().err
+    assert main([*base, "--certificate", "c.der"]) == 2
+    assert "--private-key" in capsys.readouterr().err
+    assert main([*base, "--port", "0"]) == 2

@@ -81,6 +81,13 @@ def register(app: typer.Typer) -> None:
             Path | None,
             typer.Option("--private-key", help="Server private key (PEM; created if missing)."),
         ] = None,
+        user: Annotated[
+            list[str] | None,
+            typer.Option(
+                "--user",
+                help="NAME:PASSWORD of a user who may log in, repeatable; then no anonymous login.",
+            ),
+        ] = None,
         quiet: Annotated[bool, typer.Option("--quiet", help="No line per scope.")] = False,
     ) -> None:
         """Serve a virtual conveyor's scope recordings over OPC UA, as a drive would.
@@ -101,6 +108,14 @@ def register(app: typer.Typer) -> None:
         realism = build_realism(ideal, without or [])
         if (certificate is None) != (private_key is None):
             raise ConnectorError("give both --certificate and --private-key, or neither")
+        users: dict[str, str] = {}
+        for given in user or []:
+            name, sep, password = given.partition(":")
+            if not sep or not name or not password:
+                raise ConnectorError(
+                    f"--user '{given}' must be NAME:PASSWORD, e.g. operator:s3cret"
+                )
+            users[name] = password
         sim = DriveSim(
             prof,
             port=port,
@@ -117,6 +132,8 @@ def register(app: typer.Typer) -> None:
             model=model,
             certificate=certificate,
             private_key=private_key,
+            users=users,
+            anonymous=not users,
         )
         # asyncua's start-up notes (no encrypting policy without a certificate, ...) are noise here
         logging.getLogger("asyncua").setLevel(logging.ERROR)
@@ -141,8 +158,10 @@ def register(app: typer.Typer) -> None:
                     loop.add_signal_handler(sig, stop.set)
             await sim.start()
             security = ", Basic256Sha256 Sign/SignAndEncrypt" if certificate else ""
+            login = f"users {', '.join(sorted(users))}" if users else "anonymous"
             console.print(
-                f"drive-sim {prof.id} on opc.tcp://{host}:{port} (security: None{security}): "
+                f"drive-sim {prof.id} on opc.tcp://{host}:{port} (security: None{security}; "
+                f"login: {login}): "
                 f"a scope every {interval:g} s; Ctrl-C or SIGTERM stops it"
             )
             await sim.run(stop, count=count, on_publish=said)

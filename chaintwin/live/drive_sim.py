@@ -21,17 +21,21 @@ from __future__ import annotations
 import asyncio
 import collections
 import contextlib
+import hmac
 import logging
 import math
 import socket
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from types import TracebackType
+from typing import Any
 
 import numpy as np
 from asyncua import ua
+from asyncua.crypto.permission_rules import User, UserRole
 from asyncua.server.server import Server
+from asyncua.server.user_managers import UserManager
 
 from chaintwin.errors import ConnectorError, ModelError
 from chaintwin.live.scope_layout import CHANNEL_KEYS, NAMESPACE_URI, OBJECT_NAME
@@ -121,6 +125,10 @@ class DriveSim:
         them the server also offers Basic256Sha256 (Sign, SignAndEncrypt);
         files that do not exist are created (a self-signed certificate for
         :data:`APPLICATION_URI`).
+    users : Mapping[str, str], optional
+        User name → password of the users who may log in.
+    anonymous : bool
+        Whether a client may connect without logging in.
     """
 
     def __init__(
@@ -141,6 +149,8 @@ class DriveSim:
         model: ModelSpec | None = None,
         certificate: Path | None = None,
         private_key: Path | None = None,
+        users: Mapping[str, str] | None = None,
+        anonymous: bool = True,
     ) -> None:
         if not (math.isfinite(interval_s) and interval_s > 0):
             raise ModelError(
@@ -173,6 +183,10 @@ class DriveSim:
         self.model = model
         self.certificate = certificate
         self.private_key = private_key
+        self.users = dict(users or {})
+        self.anonymous = anonymous
+        if not anonymous and not self.users:
+            raise ConnectorError("without anonymous login give at least one user", field="users")
         self.server: Server | None = None
         self.namespace_index = 0
         self.counter = 0
@@ -198,7 +212,7 @@ class DriveSim:
         """Build the server and its address space (about 4 s: asyncua's own nodes)."""
         if self.server is not None:
             return
-        server = Server()
+        server = Server(user_manager=_Users(self.users, self.anonymous))
         await server.init()
         server.set_endpoint(f"opc.tcp://{self.host}:{self.port}")
         server.set_server_name(f"chaintwin drive-sim {self.profile.id}")
@@ -213,6 +227,10 @@ class DriveSim:
                 ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
             ]
         server.set_security_policy(policies)
+        tokens: list[type] = [ua.AnonymousIdentityToken] if self.anonymous else []
+        if self.users:
+            tokens.append(ua.UserNameIdentityToken)
+        server.set_identity_tokens(tokens)
         idx = await server.register_namespace(NAMESPACE_URI)
         self.namespace_index = idx
         scope = await server.nodes.objects.add_object(
@@ -430,6 +448,30 @@ class DriveSim:
                     await asyncio.wait_for(stop.wait(), timeout=due - now)
         finally:
             await self.stop()
+
+
+class _Users(UserManager):
+    """Who may log in: the given users by password, and anonymous clients when allowed."""
+
+    def __init__(self, users: Mapping[str, str], anonymous: bool) -> None:
+        self.users = users
+        self.anonymous = anonymous
+
+    def get_user(
+        self,
+        iserver: Any,
+        username: str | None = None,
+        password: str | None = None,
+        certificate: Any = None,
+    ) -> User | None:
+        if username is None:
+            return User(role=UserRole.User) if self.anonymous else None
+        known = self.users.get(username)
+        if known is None or password is None:
+            return None
+        if not hmac.compare_digest(known.encode(), password.encode()):
+            return None
+        return User(role=UserRole.User, name=username)
 
 
 def _ua_time(when: datetime) -> ua.DateTime:

@@ -24,6 +24,7 @@ import contextlib
 import io
 import logging
 import math
+import re
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -32,7 +33,14 @@ from typing import Any, Literal
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from chaintwin.errors import ChaintwinError, ConnectorError, RecordingError
 from chaintwin.live.scope_layout import CHANNEL_KEYS, DEFAULT_NODES, unit_key
@@ -65,6 +73,7 @@ recording is stored or refused."""
 REQUIRED_NODES = ("counter", "sample_time", "speed", "torque")
 """``nodes`` keys a drive cannot do without (the others may be set to null)."""
 
+_ENDPOINT = re.compile(r"^opc\.tcp://[^/\s:]+(:\d{1,5})?(/\S*)?$")
 _NO_DATE = datetime(1601, 1, 2, tzinfo=UTC)  # OPC UA's null DateTime is 1601-01-01
 
 
@@ -123,7 +132,7 @@ class DriveConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     conveyor: str = Field(min_length=1)
-    endpoint: str = Field(pattern=r"^opc\.tcp://[^/\s:]+(:\d+)?(/\S*)?$")
+    endpoint: str
     security_policy: Literal["None", "Basic256Sha256"] | None = None
     security_mode: Literal["Sign", "SignAndEncrypt"] | None = None
     username: str | None = None
@@ -135,6 +144,16 @@ class DriveConfig(BaseModel):
     nodes: dict[str, str | None] = Field(default_factory=dict)
     units: dict[str, str] = Field(default_factory=dict)
     timeout_s: float = Field(4.0, gt=0, le=600)
+
+    @field_validator("endpoint")
+    @classmethod
+    def _opc_tcp(cls, value: str) -> str:
+        if not _ENDPOINT.match(value):
+            raise ValueError(
+                f"'{value}' is not an OPC UA endpoint; write opc.tcp://host[:port][/path], "
+                "e.g. opc.tcp://10.0.4.21:4840"
+            )
+        return value
 
     @model_validator(mode="after")
     def _consistent(self) -> DriveConfig:

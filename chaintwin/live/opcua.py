@@ -443,7 +443,9 @@ async def follow_drives(
     One task per drive; a drive that is down, refuses the login or serves
     bad scopes is retried with backoff and never stops the others.
     ``status.drives`` (by conveyor id) is kept up to date; an entry already
-    there is carried on (its ``last_counter`` counts the gap since).
+    there for the same endpoint is carried on (its ``last_counter`` counts
+    the gap since: a service that keeps it across restarts counts the
+    scopes it missed while down).
 
     Parameters
     ----------
@@ -460,8 +462,8 @@ async def follow_drives(
     followers = []
     for drive in config.drives:
         state = status.drives.get(drive.conveyor)
-        if state is None or state.endpoint != drive.endpoint:
-            state = DriveState(drive.endpoint, last_counter=state.last_counter if state else None)
+        if state is None or state.endpoint != drive.endpoint:  # another drive: counted afresh
+            state = DriveState(drive.endpoint)
             status.drives[drive.conveyor] = state
         followers.append(_Follower(drive, config.reconnect, submit, state))
     tasks = [asyncio.create_task(f.run(stop), name=f"opcua:{f.drive.conveyor}") for f in followers]

@@ -24,6 +24,7 @@ from conftest import REFERENCE_PROFILE
 from chaintwin.errors import ConnectorError, RecordingError
 from chaintwin.live.drive_sim import DriveSim, Published
 from chaintwin.live.opcua import (
+    DriveState,
     DriveStatus,
     OpcuaConfig,
     follow_drives,
@@ -254,6 +255,31 @@ def test_counter_gaps_are_counted_as_missed(
     nxt = ua_loop.run(sim.publish_next())
     wait_until("the next scope", lambda: key_of(nxt) in follower.received())
     assert state.missed == before + 2
+
+
+def test_a_restarted_service_given_its_last_counter_counts_the_gap(
+    ua_loop: Loop, sim: DriveSim
+) -> None:
+    # the service's previous run took the scope now in the buffer, then stopped
+    ua_loop.run(sim.publish_next())
+    status = DriveStatus({CONVEYOR: DriveState(sim.endpoint, last_counter=sim.counter)})
+    scopes = [ua_loop.run(sim.publish_next()) for _ in range(2)]  # while it was down
+    f = Follower(ua_loop, config_for({"conveyor": CONVEYOR, "endpoint": sim.endpoint}), status)
+    try:
+        wait_until("the newest scope", lambda: key_of(scopes[-1]) in f.received())
+        assert f.received() == [key_of(scopes[-1])]
+        assert status.drives[CONVEYOR].missed == 1
+    finally:
+        f.close()
+    # the same conveyor at another endpoint is another drive: its counter starts afresh
+    moved = DriveStatus({CONVEYOR: DriveState("opc.tcp://elsewhere:4840", last_counter=1)})
+    f = Follower(ua_loop, config_for({"conveyor": CONVEYOR, "endpoint": sim.endpoint}), moved)
+    try:
+        wait_until("the scope", lambda: key_of(scopes[-1]) in f.received())
+        assert moved.drives[CONVEYOR].missed == 0
+        assert moved.drives[CONVEYOR].endpoint == sim.endpoint
+    finally:
+        f.close()
 
 
 def test_drive_that_disconnects_mid_read_is_reconnected(

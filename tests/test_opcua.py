@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import hashlib
+import json
 import socket
 import threading
 import time
@@ -230,6 +231,11 @@ def test_scope_arrives_as_the_virtual_run_and_a_dead_drive_stops_nothing(
         live = f.status.drives[CONVEYOR]
         assert live.connected and live.last_counter == scope.counter
         assert live.last_scope_at is not None and live.last_error is None
+        health = json.loads(json.dumps(f.status.to_dict()))  # what the health endpoint shows
+        assert health[CONVEYOR]["connected"] is True
+        assert health[CONVEYOR]["last_counter"] == scope.counter
+        assert health["short-fast-03"]["connected"] is False
+        assert health["short-fast-03"]["last_error"] == dead_state.last_error
     finally:
         f.close()
     assert not f.status.drives[CONVEYOR].connected

@@ -316,12 +316,30 @@ class DriveState:
     connects: int = 0
     refused: int = 0
 
+    def to_dict(self) -> dict[str, Any]:
+        """The state as JSON-ready values (times in ISO 8601), for the health endpoint."""
+        return {
+            "endpoint": self.endpoint,
+            "connected": self.connected,
+            "scopes_read": self.scopes_read,
+            "missed": self.missed,
+            "refused": self.refused,
+            "connects": self.connects,
+            "last_counter": self.last_counter,
+            "last_error": self.last_error,
+            "last_scope_at": None if self.last_scope_at is None else self.last_scope_at.isoformat(),
+        }
+
 
 @dataclass
 class DriveStatus:
     """The drives followed, by conveyor id."""
 
     drives: dict[str, DriveState] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, dict[str, Any]]:
+        """Each drive's :meth:`DriveState.to_dict` by conveyor id."""
+        return {conveyor: state.to_dict() for conveyor, state in self.drives.items()}
 
 
 # ---------------------------------------------------------------- a scope → a recording

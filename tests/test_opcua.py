@@ -663,3 +663,6 @@ def test_drive_sim_command_refuses_bad_options(capsys: pytest.CaptureFixture[str
     assert main([*base, "--certificate", "c.der"]) == 2
     assert "--private-key" in capsys.readouterr().err
     assert main([*base, "--port", "0"]) == 2
+    # refused before the server starts: the first scope is simulated first
+    assert main([*base, "--sample-time", "0.0055"]) == 2
+    assert "whole multiple of the controller cycle" in capsys.readouterr().err

@@ -135,6 +135,7 @@ def register(app: typer.Typer) -> None:
             users=users,
             anonymous=not users,
         )
+        sim.prepare()  # the first scope: refuses bad settings before the server starts
         # asyncua's start-up notes (no encrypting policy without a certificate, ...) are noise here
         logging.getLogger("asyncua").setLevel(logging.ERROR)
         console = Console(stderr=False, highlight=False, soft_wrap=True)

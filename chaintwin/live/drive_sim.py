@@ -21,6 +21,7 @@ from __future__ import annotations
 import asyncio
 import collections
 import contextlib
+import dataclasses
 import hmac
 import logging
 import math
@@ -196,6 +197,7 @@ class DriveSim:
         self._rng = np.random.default_rng(seed)
         self._angle = float(self._rng.uniform(0.0, 1000.0 * 2.0 * math.pi))
         self._nodes: dict[str, ua.NodeId] = {}
+        self._prepared: Published | None = None
 
     # ---------------------------------------------------------------- lifecycle
     @property
@@ -319,8 +321,7 @@ class DriveSim:
             Trigger time (default: now, to the millisecond).
         """
         if when is None:
-            now = datetime.now(UTC)
-            when = now.replace(microsecond=now.microsecond // 1000 * 1000)
+            when = _now_ms()
         k = self.counter
         severities = self.severities(k)
         active = [f for f in severities if f.severity > 0.0]
@@ -397,9 +398,28 @@ class DriveSim:
         self.history.append(scope)
         return counter
 
+    def prepare(self) -> None:
+        """Simulate the next scope now (CPU-bound), to be published by :meth:`publish_next`.
+
+        Fails early on settings the simulation refuses (a sample time that is
+        not a whole multiple of the controller cycle, ...) and compiles the
+        simulator's kernels before the server starts. The scope's trigger time
+        is set again when it is published.
+        """
+        self._prepared = self.simulate()
+
     async def publish_next(self) -> Published:
         """Simulate the next scope (in a thread) and publish it."""
-        scope = await asyncio.to_thread(self.simulate)
+        scope = self._prepared
+        self._prepared = None
+        if scope is None:
+            scope = await asyncio.to_thread(self.simulate)
+        else:  # simulated ahead: it triggers now
+            stamp = _now_ms()
+            meta = dataclasses.replace(scope.recording.metadata, recorded_at=stamp)
+            rec = dataclasses.replace(scope.recording, metadata=meta)
+            truth = {**scope.truth, "recorded_at": stamp.isoformat()}
+            scope = Published(scope.counter, rec, truth, scope.faults)
         await self.publish(scope)
         return scope
 
@@ -472,6 +492,12 @@ class _Users(UserManager):
         if not hmac.compare_digest(known.encode(), password.encode()):
             return None
         return User(role=UserRole.User, name=username)
+
+
+def _now_ms() -> datetime:
+    """Now, UTC, to the millisecond (a scope's trigger time)."""
+    now = datetime.now(UTC)
+    return now.replace(microsecond=now.microsecond // 1000 * 1000)
 
 
 def _ua_time(when: datetime) -> ua.DateTime:

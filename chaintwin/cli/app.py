@@ -64,6 +64,7 @@ def _register() -> None:
     from chaintwin.cli import (
         db_cmd,
         demo_cmd,
+        drive_sim_cmd,
         identify_cmd,
         inspect_cmd,
         monitor_cmd,
@@ -84,6 +85,7 @@ def _register() -> None:
     report_cmd.register(app)
     db_cmd.register(app)
     serve_cmd.register(app)
+    drive_sim_cmd.register(app)
 
 
 _register()

@@ -113,6 +113,7 @@ def _sequence(task: dict[str, Any]) -> dict[str, Any]:
     phase = float(rng.uniform(0.0, 2.0 * math.pi))
     first_alarm: int | None = None
     first_cause: str | None = None
+    first_feature: str | None = None
     false_alarms = 0
     false_by: dict[str, int] = {}
     events_true = events_noted = 0
@@ -145,6 +146,7 @@ def _sequence(task: dict[str, Any]) -> dict[str, Any]:
             if r.alarm and not healthy and idx >= onset and first_alarm is None:
                 first_alarm = idx
                 first_cause = r.causes[0]["cause"] if r.causes else None
+                first_feature = r.causes[0]["feature"] if r.causes else None
             if r.alarm and (healthy or idx < onset):
                 false_alarms += 1
                 for c in r.causes:
@@ -166,6 +168,7 @@ def _sequence(task: dict[str, Any]) -> dict[str, Any]:
         "first_alarm": first_alarm,
         "delay": None if first_alarm is None else first_alarm - onset,
         "cause": first_cause,
+        "feature": first_feature,
         "right": fault is not None and first_cause == EXPECTED.get(fault),
         "false_alarms": false_alarms,
         "false_alarm_causes": false_by,
@@ -316,5 +319,6 @@ def _print(table: list[dict[str, Any]], rows: list[dict[str, Any]], args: Any, s
             print(
                 f"  {r['conveyor']} {r['fault']} ({r['sample_time_ms']:.0f} ms): "
                 f"first alarm {r['first_alarm']} (onset {r['onset']}), cause {r['cause']}"
+                + (f" ({r['feature']})" if r["feature"] else "")
             )
     print(f"total run time {s:.0f} s")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from chaintwin import examples
-from chaintwin.diagnose.causes import impact_context, resolve_causes
+from chaintwin.diagnose.causes import NOTE_CAUSES, impact_context, resolve_causes
 from chaintwin.diagnose.features import recording_features
 from chaintwin.errors import ModelError
 from chaintwin.identify.calibrating import calibrate
@@ -108,18 +108,21 @@ def test_impulsive_features_take_their_cause_from_what_else_rose_and_the_impacts
     # else the recording's own impacts say
     obstacle = {"impact_isolated": 1.0, "impact_hits_per_rev": 0.9}
     assert impact_context(obstacle, []) == "obstruction"
+    # the rate is pooled: a recording between two hits still names the obstacle
+    assert impact_context({"impact_hits_per_rev": 0.9}, []) == "obstruction"
     assert impact_context({"impact_isolated": 1.0, "impact_hits_per_rev": 0.1}, []) == (
         "payload_event"
     )
     assert impact_context({"impact_drags": 1.0}, []) == "payload_event"
     assert impact_context({}, ["sprocket_comb"]) == "sprocket"
     assert impact_context({}, ["comb_rotor"]) == "gear"
-    assert impact_context({}, []) == "bearing"
+    assert impact_context({}, []) == "impulsive"
     context = impact_context({}, [])
     resolved = resolve_causes(["crest_factor", "impact_count"], context)
-    # impulsive with no impact standing out: a bearing; impacts with no wear
-    # pattern: events of operation, reported and not alarmed
-    assert resolved == {"crest_factor": "bearing", "impact_count": "payload_event"}
+    # impulsive with nothing standing out names no cause; impacts with no wear
+    # pattern are events of operation: both are notes, never alarms
+    assert resolved == {"crest_factor": "impulsive", "impact_count": "payload_event"}
+    assert {"impulsive", "payload_event"} <= NOTE_CAUSES
 
 
 @pytest.mark.parametrize(

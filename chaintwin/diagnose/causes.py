@@ -44,9 +44,10 @@ passed once in a scope, is an impulse whose spectrum spreads over the shaft
 lines too; a worn sprocket's knocks raise the tooth-pass lines an elongated
 chain raises, and more."""
 
-NOTE_CAUSES = frozenset({"payload_event"})
+NOTE_CAUSES = frozenset({"payload_event", IMPULSIVE})
 """Causes reported on the recording and never alarmed: an item caught for a
-while, a tray dropped, is an event of operation, not wear."""
+while, a tray dropped, is an event of operation, not wear; an impulsive
+residual that nothing explains yet names no cause to page anyone about."""
 
 HITS_PER_REV = (0.5, 2.0)
 """Pooled knocks per belt revolution that read as one obstacle on the rail."""
@@ -69,21 +70,22 @@ def impact_context(values: Mapping[str, float], exceeded: Collection[str]) -> st
     str
         ``obstruction`` (knocks at about one per belt revolution, pooled over
         recordings), ``sprocket``, ``gear``, ``payload_event`` (impacts with
-        no such rate, or dragging ones) or ``bearing`` (impulsive with no
-        impact standing out).
+        no such rate, or dragging ones) or ``impulsive`` (no impact stands
+        out and no line rose: nothing names a cause, a note until something
+        does; a bearing's spalls, a tooth whose comb has not risen yet).
     """
     knocks = values.get("impact_isolated") or 0.0
     drags = values.get("impact_drags") or 0.0
     rate = values.get("impact_hits_per_rev", float("nan"))
-    if knocks > 0 and HITS_PER_REV[0] <= rate <= HITS_PER_REV[1]:
+    if HITS_PER_REV[0] <= rate <= HITS_PER_REV[1]:
         return "obstruction"
     if "sprocket_comb" in exceeded:
         return "sprocket"
     if any(e.startswith("comb_") for e in exceeded):
         return "gear"
-    if knocks > 0 or drags > 0:
+    if knocks > 0 or drags > 0 or rate > 0:
         return "payload_event"
-    return "bearing"
+    return IMPULSIVE
 
 
 def resolve_causes(features: list[str], context: str | None = None) -> dict[str, str]:
@@ -115,7 +117,7 @@ def resolve_causes(features: list[str], context: str | None = None) -> dict[str,
                 break
         if cause == IMPULSIVE:
             cause = context or "unknown"
-            if cause == "bearing" and f.startswith("impact_"):
+            if cause == IMPULSIVE and f.startswith("impact_"):
                 # impacts met the rule, none with a wear pattern: events of operation
                 cause = "payload_event"
         out[f] = cause

@@ -1,0 +1,156 @@
+"""Watched folders: every recording file that appears, read once it is complete.
+
+A folder is scanned in full when it is taken up (files that arrived while
+the service was down are caught up), then followed with watchfiles
+(inotify; ``poll=True`` polls, for network shares where events do not
+arrive), recursively, with a full rescan every :data:`RESCAN_S` as a safety
+net. A file is handed to the ingest queue once its size and modification
+time have stayed the same for the settle time; names ending in ``.part``
+or ``.tmp`` are ignored until renamed, and only ``*.csv`` files are taken
+(as ``chaintwin ingest DIR`` takes them).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import time
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+
+__all__ = ["IGNORED_SUFFIXES", "RESCAN_S", "FolderSource", "is_candidate"]
+
+log = logging.getLogger("chaintwin.live")
+
+IGNORED_SUFFIXES = (".part", ".tmp")
+"""Names still being written (ignored until renamed)."""
+
+RESCAN_S = 300.0
+"""A full rescan of a followed folder this often, s (events lost on a network share)."""
+
+
+def is_candidate(path: str) -> bool:
+    """Whether a file name is a recording to read (``*.csv``, not ``.part``/``.tmp``)."""
+    name = os.path.basename(path).lower()
+    return name.endswith(".csv") and not name.endswith(IGNORED_SUFFIXES)
+
+
+class FolderSource:
+    """One watched folder.
+
+    Parameters
+    ----------
+    root : Path
+        The folder (followed recursively).
+    settle_s : float
+        A file is read once its size and modification time have not changed
+        for this long, s.
+    poll : bool
+        Poll the folder instead of waiting for file-system events.
+    enqueue : callable
+        ``await enqueue(path, ready_at)`` hands a complete file to the ingest
+        queue (``ready_at``: monotonic time it was found complete).
+    """
+
+    def __init__(
+        self,
+        root: Path,
+        settle_s: float,
+        poll: bool,
+        enqueue: Callable[[str, float], Awaitable[None]],
+    ) -> None:
+        self.root = root
+        self.settle_s = settle_s
+        self.poll = poll
+        self.enqueue = enqueue
+        self.key = f"folder:{root}"
+        # path -> (size, mtime_ns, since): candidates watched until they settle
+        self.pending: dict[str, tuple[int, int, float]] = {}
+        # path -> (size, mtime_ns) handed over; not handed again unless changed
+        self.handed: dict[str, tuple[int, int]] = {}
+
+    def forget(self, path: str) -> None:
+        """Let a file be handed again at the next scan (its ingest failed)."""
+        self.handed.pop(path, None)
+
+    def _scan(self) -> list[str]:
+        out: list[str] = []
+        for folder, _dirs, names in os.walk(self.root):
+            out.extend(os.path.join(folder, n) for n in names if is_candidate(n))
+        return out
+
+    def _add(self, paths: list[str]) -> None:
+        now = time.monotonic()
+        for p in paths:
+            if p not in self.pending:
+                self.pending[p] = (-1, -1, now)
+
+    def _settled(self) -> list[str]:
+        """Stat the candidates; those unchanged for the settle time (in a worker thread)."""
+        now = time.monotonic()
+        ready: list[str] = []
+        for path, (size, mtime, since) in list(self.pending.items()):
+            try:
+                st = os.stat(path)
+            except OSError:  # gone (renamed, deleted)
+                self.pending.pop(path, None)
+                continue
+            key = (st.st_size, st.st_mtime_ns)
+            if key != (size, mtime):
+                self.pending[path] = (*key, now)
+            elif now - since >= self.settle_s:
+                del self.pending[path]
+                if self.handed.get(path) != key:
+                    self.handed[path] = key
+                    ready.append(path)
+        ready.sort()
+        return ready
+
+    async def run(self, stop: asyncio.Event) -> None:
+        """Follow the folder until ``stop``."""
+        from watchfiles import Change, awatch
+
+        if not self.root.is_dir():
+            raise FileNotFoundError(f"--watch {self.root}: no such folder")
+        watching = asyncio.Event()
+
+        async def watch() -> None:
+            async for changes in awatch(
+                self.root,
+                stop_event=stop,
+                force_polling=self.poll,
+                poll_delay_ms=500,
+                recursive=True,
+                debounce=200,
+                step=50,
+                rust_timeout=1000,
+            ):
+                watching.set()
+                self._add([p for c, p in changes if c != Change.deleted and is_candidate(p)])
+
+        watcher = asyncio.create_task(watch())
+        # the watcher first, then the scan: a file arriving in between is seen by either
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(watching.wait(), 0.3)
+        self._add(await asyncio.to_thread(self._scan))
+        log.info("following %s (%d file(s) found)", self.root, len(self.pending))
+        tick = max(0.05, min(0.5, self.settle_s / 4))
+        last_scan = time.monotonic()
+        try:
+            while not stop.is_set():
+                for path in await asyncio.to_thread(self._settled):
+                    await self.enqueue(path, time.monotonic())
+                if watcher.done():
+                    watcher.result()  # the watcher failed: say why
+                    break
+                if time.monotonic() - last_scan > RESCAN_S:
+                    self._add(await asyncio.to_thread(self._scan))
+                    last_scan = time.monotonic()
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(stop.wait(), tick)
+        finally:
+            watcher.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await watcher

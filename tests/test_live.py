@@ -1,0 +1,453 @@
+"""The live service (``chaintwin serve --watch``), with real parts: the service as a
+subprocess following a real folder, SIGTERM and ``kill -9``, a real HTTP receiver
+for the notifications, the store's migration, two processes sharing one store.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import hmac
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from conftest import EXAMPLES, REFERENCE_PROFILE, _free_port
+from sqlalchemy import func, select, text
+from sqlalchemy.orm import Session
+
+from chaintwin.cli.app import main
+from chaintwin.diagnose.records import MonitorSettings
+from chaintwin.identify.calibrating import calibrate
+from chaintwin.live.ledger import acquire_lease, release_lease
+from chaintwin.live.metrics import Metrics
+from chaintwin.live.notify import SIGNATURE_HEADER, Notifier
+from chaintwin.live.watch import is_candidate
+from chaintwin.read.profile import load_profile
+from chaintwin.simulate.faults import Fault
+from chaintwin.simulate.fleet import generate
+from chaintwin.store import migrate
+from chaintwin.store.access import create_token
+from chaintwin.store.engine import engine_for
+from chaintwin.store.ingest import ingest
+from chaintwin.store.schema import DeliveryRow, LeaseRow, OutboxRow, RecordingRow, RefusedFileRow
+from chaintwin.store.store import Store
+from chaintwin.validate import load_recording
+
+PROFILE = load_profile(REFERENCE_PROFILE)
+PROFILES = EXAMPLES / "profiles"
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """20 recordings of one conveyor over 5 days, friction rising from day 2."""
+    folder = tmp_path_factory.mktemp("fleet")
+    generate(
+        PROFILE, folder, days=5, per_day=4, faults=[Fault("friction", 0.8)], onset_day=2, seed=5
+    )
+    return folder
+
+
+def recordings(fleet: Path) -> list[Path]:
+    return sorted(fleet.glob("*.csv"))
+
+
+def sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def calibrated(url: str, fleet: Path) -> None:
+    """A store with the conveyor's calibration (its recordings get results at once)."""
+    store = Store(url)
+    recs = [
+        load_recording(f, profile=PROFILE).recording
+        for f in sorted((fleet / "calibration").glob("*.csv"))
+    ]
+    store.put_calibration(calibrate(recs, PROFILE))
+    store.close()
+
+
+class Service:
+    """``chaintwin serve`` as a subprocess."""
+
+    def __init__(self, args: list[str], log: Path) -> None:
+        env = dict(os.environ, PYTHONPATH=str(ROOT), OPENBLAS_NUM_THREADS="1")
+        self.log = log
+        with log.open("ab") as err:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "chaintwin", "serve", *args],
+                stdout=subprocess.DEVNULL,
+                stderr=err,
+                env=env,
+                cwd=str(log.parent),
+            )
+
+    def stop(self, timeout: float = 30) -> int:
+        self.proc.send_signal(signal.SIGTERM)
+        return self.proc.wait(timeout)
+
+    def kill(self) -> None:
+        self.proc.kill()
+        self.proc.wait(10)
+
+    def lines(self) -> list[str]:
+        return self.log.read_text().splitlines()
+
+
+def wait_for(check: Callable[[], bool], seconds: float, what: str, service: Service | None = None):
+    deadline = time.monotonic() + seconds
+    while not check():
+        if service is not None and service.proc.poll() is not None:
+            pytest.fail(f"the service exited ({service.proc.returncode}): {service.lines()[-5:]}")
+        assert time.monotonic() < deadline, f"{what} within {seconds} s"
+        time.sleep(0.1)
+
+
+def stored(url: str, shas: list[str]) -> Callable[[], bool]:
+    def check() -> bool:
+        store = Store(url)
+        try:
+            return len(store.known(shas)) == len(shas)
+        finally:
+            store.close()
+
+    return check
+
+
+def count(url: str, table: Any) -> int:
+    engine = engine_for(url)
+    with Session(engine) as s:
+        n = s.scalar(select(func.count()).select_from(table)) or 0
+    engine.dispose()
+    return int(n)
+
+
+def write_slowly(src: Path, dst: Path, chunks: int = 5, pause_s: float = 0.25) -> None:
+    """Copy a file in chunks with pauses (a slow network copy)."""
+    raw = src.read_bytes()
+    step = -(-len(raw) // chunks)
+    with dst.open("wb") as f:
+        for k in range(0, len(raw), step):
+            f.write(raw[k : k + step])
+            f.flush()
+            time.sleep(pause_s)
+
+
+def test_which_names_are_read() -> None:
+    assert is_candidate("/a/b/white-belt-01-1.csv") and is_candidate("X.CSV")
+    assert not is_candidate("/a/x.csv.part") and not is_candidate("/a/x.csv.tmp")
+    assert not is_candidate("/a/truth.jsonl")
+
+
+def test_slowly_written_files_are_read_once_complete_with_metrics_health_and_sigterm(
+    fleet: Path, tmp_path: Path
+) -> None:
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    calibrated(url, fleet)
+    store = Store(url)
+    viewer = create_token(store, "prometheus", "viewer")
+    store.close()
+    watched = tmp_path / "drop" / "line-1"
+    watched.mkdir(parents=True)
+    port = _free_port()
+    service = Service(
+        [
+            "--db", url, "--watch", str(watched.parent), "--profiles", str(PROFILES),
+            "--settle-s", "0.6", "--port", str(port), "--log-json", "--lease-s", "1.5",
+        ],
+        tmp_path / "serve.log",
+    )  # fmt: skip
+    base = f"http://127.0.0.1:{port}"
+
+    def up() -> bool:
+        try:
+            return httpx.get(f"{base}/api/v1/health", timeout=2).status_code == 200
+        except httpx.HTTPError:
+            return False
+
+    try:
+        wait_for(up, 60, "the service answers", service)
+        files = recordings(fleet)[:3]
+        # chunks every 0.25 s, settle time 0.6 s: never read half-way
+        writers = [threading.Thread(target=write_slowly, args=(f, watched / f.name)) for f in files]
+        for w in writers:
+            w.start()
+        # a fourth copied under a temporary name and renamed when complete
+        part = watched / (recordings(fleet)[3].name + ".part")
+        write_slowly(recordings(fleet)[3], part, chunks=3, pause_s=0.7)  # slower than settling
+        part.rename(watched / recordings(fleet)[3].name)
+        for w in writers:
+            w.join()
+        # and a file that is not a recording
+        (watched / "notes.csv").write_text("not a recording\n")
+        shas = [sha(f) for f in recordings(fleet)[:4]]
+        wait_for(stored(url, shas), 60, "the four recordings stored", service)
+        wait_for(lambda: count(url, RefusedFileRow) == 1, 20, "the bad file refused", service)
+
+        events = [json.loads(line) for line in service.lines() if line.startswith("{")]
+        done = [e for e in events if e.get("status") == "stored"]
+        # each read once, whole: stored with its result, none refused
+        assert sorted(Path(e["file"]).name for e in done) == sorted(
+            f.name for f in recordings(fleet)[:4]
+        )
+        assert all(e["seconds"] > 0 for e in done)
+        refused = [e for e in events if e.get("level") == "warning" and "reason" in e]
+        assert [Path(e["file"]).name for e in refused] == ["notes.csv"]
+        assert "has no 'conveyor'" in refused[0]["reason"]
+        engine = engine_for(url)
+        with Session(engine) as s:
+            assert s.scalar(select(func.count()).select_from(RecordingRow)) == 4
+            row = s.scalars(select(RefusedFileRow)).one()
+            assert row.path.endswith("notes.csv") and "conveyor" in row.reason
+        engine.dispose()
+
+        # metrics from this machine (no token needed), in the Prometheus text format
+        metrics = httpx.get(f"{base}/metrics", timeout=5).text
+        assert 'chaintwin_recordings_ingested_total{source="folder"} 4.0' in metrics
+        assert 'chaintwin_recordings_refused_total{source="folder"} 1.0' in metrics
+        assert "chaintwin_ingest_latency_seconds_count 4.0" in metrics
+        assert "chaintwin_ingest_queue_depth 0.0" in metrics
+        assert "chaintwin_opcua_connections_up 0.0" in metrics
+        schema = httpx.get(f"{base}/openapi.json", timeout=5).json()
+        assert "/metrics" not in schema["paths"]
+
+        # health: without a token only that it is up; with one, each source's state
+        anon = httpx.get(f"{base}/api/v1/health", timeout=5).json()
+        assert anon["status"] == "ok" and anon["live"] is None
+        assert anon["store"]["revision"] == migrate.HEAD_REVISION
+
+        def published() -> bool:
+            got = httpx.get(
+                f"{base}/api/v1/health",
+                headers={"Authorization": f"Bearer {viewer}"},
+                timeout=5,
+            ).json()["live"]
+            src = {s["key"]: s for s in got["sources"]}
+            folder = src.get(f"folder:{watched.parent.resolve()}")
+            return folder is not None and folder["ingested"] == 4 and folder["refused"] == 1
+
+        wait_for(published, 20, "the folder's counts in the health", service)
+
+        # a refused file is not read again unless it changes
+        (watched / "notes.csv").touch()
+        (watched / "notes2.csv").write_text("still not a recording\n")
+        wait_for(lambda: count(url, RefusedFileRow) == 2, 20, "the new bad file refused", service)
+        assert count(url, RefusedFileRow) == 2
+    finally:
+        code = service.stop()
+    assert code == 0, service.lines()[-5:]
+    assert any("stopping" in line for line in service.lines())
+
+
+def test_kill_9_while_files_arrive_then_restart_stores_every_file_once(
+    fleet: Path, tmp_path: Path
+) -> None:
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    calibrated(url, fleet)
+    watched = tmp_path / "drop"
+    watched.mkdir()
+    args = [
+        "--db", url, "--watch", str(watched), "--profiles", str(PROFILES), "--no-web",
+        "--settle-s", "0.3", "--lease-s", "1.5",
+    ]  # fmt: skip
+    files = recordings(fleet)[:12]
+    service = Service(args, tmp_path / "serve.log")
+    try:
+        wait_for(lambda: any("following" in line for line in service.lines()), 60, "start", service)
+        for k, f in enumerate(files):
+            shutil.copyfile(f, watched / f.name)
+            time.sleep(0.15)
+            if k == 5:
+                service.kill()  # at whatever it was doing
+        assert service.proc.returncode == -signal.SIGKILL
+        before = count(url, RecordingRow)
+        assert before < len(files)  # the rest arrived while it was down
+        service = Service(args, tmp_path / "serve.log")
+        wait_for(stored(url, [sha(f) for f in files]), 60, "every file stored", service)
+        time.sleep(1.0)  # a second look: nothing stored twice afterwards
+        assert count(url, RecordingRow) == len(files)
+        engine = engine_for(url)
+        with engine.connect() as c:
+            results = c.execute(text("SELECT COUNT(*) FROM results")).scalar()
+            names = [r[0] for r in c.execute(text("SELECT file FROM recordings"))]
+        engine.dispose()
+        assert results == len(files)
+        assert sorted(Path(n).name for n in names) == sorted(f.name for f in files)
+        assert count(url, RefusedFileRow) == 0
+    finally:
+        if service.proc.poll() is None:
+            assert service.stop() == 0
+
+
+class Receiver:
+    """A webhook receiver over real HTTP that fails its first requests."""
+
+    def __init__(self, secret: bytes, fail_first: int) -> None:
+        self.secret = secret
+        self.fail_left = fail_first
+        self.attempts = 0
+        self.accepted: list[dict[str, Any]] = []
+        self.bad_signatures = 0
+        outer = self
+
+        class Handler(BaseHTTPRequestHandler):
+            def do_POST(self) -> None:
+                body = self.rfile.read(int(self.headers["Content-Length"]))
+                outer.attempts += 1
+                expected = "sha256=" + hmac.new(outer.secret, body, hashlib.sha256).hexdigest()
+                if not hmac.compare_digest(self.headers.get(SIGNATURE_HEADER, ""), expected):
+                    outer.bad_signatures += 1
+                    self.send_response(401)
+                elif outer.fail_left > 0:
+                    outer.fail_left -= 1
+                    self.send_response(503)
+                else:
+                    outer.accepted.append(json.loads(body))
+                    self.send_response(204)
+                self.end_headers()
+
+            def log_message(self, *args: Any) -> None:
+                pass
+
+        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.url = f"http://127.0.0.1:{self.server.server_address[1]}/hook"
+        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
+        self.thread.start()
+
+    def close(self) -> None:
+        self.server.shutdown()
+        self.server.server_close()
+
+
+@pytest.fixture
+def receiver() -> Iterator[Receiver]:
+    r = Receiver(b"s3cret-key", fail_first=2)
+    yield r
+    r.close()
+
+
+def _notify_until(store: Store, receiver: Receiver, done: Callable[[], bool], seconds: float):
+    """Run a notifier (a service process's) until ``done`` or ``seconds``."""
+
+    async def run() -> None:
+        notifier = Notifier(
+            store,
+            [receiver.url],
+            receiver.secret,
+            "https://twin.example/",
+            Metrics(store, lambda: 0.0),
+        )
+        stop = asyncio.Event()
+        task = asyncio.create_task(notifier.run(stop, tick_s=0.1))
+        deadline = time.monotonic() + seconds
+        while not done() and time.monotonic() < deadline:
+            await asyncio.sleep(0.05)
+        stop.set()
+        await task
+
+    asyncio.run(run())
+
+
+def test_alarm_notifications_reach_a_failing_receiver_once_per_id_signed(
+    fleet: Path, tmp_path: Path, receiver: Receiver
+) -> None:
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    calibrated(url, fleet)
+    store = Store(url)
+    ingest(
+        [str(f) for f in recordings(fleet)],
+        {PROFILE.id: PROFILE},
+        store,
+        settings=MonitorSettings(baseline_n=5),
+        workers=1,
+    )
+    alarms = store.alarms()
+    assert alarms, "the friction rise opens an alarm"
+    with Session(store.engine) as s:
+        outbox = {r.id: r for r in s.scalars(select(OutboxRow))}
+    expected = {f"{a.id}-opened" for a in alarms} | {
+        f"{a.id}-closed" for a in alarms if a.status == "closed"
+    }
+    assert set(outbox) == expected  # written with the alarms, one per alarm and event
+
+    # the receiver fails the first two attempts; the process stops after the first,
+    # a new one (a restart) goes on from the attempts kept in the store
+    _notify_until(store, receiver, lambda: receiver.attempts >= 1, 10)
+    assert receiver.attempts >= 1 and not receiver.accepted
+    _notify_until(store, receiver, lambda: len(receiver.accepted) >= len(outbox), 30)
+    _notify_until(store, receiver, lambda: False, 0.5)  # nothing is sent twice after
+
+    assert receiver.bad_signatures == 0
+    ids = [doc["id"] for doc in receiver.accepted]
+    assert sorted(ids) == sorted(outbox) and len(set(ids)) == len(ids)
+    first = next(a for a in alarms)
+    doc = next(d for d in receiver.accepted if d["id"] == f"{first.id}-opened")
+    assert doc == {
+        "id": f"{first.id}-opened",
+        "event": "opened",
+        "alarm_id": first.id,
+        "conveyor": PROFILE.id,
+        "feature": first.feature,
+        "cause": first.cause,
+        "time": first.opened_at or first.since,
+        "link": f"https://twin.example/conveyors/{PROFILE.id}",
+    }
+    with Session(store.engine) as s:
+        deliveries = list(s.scalars(select(DeliveryRow)))
+    assert all(d.delivered_at is not None for d in deliveries)
+    assert sum(d.attempts for d in deliveries) == len(outbox) + 2  # the two that failed
+    store.close()
+
+
+def test_serve_refuses_an_old_store_naming_db_upgrade_then_upgraded_it_runs(
+    db: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from test_migrations import _legacy_store
+
+    _legacy_store(db, tmp_path)
+    code = main(["serve", "--db", db, "--no-web", "--watch", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "revision 0001" in err and f"run `chaintwin db upgrade --db {db}`" in err
+    assert main(["db", "upgrade", "--db", db]) == 0
+    capsys.readouterr()
+    engine = engine_for(db)
+    with engine.connect() as c:
+        assert migrate.revision_of(c) == "0004" == migrate.HEAD_REVISION
+        # the new tables, empty: an upgraded store does not notify its past alarms
+        for table in ("refused_files", "outbox", "outbox_deliveries", "live_sources", "leases"):
+            assert c.execute(text(f"SELECT COUNT(*) FROM {table}")).scalar() == 0
+        assert c.execute(text("SELECT COUNT(*) FROM alarms")).scalar() == 1
+    engine.dispose()
+    store = Store(db)
+    # leases work on the upgraded store
+    assert acquire_lease(store, "folder:/x", "a", 30)
+    assert not acquire_lease(store, "folder:/x", "b", 30)
+    release_lease(store, "folder:/x", "a")
+    assert acquire_lease(store, "folder:/x", "b", 30)
+    store.close()
+
+
+def test_a_lease_expires_when_its_holder_stops_renewing(tmp_path: Path) -> None:
+    store = Store(f"sqlite:///{tmp_path / 'plant.db'}")
+    assert acquire_lease(store, "opcua:white-belt-01", "host-a:1", 0.3)
+    assert acquire_lease(store, "opcua:white-belt-01", "host-a:1", 0.3)  # renewed
+    assert not acquire_lease(store, "opcua:white-belt-01", "host-b:2", 0.3)
+    time.sleep(0.4)
+    assert acquire_lease(store, "opcua:white-belt-01", "host-b:2", 0.3)  # a's expired
+    assert not acquire_lease(store, "opcua:white-belt-01", "host-a:1", 0.3)
+    with Session(store.engine) as s:
+        assert s.get(LeaseRow, "opcua:white-belt-01").holder == "host-b:2"  # type: ignore[union-attr]
+    store.close()

@@ -451,3 +451,82 @@ def test_a_lease_expires_when_its_holder_stops_renewing(tmp_path: Path) -> None:
     with Session(store.engine) as s:
         assert s.get(LeaseRow, "opcua:white-belt-01").holder == "host-b:2"  # type: ignore[union-attr]
     store.close()
+
+
+def _pg_database(base: str) -> str:
+    import psycopg
+
+    name = f"live{os.getpid()}_{int(time.time() * 1e6) % 10**9}"
+    with psycopg.connect(base, autocommit=True) as c:
+        c.execute(f"CREATE DATABASE {name}")
+    return base.rsplit("/", 1)[0] + "/" + name
+
+
+def test_two_processes_share_a_folder_on_postgresql_and_one_takes_over_when_the_other_dies(
+    fleet: Path, tmp_path: Path, postgres: str
+) -> None:
+    url = _pg_database(postgres)
+    calibrated(url, fleet)
+    watched = tmp_path / "share"
+    watched.mkdir()
+    args = [
+        "--db", url, "--watch", str(watched), "--profiles", str(PROFILES), "--no-web",
+        "--settle-s", "0.3", "--lease-s", "1.5",
+    ]  # fmt: skip
+    services = [Service(args, tmp_path / f"serve-{k}.log") for k in range(2)]
+    key = f"folder:{watched.resolve()}"
+
+    def holder() -> str | None:
+        engine = engine_for(url)
+        with Session(engine) as s:
+            row = s.get(LeaseRow, key)
+            out = None if row is None else row.holder
+        engine.dispose()
+        return out
+
+    try:
+        wait_for(lambda: holder() is not None, 60, "a process takes the folder")
+        pid = int(str(holder()).split(":")[1])
+        first = next(s for s in services if s.proc.pid == pid)
+        other = next(s for s in services if s is not first)
+        files = recordings(fleet)[:8]
+        for f in files[:4]:
+            shutil.copyfile(f, watched / f.name)
+        wait_for(stored(url, [sha(f) for f in files[:4]]), 60, "the first files stored", first)
+        first.kill()  # the holder dies: its lease expires, the other takes over
+        for f in files[4:]:
+            shutil.copyfile(f, watched / f.name)
+        wait_for(stored(url, [sha(f) for f in files]), 60, "the rest stored by the other", other)
+        assert str(holder()).split(":")[1] == str(other.proc.pid)
+        time.sleep(0.5)
+        assert count(url, RecordingRow) == len(files)  # nothing twice, nothing skipped
+        assert count(url, RefusedFileRow) == 0
+        took = [line for line in other.lines() if f"following {key}" in line]
+        assert len(took) == 1  # in standby until then
+    finally:
+        for s in services:
+            if s.proc.poll() is None:
+                assert s.stop() == 0
+
+
+def test_retention_drops_old_samples_and_keeps_results(fleet: Path, tmp_path: Path) -> None:
+    from chaintwin.errors import StoreError
+    from chaintwin.live.retention import drop_samples
+
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    calibrated(url, fleet)
+    store = Store(url)
+    files = recordings(fleet)[:6]
+    ingest([str(f) for f in files], {PROFILE.id: PROFILE}, store, workers=1)
+    results = store.results(PROFILE.id)
+    index = store.recording_index(PROFILE.id)
+    assert len(index) == 6
+    # the fleet was recorded in January 2026: a retention of ten thousand days keeps all
+    assert drop_samples(store, 10_000) == 0
+    assert drop_samples(store, 1) == 6
+    assert drop_samples(store, 1) == 0  # done once
+    assert store.results(PROFILE.id) == results  # the results are whole
+    assert store.recording_index(PROFILE.id) == []  # nothing to plot from
+    with pytest.raises(StoreError, match="dropped by retention"):
+        store.recording(index[0][0])
+    store.close()

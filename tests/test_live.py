@@ -116,12 +116,16 @@ def wait_for(check: Callable[[], bool], seconds: float, what: str, service: Serv
 
 
 def stored(url: str, shas: list[str]) -> Callable[[], bool]:
+    """Whether the contents are stored (one engine for all the looks)."""
+    engine = engine_for(url)
+
     def check() -> bool:
-        store = Store(url)
-        try:
-            return len(store.known(shas)) == len(shas)
-        finally:
-            store.close()
+        with Session(engine) as s:
+            found = set(s.scalars(select(RecordingRow.sha256).where(RecordingRow.sha256.in_(shas))))
+        if len(found) == len(set(shas)):
+            engine.dispose()
+            return True
+        return False
 
     return check
 
@@ -476,13 +480,12 @@ def test_two_processes_share_a_folder_on_postgresql_and_one_takes_over_when_the_
     services = [Service(args, tmp_path / f"serve-{k}.log") for k in range(2)]
     key = f"folder:{watched.resolve()}"
 
+    engine = engine_for(url)
+
     def holder() -> str | None:
-        engine = engine_for(url)
         with Session(engine) as s:
             row = s.get(LeaseRow, key)
-            out = None if row is None else row.holder
-        engine.dispose()
-        return out
+            return None if row is None else row.holder
 
     try:
         wait_for(lambda: holder() is not None, 60, "a process takes the folder")
@@ -504,6 +507,7 @@ def test_two_processes_share_a_folder_on_postgresql_and_one_takes_over_when_the_
         took = [line for line in other.lines() if f"following {key}" in line]
         assert len(took) == 1  # in standby until then
     finally:
+        engine.dispose()
         for s in services:
             if s.proc.poll() is None:
                 assert s.stop() == 0

@@ -5,7 +5,9 @@ the service was down are caught up), then followed with watchfiles
 (inotify; ``poll=True`` polls, for network shares where events do not
 arrive), recursively, with a full rescan every :data:`RESCAN_S` as a safety
 net. A file is handed to the ingest queue once its size and modification
-time have stayed the same for the settle time; names ending in ``.part``
+time have stayed the same for the settle time (counted from its last
+modification on a local file system, from when it was first seen when
+polling a share, whose clock may differ); names ending in ``.part``
 or ``.tmp`` are ignored until renamed, and only ``*.csv`` files are taken
 (as ``chaintwin ingest DIR`` takes them).
 """
@@ -99,8 +101,13 @@ class FolderSource:
                 continue
             key = (st.st_size, st.st_mtime_ns)
             if key != (size, mtime):
-                self.pending[path] = (*key, now)
-            elif now - since >= self.settle_s:
+                # unchanged since its last write: the modification time, on a local
+                # file system (the same clock); on a share (--poll) since seen, as the
+                # server's clock may differ from this one
+                age = 0.0 if self.poll else max(0.0, time.time() - st.st_mtime_ns / 1e9)
+                since = now - min(age, self.settle_s)
+                self.pending[path] = (*key, since)
+            if now - since >= self.settle_s:
                 del self.pending[path]
                 if self.handed.get(path) != key:
                     self.handed[path] = key
@@ -136,7 +143,7 @@ class FolderSource:
             await asyncio.wait_for(watching.wait(), 0.3)
         self._add(await asyncio.to_thread(self._scan))
         log.info("following %s (%d file(s) found)", self.root, len(self.pending))
-        tick = max(0.05, min(0.5, self.settle_s / 4))
+        tick = max(0.05, min(0.1, self.settle_s / 20))
         last_scan = time.monotonic()
         try:
             while not stop.is_set():

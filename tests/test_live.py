@@ -280,6 +280,24 @@ def test_kill_9_while_files_arrive_then_restart_stores_every_file_once(
         assert before < len(files)  # the rest arrived while it was down
         service = Service(args, tmp_path / "serve.log")
         wait_for(stored(url, [sha(f) for f in files]), 60, "every file stored", service)
+        # SIGTERM while recordings are queued: the one in hand is committed, exit 0
+        more = recordings(fleet)[12:16]
+        for f in more:
+            shutil.copyfile(f, watched / f.name)
+        wait_for(lambda: count(url, RecordingRow) > len(files), 30, "one more stored", service)
+        assert service.stop() == 0
+        lines = service.lines()
+        assert any("stopping: finishing the recording in hand" in line for line in lines)
+        said = {line.split(" stored ")[1].split(" in ")[0] for line in lines if " stored " in line}
+        engine = engine_for(url)
+        with engine.connect() as c:
+            kept = {r[0] for r in c.execute(text("SELECT file FROM recordings"))}
+        engine.dispose()
+        assert {str(watched / f.name) for f in more} & kept <= said  # nothing half-done
+        assert kept >= said
+        service = Service(args, tmp_path / "serve.log")  # the rest at the next start
+        files = files + more
+        wait_for(stored(url, [sha(f) for f in files]), 60, "every file stored", service)
         time.sleep(1.0)  # a second look: nothing stored twice afterwards
         assert count(url, RecordingRow) == len(files)
         engine = engine_for(url)
@@ -533,4 +551,121 @@ def test_retention_drops_old_samples_and_keeps_results(fleet: Path, tmp_path: Pa
     assert store.recording_index(PROFILE.id) == []  # nothing to plot from
     with pytest.raises(StoreError, match="dropped by retention"):
         store.recording(index[0][0])
+    store.close()
+
+
+def test_submit_stores_a_drives_recording_once_and_records_a_refusal(
+    fleet: Path, tmp_path: Path
+) -> None:
+    """The contract of live sources (OPC UA): submit(recording, source_key)."""
+    from dataclasses import replace
+
+    from chaintwin.live.sources import Ingestor, Job, Outcome
+
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    calibrated(url, fleet)
+    store = Store(url)
+    rec = load_recording(recordings(fleet)[0], profile=PROFILE).recording
+    ghost = replace(rec, metadata=replace(rec.metadata, conveyor="ghost-belt"))
+    seen: list[tuple[str, str]] = []
+
+    def noted(job: Job, outcome: Outcome) -> None:
+        seen.append((job.source, outcome.status))
+
+    async def run() -> None:
+        ingestor = Ingestor(store, {PROFILE.id: PROFILE}, on_outcome=noted)
+        stop = asyncio.Event()
+        worker = asyncio.create_task(ingestor.run(stop))
+        await ingestor.submit(rec, "opcua:white-belt-01:1")
+        await ingestor.submit(rec, "opcua:white-belt-01:1")  # read twice: stored once
+        await ingestor.submit(ghost, "opcua:ghost-belt:7")  # never raises
+        stop.set()
+        await worker
+        ingestor.close()
+
+    asyncio.run(run())
+    assert seen == [
+        ("opcua:white-belt-01:1", "stored"),
+        ("opcua:white-belt-01:1", "already_stored"),
+        ("opcua:ghost-belt:7", "refused"),
+    ]
+    assert count(url, RecordingRow) == 1
+    assert store.results(PROFILE.id)[0]["status"] != "refused"
+    with Session(store.engine) as s:
+        row = s.scalars(select(RefusedFileRow)).one()
+    assert row.path == "opcua:ghost-belt:7" and row.source == "opcua:ghost-belt:7"
+    assert "ghost-belt" in row.reason and "/chaintwin-spool-" not in row.reason
+    store.close()
+
+
+def test_drives_hook_counts_recordings_connections_and_missed_scopes(
+    fleet: Path, tmp_path: Path
+) -> None:
+    """How ``--opcua`` plugs in: a follower handing scopes to submit, its status read by
+    the metrics and the health (the follower here is the test's, the service is real)."""
+    from dataclasses import dataclass, field
+    from datetime import datetime
+
+    from chaintwin.live.service import LiveOptions, LiveService
+
+    @dataclass
+    class DriveState:
+        endpoint: str
+        connected: bool = False
+        scopes_read: int = 0
+        missed: int = 0
+        last_error: str | None = None
+        last_scope_at: datetime | None = None
+
+    @dataclass
+    class DriveStatus:
+        drives: dict[str, DriveState] = field(default_factory=dict)
+
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    calibrated(url, fleet)
+    store = Store(url)
+    recs = [load_recording(f, profile=PROFILE).recording for f in recordings(fleet)[:2]]
+    status = DriveStatus()
+    service = LiveService(store, {PROFILE.id: PROFILE}, LiveOptions(lease_s=0.6))
+
+    async def follow(submit: Any, stop: asyncio.Event) -> None:
+        drive = status.drives.setdefault(PROFILE.id, DriveState("opc.tcp://127.0.0.1:4840"))
+        drive.connected = True
+        for k, rec in enumerate(recs):
+            await submit(rec, f"opcua:{PROFILE.id}:{10 + 4 * k}")
+            drive.scopes_read += 1
+        drive.missed = 3  # the counter jumped from 10 to 14
+        await stop.wait()
+        drive.connected = False
+
+    service.add_drives(f"opcua:{PROFILE.id}", follow, status)
+
+    def health_row() -> dict[str, Any] | None:
+        rows = {r["key"]: r for r in service.health()["sources"]}
+        return rows.get(f"opcua:{PROFILE.id}")
+
+    async def run() -> str:
+        task = asyncio.create_task(service.run(None))
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            row = await asyncio.to_thread(health_row)
+            if row is not None and row["ingested"] == 2 and row["missed"] == 3:
+                break
+            await asyncio.sleep(0.1)
+        text = service.metrics.text().decode()
+        service.request_stop()
+        await task
+        return text
+
+    metrics = asyncio.run(run())
+    assert count(url, RecordingRow) == 2
+    assert "chaintwin_opcua_connections_up 1.0" in metrics
+    assert f'chaintwin_opcua_missed_scopes_total{{conveyor="{PROFILE.id}"}} 3.0' in metrics
+    assert 'chaintwin_recordings_ingested_total{source="opcua"} 2.0' in metrics
+    row = health_row()
+    assert row is not None
+    assert (row["ingested"], row["missed"], row["state"]) == (2, 3, "stopped")
+    assert service.health()["drives"][PROFILE.id]["scopes_read"] == 2
+    with Session(store.engine) as s:
+        assert s.get(LeaseRow, f"opcua:{PROFILE.id}") is None  # handed back on stop
     store.close()

@@ -67,6 +67,10 @@ def serve(
 
     live = live or LiveArgs()
     if live.opcua is not None:
+        # wiring (chaintwin.live.opcua): cfg = load_opcua_config(live.opcua);
+        # status = DriveStatus(drives={}); service.add_drives(
+        #     "opcua:" + <conveyor or config path>,
+        #     lambda submit, stop: follow_drives(cfg, submit, stop, status), status)
         raise StoreError(
             f"--opcua {live.opcua}: OPC UA is not available in this build of chaintwin; "
             "follow the drives' exports with --watch DIR"

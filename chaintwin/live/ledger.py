@@ -105,7 +105,8 @@ def update_source(
     """Write a source's state; ``ingested`` and ``refused`` are added to its counts.
 
     ``missed`` (a drive's scopes missed, counted by its follower) replaces
-    the stored count when given.
+    the stored count when given; ``last_error`` replaces the last one (None:
+    the source works again).
     """
     for _attempt in range(3):
         try:
@@ -132,8 +133,7 @@ def update_source(
                     row.refused += refused
                     if missed is not None:
                         row.missed = missed
-                    if last_error is not None or state != "error":
-                        row.last_error = last_error if last_error is not None else row.last_error
+                    row.last_error = last_error
                     row.updated_at = _now()
             return
         except IntegrityError:

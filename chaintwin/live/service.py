@@ -192,7 +192,9 @@ class LiveService:
 
     def _outcome(self, job: Job, outcome: Outcome) -> None:
         kind = job.source.split(":", 1)[0]
-        ingested, refused = self._counts.get(job.source, (0, 0))
+        # a drive's recordings ("opcua:<conveyor>:<counter>") count for the drive
+        owner = ":".join(job.source.split(":")[:2]) if kind == "opcua" else job.source
+        ingested, refused = self._counts.get(owner, (0, 0))
         if outcome.status in ("stored", "waiting"):
             self.metrics.ingested.labels(kind).inc()
             self.metrics.latency.observe(outcome.seconds)
@@ -208,7 +210,7 @@ class LiveService:
             folder = self.folders.get(job.source)
             if folder is not None:
                 folder.forget(job.path)  # handed again at the next rescan
-        self._counts[job.source] = (ingested, refused)
+        self._counts[owner] = (ingested, refused)
 
     # ---------------------------------------------------------------- leases
     async def _hold(self, source: Source) -> None:
@@ -272,32 +274,57 @@ class LiveService:
                 w.cancel()
 
     async def _publish(self, source: Source) -> None:
-        """Write the source's state and counts to the store (for the health endpoint)."""
-        ingested, refused = self._counts.pop(source.key, (0, 0))
-        missed = None
+        """Write the source's state and counts to the store (for the health endpoint).
+
+        A source following drives also writes one row per drive,
+        ``opcua:<conveyor>``: connected or not, scopes missed, the last error,
+        the recordings it gave.
+        """
+        rows: list[dict[str, Any]] = []
         if source.kind == "opcua" and self.drive_status is not None:
-            conveyor = source.key.split(":", 1)[-1]
-            drive = self.drive_status.drives.get(conveyor)
-            if drive is not None:
-                missed = drive.missed
-                if drive.last_error and source.error is None:
-                    source.error = drive.last_error
-        try:
-            await asyncio.to_thread(
-                update_source,
-                self.store,
-                source.key,
-                source.kind,
-                holder=self.holder if source.held else None,
-                state=source.state,
-                ingested=ingested,
-                refused=refused,
-                missed=missed,
-                last_error=source.error,
-            )
-        except Exception as exc:  # the store is away: the counts wait for the next time
-            self._counts[source.key] = (ingested, refused)
-            log.error("cannot write the state of %s: %s", source.key, exc)
+            for conveyor, drive in sorted(self.drive_status.drives.items()):
+                key = f"opcua:{conveyor}"
+                if key == source.key:
+                    continue
+                rows.append(
+                    {
+                        "key": key,
+                        "holder": self.holder if source.held else None,
+                        "state": "connected" if drive.connected else "disconnected",
+                        "missed": drive.missed,
+                        "last_error": drive.last_error,
+                    }
+                )
+        own = None  # the source is one drive: its row carries the drive's counts
+        if source.kind == "opcua" and self.drive_status is not None:
+            own = self.drive_status.drives.get(source.key.split(":", 1)[-1])
+        rows.append(
+            {
+                "key": source.key,
+                "holder": self.holder if source.held else None,
+                "state": source.state,
+                "missed": None if own is None else own.missed,
+                "last_error": source.error or (None if own is None else own.last_error),
+            }
+        )
+        for row in rows:
+            ingested, refused = self._counts.pop(row["key"], (0, 0))
+            try:
+                await asyncio.to_thread(
+                    update_source,
+                    self.store,
+                    row["key"],
+                    source.kind,
+                    holder=row["holder"],
+                    state=row["state"],
+                    ingested=ingested,
+                    refused=refused,
+                    missed=row["missed"],
+                    last_error=row["last_error"],
+                )
+            except Exception as exc:  # the store is away: the counts wait for the next time
+                self._counts[row["key"]] = (ingested, refused)
+                log.error("cannot write the state of %s: %s", row["key"], exc)
 
     # ---------------------------------------------------------------- health
     def health(self) -> dict[str, Any]:

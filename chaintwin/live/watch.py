@@ -153,7 +153,11 @@ class FolderSource:
                     watcher.result()  # the watcher failed: say why
                     break
                 if time.monotonic() - last_scan > RESCAN_S:
-                    self._add(await asyncio.to_thread(self._scan))
+                    found = await asyncio.to_thread(self._scan)
+                    # forget files that are gone: memory follows what the folder holds
+                    present = set(found)
+                    self.handed = {p: k for p, k in self.handed.items() if p in present}
+                    self._add(found)
                     last_scan = time.monotonic()
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(stop.wait(), tick)

@@ -207,7 +207,9 @@ def create_app(
         # Prometheus scrapes from this machine, or with a viewer token
         client = request.client.host if request.client is not None else ""
         if client not in ("127.0.0.1", "::1", "localhost"):
-            api.who(request, "viewer")
+            who = state.principal(request)
+            if who is None:  # a scraper, not a browser: no redirect to the login page
+                return _error(401, "unauthorized", "GET /metrics needs a viewer token")
         service = state.extra.get("live")
         if service is None:
             from chaintwin.live.metrics import Metrics

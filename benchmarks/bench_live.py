@@ -10,7 +10,12 @@ into its own sub-folder of one watched folder every ``--interval`` seconds
 2. the latency of each recording from its file being complete plus the
    settle time to its result stored (``results.stored_at``): median, p95,
    max, and p95's ratio to the reference (target: within 3x);
-3. recordings written and stored, and the service's resident memory (RSS)
+3. the alarm's notification: one conveyor turns faulty after ``--onset``
+   recordings (a friction rise); the time from the result that opened the
+   alarm stored (its outbox row) to the notification received by a webhook
+   receiver in this process, and its ratio to the reference (target: within
+   2x more than the recording's own latency);
+4. recordings written and stored, and the service's resident memory (RSS)
    after start and at the end (target: flat).
 
 Run: ``.venv/bin/python benchmarks/bench_live.py [--seconds 3600] [--postgres URL]``.
@@ -19,6 +24,7 @@ Run: ``.venv/bin/python benchmarks/bench_live.py [--seconds 3600] [--postgres UR
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import re
 import shutil
@@ -29,7 +35,9 @@ import tempfile
 import threading
 import time
 from datetime import UTC, datetime
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
+from typing import Any
 
 import psutil
 from sqlalchemy import select
@@ -37,9 +45,10 @@ from sqlalchemy import select
 from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.calibration import Calibration
 from chaintwin.read.profile import ConveyorProfile, load_profile
+from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate
 from chaintwin.store.ingest import ingest
-from chaintwin.store.schema import RecordingRow, ResultRow
+from chaintwin.store.schema import OutboxRow, RecordingRow, ResultRow
 from chaintwin.store.store import Store
 from chaintwin.validate import load_recording
 
@@ -80,6 +89,7 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--settle-s", type=float, default=2.0)
     ap.add_argument("--reference", type=int, default=5)
+    ap.add_argument("--onset", type=int, default=22, help="Recordings before belt-00 turns faulty.")
     ap.add_argument("--postgres", help="PostgreSQL URL of an empty database (default: SQLite)")
     args = ap.parse_args()
 
@@ -95,6 +105,16 @@ def run(args: argparse.Namespace, work: Path) -> None:
     print("generating recordings ...", file=sys.stderr)
     generate(base, work / "base", days=1, per_day=args.reference + 6, seed=3)
     texts = [p.read_text() for p in sorted((work / "base").glob("*.csv"))]
+    generate(
+        base,
+        work / "faulty",
+        days=1,
+        per_day=6,
+        faults=[Fault("friction", 1.0)],
+        seed=4,
+        calibration=False,
+    )
+    faulty = [p.read_text() for p in sorted((work / "faulty").glob("*.csv"))]
     cal_recs = [
         load_recording(p, profile=base).recording
         for p in sorted((work / "base" / "calibration").glob("*.csv"))
@@ -125,12 +145,30 @@ def run(args: argparse.Namespace, work: Path) -> None:
     drop = work / "drop"
     for cid in ids:
         (drop / cid).mkdir(parents=True)
+    # a webhook receiver: when each notification arrived
+    received: dict[str, float] = {}
+
+    class Hook(BaseHTTPRequestHandler):
+        def do_POST(self) -> None:
+            body = self.rfile.read(int(self.headers["Content-Length"]))
+            received.setdefault(json.loads(body)["id"], time.time())
+            self.send_response(204)
+            self.end_headers()
+
+        def log_message(self, *a: Any) -> None:
+            pass
+
+    hook = ThreadingHTTPServer(("127.0.0.1", 0), Hook)
+    threading.Thread(target=hook.serve_forever, daemon=True).start()
+    (work / "notify.key").write_text("bench-secret\n")
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PYTHONPATH=str(ROOT))
     log = (work / "serve.log").open("wb")
     proc = subprocess.Popen(
         [
             sys.executable, "-m", "chaintwin", "serve", "--db", url, "--no-web",
             "--watch", str(drop), "--settle-s", str(args.settle_s),
+            "--notify-url", f"http://127.0.0.1:{hook.server_address[1]}/hook",
+            "--notify-secret-file", str(work / "notify.key"),
         ],
         stderr=log, stdout=subprocess.DEVNULL, env=env,
     )  # fmt: skip
@@ -154,7 +192,9 @@ def run(args: argparse.Namespace, work: Path) -> None:
             if wait > 0 and stop.wait(wait):
                 return
             name = drop / cid / f"{cid}-{n:05d}.csv"
-            text = as_conveyor(texts[n % len(texts)], cid, datetime.now(UTC))
+            bad = k == 0 and n >= args.onset
+            source = faulty[n % len(faulty)] if bad else texts[n % len(texts)]
+            text = as_conveyor(source, cid, datetime.now(UTC))
             part = name.with_suffix(".csv.part")
             part.write_text(text)
             part.rename(name)  # complete now
@@ -182,6 +222,7 @@ def run(args: argparse.Namespace, work: Path) -> None:
         if n >= len(written) or time.monotonic() > deadline:
             break
         time.sleep(0.5)
+    time.sleep(2.0)  # the last notifications
     rss_end = psutil.Process(proc.pid).memory_info().rss
     proc.terminate()
     code = proc.wait(60)
@@ -191,7 +232,14 @@ def run(args: argparse.Namespace, work: Path) -> None:
                 ResultRow, ResultRow.recording_id == RecordingRow.id
             )
         ).all()
+        made = {r.id: r.created_at for r in c.execute(select(OutboxRow)).all()}
     store.close()
+    hook.shutdown()
+    notified = [
+        received[i] - datetime.fromisoformat(at).timestamp()
+        for i, at in made.items()
+        if i in received
+    ]
     latency = [
         datetime.fromisoformat(at).timestamp() - written[f] - args.settle_s
         for f, at in rows
@@ -209,6 +257,14 @@ def run(args: argparse.Namespace, work: Path) -> None:
           f"{p95 * 1000:.0f} ms, max {max(latency) * 1000:.0f} ms")  # fmt: skip
     print(f"  p95 / reference (warm): {p95 / warm:.2f}x (target <= 3x); "
           f"p95 / reference (cold): {p95 / cold:.2f}x")  # fmt: skip
+    if notified:
+        worst = max(notified)
+        print(f"  notifications: {len(notified)} of {len(made)} received; outbox -> received "
+              f"max {worst * 1000:.0f} ms, {worst / warm:.2f}x the reference (target <= 2x "
+              f"more than the recording's p95: {(p95 + worst) / p95:.2f}x of it)")  # fmt: skip
+    else:
+        print(f"  notifications: no alarm opened (belt-00 turns faulty after {args.onset} "
+              f"recordings, {args.onset * args.interval:g} s; run longer)")  # fmt: skip
     print(f"  service RSS: {rss_start / 2**20:.0f} MB after start, "
           f"{rss_end / 2**20:.0f} MB at the end; exit code on SIGTERM {code}")  # fmt: skip
 

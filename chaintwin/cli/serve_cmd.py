@@ -141,6 +141,8 @@ def serve(
                     # dashboards poll every few seconds: keep their connections open
                     # longer than that (uvicorn's default of 5 s races a 5 s poll)
                     timeout_keep_alive=75,
+                    # a stop waits for the requests in hand, not for ever
+                    timeout_graceful_shutdown=20,
                 )
             following = ", ".join(str(f) for f in live.watch) or "no folders"
             where = "no web" if live.no_web else f"{scheme}://{host}:{port}/ (API docs at /docs)"

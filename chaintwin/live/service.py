@@ -217,9 +217,7 @@ class LiveService:
         """Follow a source whenever this process holds its lease."""
         lease_s = self.options.lease_s
         while not self.stop.is_set():
-            got = await asyncio.to_thread(
-                acquire_lease, self.store, source.key, self.holder, lease_s
-            )
+            got = await self._lease(source)
             if not got:
                 source.state = "standby"
                 await self._publish(source)
@@ -238,9 +236,7 @@ class LiveService:
                 await self._sleep(lease_s / 3, task)
                 if self.stop.is_set() or task.done():
                     break
-                if not await asyncio.to_thread(
-                    acquire_lease, self.store, source.key, self.holder, lease_s
-                ):
+                if not await self._lease(source):
                     lost = True
                     log.warning("lost the lease of %s: another process follows it", source.key)
                     break
@@ -254,13 +250,26 @@ class LiveService:
             self.metrics.held.dec()
             source.held = False
             if not lost:
-                await asyncio.to_thread(release_lease, self.store, source.key, self.holder)
+                with contextlib.suppress(Exception):  # else it expires
+                    await asyncio.to_thread(release_lease, self.store, source.key, self.holder)
             if source.state == "error":
                 await self._publish(source)
                 await self._sleep(min(30.0, lease_s))  # then try again
             else:
                 source.state = "stopped" if self.stop.is_set() else "standby"
                 await self._publish(source)
+
+    async def _lease(self, source: Source) -> bool:
+        """Take or renew a source's lease; False also when the store cannot be reached
+        (the source is then left, as another process may take it once the lease expires)."""
+        try:
+            return await asyncio.to_thread(
+                acquire_lease, self.store, source.key, self.holder, self.options.lease_s
+            )
+        except Exception as exc:
+            source.error = f"the store: {exc}".splitlines()[0]
+            log.error("cannot take the lease of %s: %s", source.key, source.error)
+            return False
 
     async def _sleep(self, seconds: float, task: asyncio.Future[None] | None = None) -> None:
         waits: set[asyncio.Future[Any]] = {asyncio.ensure_future(self.stop.wait())}

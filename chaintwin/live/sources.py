@@ -20,6 +20,7 @@ import re
 import tempfile
 import time
 from collections.abc import Awaitable, Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -146,6 +147,9 @@ class Ingestor:
         self._stored_profiles: dict[str, ConveyorProfile] = {}
         self._profiles_at = -1e9
         self._spool = Path(tempfile.mkdtemp(prefix="chaintwin-spool-"))
+        # one thread of its own: the pipeline's memory stays in one allocator arena
+        # (the loop's default pool spreads it over many, and the process grows)
+        self._thread = ThreadPoolExecutor(max_workers=1, thread_name_prefix="chaintwin-ingest")
 
     # ---------------------------------------------------------------- sources' side
     async def put_file(self, path: str, source: str, ready_at: float | None = None) -> None:
@@ -198,7 +202,8 @@ class Ingestor:
             job = getter.result()
             self.busy = True
             try:
-                outcome = await asyncio.to_thread(self.ingest_one, job)
+                loop = asyncio.get_running_loop()
+                outcome = await loop.run_in_executor(self._thread, self.ingest_one, job)
             except Exception as exc:  # the store failed: the recording is tried again later
                 reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
                 log.error("cannot ingest %s: %s", job.path, reason, extra={"source": job.source})
@@ -280,7 +285,8 @@ class Ingestor:
                 Path(job.path).unlink(missing_ok=True)
 
     def close(self) -> None:
-        """Remove the spool folder."""
+        """Remove the spool folder; end the worker thread."""
         import shutil
 
+        self._thread.shutdown(wait=True)
         shutil.rmtree(self._spool, ignore_errors=True)

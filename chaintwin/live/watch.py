@@ -17,12 +17,13 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 import os
 import time
 from collections.abc import Awaitable, Callable
 from pathlib import Path
 
-__all__ = ["IGNORED_SUFFIXES", "RESCAN_S", "FolderSource", "is_candidate"]
+__all__ = ["IGNORED_SUFFIXES", "MAX_TICK_S", "RESCAN_S", "FolderSource", "is_candidate"]
 
 log = logging.getLogger("chaintwin.live")
 
@@ -31,6 +32,10 @@ IGNORED_SUFFIXES = (".part", ".tmp")
 
 RESCAN_S = 300.0
 """A full rescan of a followed folder this often, s (events lost on a network share)."""
+
+MAX_TICK_S = 1.0
+"""The candidates are looked at again at the latest after this long, s (else when the
+next one will have settled, or a new one is seen)."""
 
 
 def is_candidate(path: str) -> bool:
@@ -72,6 +77,7 @@ class FolderSource:
         self.pending: dict[str, tuple[int, int, float]] = {}
         # path -> (size, mtime_ns) handed over; not handed again unless changed
         self.handed: dict[str, tuple[int, int]] = {}
+        self.changed = asyncio.Event()  # a file was added to the candidates
 
     def forget(self, path: str) -> None:
         """Let a file be handed again at the next scan (its ingest failed)."""
@@ -88,11 +94,21 @@ class FolderSource:
         for p in paths:
             if p not in self.pending:
                 self.pending[p] = (-1, -1, now)
+        if paths:
+            self.changed.set()
 
-    def _settled(self) -> list[str]:
-        """Stat the candidates; those unchanged for the settle time (in a worker thread)."""
+    def _settled(self) -> tuple[list[str], float | None]:
+        """Stat the candidates (in a worker thread).
+
+        Returns
+        -------
+        (list of str, float or None)
+            The files unchanged for the settle time, and when the next of the
+            others will have been (monotonic s; None: no other).
+        """
         now = time.monotonic()
         ready: list[str] = []
+        due: float | None = None
         for path, (size, mtime, since) in list(self.pending.items()):
             try:
                 st = os.stat(path)
@@ -112,8 +128,10 @@ class FolderSource:
                 if self.handed.get(path) != key:
                     self.handed[path] = key
                     ready.append(path)
+            else:
+                due = min(due if due is not None else math.inf, since + self.settle_s)
         ready.sort()
-        return ready
+        return ready, due
 
     async def run(self, stop: asyncio.Event) -> None:
         """Follow the folder until ``stop``."""
@@ -143,11 +161,12 @@ class FolderSource:
             await asyncio.wait_for(watching.wait(), 0.3)
         self._add(await asyncio.to_thread(self._scan))
         log.info("following %s (%d file(s) found)", self.root, len(self.pending))
-        tick = max(0.05, min(0.1, self.settle_s / 20))
         last_scan = time.monotonic()
         try:
             while not stop.is_set():
-                for path in await asyncio.to_thread(self._settled):
+                self.changed.clear()
+                ready, due = await asyncio.to_thread(self._settled)
+                for path in ready:
                     await self.enqueue(path, time.monotonic())
                 if watcher.done():
                     watcher.result()  # the watcher failed: say why
@@ -159,8 +178,19 @@ class FolderSource:
                     self.handed = {p: k for p, k in self.handed.items() if p in present}
                     self._add(found)
                     last_scan = time.monotonic()
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(stop.wait(), tick)
+                # until the next file settles, a new one is seen, or a second at most
+                wait = MAX_TICK_S if due is None else due - time.monotonic()
+                waits = {
+                    asyncio.ensure_future(stop.wait()),
+                    asyncio.ensure_future(self.changed.wait()),
+                }
+                _done, rest = await asyncio.wait(
+                    waits,
+                    timeout=min(MAX_TICK_S, max(0.0, wait)),
+                    return_when=asyncio.FIRST_COMPLETED,
+                )
+                for w in rest:
+                    w.cancel()
         finally:
             watcher.cancel()
             with contextlib.suppress(asyncio.CancelledError, Exception):

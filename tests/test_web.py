@@ -29,6 +29,7 @@ from chaintwin.read.writer import write_recording
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate
 from chaintwin.simulate.virtual import run_virtual
+from chaintwin.store import migrate
 from chaintwin.store.access import create_token
 from chaintwin.store.ingest import ingest
 from chaintwin.store.store import Store
@@ -138,7 +139,7 @@ def test_reading_the_api_needs_a_token_and_pages_through_results(served: Served)
     anon = served.client()
     health = anon.get("/api/v1/health").json()
     assert health["status"] == "ok" and health["store"]["conveyors"] == 1
-    assert health["store"]["revision"] == "0003"
+    assert health["store"]["revision"] == migrate.HEAD_REVISION
     _error(anon.get("/api/v1/store"), 401, "unauthorized")
     _error(anon.get("/api/v1/conveyors"), 401, "unauthorized")
     with httpx.Client(base_url=served.base, headers={"Authorization": "Bearer ct_nope"}) as bad:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated
 
@@ -21,6 +22,23 @@ _DB_HELP = (
 )
 
 
+@dataclass
+class LiveArgs:
+    """The live service's options of ``chaintwin serve``."""
+
+    watch: list[Path] = field(default_factory=list)
+    settle_s: float = 2.0
+    poll: bool = False
+    no_web: bool = False
+    notify_urls: list[str] = field(default_factory=list)
+    notify_secret_file: Path | None = None
+    public_url: str | None = None
+    log_json: bool = False
+    keep_samples_days: float | None = None
+    lease_s: float = 15.0
+    opcua: Path | None = None
+
+
 def serve(
     db: str | None,
     profiles: Path | None,
@@ -29,45 +47,114 @@ def serve(
     max_upload_mb: float,
     ssl_certfile: Path | None = None,
     ssl_keyfile: Path | None = None,
+    live: LiveArgs | None = None,
 ) -> None:
-    """Run the web service until SIGTERM or Ctrl-C (graceful: requests in hand finish)."""
+    """Run the service until SIGTERM or Ctrl-C, then exit 0.
+
+    On SIGTERM the live sources stop, the recording in hand is committed, the
+    web server finishes the requests in hand.
+    """
+    import asyncio
+
     import uvicorn
 
     from chaintwin.cli.monitor_cmd import load_profiles
+    from chaintwin.live.logs import setup_logging
+    from chaintwin.live.service import LiveOptions, LiveService
     from chaintwin.store.engine import safe_url, store_url
     from chaintwin.store.store import Store
     from chaintwin.web.app import create_app
 
+    live = live or LiveArgs()
+    if live.opcua is not None:
+        # wiring (chaintwin.live.opcua): cfg = load_opcua_config(live.opcua);
+        # status = DriveStatus(drives={}); service.add_drives(
+        #     "opcua:" + <conveyor or config path>,
+        #     lambda submit, stop: follow_drives(cfg, submit, stop, status), status)
+        raise StoreError(
+            f"--opcua {live.opcua}: OPC UA is not available in this build of chaintwin; "
+            "follow the drives' exports with --watch DIR"
+        )
     if (ssl_certfile is None) != (ssl_keyfile is None):
         raise StoreError("give both --ssl-certfile and --ssl-keyfile, or neither")
     if max_upload_mb <= 0:
         raise StoreError(f"--max-upload-mb {max_upload_mb} must be positive")
+    if live.settle_s < 0:
+        raise StoreError(f"--settle-s {live.settle_s} must be zero or more")
+    if live.lease_s <= 0:
+        raise StoreError(f"--lease-s {live.lease_s} must be positive")
+    if live.keep_samples_days is not None and live.keep_samples_days <= 0:
+        raise StoreError(f"--keep-samples-days {live.keep_samples_days} must be positive")
+    for folder in live.watch:
+        if not folder.is_dir():
+            raise StoreError(f"--watch {folder}: no such folder; give a folder to follow")
+    secret: bytes | None = None
+    if live.notify_urls:
+        from chaintwin.live.notify import read_secret
+
+        if live.notify_secret_file is None:
+            raise StoreError(
+                "--notify-url needs --notify-secret-file FILE: the notifications are signed "
+                "with its secret (X-Chaintwin-Signature)"
+            )
+        for u in live.notify_urls:
+            if not u.startswith(("http://", "https://")):
+                raise StoreError(f"--notify-url {u}: not an http:// or https:// URL")
+        secret = read_secret(live.notify_secret_file)
     profs = load_profiles(None, profiles) if profiles is not None else {}
+    setup_logging(live.log_json)
     url = store_url(db)
-    store = Store(url)
+    store = Store(url)  # an older schema is refused here, naming `chaintwin db upgrade`
+    scheme = "https" if ssl_certfile is not None else "http"
+    options = LiveOptions(
+        settle_s=live.settle_s,
+        poll=live.poll,
+        notify_urls=live.notify_urls,
+        notify_secret=secret,
+        public_url=live.public_url or f"{scheme}://{host}:{port}",
+        keep_samples_days=live.keep_samples_days,
+        lease_s=live.lease_s,
+    )
     try:
-        app = create_app(
-            store, profs, max_upload_mb=max_upload_mb, secure_cookies=ssl_certfile is not None
-        )
-        scheme = "https" if ssl_certfile is not None else "http"
-        print(
-            f"chaintwin serve: {safe_url(url)} at {scheme}://{host}:{port}/ "
-            f"(API docs at /docs); Ctrl-C or SIGTERM stops it",
-            file=sys.stderr,
-        )
-        config = uvicorn.Config(
-            app,
-            host=host,
-            port=port,
-            log_level="warning",
-            ssl_certfile=str(ssl_certfile) if ssl_certfile else None,
-            ssl_keyfile=str(ssl_keyfile) if ssl_keyfile else None,
-            proxy_headers=True,
-            # dashboards poll every few seconds: keep their connections open
-            # longer than that (uvicorn's default of 5 s races a 5 s poll)
-            timeout_keep_alive=75,
-        )
-        uvicorn.Server(config).run()
+
+        async def main() -> None:
+            service = LiveService(store, profs, options)
+            for folder in live.watch:
+                service.add_folder(folder)
+            config = None
+            if not live.no_web:
+                app = create_app(
+                    store,
+                    profs,
+                    max_upload_mb=max_upload_mb,
+                    secure_cookies=ssl_certfile is not None,
+                    live=service,
+                )
+                config = uvicorn.Config(
+                    app,
+                    host=host,
+                    port=port,
+                    log_level="warning",
+                    ssl_certfile=str(ssl_certfile) if ssl_certfile else None,
+                    ssl_keyfile=str(ssl_keyfile) if ssl_keyfile else None,
+                    proxy_headers=True,
+                    # dashboards poll every few seconds: keep their connections open
+                    # longer than that (uvicorn's default of 5 s races a 5 s poll)
+                    timeout_keep_alive=75,
+                    # a stop waits for the requests in hand, not for ever
+                    timeout_graceful_shutdown=20,
+                )
+            following = ", ".join(str(f) for f in live.watch) or "no folders"
+            where = "no web" if live.no_web else f"{scheme}://{host}:{port}/ (API docs at /docs)"
+            print(
+                f"chaintwin serve: {safe_url(url)} at {where}; following {following}; "
+                "Ctrl-C or SIGTERM stops it",
+                file=sys.stderr,
+                flush=True,
+            )
+            await service.run(config)
+
+        asyncio.run(main())
     finally:
         store.close()
 
@@ -91,14 +178,86 @@ def register(app: typer.Typer) -> None:
         ] = 20.0,
         ssl_certfile: Annotated[Path | None, typer.Option("--ssl-certfile")] = None,
         ssl_keyfile: Annotated[Path | None, typer.Option("--ssl-keyfile")] = None,
+        watch: Annotated[
+            list[Path] | None,
+            typer.Option(
+                "--watch",
+                help="Folder to follow (recursively): every *.csv that appears is ingested. "
+                "Repeat for more folders.",
+            ),
+        ] = None,
+        settle_s: Annotated[
+            float,
+            typer.Option(
+                "--settle-s", help="A file is read once unchanged (size, mtime) this long, s."
+            ),
+        ] = 2.0,
+        poll: Annotated[
+            bool, typer.Option("--poll", help="Poll the folders (network shares).")
+        ] = False,
+        no_web: Annotated[
+            bool, typer.Option("--no-web", help="Run the live sources only, without the web.")
+        ] = False,
+        notify_url: Annotated[
+            list[str] | None,
+            typer.Option("--notify-url", help="POST alarm notifications (JSON) here. Repeatable."),
+        ] = None,
+        notify_secret_file: Annotated[
+            Path | None,
+            typer.Option(
+                "--notify-secret-file",
+                help="File holding the secret the notifications are signed with (HMAC-SHA256).",
+            ),
+        ] = None,
+        public_url: Annotated[
+            str | None,
+            typer.Option(
+                "--public-url", help="The dashboard's address as users reach it, for links."
+            ),
+        ] = None,
+        log_json: Annotated[
+            bool, typer.Option("--log-json", help="Log one JSON object a line.")
+        ] = False,
+        keep_samples_days: Annotated[
+            float | None,
+            typer.Option(
+                "--keep-samples-days",
+                help="Drop stored samples older than this (results are kept), days.",
+            ),
+        ] = None,
+        lease_s: Annotated[
+            float,
+            typer.Option(
+                "--lease-s",
+                help="A source's lease (several serve processes on one store), s.",
+            ),
+        ] = 15.0,
+        opcua: Annotated[
+            Path | None,
+            typer.Option("--opcua", help="Follow drives over OPC UA (config YAML)."),
+        ] = None,
     ) -> None:
-        """Serve the dashboard and the HTTP API over a results store.
+        """Serve the dashboard and the HTTP API over a results store; follow live sources.
 
         Log in with a token from `chaintwin token create`. Binds to
         127.0.0.1 unless --host says otherwise; behind a reverse proxy with
-        TLS, or with --ssl-certfile/--ssl-keyfile.
+        TLS, or with --ssl-certfile/--ssl-keyfile. With --watch DIR every
+        recording that appears in the folder is ingested (docs/live-service.md).
         """
-        serve(db, profiles, host, port, max_upload_mb, ssl_certfile, ssl_keyfile)
+        live = LiveArgs(
+            watch=list(watch or []),
+            settle_s=settle_s,
+            poll=poll,
+            no_web=no_web,
+            notify_urls=list(notify_url or []),
+            notify_secret_file=notify_secret_file,
+            public_url=public_url,
+            log_json=log_json,
+            keep_samples_days=keep_samples_days,
+            lease_s=lease_s,
+            opcua=opcua,
+        )
+        serve(db, profiles, host, port, max_upload_mb, ssl_certfile, ssl_keyfile, live)
 
     token = typer.Typer(
         name="token", help="Access tokens of the web service.", no_args_is_help=True

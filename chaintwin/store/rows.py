@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from datetime import UTC, datetime
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
@@ -11,9 +12,9 @@ from chaintwin.diagnose.records import Alarm, Event, RecordingResult
 from chaintwin.diagnose.state import json_ready
 from chaintwin.read.recording import Recording
 
-from .schema import AlarmRow, EventRow
+from .schema import AlarmRow, EventRow, OutboxRow
 
-__all__ = ["Finished", "Waiting", "put_alarms_events"]
+__all__ = ["Finished", "Waiting", "notify_alarm", "put_alarms_events"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -38,10 +39,42 @@ class Finished:
     """Stored already (while it waited for a learned calibration): only its result is new."""
 
 
+def notify_alarm(s: Session, conveyor: str, alarm: Alarm, event: str) -> None:
+    """Put a notification of an alarm opened or closed in the outbox (once per alarm and event).
+
+    Written in the transaction that changes the alarm's row: a notification
+    exists exactly when its change was stored (the live service sends it).
+    """
+    key = f"{alarm.id}-{event}"
+    if s.get(OutboxRow, key) is not None:
+        return
+    s.add(
+        OutboxRow(
+            id=key,
+            event=event,
+            alarm_id=alarm.id,
+            conveyor_id=conveyor,
+            feature=alarm.feature,
+            cause=alarm.cause,
+            at=alarm.closed_at if event == "closed" else (alarm.opened_at or alarm.since),
+            created_at=datetime.now(UTC).isoformat(),
+        )
+    )
+
+
 def put_alarms_events(s: Session, conveyor: str, alarms: list[Alarm], events: list[Event]) -> None:
-    """Bring the alarm and event rows of a conveyor up to its health model."""
+    """Bring the alarm and event rows of a conveyor up to its health model.
+
+    An alarm that opens or closes puts a notification in the outbox
+    (:func:`notify_alarm`).
+    """
     rows = {r.id: r for r in s.scalars(select(AlarmRow).where(AlarmRow.conveyor_id == conveyor))}
     for alarm in alarms:
+        row_before = rows.get(alarm.id)
+        if row_before is None:
+            notify_alarm(s, conveyor, alarm, "opened")
+        if alarm.status == "closed" and (row_before is None or row_before.status != "closed"):
+            notify_alarm(s, conveyor, alarm, "closed")
         values = {
             "conveyor_id": conveyor,
             "feature": alarm.feature,

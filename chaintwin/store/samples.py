@@ -245,7 +245,18 @@ def recording_meta(recording: Recording) -> dict[str, Any]:
 def stored_recording(
     file: str, meta: dict[str, Any], warnings: list[Any], samples: bytes
 ) -> Recording:
-    """Rebuild a :class:`Recording` from what the store keeps of it."""
+    """Rebuild a :class:`Recording` from what the store keeps of it.
+
+    Raises
+    ------
+    StoreError
+        When its samples were dropped by retention (``serve --keep-samples-days``).
+    """
+    if not samples:
+        raise StoreError(
+            f"{file}: its samples were dropped by retention (serve --keep-samples-days); "
+            "its result is kept, the recording itself is gone"
+        )
     at = meta.get("recorded_at")
     metadata = Metadata(
         conveyor=meta.get("conveyor"),

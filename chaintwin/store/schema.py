@@ -25,6 +25,16 @@ table              what a row holds
 ``secrets``        random keys the web service needs, created on first use and
                    shared by every process on the store (token-hash key,
                    session-cookie key)
+``refused_files``  files the live service refused (content SHA-256, path, the
+                   one-line reason): not read again until their content changes
+``outbox``         alarm notifications to send (one row per alarm opened or
+                   closed, written in the transaction that changed the alarm)
+``outbox_deliveries`` each notification's delivery to each receiver: attempts,
+                   next attempt, delivered
+``live_sources``   the live service's sources (folders, drives): holder, state,
+                   counts, scopes missed
+``leases``         who follows a source, until when: several ``serve``
+                   processes share the sources, a dead holder's lease expires
 =================  =============================================================
 
 One recording is stored in one transaction together with its result and the
@@ -56,9 +66,14 @@ __all__ = [
     "Base",
     "CalibrationRow",
     "ConveyorRow",
+    "DeliveryRow",
     "EventRow",
+    "LeaseRow",
+    "LiveSourceRow",
     "MonitorStateRow",
+    "OutboxRow",
     "RecordingRow",
+    "RefusedFileRow",
     "ResultRow",
     "SchemaRow",
     "SecretRow",
@@ -204,3 +219,71 @@ class SecretRow(Base):
     __tablename__ = "secrets"
     name: Mapped[str] = mapped_column(String(40), primary_key=True)
     value: Mapped[str] = mapped_column(String(128))
+
+
+class RefusedFileRow(Base):
+    """A file the live service refused, by content (read again only once it changes)."""
+
+    __tablename__ = "refused_files"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    sha256: Mapped[str] = mapped_column(String(64), unique=True)
+    path: Mapped[str] = mapped_column(Text)
+    source: Mapped[str] = mapped_column(String(300))
+    reason: Mapped[str] = mapped_column(Text)
+    refused_at: Mapped[str] = mapped_column(String(40), index=True)
+
+
+class OutboxRow(Base):
+    """An alarm notification to send: an alarm opened or closed."""
+
+    __tablename__ = "outbox"
+    id: Mapped[str] = mapped_column(String(40), primary_key=True)
+    """``<alarm id>-<event>``: the same for every attempt, so a receiver drops repeats."""
+    event: Mapped[str] = mapped_column(String(20))
+    alarm_id: Mapped[str] = mapped_column(String(16))
+    conveyor_id: Mapped[str] = mapped_column(String(200))
+    feature: Mapped[str] = mapped_column(String(80))
+    cause: Mapped[str] = mapped_column(String(40))
+    at: Mapped[str | None] = mapped_column(String(40), nullable=True)
+    """When the alarm opened or closed (recording time, ISO 8601)."""
+    created_at: Mapped[str] = mapped_column(String(40), index=True)
+
+
+class DeliveryRow(Base):
+    """A notification's delivery to one receiver (by the SHA-256 of its URL)."""
+
+    __tablename__ = "outbox_deliveries"
+    outbox_id: Mapped[str] = mapped_column(ForeignKey("outbox.id"), primary_key=True)
+    target: Mapped[str] = mapped_column(String(64), primary_key=True)
+    attempts: Mapped[int] = mapped_column(Integer)
+    next_at: Mapped[float] = mapped_column(Float)
+    """Earliest next attempt, s since the epoch."""
+    delivered_at: Mapped[str | None] = mapped_column(String(40), nullable=True)
+    last_error: Mapped[str | None] = mapped_column(Text, nullable=True)
+
+
+class LiveSourceRow(Base):
+    """A live source (a watched folder, a drive) and what it did."""
+
+    __tablename__ = "live_sources"
+    key: Mapped[str] = mapped_column(String(300), primary_key=True)
+    kind: Mapped[str] = mapped_column(String(20))
+    holder: Mapped[str | None] = mapped_column(String(200), nullable=True)
+    state: Mapped[str] = mapped_column(String(20))
+    ingested: Mapped[int] = mapped_column(Integer)
+    refused: Mapped[int] = mapped_column(Integer)
+    missed: Mapped[int] = mapped_column(Integer)
+    """Scopes a drive overwrote before they were read (counter gaps)."""
+    last_error: Mapped[str | None] = mapped_column(Text, nullable=True)
+    updated_at: Mapped[str] = mapped_column(String(40))
+
+
+class LeaseRow(Base):
+    """Who follows a source until when (expires unless renewed: the holder died)."""
+
+    __tablename__ = "leases"
+    source: Mapped[str] = mapped_column(String(300), primary_key=True)
+    holder: Mapped[str] = mapped_column(String(200))
+    expires_at: Mapped[float] = mapped_column(Float)
+    """s since the epoch (the hosts' clocks must agree: NTP)."""
+    acquired_at: Mapped[str] = mapped_column(String(40))

@@ -485,13 +485,17 @@ class Store:
         """``(id, file, recorded_at)`` of a conveyor's monitored recordings, in the order monitored.
 
         Recordings refused by monitoring or still waiting for a learned
-        calibration are left out.
+        calibration are left out, and those whose samples retention dropped.
         """
         with Session(self.engine) as s:
             q = (
                 select(RecordingRow.id, RecordingRow.file, RecordingRow.recorded_at)
                 .join(ResultRow, ResultRow.recording_id == RecordingRow.id)
-                .where(RecordingRow.conveyor_id == conveyor, ResultRow.status != "refused")
+                .where(
+                    RecordingRow.conveyor_id == conveyor,
+                    ResultRow.status != "refused",
+                    RecordingRow.samples != b"",
+                )
                 .order_by(ResultRow.id)
             )
             return [(int(i), str(f), t) for i, f, t in s.execute(q)]

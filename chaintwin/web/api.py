@@ -95,6 +95,8 @@ class Health(BaseModel):
     status: Literal["ok"]
     version: str
     store: dict[str, Any]
+    live: dict[str, Any] | None = None
+    """With a token, in a process running live sources: each source's state."""
 
 
 class AcknowledgeBody(BaseModel):
@@ -140,12 +142,19 @@ def health(request: Request) -> dict[str, Any]:
     """The service and its store (no token needed): cheap enough to poll.
 
     The store's schema revision and number of conveyors (a small table);
-    ``/api/v1/store`` counts the large ones.
+    ``/api/v1/store`` counts the large ones. With a token, in a process
+    running live sources, ``live`` holds each source's state (who follows
+    it, counts, scopes missed, last error) and the ingest queue's depth.
     """
     web = _web(request)
     with web.store.engine.connect() as connection:
         revision = revision_of(connection)
+    live = None
+    service = web.extra.get("live")
+    if service is not None and web.principal(request) is not None:
+        live = service.health()
     return {
+        "live": live,
         "status": "ok",
         "version": __version__,
         "store": {

@@ -85,6 +85,7 @@ def create_app(
     *,
     max_upload_mb: float = 20.0,
     secure_cookies: bool = False,
+    live: Any = None,
 ) -> FastAPI:
     """The web application over ``store``.
 
@@ -100,6 +101,9 @@ def create_app(
         Largest upload request, MB (413 beyond).
     secure_cookies : bool
         Mark the session cookie ``Secure`` (behind TLS).
+    live : LiveService, optional
+        The live service of this process (:mod:`chaintwin.live.service`):
+        its sources in the health endpoint, its metrics at ``/metrics``.
     """
     from chaintwin.web import api, pages
 
@@ -123,6 +127,8 @@ def create_app(
         templates=templates,
         secure_cookies=secure_cookies,
     )
+    if live is not None:
+        state.extra["live"] = live
     app.state.web = state
 
     @app.middleware("http")
@@ -195,6 +201,25 @@ def create_app(
             swagger_css_url="/static/swagger/swagger-ui.css",
             swagger_favicon_url="/static/swagger/favicon-32x32.png",
         )
+
+    @app.get("/metrics", include_in_schema=False)
+    def metrics(request: Request) -> Response:
+        # Prometheus scrapes from this machine, or with a viewer token
+        client = request.client.host if request.client is not None else ""
+        if client not in ("127.0.0.1", "::1", "localhost"):
+            who = state.principal(request)
+            if who is None:  # a scraper, not a browser: no redirect to the login page
+                return _error(401, "unauthorized", "GET /metrics needs a viewer token")
+        service = state.extra.get("live")
+        if service is None:
+            from chaintwin.live.metrics import Metrics
+
+            service_metrics = state.extra.setdefault("metrics", Metrics(store, lambda: 0.0))
+        else:
+            service_metrics = service.metrics
+        from chaintwin.live.metrics import CONTENT_TYPE
+
+        return Response(service_metrics.text(), media_type=CONTENT_TYPE)
 
     app.include_router(api.router)
     app.include_router(pages.router)

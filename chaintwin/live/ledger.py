@@ -1,0 +1,197 @@
+"""What the live service keeps in the store: refused files, its sources, leases.
+
+Leases let several ``serve`` processes (on several hosts, one PostgreSQL
+store) share the sources: a process follows a source only while it holds
+the source's lease, renews it every third of its length, and a holder that
+dies stops renewing, so its lease expires and another process takes the
+source over. The store's unique content hashes are the second guard: a
+recording stored twice is refused by the database.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import Any
+
+from sqlalchemy import delete, select, update
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
+
+from chaintwin.store.schema import LeaseRow, LiveSourceRow, RefusedFileRow
+from chaintwin.store.store import Store
+
+__all__ = [
+    "SourceRecord",
+    "acquire_lease",
+    "is_refused",
+    "record_refusal",
+    "release_lease",
+    "source_records",
+    "update_source",
+]
+
+
+def _now() -> str:
+    return datetime.now(UTC).isoformat()
+
+
+# ------------------------------------------------------------------ refusals
+def is_refused(store: Store, sha256: str) -> bool:
+    """Whether a content was refused already (it is not read again)."""
+    with Session(store.engine) as s:
+        return (
+            s.scalars(select(RefusedFileRow.id).where(RefusedFileRow.sha256 == sha256)).first()
+            is not None
+        )
+
+
+def record_refusal(store: Store, sha256: str, path: str, source: str, reason: str) -> None:
+    """Keep a refusal (a second one of the same content, by another process, is dropped)."""
+    try:
+        with Session(store.engine) as s, s.begin():
+            s.add(
+                RefusedFileRow(
+                    sha256=sha256, path=path, source=source, reason=reason, refused_at=_now()
+                )
+            )
+    except IntegrityError:
+        pass  # refused already, by this content
+
+
+# ------------------------------------------------------------------ sources
+@dataclass(frozen=True, slots=True)
+class SourceRecord:
+    """A source's row: who follows it, its state and counts."""
+
+    key: str
+    kind: str
+    holder: str | None
+    state: str
+    ingested: int
+    refused: int
+    missed: int
+    last_error: str | None
+    updated_at: str
+
+    def to_dict(self) -> dict[str, Any]:
+        """The health endpoint's object."""
+        return {
+            "key": self.key,
+            "kind": self.kind,
+            "holder": self.holder,
+            "state": self.state,
+            "ingested": self.ingested,
+            "refused": self.refused,
+            "missed": self.missed,
+            "last_error": self.last_error,
+            "updated_at": self.updated_at,
+        }
+
+
+def update_source(
+    store: Store,
+    key: str,
+    kind: str,
+    *,
+    holder: str | None,
+    state: str,
+    ingested: int = 0,
+    refused: int = 0,
+    missed: int | None = None,
+    last_error: str | None = None,
+) -> None:
+    """Write a source's state; ``ingested`` and ``refused`` are added to its counts.
+
+    ``missed`` (a drive's scopes missed, counted by its follower) replaces
+    the stored count when given; ``last_error`` replaces the last one (None:
+    the source works again).
+    """
+    for _attempt in range(3):
+        try:
+            with Session(store.engine) as s, s.begin():
+                row = s.get(LiveSourceRow, key)
+                if row is None:
+                    s.add(
+                        LiveSourceRow(
+                            key=key,
+                            kind=kind,
+                            holder=holder,
+                            state=state,
+                            ingested=ingested,
+                            refused=refused,
+                            missed=missed or 0,
+                            last_error=last_error,
+                            updated_at=_now(),
+                        )
+                    )
+                else:
+                    row.holder = holder
+                    row.state = state
+                    row.ingested += ingested
+                    row.refused += refused
+                    if missed is not None:
+                        row.missed = missed
+                    row.last_error = last_error
+                    row.updated_at = _now()
+            return
+        except IntegrityError:
+            continue  # another process created the row at the same moment: update it
+
+
+def source_records(store: Store) -> list[SourceRecord]:
+    """Every source's row, by key."""
+    with Session(store.engine) as s:
+        return [
+            SourceRecord(
+                r.key,
+                r.kind,
+                r.holder,
+                r.state,
+                r.ingested,
+                r.refused,
+                r.missed,
+                r.last_error,
+                r.updated_at,
+            )
+            for r in s.scalars(select(LiveSourceRow).order_by(LiveSourceRow.key))
+        ]
+
+
+# ------------------------------------------------------------------ leases
+def acquire_lease(store: Store, source: str, holder: str, seconds: float) -> bool:
+    """Take or renew the lease of ``source`` for ``seconds``; whether ``holder`` has it.
+
+    A lease held by another process is taken only once expired. Atomic on
+    both databases: one conditional UPDATE, or an INSERT that the primary
+    key lets only one process make.
+    """
+    now = time.time()
+    with Session(store.engine) as s, s.begin():
+        done = s.execute(
+            update(LeaseRow)
+            .where(
+                LeaseRow.source == source,
+                (LeaseRow.holder == holder) | (LeaseRow.expires_at < now),
+            )
+            .values(holder=holder, expires_at=now + seconds)
+        )
+        if done.rowcount == 1:  # type: ignore[attr-defined]
+            return True
+    try:
+        with Session(store.engine) as s, s.begin():
+            if s.get(LeaseRow, source) is not None:
+                return False  # held by another, not expired
+            s.add(
+                LeaseRow(source=source, holder=holder, expires_at=now + seconds, acquired_at=_now())
+            )
+        return True
+    except IntegrityError:
+        return False  # another process took it at the same moment
+
+
+def release_lease(store: Store, source: str, holder: str) -> None:
+    """Give a lease back (a clean stop: another process may take the source at once)."""
+    with Session(store.engine) as s, s.begin():
+        s.execute(delete(LeaseRow).where(LeaseRow.source == source, LeaseRow.holder == holder))

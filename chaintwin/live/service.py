@@ -1,0 +1,432 @@
+"""The live service: sources, ingest queue, notifications and the web app in one asyncio loop.
+
+:class:`LiveService` runs, until SIGTERM or Ctrl-C,
+
+* each source (a watched folder, a drive or an OPC UA configuration) under
+  its lease (:mod:`.ledger`): a source is followed by one ``serve`` process
+  at a time, taken over by another when its holder dies;
+* the :class:`~.sources.Ingestor` (one recording at a time, in a worker
+  thread: the event loop stays free for the web requests);
+* the :class:`~.notify.Notifier` (under the lease ``notify``);
+* sample retention (``--keep-samples-days``);
+* the web application under uvicorn (unless ``--no-web``).
+
+On SIGTERM the sources stop, the recording in hand is finished and
+committed, the leases are given back, the web server finishes its requests,
+and the process exits 0. After a ``kill -9`` nothing is half-stored (a
+recording is committed whole or not at all), and a restart catches up what
+is still on disk (the full scan) without storing anything twice (the
+store's content hashes).
+
+Adding OPC UA (the ``--opcua`` option) is one call:
+:meth:`LiveService.add_drives` with a coroutine function that follows the
+drives until its stop event is set and a status object it keeps up to date.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import signal
+import socket
+import time
+import uuid
+from collections.abc import Awaitable, Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from chaintwin.diagnose.records import MonitorSettings
+from chaintwin.read.profile import ConveyorProfile
+from chaintwin.store.store import Store
+
+from .ledger import acquire_lease, release_lease, source_records, update_source
+from .metrics import Metrics
+from .sources import DriveStatusLike, Ingestor, Job, Outcome, Submit
+from .watch import FolderSource
+
+__all__ = ["LiveOptions", "LiveService", "Source"]
+
+log = logging.getLogger("chaintwin.live")
+
+Follow = Callable[[asyncio.Event], Awaitable[None]]
+"""A source's body: follows the source until the event is set."""
+
+
+@dataclass
+class LiveOptions:
+    """The live service's settings (``chaintwin serve``'s options)."""
+
+    settle_s: float = 2.0
+    poll: bool = False
+    notify_urls: list[str] = field(default_factory=list)
+    notify_secret: bytes | None = None
+    public_url: str = "http://127.0.0.1:8000"
+    keep_samples_days: float | None = None
+    lease_s: float = 15.0
+    """How long a lease lasts unless renewed (renewed every third of it), s."""
+    holder: str = ""
+    """This process's name in the leases (default: host, process id and a random part)."""
+
+
+@dataclass
+class Source:
+    """A source the service follows under its lease."""
+
+    key: str
+    kind: str
+    follow: Follow
+    held: bool = False
+    state: str = "waiting"
+    error: str | None = None
+
+
+class _Server:
+    """uvicorn's server without its own signal handlers (the service has its own)."""
+
+    def __init__(self, config: Any) -> None:
+        import uvicorn
+
+        class Quiet(uvicorn.Server):
+            @contextlib.contextmanager
+            def capture_signals(self) -> Iterator[None]:
+                yield
+
+        self.server = Quiet(config)
+
+
+class LiveService:
+    """One service process.
+
+    Parameters
+    ----------
+    store : Store
+        The results store (at the head revision: :class:`Store` refuses an
+        older one with a message naming ``chaintwin db upgrade``).
+    profiles : dict
+        Profiles by conveyor id (``--profiles``).
+    options : LiveOptions
+        Settings.
+    settings : MonitorSettings, optional
+        Monitoring's settings (as ``chaintwin ingest`` takes them).
+    """
+
+    def __init__(
+        self,
+        store: Store,
+        profiles: dict[str, ConveyorProfile],
+        options: LiveOptions,
+        settings: MonitorSettings | None = None,
+    ) -> None:
+        self.store = store
+        self.options = options
+        self.holder = (
+            options.holder or f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:6]}"
+        )
+        self.ingestor = Ingestor(store, profiles, settings, self._outcome)
+        self.metrics = Metrics(store, self._queue_depth)
+        self.sources: list[Source] = []
+        self.folders: dict[str, FolderSource] = {}
+        self.drive_status: DriveStatusLike | None = None
+        self.stop = asyncio.Event()
+        self.notifier: Any = None
+        self.started_at = time.time()
+        self._counts: dict[str, tuple[int, int]] = {}
+
+    # ---------------------------------------------------------------- sources
+    def add_folder(self, root: Path) -> None:
+        """Follow a folder (recursively) under the lease ``folder:<absolute path>``."""
+        folder = FolderSource(
+            root.resolve(), self.options.settle_s, self.options.poll, self._enqueue_file(root)
+        )
+        self.folders[folder.key] = folder
+        self.sources.append(Source(folder.key, "folder", folder.run))
+
+    def _enqueue_file(self, root: Path) -> Callable[[str, float], Awaitable[None]]:
+        key = f"folder:{root.resolve()}"
+
+        async def enqueue(path: str, ready_at: float) -> None:
+            await self.ingestor.put_file(path, key, ready_at)
+
+        return enqueue
+
+    @property
+    def submit(self) -> Submit:
+        """:data:`~.sources.Submit` for the drives' followers."""
+        return self.ingestor.submit
+
+    def add_drives(
+        self,
+        key: str,
+        follow: Callable[[Submit, asyncio.Event], Awaitable[None]],
+        status: DriveStatusLike | None = None,
+    ) -> None:
+        """Follow drives under the lease ``key`` (e.g. ``opcua:<conveyor>`` per drive).
+
+        ``follow(submit, stop)`` follows the drives until ``stop`` is set,
+        handing each scope to ``submit``; ``status`` (its
+        :class:`DriveStatusLike`) is read by the metrics and the health. With
+        ``chaintwin.live.opcua``::
+
+            status = DriveStatus(drives={})
+            service.add_drives(
+                "opcua:" + conveyor,
+                lambda submit, stop: follow_drives(config, submit, stop, status),
+                status,
+            )
+        """
+
+        async def body(stop: asyncio.Event) -> None:
+            await follow(self.ingestor.submit, stop)
+
+        if status is not None:
+            self.drive_status = status
+            self.metrics.drive_status = status
+        self.sources.append(Source(key, "opcua", body))
+
+    # ---------------------------------------------------------------- outcomes
+    def _queue_depth(self) -> float:
+        return float(self.ingestor.queue.qsize() + (1 if self.ingestor.busy else 0))
+
+    def _outcome(self, job: Job, outcome: Outcome) -> None:
+        kind = job.source.split(":", 1)[0]
+        # a drive's recordings ("opcua:<conveyor>:<counter>") count for the drive
+        owner = ":".join(job.source.split(":")[:2]) if kind == "opcua" else job.source
+        ingested, refused = self._counts.get(owner, (0, 0))
+        if outcome.status in ("stored", "waiting"):
+            self.metrics.ingested.labels(kind).inc()
+            self.metrics.latency.observe(outcome.seconds)
+            ingested += 1
+            if self.notifier is not None:
+                self.notifier.wake.set()
+        elif outcome.status == "refused" and outcome.reason != "refused before (unchanged since)":
+            self.metrics.refused.labels(kind).inc()
+            refused += 1
+        elif outcome.status == "already_stored":
+            self.metrics.duplicates.labels(kind).inc()
+        elif outcome.status == "failed":
+            folder = self.folders.get(job.source)
+            if folder is not None:
+                folder.forget(job.path)  # handed again at the next rescan
+        self._counts[owner] = (ingested, refused)
+
+    # ---------------------------------------------------------------- leases
+    async def _hold(self, source: Source) -> None:
+        """Follow a source whenever this process holds its lease."""
+        lease_s = self.options.lease_s
+        while not self.stop.is_set():
+            got = await self._lease(source)
+            if not got:
+                source.state = "standby"
+                await self._publish(source)
+                await self._sleep(lease_s / 3)
+                continue
+            source.held, source.state, source.error = True, "following", None
+            self.metrics.held.inc()
+            log.info(
+                "following %s", source.key, extra={"source": source.key, "holder": self.holder}
+            )
+            await self._publish(source)
+            inner = asyncio.Event()
+            task: asyncio.Future[None] = asyncio.ensure_future(source.follow(inner))
+            lost = False
+            while not self.stop.is_set() and not task.done():
+                await self._sleep(lease_s / 3, task)
+                if self.stop.is_set() or task.done():
+                    break
+                if not await self._lease(source):
+                    lost = True
+                    log.warning("lost the lease of %s: another process follows it", source.key)
+                    break
+                await self._publish(source)
+            inner.set()
+            try:
+                await task
+            except Exception as exc:
+                source.state, source.error = "error", f"{type(exc).__name__}: {exc}"
+                log.error("%s stopped: %s", source.key, source.error, extra={"source": source.key})
+            self.metrics.held.dec()
+            source.held = False
+            if not lost:
+                with contextlib.suppress(Exception):  # else it expires
+                    await asyncio.to_thread(release_lease, self.store, source.key, self.holder)
+            if source.state == "error":
+                await self._publish(source)
+                await self._sleep(min(30.0, lease_s))  # then try again
+            else:
+                source.state = "stopped" if self.stop.is_set() else "standby"
+                await self._publish(source)
+
+    async def _lease(self, source: Source) -> bool:
+        """Take or renew a source's lease; False also when the store cannot be reached
+        (the source is then left, as another process may take it once the lease expires)."""
+        try:
+            return await asyncio.to_thread(
+                acquire_lease, self.store, source.key, self.holder, self.options.lease_s
+            )
+        except Exception as exc:
+            source.error = f"the store: {exc}".splitlines()[0]
+            log.error("cannot take the lease of %s: %s", source.key, source.error)
+            return False
+
+    async def _sleep(self, seconds: float, task: asyncio.Future[None] | None = None) -> None:
+        waits: set[asyncio.Future[Any]] = {asyncio.ensure_future(self.stop.wait())}
+        if task is not None:
+            waits.add(task)
+        _done, rest = await asyncio.wait(
+            waits, timeout=seconds, return_when=asyncio.FIRST_COMPLETED
+        )
+        for w in rest:
+            if w is not task:
+                w.cancel()
+
+    async def _publish(self, source: Source) -> None:
+        """Write the source's state and counts to the store (for the health endpoint).
+
+        A source following drives also writes one row per drive,
+        ``opcua:<conveyor>``: connected or not, scopes missed, the last error,
+        the recordings it gave.
+        """
+        rows: list[dict[str, Any]] = []
+        if source.kind == "opcua" and self.drive_status is not None:
+            for conveyor, drive in sorted(self.drive_status.drives.items()):
+                key = f"opcua:{conveyor}"
+                if key == source.key:
+                    continue
+                rows.append(
+                    {
+                        "key": key,
+                        "holder": self.holder if source.held else None,
+                        "state": "connected" if drive.connected else "disconnected",
+                        "missed": drive.missed,
+                        "last_error": drive.last_error,
+                    }
+                )
+        own = None  # the source is one drive: its row carries the drive's counts
+        if source.kind == "opcua" and self.drive_status is not None:
+            own = self.drive_status.drives.get(source.key.split(":", 1)[-1])
+        rows.append(
+            {
+                "key": source.key,
+                "holder": self.holder if source.held else None,
+                "state": source.state,
+                "missed": None if own is None else own.missed,
+                "last_error": source.error or (None if own is None else own.last_error),
+            }
+        )
+        for row in rows:
+            ingested, refused = self._counts.pop(row["key"], (0, 0))
+            try:
+                await asyncio.to_thread(
+                    update_source,
+                    self.store,
+                    row["key"],
+                    source.kind,
+                    holder=row["holder"],
+                    state=row["state"],
+                    ingested=ingested,
+                    refused=refused,
+                    missed=row["missed"],
+                    last_error=row["last_error"],
+                )
+            except Exception as exc:  # the store is away: the counts wait for the next time
+                self._counts[row["key"]] = (ingested, refused)
+                log.error("cannot write the state of %s: %s", row["key"], exc)
+
+    # ---------------------------------------------------------------- health
+    def health(self) -> dict[str, Any]:
+        """Each source's state (the health endpoint with a token)."""
+        local = {s.key: s for s in self.sources}
+        out = []
+        for rec in source_records(self.store):
+            d = rec.to_dict()
+            if rec.key in local:
+                d["here"] = True
+            out.append(d)
+        drives = {}
+        if self.drive_status is not None:
+            for conveyor, st in self.drive_status.drives.items():
+                drives[conveyor] = {
+                    "endpoint": st.endpoint,
+                    "connected": st.connected,
+                    "scopes_read": st.scopes_read,
+                    "missed": st.missed,
+                    "last_error": st.last_error,
+                    "last_scope_at": None
+                    if st.last_scope_at is None
+                    else st.last_scope_at.isoformat(),
+                }
+        return {
+            "holder": self.holder,
+            "queue_depth": int(self._queue_depth()),
+            "sources": out,
+            "drives": drives,
+        }
+
+    # ---------------------------------------------------------------- running
+    async def _retention(self) -> None:
+        from .retention import drop_samples
+
+        days = self.options.keep_samples_days
+        assert days is not None
+        while not self.stop.is_set():
+            try:
+                n = await asyncio.to_thread(drop_samples, self.store, days)
+                if n:
+                    log.info("dropped the samples of %d recording(s) older than %g days", n, days)
+            except Exception as exc:
+                log.error("retention: %s", exc)
+            await self._sleep(3600.0)
+
+    def request_stop(self) -> None:
+        """Stop: the sources first, then the recording in hand, then the web server."""
+        if not self.stop.is_set():
+            log.info("stopping: finishing the recording in hand")
+        self.stop.set()
+
+    async def run(self, web_config: Any | None = None) -> None:
+        """Run everything until :meth:`request_stop` (SIGTERM, SIGINT)."""
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            with contextlib.suppress(NotImplementedError, RuntimeError):
+                loop.add_signal_handler(sig, self.request_stop)
+        tasks: list[asyncio.Task[Any]] = [asyncio.create_task(self.ingestor.run(self.stop))]
+        tasks += [asyncio.create_task(self._hold(s)) for s in self.sources]
+        if self.options.notify_urls:
+            from .notify import Notifier
+
+            assert self.options.notify_secret is not None
+            self.notifier = Notifier(
+                self.store,
+                self.options.notify_urls,
+                self.options.notify_secret,
+                self.options.public_url,
+                self.metrics,
+            )
+            notifier = self.notifier
+            self.sources.append(Source("notify", "notify", notifier.run))
+            tasks.append(asyncio.create_task(self._hold(self.sources[-1])))
+        if self.options.keep_samples_days is not None:
+            tasks.append(asyncio.create_task(self._retention()))
+        server = None
+        if web_config is not None:
+            server = _Server(web_config).server
+            tasks.append(asyncio.create_task(server.serve()))
+            tasks[-1].add_done_callback(lambda _t: self.stop.set())  # the server ended
+        try:
+            await self.stop.wait()
+        finally:
+            self.stop.set()
+            # the sources and the ingestor stop (the recording in hand is committed)
+            await asyncio.gather(
+                *(t for t in tasks if t is not tasks[-1] or server is None), return_exceptions=True
+            )
+            if server is not None:
+                server.should_exit = True
+                await asyncio.gather(tasks[-1], return_exceptions=True)
+            self.ingestor.close()
+            for sig in (signal.SIGTERM, signal.SIGINT):
+                with contextlib.suppress(NotImplementedError, RuntimeError):
+                    loop.remove_signal_handler(sig)

@@ -1,0 +1,197 @@
+"""Watched folders: every recording file that appears, read once it is complete.
+
+A folder is scanned in full when it is taken up (files that arrived while
+the service was down are caught up), then followed with watchfiles
+(inotify; ``poll=True`` polls, for network shares where events do not
+arrive), recursively, with a full rescan every :data:`RESCAN_S` as a safety
+net. A file is handed to the ingest queue once its size and modification
+time have stayed the same for the settle time (counted from its last
+modification on a local file system, from when it was first seen when
+polling a share, whose clock may differ); names ending in ``.part``
+or ``.tmp`` are ignored until renamed, and only ``*.csv`` files are taken
+(as ``chaintwin ingest DIR`` takes them).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+import os
+import time
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+
+__all__ = ["IGNORED_SUFFIXES", "MAX_TICK_S", "RESCAN_S", "FolderSource", "is_candidate"]
+
+log = logging.getLogger("chaintwin.live")
+
+IGNORED_SUFFIXES = (".part", ".tmp")
+"""Names still being written (ignored until renamed)."""
+
+RESCAN_S = 300.0
+"""A full rescan of a followed folder this often, s (events lost on a network share)."""
+
+MAX_TICK_S = 1.0
+"""The candidates are looked at again at the latest after this long, s (else when the
+next one will have settled, or a new one is seen)."""
+
+
+def is_candidate(path: str) -> bool:
+    """Whether a file name is a recording to read (``*.csv``, not ``.part``/``.tmp``)."""
+    name = os.path.basename(path).lower()
+    return name.endswith(".csv") and not name.endswith(IGNORED_SUFFIXES)
+
+
+class FolderSource:
+    """One watched folder.
+
+    Parameters
+    ----------
+    root : Path
+        The folder (followed recursively).
+    settle_s : float
+        A file is read once its size and modification time have not changed
+        for this long, s.
+    poll : bool
+        Poll the folder instead of waiting for file-system events.
+    enqueue : callable
+        ``await enqueue(path, ready_at)`` hands a complete file to the ingest
+        queue (``ready_at``: monotonic time it was found complete).
+    """
+
+    def __init__(
+        self,
+        root: Path,
+        settle_s: float,
+        poll: bool,
+        enqueue: Callable[[str, float], Awaitable[None]],
+    ) -> None:
+        self.root = root
+        self.settle_s = settle_s
+        self.poll = poll
+        self.enqueue = enqueue
+        self.key = f"folder:{root}"
+        # path -> (size, mtime_ns, since): candidates watched until they settle
+        self.pending: dict[str, tuple[int, int, float]] = {}
+        # path -> (size, mtime_ns) handed over; not handed again unless changed
+        self.handed: dict[str, tuple[int, int]] = {}
+        self.changed = asyncio.Event()  # a file was added to the candidates
+
+    def forget(self, path: str) -> None:
+        """Let a file be handed again at the next scan (its ingest failed)."""
+        self.handed.pop(path, None)
+
+    def _scan(self) -> list[str]:
+        out: list[str] = []
+        for folder, _dirs, names in os.walk(self.root):
+            out.extend(os.path.join(folder, n) for n in names if is_candidate(n))
+        return out
+
+    def _add(self, paths: list[str]) -> None:
+        now = time.monotonic()
+        for p in paths:
+            if p not in self.pending:
+                self.pending[p] = (-1, -1, now)
+        if paths:
+            self.changed.set()
+
+    def _settled(self) -> tuple[list[str], float | None]:
+        """Stat the candidates (in a worker thread).
+
+        Returns
+        -------
+        (list of str, float or None)
+            The files unchanged for the settle time, and when the next of the
+            others will have been (monotonic s; None: no other).
+        """
+        now = time.monotonic()
+        ready: list[str] = []
+        due: float | None = None
+        for path, (size, mtime, since) in list(self.pending.items()):
+            try:
+                st = os.stat(path)
+            except OSError:  # gone (renamed, deleted)
+                self.pending.pop(path, None)
+                continue
+            key = (st.st_size, st.st_mtime_ns)
+            if key != (size, mtime):
+                # unchanged since its last write: the modification time, on a local
+                # file system (the same clock); on a share (--poll) since seen, as the
+                # server's clock may differ from this one
+                age = 0.0 if self.poll else max(0.0, time.time() - st.st_mtime_ns / 1e9)
+                since = now - min(age, self.settle_s)
+                self.pending[path] = (*key, since)
+            if now - since >= self.settle_s:
+                del self.pending[path]
+                if self.handed.get(path) != key:
+                    self.handed[path] = key
+                    ready.append(path)
+            else:
+                due = min(due if due is not None else math.inf, since + self.settle_s)
+        ready.sort()
+        return ready, due
+
+    async def run(self, stop: asyncio.Event) -> None:
+        """Follow the folder until ``stop``."""
+        from watchfiles import Change, awatch
+
+        if not self.root.is_dir():
+            raise FileNotFoundError(f"--watch {self.root}: no such folder")
+        watching = asyncio.Event()
+
+        async def watch() -> None:
+            async for changes in awatch(
+                self.root,
+                stop_event=stop,
+                force_polling=self.poll,
+                poll_delay_ms=500,
+                recursive=True,
+                debounce=200,
+                step=50,
+                rust_timeout=1000,
+            ):
+                watching.set()
+                self._add([p for c, p in changes if c != Change.deleted and is_candidate(p)])
+
+        watcher = asyncio.create_task(watch())
+        # the watcher first, then the scan: a file arriving in between is seen by either
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(watching.wait(), 0.3)
+        self._add(await asyncio.to_thread(self._scan))
+        log.info("following %s (%d file(s) found)", self.root, len(self.pending))
+        last_scan = time.monotonic()
+        try:
+            while not stop.is_set():
+                self.changed.clear()
+                ready, due = await asyncio.to_thread(self._settled)
+                for path in ready:
+                    await self.enqueue(path, time.monotonic())
+                if watcher.done():
+                    watcher.result()  # the watcher failed: say why
+                    break
+                if time.monotonic() - last_scan > RESCAN_S:
+                    found = await asyncio.to_thread(self._scan)
+                    # forget files that are gone: memory follows what the folder holds
+                    present = set(found)
+                    self.handed = {p: k for p, k in self.handed.items() if p in present}
+                    self._add(found)
+                    last_scan = time.monotonic()
+                # until the next file settles, a new one is seen, or a second at most
+                wait = MAX_TICK_S if due is None else due - time.monotonic()
+                waits = {
+                    asyncio.ensure_future(stop.wait()),
+                    asyncio.ensure_future(self.changed.wait()),
+                }
+                _done, rest = await asyncio.wait(
+                    waits,
+                    timeout=min(MAX_TICK_S, max(0.0, wait)),
+                    return_when=asyncio.FIRST_COMPLETED,
+                )
+                for w in rest:
+                    w.cancel()
+        finally:
+            watcher.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await watcher

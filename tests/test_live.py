@@ -1,0 +1,673 @@
+"""The live service (``chaintwin serve --watch``), with real parts: the service as a
+subprocess following a real folder, SIGTERM and ``kill -9``, a real HTTP receiver
+for the notifications, the store's migration, two processes sharing one store.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import hmac
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from conftest import EXAMPLES, REFERENCE_PROFILE, _free_port
+from sqlalchemy import func, select, text
+from sqlalchemy.orm import Session
+
+from chaintwin.cli.app import main
+from chaintwin.diagnose.records import MonitorSettings
+from chaintwin.identify.calibrating import calibrate
+from chaintwin.live.ledger import acquire_lease, release_lease
+from chaintwin.live.metrics import Metrics
+from chaintwin.live.notify import SIGNATURE_HEADER, Notifier
+from chaintwin.live.watch import is_candidate
+from chaintwin.read.profile import load_profile
+from chaintwin.simulate.faults import Fault
+from chaintwin.simulate.fleet import generate
+from chaintwin.store import migrate
+from chaintwin.store.access import create_token
+from chaintwin.store.engine import engine_for
+from chaintwin.store.ingest import ingest
+from chaintwin.store.schema import DeliveryRow, LeaseRow, OutboxRow, RecordingRow, RefusedFileRow
+from chaintwin.store.store import Store
+from chaintwin.validate import load_recording
+
+PROFILE = load_profile(REFERENCE_PROFILE)
+PROFILES = EXAMPLES / "profiles"
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """20 recordings of one conveyor over 5 days, friction rising from day 2."""
+    folder = tmp_path_factory.mktemp("fleet")
+    generate(
+        PROFILE, folder, days=5, per_day=4, faults=[Fault("friction", 0.8)], onset_day=2, seed=5
+    )
+    return folder
+
+
+def recordings(fleet: Path) -> list[Path]:
+    return sorted(fleet.glob("*.csv"))
+
+
+def sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def calibrated(url: str, fleet: Path) -> None:
+    """A store with the conveyor's calibration (its recordings get results at once)."""
+    store = Store(url)
+    recs = [
+        load_recording(f, profile=PROFILE).recording
+        for f in sorted((fleet / "calibration").glob("*.csv"))
+    ]
+    store.put_calibration(calibrate(recs, PROFILE))
+    store.close()
+
+
+class Service:
+    """``chaintwin serve`` as a subprocess."""
+
+    def __init__(self, args: list[str], log: Path) -> None:
+        env = dict(os.environ, PYTHONPATH=str(ROOT), OPENBLAS_NUM_THREADS="1")
+        self.log = log
+        with log.open("ab") as err:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "chaintwin", "serve", *args],
+                stdout=subprocess.DEVNULL,
+                stderr=err,
+                env=env,
+                cwd=str(log.parent),
+            )
+
+    def stop(self, timeout: float = 30) -> int:
+        self.proc.send_signal(signal.SIGTERM)
+        return self.proc.wait(timeout)
+
+    def kill(self) -> None:
+        self.proc.kill()
+        self.proc.wait(10)
+
+    def lines(self) -> list[str]:
+        return self.log.read_text().splitlines()
+
+
+def wait_for(check: Callable[[], bool], seconds: float, what: str, service: Service | None = None):
+    deadline = time.monotonic() + seconds
+    while not check():
+        if service is not None and service.proc.poll() is not None:
+            pytest.fail(f"the service exited ({service.proc.returncode}): {service.lines()[-5:]}")
+        assert time.monotonic() < deadline, f"{what} within {seconds} s"
+        time.sleep(0.1)
+
+
+def stored(url: str, shas: list[str]) -> Callable[[], bool]:
+    """Whether the contents are stored (one engine for all the looks)."""
+    engine = engine_for(url)
+
+    def check() -> bool:
+        with Session(engine) as s:
+            found = set(s.scalars(select(RecordingRow.sha256).where(RecordingRow.sha256.in_(shas))))
+        if len(found) == len(set(shas)):
+            engine.dispose()
+            return True
+        return False
+
+    return check
+
+
+def count(url: str, table: Any) -> int:
+    engine = engine_for(url)
+    with Session(engine) as s:
+        n = s.scalar(select(func.count()).select_from(table)) or 0
+    engine.dispose()
+    return int(n)
+
+
+def write_slowly(src: Path, dst: Path, chunks: int = 5, pause_s: float = 0.25) -> None:
+    """Copy a file in chunks with pauses (a slow network copy)."""
+    raw = src.read_bytes()
+    step = -(-len(raw) // chunks)
+    with dst.open("wb") as f:
+        for k in range(0, len(raw), step):
+            f.write(raw[k : k + step])
+            f.flush()
+            time.sleep(pause_s)
+
+
+def test_which_names_are_read() -> None:
+    assert is_candidate("/a/b/white-belt-01-1.csv") and is_candidate("X.CSV")
+    assert not is_candidate("/a/x.csv.part") and not is_candidate("/a/x.csv.tmp")
+    assert not is_candidate("/a/truth.jsonl")
+
+
+def test_slowly_written_files_are_read_once_complete_with_metrics_health_and_sigterm(
+    fleet: Path, tmp_path: Path
+) -> None:
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    calibrated(url, fleet)
+    store = Store(url)
+    viewer = create_token(store, "prometheus", "viewer")
+    store.close()
+    watched = tmp_path / "drop" / "line-1"
+    watched.mkdir(parents=True)
+    port = _free_port()
+    service = Service(
+        [
+            "--db", url, "--watch", str(watched.parent), "--profiles", str(PROFILES),
+            "--settle-s", "0.6", "--port", str(port), "--log-json", "--lease-s", "1.5",
+        ],
+        tmp_path / "serve.log",
+    )  # fmt: skip
+    base = f"http://127.0.0.1:{port}"
+
+    def up() -> bool:
+        try:
+            return httpx.get(f"{base}/api/v1/health", timeout=2).status_code == 200
+        except httpx.HTTPError:
+            return False
+
+    try:
+        wait_for(up, 60, "the service answers", service)
+        files = recordings(fleet)[:3]
+        # chunks every 0.25 s, settle time 0.6 s: never read half-way
+        writers = [threading.Thread(target=write_slowly, args=(f, watched / f.name)) for f in files]
+        for w in writers:
+            w.start()
+        # a fourth copied under a temporary name and renamed when complete
+        part = watched / (recordings(fleet)[3].name + ".part")
+        write_slowly(recordings(fleet)[3], part, chunks=3, pause_s=0.7)  # slower than settling
+        part.rename(watched / recordings(fleet)[3].name)
+        for w in writers:
+            w.join()
+        # and a file that is not a recording
+        (watched / "notes.csv").write_text("not a recording\n")
+        shas = [sha(f) for f in recordings(fleet)[:4]]
+        wait_for(stored(url, shas), 60, "the four recordings stored", service)
+        wait_for(lambda: count(url, RefusedFileRow) == 1, 60, "the bad file refused", service)
+
+        events = [json.loads(line) for line in service.lines() if line.startswith("{")]
+        done = [e for e in events if e.get("status") == "stored"]
+        # each read once, whole: stored with its result, none refused
+        assert sorted(Path(e["file"]).name for e in done) == sorted(
+            f.name for f in recordings(fleet)[:4]
+        )
+        assert all(e["seconds"] > 0 for e in done)
+        refused = [e for e in events if e.get("level") == "warning" and "reason" in e]
+        assert [Path(e["file"]).name for e in refused] == ["notes.csv"]
+        assert "has no 'conveyor'" in refused[0]["reason"]
+        engine = engine_for(url)
+        with Session(engine) as s:
+            assert s.scalar(select(func.count()).select_from(RecordingRow)) == 4
+            row = s.scalars(select(RefusedFileRow)).one()
+            assert row.path.endswith("notes.csv") and "conveyor" in row.reason
+        engine.dispose()
+
+        # metrics from this machine (no token needed), in the Prometheus text format
+        metrics = httpx.get(f"{base}/metrics", timeout=5).text
+        assert 'chaintwin_recordings_ingested_total{source="folder"} 4.0' in metrics
+        assert 'chaintwin_recordings_refused_total{source="folder"} 1.0' in metrics
+        assert "chaintwin_ingest_latency_seconds_count 4.0" in metrics
+        assert "chaintwin_ingest_queue_depth 0.0" in metrics
+        assert "chaintwin_opcua_connections_up 0.0" in metrics
+        # from elsewhere (through the reverse proxy), a viewer token is needed
+        remote = {"X-Forwarded-For": "203.0.113.5"}
+        assert httpx.get(f"{base}/metrics", headers=remote, timeout=5).status_code == 401
+        remote["Authorization"] = f"Bearer {viewer}"
+        assert "chaintwin_open_alarms" in httpx.get(f"{base}/metrics", headers=remote).text
+        schema = httpx.get(f"{base}/openapi.json", timeout=5).json()
+        assert "/metrics" not in schema["paths"]
+
+        # health: without a token only that it is up; with one, each source's state
+        anon = httpx.get(f"{base}/api/v1/health", timeout=5).json()
+        assert anon["status"] == "ok" and anon["live"] is None
+        assert anon["store"]["revision"] == migrate.HEAD_REVISION
+
+        def published() -> bool:
+            got = httpx.get(
+                f"{base}/api/v1/health",
+                headers={"Authorization": f"Bearer {viewer}"},
+                timeout=5,
+            ).json()["live"]
+            src = {s["key"]: s for s in got["sources"]}
+            folder = src.get(f"folder:{watched.parent.resolve()}")
+            return folder is not None and folder["ingested"] == 4 and folder["refused"] == 1
+
+        wait_for(published, 60, "the folder's counts in the health", service)
+
+        # a refused file is not read again unless it changes
+        (watched / "notes.csv").touch()
+        (watched / "notes2.csv").write_text("still not a recording\n")
+        wait_for(lambda: count(url, RefusedFileRow) == 2, 60, "the new bad file refused", service)
+        assert count(url, RefusedFileRow) == 2
+    finally:
+        code = service.stop()
+    assert code == 0, service.lines()[-5:]
+    assert any("stopping" in line for line in service.lines())
+
+
+def test_kill_9_while_files_arrive_then_restart_stores_every_file_once(
+    fleet: Path, tmp_path: Path
+) -> None:
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    calibrated(url, fleet)
+    watched = tmp_path / "drop"
+    watched.mkdir()
+    args = [
+        "--db", url, "--watch", str(watched), "--profiles", str(PROFILES), "--no-web",
+        "--settle-s", "0.3", "--lease-s", "1.5",
+    ]  # fmt: skip
+    files = recordings(fleet)[:12]
+    service = Service(args, tmp_path / "serve.log")
+    try:
+        wait_for(lambda: any("following" in line for line in service.lines()), 60, "start", service)
+        for k, f in enumerate(files):
+            shutil.copyfile(f, watched / f.name)
+            time.sleep(0.15)
+            if k == 5:
+                service.kill()  # at whatever it was doing
+        assert service.proc.returncode == -signal.SIGKILL
+        before = count(url, RecordingRow)
+        assert before < len(files)  # the rest arrived while it was down
+        service = Service(args, tmp_path / "serve.log")
+        wait_for(stored(url, [sha(f) for f in files]), 60, "every file stored", service)
+        time.sleep(1.0)  # a second look: nothing stored twice afterwards
+        assert count(url, RecordingRow) == len(files)
+        engine = engine_for(url)
+        with engine.connect() as c:
+            results = c.execute(text("SELECT COUNT(*) FROM results")).scalar()
+            names = [r[0] for r in c.execute(text("SELECT file FROM recordings"))]
+        engine.dispose()
+        assert results == len(files)
+        assert sorted(Path(n).name for n in names) == sorted(f.name for f in files)
+        assert count(url, RefusedFileRow) == 0
+        # SIGTERM while recordings are queued: the one in hand is committed, exit 0
+        more = recordings(fleet)[12:16]
+        for f in more:
+            shutil.copyfile(f, watched / f.name)
+        wait_for(lambda: count(url, RecordingRow) > len(files), 60, "one more stored", service)
+        assert service.stop() == 0
+        lines = service.lines()
+        assert any("stopping: finishing the recording in hand" in line for line in lines)
+        said = {line.split(" stored ")[1].split(" in ")[0] for line in lines if " stored " in line}
+        engine = engine_for(url)
+        with engine.connect() as c:
+            kept = {r[0] for r in c.execute(text("SELECT file FROM recordings"))}
+        engine.dispose()
+        assert {str(watched / f.name) for f in more} & kept <= said  # nothing half-done
+        assert kept >= said
+    finally:
+        if service.proc.poll() is None:
+            assert service.stop() == 0
+
+
+class Receiver:
+    """A webhook receiver over real HTTP that fails its first requests."""
+
+    def __init__(self, secret: bytes, fail_first: int) -> None:
+        self.secret = secret
+        self.fail_left = fail_first
+        self.attempts = 0
+        self.accepted: list[dict[str, Any]] = []
+        self.bad_signatures = 0
+        outer = self
+
+        class Handler(BaseHTTPRequestHandler):
+            def do_POST(self) -> None:
+                body = self.rfile.read(int(self.headers["Content-Length"]))
+                outer.attempts += 1
+                expected = "sha256=" + hmac.new(outer.secret, body, hashlib.sha256).hexdigest()
+                if not hmac.compare_digest(self.headers.get(SIGNATURE_HEADER, ""), expected):
+                    outer.bad_signatures += 1
+                    self.send_response(401)
+                elif outer.fail_left > 0:
+                    outer.fail_left -= 1
+                    self.send_response(503)
+                else:
+                    outer.accepted.append(json.loads(body))
+                    self.send_response(204)
+                self.end_headers()
+
+            def log_message(self, *args: Any) -> None:
+                pass
+
+        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.url = f"http://127.0.0.1:{self.server.server_address[1]}/hook"
+        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
+        self.thread.start()
+
+    def close(self) -> None:
+        self.server.shutdown()
+        self.server.server_close()
+
+
+@pytest.fixture
+def receiver() -> Iterator[Receiver]:
+    r = Receiver(b"s3cret-key", fail_first=2)
+    yield r
+    r.close()
+
+
+def _notify_until(store: Store, receiver: Receiver, done: Callable[[], bool], seconds: float):
+    """Run a notifier (a service process's) until ``done`` or ``seconds``."""
+
+    async def run() -> None:
+        notifier = Notifier(
+            store,
+            [receiver.url],
+            receiver.secret,
+            "https://twin.example/",
+            Metrics(store, lambda: 0.0),
+        )
+        stop = asyncio.Event()
+        task = asyncio.create_task(notifier.run(stop, tick_s=0.1))
+        deadline = time.monotonic() + seconds
+        while not done() and time.monotonic() < deadline:
+            await asyncio.sleep(0.05)
+        stop.set()
+        await task
+
+    asyncio.run(run())
+
+
+def test_alarm_notifications_reach_a_failing_receiver_once_per_id_signed(
+    fleet: Path, tmp_path: Path, receiver: Receiver
+) -> None:
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    calibrated(url, fleet)
+    store = Store(url)
+    ingest(
+        [str(f) for f in recordings(fleet)],
+        {PROFILE.id: PROFILE},
+        store,
+        settings=MonitorSettings(baseline_n=5),
+        workers=1,
+    )
+    alarms = store.alarms()
+    assert alarms, "the friction rise opens an alarm"
+    with Session(store.engine) as s:
+        outbox = {r.id: r for r in s.scalars(select(OutboxRow))}
+    expected = {f"{a.id}-opened" for a in alarms} | {
+        f"{a.id}-closed" for a in alarms if a.status == "closed"
+    }
+    assert set(outbox) == expected  # written with the alarms, one per alarm and event
+
+    # the receiver fails the first two attempts; the process stops after the first,
+    # a new one (a restart) goes on from the attempts kept in the store
+    _notify_until(store, receiver, lambda: receiver.attempts >= 1, 10)
+    assert receiver.attempts >= 1 and not receiver.accepted
+    _notify_until(store, receiver, lambda: len(receiver.accepted) >= len(outbox), 30)
+    _notify_until(store, receiver, lambda: False, 0.5)  # nothing is sent twice after
+
+    assert receiver.bad_signatures == 0
+    ids = [doc["id"] for doc in receiver.accepted]
+    assert sorted(ids) == sorted(outbox) and len(set(ids)) == len(ids)
+    first = next(a for a in alarms)
+    doc = next(d for d in receiver.accepted if d["id"] == f"{first.id}-opened")
+    assert doc == {
+        "id": f"{first.id}-opened",
+        "event": "opened",
+        "alarm_id": first.id,
+        "conveyor": PROFILE.id,
+        "feature": first.feature,
+        "cause": first.cause,
+        "time": first.opened_at or first.since,
+        "link": f"https://twin.example/conveyors/{PROFILE.id}",
+    }
+    with Session(store.engine) as s:
+        deliveries = list(s.scalars(select(DeliveryRow)))
+    assert all(d.delivered_at is not None for d in deliveries)
+    assert sum(d.attempts for d in deliveries) == len(outbox) + 2  # the two that failed
+    store.close()
+
+
+def test_serve_refuses_an_old_store_naming_db_upgrade_then_upgraded_it_runs(
+    db: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from test_migrations import _legacy_store
+
+    _legacy_store(db, tmp_path)
+    code = main(["serve", "--db", db, "--no-web", "--watch", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "revision 0001" in err and f"run `chaintwin db upgrade --db {db}`" in err
+    assert main(["db", "upgrade", "--db", db]) == 0
+    capsys.readouterr()
+    engine = engine_for(db)
+    with engine.connect() as c:
+        assert migrate.revision_of(c) == "0004" == migrate.HEAD_REVISION
+        # the new tables, empty: an upgraded store does not notify its past alarms
+        for table in ("refused_files", "outbox", "outbox_deliveries", "live_sources", "leases"):
+            assert c.execute(text(f"SELECT COUNT(*) FROM {table}")).scalar() == 0
+        assert c.execute(text("SELECT COUNT(*) FROM alarms")).scalar() == 1
+    engine.dispose()
+    store = Store(db)
+    # leases work on the upgraded store
+    assert acquire_lease(store, "folder:/x", "a", 30)
+    assert not acquire_lease(store, "folder:/x", "b", 30)
+    release_lease(store, "folder:/x", "a")
+    assert acquire_lease(store, "folder:/x", "b", 30)
+    store.close()
+
+
+def test_a_lease_expires_when_its_holder_stops_renewing(tmp_path: Path) -> None:
+    store = Store(f"sqlite:///{tmp_path / 'plant.db'}")
+    assert acquire_lease(store, "opcua:white-belt-01", "host-a:1", 0.3)
+    assert acquire_lease(store, "opcua:white-belt-01", "host-a:1", 0.3)  # renewed
+    assert not acquire_lease(store, "opcua:white-belt-01", "host-b:2", 0.3)
+    time.sleep(0.4)
+    assert acquire_lease(store, "opcua:white-belt-01", "host-b:2", 0.3)  # a's expired
+    assert not acquire_lease(store, "opcua:white-belt-01", "host-a:1", 0.3)
+    with Session(store.engine) as s:
+        assert s.get(LeaseRow, "opcua:white-belt-01").holder == "host-b:2"  # type: ignore[union-attr]
+    store.close()
+
+
+def _pg_database(base: str) -> str:
+    import psycopg
+
+    name = f"live{os.getpid()}_{int(time.time() * 1e6) % 10**9}"
+    with psycopg.connect(base, autocommit=True) as c:
+        c.execute(f"CREATE DATABASE {name}")
+    return base.rsplit("/", 1)[0] + "/" + name
+
+
+def test_two_processes_share_a_folder_on_postgresql_and_one_takes_over_when_the_other_dies(
+    fleet: Path, tmp_path: Path, postgres: str
+) -> None:
+    url = _pg_database(postgres)
+    calibrated(url, fleet)
+    watched = tmp_path / "share"
+    watched.mkdir()
+    args = [
+        "--db", url, "--watch", str(watched), "--profiles", str(PROFILES), "--no-web",
+        "--settle-s", "0.3", "--lease-s", "1.5",
+    ]  # fmt: skip
+    services = [Service(args, tmp_path / f"serve-{k}.log") for k in range(2)]
+    key = f"folder:{watched.resolve()}"
+
+    engine = engine_for(url)
+
+    def holder() -> str | None:
+        with Session(engine) as s:
+            row = s.get(LeaseRow, key)
+            return None if row is None else row.holder
+
+    try:
+        wait_for(lambda: holder() is not None, 60, "a process takes the folder")
+        pid = int(str(holder()).split(":")[1])
+        first = next(s for s in services if s.proc.pid == pid)
+        other = next(s for s in services if s is not first)
+        files = recordings(fleet)[:8]
+        for f in files[:4]:
+            shutil.copyfile(f, watched / f.name)
+        wait_for(stored(url, [sha(f) for f in files[:4]]), 60, "the first files stored", first)
+        first.kill()  # the holder dies: its lease expires, the other takes over
+        for f in files[4:]:
+            shutil.copyfile(f, watched / f.name)
+        wait_for(stored(url, [sha(f) for f in files]), 60, "the rest stored by the other", other)
+        assert str(holder()).split(":")[1] == str(other.proc.pid)
+        time.sleep(0.5)
+        assert count(url, RecordingRow) == len(files)  # nothing twice, nothing skipped
+        assert count(url, RefusedFileRow) == 0
+        took = [line for line in other.lines() if f"following {key}" in line]
+        assert len(took) == 1  # in standby until then
+    finally:
+        engine.dispose()
+        for s in services:
+            if s.proc.poll() is None:
+                assert s.stop() == 0
+
+
+def test_retention_drops_old_samples_and_keeps_results(fleet: Path, tmp_path: Path) -> None:
+    from chaintwin.errors import StoreError
+    from chaintwin.live.retention import drop_samples
+
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    calibrated(url, fleet)
+    store = Store(url)
+    files = recordings(fleet)[:6]
+    ingest([str(f) for f in files], {PROFILE.id: PROFILE}, store, workers=1)
+    results = store.results(PROFILE.id)
+    index = store.recording_index(PROFILE.id)
+    assert len(index) == 6
+    # the fleet was recorded in January 2026: a retention of ten thousand days keeps all
+    assert drop_samples(store, 10_000) == 0
+    assert drop_samples(store, 1) == 6
+    assert drop_samples(store, 1) == 0  # done once
+    assert store.results(PROFILE.id) == results  # the results are whole
+    assert store.recording_index(PROFILE.id) == []  # nothing to plot from
+    with pytest.raises(StoreError, match="dropped by retention"):
+        store.recording(index[0][0])
+    store.close()
+
+
+def test_submit_stores_a_drives_recording_once_and_records_a_refusal(
+    fleet: Path, tmp_path: Path
+) -> None:
+    """The contract of live sources (OPC UA): submit(recording, source_key)."""
+    from dataclasses import replace
+
+    from chaintwin.live.sources import Ingestor, Job, Outcome
+
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    calibrated(url, fleet)
+    store = Store(url)
+    rec = load_recording(recordings(fleet)[0], profile=PROFILE).recording
+    ghost = replace(rec, metadata=replace(rec.metadata, conveyor="ghost-belt"))
+    seen: list[tuple[str, str]] = []
+
+    def noted(job: Job, outcome: Outcome) -> None:
+        seen.append((job.source, outcome.status))
+
+    async def run() -> None:
+        ingestor = Ingestor(store, {PROFILE.id: PROFILE}, on_outcome=noted)
+        stop = asyncio.Event()
+        worker = asyncio.create_task(ingestor.run(stop))
+        await ingestor.submit(rec, "opcua:white-belt-01:1")
+        await ingestor.submit(rec, "opcua:white-belt-01:1")  # read twice: stored once
+        await ingestor.submit(ghost, "opcua:ghost-belt:7")  # never raises
+        stop.set()
+        await worker
+        ingestor.close()
+
+    asyncio.run(run())
+    assert seen == [
+        ("opcua:white-belt-01:1", "stored"),
+        ("opcua:white-belt-01:1", "already_stored"),
+        ("opcua:ghost-belt:7", "refused"),
+    ]
+    assert count(url, RecordingRow) == 1
+    assert store.results(PROFILE.id)[0]["status"] != "refused"
+    with Session(store.engine) as s:
+        row = s.scalars(select(RefusedFileRow)).one()
+    assert row.path == "opcua:ghost-belt:7" and row.source == "opcua:ghost-belt:7"
+    assert "ghost-belt" in row.reason and "/chaintwin-spool-" not in row.reason
+    store.close()
+
+
+def test_drives_hook_counts_recordings_connections_and_missed_scopes(
+    fleet: Path, tmp_path: Path
+) -> None:
+    """How ``--opcua`` plugs in: a follower handing scopes to submit, its status read by
+    the metrics and the health (the follower here is the test's, the service is real)."""
+    from dataclasses import dataclass, field
+    from datetime import datetime
+
+    from chaintwin.live.service import LiveOptions, LiveService
+
+    @dataclass
+    class DriveState:
+        endpoint: str
+        connected: bool = False
+        scopes_read: int = 0
+        missed: int = 0
+        last_error: str | None = None
+        last_scope_at: datetime | None = None
+
+    @dataclass
+    class DriveStatus:
+        drives: dict[str, DriveState] = field(default_factory=dict)
+
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    calibrated(url, fleet)
+    store = Store(url)
+    recs = [load_recording(f, profile=PROFILE).recording for f in recordings(fleet)[:2]]
+    status = DriveStatus()
+    service = LiveService(store, {PROFILE.id: PROFILE}, LiveOptions(lease_s=0.6))
+
+    async def follow(submit: Any, stop: asyncio.Event) -> None:
+        drive = status.drives.setdefault(PROFILE.id, DriveState("opc.tcp://127.0.0.1:4840"))
+        drive.connected = True
+        for k, rec in enumerate(recs):
+            await submit(rec, f"opcua:{PROFILE.id}:{10 + 4 * k}")
+            drive.scopes_read += 1
+        drive.missed = 3  # the counter jumped from 10 to 14
+        await stop.wait()
+        drive.connected = False
+
+    service.add_drives(f"opcua:{PROFILE.id}", follow, status)
+
+    def health_row() -> dict[str, Any] | None:
+        rows = {r["key"]: r for r in service.health()["sources"]}
+        return rows.get(f"opcua:{PROFILE.id}")
+
+    async def run() -> str:
+        task = asyncio.create_task(service.run(None))
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            row = await asyncio.to_thread(health_row)
+            if row is not None and row["ingested"] == 2 and row["missed"] == 3:
+                break
+            await asyncio.sleep(0.1)
+        text = service.metrics.text().decode()
+        service.request_stop()
+        await task
+        return text
+
+    metrics = asyncio.run(run())
+    assert count(url, RecordingRow) == 2
+    assert "chaintwin_opcua_connections_up 1.0" in metrics
+    assert f'chaintwin_opcua_missed_scopes_total{{conveyor="{PROFILE.id}"}} 3.0' in metrics
+    assert 'chaintwin_recordings_ingested_total{source="opcua"} 2.0' in metrics
+    row = health_row()
+    assert row is not None
+    assert (row["ingested"], row["missed"], row["state"]) == (2, 3, "stopped")
+    assert service.health()["drives"][PROFILE.id]["scopes_read"] == 2
+    with Session(store.engine) as s:
+        assert s.get(LeaseRow, f"opcua:{PROFILE.id}") is None  # handed back on stop
+    store.close()

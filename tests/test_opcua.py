@@ -666,3 +666,63 @@ def test_drive_sim_command_refuses_bad_options(capsys: pytest.CaptureFixture[str
     # refused before the server starts: the first scope is simulated first
     assert main([*base, "--sample-time", "0.0055"]) == 2
     assert "whole multiple of the controller cycle" in capsys.readouterr().err
+
+
+def test_serve_follows_a_drive_over_opcua_and_stores_its_scopes(
+    ua_loop: Loop, sim: DriveSim, tmp_path: Path
+) -> None:
+    """``chaintwin serve --no-web --opcua CONFIG`` against the simulator, end to end."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from sqlalchemy import func, select
+    from sqlalchemy.orm import Session
+
+    from chaintwin.store.engine import engine_for
+    from chaintwin.store.schema import RecordingRow
+    from chaintwin.store.store import Store
+
+    url = f"sqlite:///{tmp_path / 'live.db'}"
+    Store(url).close()
+    config = tmp_path / "drives.yaml"
+    config.write_text(f"drives:\n  - conveyor: {CONVEYOR}\n    endpoint: {sim.endpoint}\n")
+    profiles = tmp_path / "profiles"
+    profiles.mkdir()
+    (profiles / "p.yaml").write_text(Path(REFERENCE_PROFILE).read_text())
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=str(root), OPENBLAS_NUM_THREADS="1")
+    log = tmp_path / "serve.log"
+
+    def stored() -> int:
+        engine = engine_for(url)
+        with Session(engine) as s:
+            n = int(s.scalar(select(func.count()).select_from(RecordingRow)) or 0)
+        engine.dispose()
+        return n
+
+    args = ["serve", "--no-web", "--db", url, "--profiles", str(profiles), "--opcua", str(config)]
+    with log.open("wb") as err:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "chaintwin", *args],
+            stdout=subprocess.DEVNULL,
+            stderr=err,
+            env=env,
+        )
+    try:
+        before = stored()
+        end = time.monotonic() + 60
+        # the scope in the buffer is taken on connecting, then each new one
+        while stored() < before + 2:
+            assert proc.poll() is None, log.read_text()[-2000:]
+            assert time.monotonic() < end, log.read_text()[-2000:]
+            ua_loop.run(sim.publish_next())
+            time.sleep(1.0)
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(30) == 0, log.read_text()[-2000:]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+    assert f"{CONVEYOR} at {sim.endpoint}" in log.read_text()

@@ -25,7 +25,7 @@ import io
 import logging
 import math
 import re
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -62,13 +62,9 @@ __all__ = [
     "recording_from_scope",
 ]
 
+from .sources import Submit
+
 log = logging.getLogger("chaintwin.live.opcua")
-
-Submit = Callable[[Recording, str], Awaitable[None]]
-"""``submit(recording, source_key)``: ingest one recording read from a drive.
-
-The same alias as ``chaintwin.live.sources.Submit``; returns once the
-recording is stored or refused."""
 
 REQUIRED_NODES = ("counter", "sample_time", "speed", "torque")
 """``nodes`` keys a drive cannot do without (the others may be set to null)."""

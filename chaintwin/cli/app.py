@@ -72,6 +72,7 @@ def _register() -> None:
         simulate_cmd,
         spectrum_cmd,
         store_cmd,
+        verify_cmd,
     )
 
     inspect_cmd.register(app)
@@ -84,6 +85,7 @@ def _register() -> None:
     report_cmd.register(app)
     db_cmd.register(app)
     serve_cmd.register(app)
+    verify_cmd.register(app)
 
 
 _register()

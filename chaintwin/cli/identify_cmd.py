@@ -22,6 +22,14 @@ from chaintwin.cli.common import (
 from chaintwin.errors import CalibrationError, ChaintwinError, EstimationError, RecordingError
 from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.calibration import Calibration, load_calibration
+from chaintwin.identify.methods import (
+    DEFAULT_HOLD_FIRST,
+    METHODS,
+    identify_oe,
+    identify_rls,
+    in_time_order,
+)
+from chaintwin.identify.tracking import DEFAULT_FORGETTING
 from chaintwin.read.columns import ColumnMap, load_column_map
 from chaintwin.read.profile import ConveyorProfile, load_profile
 from chaintwin.read.recording import Recording
@@ -149,6 +157,33 @@ def register(app: typer.Typer) -> None:
         profile: Annotated[Path, typer.Option("--profile", help="Conveyor profile YAML.")],
         as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
         columns: ColumnsOption = None,
+        method: Annotated[
+            str,
+            typer.Option(
+                "--method",
+                help="ls: windowed batch least squares (default); rls: recursive least "
+                "squares over the recordings in time order, tracking BmA and BmB; oe: "
+                "output-error fit of the closed loop.",
+            ),
+        ] = "ls",
+        forgetting: Annotated[
+            float,
+            typer.Option(
+                "--forgetting",
+                min=0.5,
+                max=1.0,
+                help=f"rls: forgetting factor λ [{DEFAULT_FORGETTING}].",
+            ),
+        ] = DEFAULT_FORGETTING,
+        hold_first: Annotated[
+            int,
+            typer.Option(
+                "--hold-first",
+                min=1,
+                help="rls: J_d, mu and BmC are held at the batch fit of this many first "
+                f"recordings [{DEFAULT_HOLD_FIRST}].",
+            ),
+        ] = DEFAULT_HOLD_FIRST,
     ) -> None:
         """Identify friction, gear losses, inertia and torque lag from known-load recordings.
 
@@ -156,19 +191,39 @@ def register(app: typer.Typer) -> None:
         friction and the constant loss BmA cannot be separated (a warning says
         what was assumed). Exit code 2 when a file was refused.
         """
+        if method not in METHODS:
+            raise EstimationError(f"--method: '{method}' is not one of {', '.join(METHODS)}")
         prof = load_profile(profile)
         cmap = load_column_map(columns) if columns is not None else None
         recs, refused = _read_all(expand_recordings(files), prof, cmap, known=True)
         if not recs:
             raise _none_usable(refused, "identify")
-        cal = calibrate(recs, prof, version=__version__)
+        extra: dict[str, Any] = {}
+        if method == "rls":
+            cal, track = identify_rls(
+                in_time_order(recs),
+                prof,
+                forgetting=forgetting,
+                hold_first=hold_first,
+                version=__version__,
+            )
+            extra["forgetting"] = forgetting
+            extra["track"] = [p.to_dict() for p in track]
+        elif method == "oe":
+            cal, details = identify_oe(recs, prof, version=__version__)
+            extra["output_error"] = details
+        else:
+            cal = calibrate(recs, prof, version=__version__)
         out = identify_dict(cal)
+        out["method"] = method
+        out["method_description"] = cal.method
+        out.update(extra)
         out["refused"] = refused
         if as_json:
             print_json(out)
         else:
             console = Console()
-            table = Table(title=f"chaintwin identify: {safe(prof.id)}")
+            table = Table(title=f"chaintwin identify ({method}): {safe(prof.id)}")
             for col in ("parameter", "value", "std. error", "unit"):
                 table.add_column(col)
             units = {"mu": "-", "BmA": "Nm", "BmB": "Nm·s/rad", "BmC": "Nm·s²/rad²"}

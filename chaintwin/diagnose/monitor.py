@@ -50,6 +50,7 @@ from .features import recording_features as extract
 from .health import FeatureBaseline
 from .impacts import POOL, hits_per_revolution
 from .learned import learn_calibration
+from .limits import check_limit_names, judge_limits
 from .monitor_state import MonitorState
 from .peaks import median_spectrum, spectrum_from_state, unexplained_peak
 from .records import (
@@ -98,6 +99,7 @@ class ConveyorMonitor:
         *,
         loader: Callable[[str], Recording] | None = None,
     ) -> None:
+        check_limit_names(profile)
         self.profile = profile
         self.settings = settings or MonitorSettings()
         self.loader = loader
@@ -458,6 +460,7 @@ class ConveyorMonitor:
                 ).to_dict()
             )
             base.features = {k: finite_or_none(v) for k, v in values.items()}
+            base.alarm = self._judge_limits(values, when, causes, warnings)
             if n >= self.settings.baseline_n:
                 self._form_baseline()
         else:
@@ -481,8 +484,9 @@ class ConveyorMonitor:
                 if name == "unexplained_peak" and math.isfinite(peak_order):
                     detail["order"] = peak_order
                 causes.append(detail)
+            limit_met = self._judge_limits(values, when, causes, warnings)
             self._close_alarms(when)
-            base.alarm = bool(met)
+            base.alarm = bool(met) or limit_met
             if any(feature_spec(e).cause in FRICTION_CAUSES for e in exceeded) or any(
                 a.cause in FRICTION_CAUSES for a in self.open_alarms()
             ):
@@ -552,6 +556,55 @@ class ConveyorMonitor:
             window=self.windows.get(feature, []),
             window_times=self.window_times.get(feature, []),
         )
+
+    def _judge_limits(
+        self,
+        values: Mapping[str, float],
+        when: datetime | None,
+        causes: list[dict[str, Any]],
+        warnings: list[dict[str, str]],
+    ) -> bool:
+        """Judge the profile's absolute limits (:mod:`.limits`); whether one alarms."""
+        limits = self.profile.limits
+        if not limits:
+            return False
+        checks = judge_limits(
+            limits, values, self.windows, self.window_times, self.settings, iso_utc(when)
+        )
+        any_met = False
+        for c in checks:
+            if c.warning is not None:
+                warnings.append(c.warning)
+            if not c.met:
+                continue
+            any_met = True
+            key = alarms.window_key(c.feature, "limit")
+            alarm = alarms.open_alarm(
+                self.alarms,
+                conveyor=self.profile.id,
+                feature=c.feature,
+                cause=feature_spec(c.feature).cause or "limit",
+                change=None,
+                when=when,
+                window=self.windows.get(key, []),
+                window_times=self.window_times.get(key, []),
+                rule=c.limit.rule,
+                kind="limit",
+                limit=c.limit.alarm,
+            )
+            causes.append(
+                {
+                    "cause": alarm.cause,
+                    "feature": c.feature,
+                    "change": None,
+                    "since": alarm.since,
+                    "rule": c.limit.rule,
+                    "limit": c.limit.alarm,
+                    "value": c.value,
+                }
+            )
+        alarms.close_quiet_alarms(self.alarms, self.windows, self.settings.y, when)
+        return any_met
 
     def _close_alarms(self, when: datetime | None) -> None:
         alarms.close_quiet_alarms(self.alarms, self.windows, self.settings.y, when)

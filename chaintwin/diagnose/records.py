@@ -188,6 +188,14 @@ class Alarm:
         Set while open: it stays open but no longer fails ``--fail-on-alarm``.
     closed_at, closed_by : str or None
         When and by what (quiet recordings, a maintenance event) it closed.
+    rule : str
+        The rule that raised it: ``x_of_y`` (X exceedances in the last Y
+        recordings) or ``immediate`` (the first exceedance).
+    kind : str
+        ``statistical`` (against the baseline) or ``limit`` (an absolute limit
+        of the profile's ``limits:``).
+    limit : float or None
+        The absolute limit exceeded (feature units), for ``kind`` ``limit``.
     """
 
     id: str
@@ -202,6 +210,9 @@ class Alarm:
     acknowledged: Acknowledgement | None = None
     closed_at: str | None = None
     closed_by: str | None = None
+    rule: str = "x_of_y"
+    kind: str = "statistical"
+    limit: float | None = None
 
     @property
     def is_open(self) -> bool:
@@ -227,7 +238,11 @@ class Alarm:
             "last_seen": self.last_seen,
             "status": self.status,
             "acknowledged": None if self.acknowledged is None else self.acknowledged.to_dict(),
+            "rule": self.rule,
+            "kind": self.kind,
         }
+        if self.limit is not None:
+            out["limit"] = self.limit
         if self.status == "closed":
             out["closed_at"] = self.closed_at
             out["closed_by"] = self.closed_by
@@ -260,6 +275,10 @@ class Alarm:
             acknowledged=None if ack is None else Acknowledgement.from_dict(ack),
             closed_at=data.get("closed_at"),
             closed_by=data.get("closed_by"),
+            # alarms stored before rules and limits existed were statistical X-of-Y ones
+            rule=str(data.get("rule", "x_of_y")),
+            kind=str(data.get("kind", "statistical")),
+            limit=None if data.get("limit") is None else float(data["limit"]),
         )
 
 

@@ -93,7 +93,7 @@ def test_recordings_are_tracked_oldest_first(fleet: list[Recording]) -> None:
 def test_cli_identify_methods(
     tmp_path: Path, fleet: list[Recording], capsys: pytest.CaptureFixture[str]
 ) -> None:
-    files = [str(write_recording(r, tmp_path / f"{r.source}.csv")) for r in fleet[:6]]
+    files = [str(write_recording(r, tmp_path / f"{r.source}.csv")) for r in fleet[:9]]
     shapes = {}
     for method in ("ls", "rls", "oe"):
         code = main(
@@ -107,7 +107,7 @@ def test_cli_identify_methods(
         assert out["mu"] == pytest.approx(0.23, rel=0.03), method
         assert out["BmB"] == pytest.approx(2.1e-3, rel=0.25), method
         if method == "rls":
-            assert len(out["track"]) == 6
+            assert len(out["track"]) == 9
             assert out["residual_rms_nm"] is None
         if method == "oe":
             assert out["output_error"]["fitted"][-1] == "loss_quadratic_nm_s2_rad2"

@@ -22,6 +22,7 @@ from chaintwin.cli.common import (
 from chaintwin.errors import CalibrationError, ChaintwinError, EstimationError, RecordingError
 from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.calibration import Calibration, load_calibration
+from chaintwin.identify.losses import loss_verdict
 from chaintwin.identify.methods import (
     DEFAULT_HOLD_FIRST,
     METHODS,
@@ -120,6 +121,12 @@ def identify_dict(cal: Calibration) -> dict[str, Any]:
         value, err = pair(name, key)
         out[name] = value
         out[f"{name}_stderr"] = err
+    verdict = loss_verdict(p, cal.plateau_speeds_rpm)
+    if not verdict.separated:
+        # a split the runs cannot make is not reported (the sum is, in "losses")
+        for key in ("BmB", "BmC"):
+            out[key] = out[f"{key}_stderr"] = None
+    out["losses"] = verdict.to_dict()
     out["inertia_kgm2"] = cal.inertia_kgm2
     out["inertia_kgm2_stderr"] = p.stderr("J_d")
     out["torque_lag_s"] = cal.torque_lag_s
@@ -229,6 +236,9 @@ def register(app: typer.Typer) -> None:
             units = {"mu": "-", "BmA": "Nm", "BmB": "Nm·s/rad", "BmC": "Nm·s²/rad²"}
             for key, unit in [*units.items(), ("inertia_kgm2", "kg·m²"), ("torque_lag_s", "s")]:
                 value, err = out[key], out[f"{key}_stderr"]
+                if key in ("BmB", "BmC") and out["losses"]["verdict"] == "not_separable":
+                    table.add_row(key, "not separable", "-", unit)
+                    continue
                 table.add_row(
                     key,
                     "-" if value is None else f"{value:.5g}",
@@ -236,6 +246,7 @@ def register(app: typer.Typer) -> None:
                     unit,
                 )
             console.print(table)
+            console.print(f"losses: {safe(out['losses']['message'])}", highlight=False)
             for w in out["warnings"]:
                 print_warning(console, "", w["code"], w["message"])
             _print_refused(console, refused)

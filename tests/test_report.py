@@ -82,6 +82,11 @@ def test_conveyor_page_has_every_section_with_real_plots(
             assert float(img[..., :3].std()) > 0.02, f"a blank plot in {ident}"
     # the friction rise: an open friction alarm, named in the summary and the alarm table
     assert "open alarm on friction" in _section(html, "summary")
+    # both transport loss factors, labelled, with the published value beside them
+    tlf_row = re.search(r"TLF ([0-9.]+) \(sprocket work\), ([0-9.]+) \(motor-shaft work\)", html)
+    assert tlf_row is not None
+    assert float(tlf_row.group(2)) > float(tlf_row.group(1)) > 0.0
+    assert "published 0.01-0.02: not comparable" in html
     alarms = _section(html, "alarms")
     assert re.search(r"<td>friction</td><td>friction</td>", alarms)
     # one trend plot per tracked feature, friction among them

@@ -497,6 +497,7 @@ class ConveyorMonitor:
         base.payload_kg = finite_or_none(w.payload_kg)
         base.uncertainty_kg = finite_or_none(w.uncertainty_kg)
         base.tlf = finite_or_none(w.tlf)
+        base.tlf_motor_shaft = finite_or_none(w.tlf_motor_shaft)
         base.impacts = [i.to_dict() for i in feats.impacts]
         causes.sort(key=lambda c: (cause_priority(c["cause"]), -abs(c["change"] or 0.0)))
         base.causes = causes

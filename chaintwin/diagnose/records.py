@@ -106,12 +106,15 @@ class RecordingResult:
     payload_kg: float | None = None
     uncertainty_kg: float | None = None
     tlf: float | None = None
+    """Transport loss factor from the work at the sprocket (:mod:`chaintwin.weigh.tlf`)."""
     features: dict[str, float | None] = field(default_factory=dict)
     exceeded: list[str] = field(default_factory=list)
     warnings: list[dict[str, str]] = field(default_factory=list)
     error: str | None = None
     impacts: list[dict[str, Any]] = field(default_factory=list)
     """Torque impacts of the recording (:mod:`chaintwin.diagnose.impacts`)."""
+    tlf_motor_shaft: float | None = None
+    """Transport loss factor from the work at the motor shaft (the published definition)."""
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready; a refused recording gives ``file`` and ``error`` only."""
@@ -124,6 +127,7 @@ class RecordingResult:
             "causes": self.causes,
             "payload_kg": self.payload_kg,
             "tlf": self.tlf,
+            "tlf_motor_shaft": self.tlf_motor_shaft,
             "warnings": self.warnings,
             "conveyor": self.conveyor,
             "status": self.status,

@@ -28,6 +28,7 @@ from chaintwin.diagnose.residuals import residual_analysis
 from chaintwin.errors import ChaintwinError, StoreError
 from chaintwin.read.files import write_atomic
 from chaintwin.store.store import Store
+from chaintwin.weigh.tlf import PUBLISHED_TLF, PUBLISHED_TLF_NOTE
 
 from . import figures
 from .data import RECENT, STATUS_ORDER, ConveyorData, conveyor_data
@@ -212,6 +213,8 @@ def conveyor_page(
         calibration_text=_calibration_text(d),
         baseline_text=_baseline_text(d),
         recent=RECENT,
+        published_tlf=PUBLISHED_TLF,
+        published_tlf_note=PUBLISHED_TLF_NOTE,
         trend_figures=trend_figures,
         payload_figure=figures.payload_tlf_figure(d),
         residual_figure=figures.residual_figure(d),

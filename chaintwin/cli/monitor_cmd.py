@@ -218,9 +218,9 @@ def _print_table(results: list[RecordingResult], monitors: list[ConveyorMonitor]
             )
         for fc in s["forecasts"]:
             console.print(
-                f"  forecast: {fc['feature']} ({fc['cause']}) crosses {fc['limit']:.4g} about "
-                f"{fc['crosses_at'][:10]} (90 %: {fc['earliest'][:10]} to "
-                f"{(fc['latest'] or 'beyond a year')[:10]})",
+                f"  forecast ({fc.get('model', 'line')}): {fc['feature']} ({fc['cause']}) crosses "
+                f"{fc['limit']:.4g} about {fc['crosses_at'][:10]} (90 %: {fc['earliest'][:10]} "
+                f"to {(fc['latest'] or 'beyond a year')[:10]})",
                 highlight=False,
             )
         for n in s["notes"]:

@@ -158,3 +158,44 @@ def test_cli_verify_json_and_table(
     code = main(["verify", "--profile", str(REFERENCE_PROFILE), str(good), "--residual", "other"])
     assert code == 2
     assert "--residual" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------- monitor --residual
+def test_monitor_residual_closed_loop(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from chaintwin.diagnose.records import MonitorSettings
+    from chaintwin.errors import MonitorError
+    from chaintwin.simulate.fleet import generate
+
+    with pytest.raises(MonitorError, match="residual"):
+        MonitorSettings(residual="forward")
+    out = generate(PROFILE, tmp_path / "runs", days=1, per_day=7, seed=4)
+    cal = tmp_path / "cal.json"
+    cal_files = [str(f) for f in sorted((out.folder / "calibration").glob("*.csv"))]
+    assert (
+        main(["calibrate", "--profile", str(REFERENCE_PROFILE), *cal_files, "--out", str(cal)]) == 0
+    )
+    capsys.readouterr()
+    files = [str(f) for f in sorted(out.folder.glob("*.csv"))]
+    state = tmp_path / "state.json"
+    runs: dict[str, list[float]] = {}
+    for mode in ("inverse", "closed-loop"):
+        args = ["monitor", "--profile", str(REFERENCE_PROFILE), "--calibration", str(cal)]
+        args += ["--baseline", "5", "--json", "--residual", mode, *files]
+        if mode == "closed-loop":
+            args += ["--state", str(state)]
+        assert main(args) == 0
+        res = json.loads(capsys.readouterr().out)["recordings"]
+        unavailable = "closed_loop_unavailable"
+        msgs = [w["message"] for r in res for w in r["warnings"] if w["code"] == unavailable]
+        assert not msgs, msgs[:1]
+        runs[mode] = [r["features"]["residual_std"] for r in res]
+    # both residuals are small against the torque (a few 0.01 Nm), and they differ: the
+    # closed loop's torque is simulated, the inverse model's follows the measured speed
+    assert all(0.0 < v < 0.2 for v in runs["closed-loop"])
+    assert runs["closed-loop"] != runs["inverse"]
+    saved = json.loads(state.read_text())
+    (conveyor,) = saved["conveyors"].values()
+    assert conveyor["settings"]["residual"] == "closed-loop"
+    code = main(["monitor", "--profile", str(REFERENCE_PROFILE), "--residual", "x", *files[:1]])
+    assert code == 2
+    assert "--residual" in capsys.readouterr().err

@@ -385,6 +385,7 @@ class ConveyorMonitor:
                         not recording.has_warning("incomplete_cycle"),
                     ),
                     self.calibration,
+                    residual=self.settings.residual,
                 )
             )
         except EstimationError as exc:

@@ -137,7 +137,12 @@ class MonitorState:
         try:
             s = data["settings"]
             settings = MonitorSettings(
-                int(s["baseline_n"]), int(s["x"]), int(s["y"]), float(s["z_limit"])
+                int(s["baseline_n"]),
+                int(s["x"]),
+                int(s["y"]),
+                float(s["z_limit"]),
+                # states written before the option existed used the inverse model
+                str(s.get("residual", "inverse")),
             )
             cal = data["calibration"]
             stored = data["baselines"]

@@ -46,8 +46,16 @@ class MonitorSettings:
     x: int = 3
     y: int = 10
     z_limit: float = 5.0
+    residual: str = "inverse"
+    """The model the residual features compare with: ``inverse`` (the rigid model
+    driven by the measured speed) or ``closed-loop`` (the controller replica driven
+    by the recorded set points, :mod:`chaintwin.identify.verification`)."""
 
     def __post_init__(self) -> None:
+        if self.residual not in ("inverse", "closed-loop"):
+            raise MonitorError(
+                f"residual '{self.residual}' must be inverse or closed-loop", field="residual"
+            )
         if self.baseline_n < 5:
             raise MonitorError(
                 f"baseline_n {self.baseline_n} must be at least 5 recordings", field="baseline_n"
@@ -73,6 +81,7 @@ class SettingsGiven:
     x: int | None = None
     y: int | None = None
     z_limit: float | None = None
+    residual: str | None = None
 
     def merged(self, stored: MonitorSettings | None) -> MonitorSettings:
         """The settings to use: given, else stored, else the defaults.
@@ -88,6 +97,7 @@ class SettingsGiven:
             x=base.x if self.x is None else self.x,
             y=base.y if self.y is None else self.y,
             z_limit=base.z_limit if self.z_limit is None else self.z_limit,
+            residual=base.residual if self.residual is None else self.residual,
         )
 
 

@@ -64,6 +64,7 @@ __all__ = [
     "Residual",
     "TwinParameters",
     "Verification",
+    "closed_loop_torque",
     "movement_label",
     "rep_series",
     "rep_stats",
@@ -363,6 +364,24 @@ def _two_slopes(t: FloatArray, w: FloatArray) -> bool:
     return bool(top > 0.0 and abs(a - b) > _TWO_SLOPES * top)
 
 
+def closed_loop_torque(
+    recording: Recording, profile: ConveyorProfile, params: TwinParameters, payload_kg: float
+) -> FloatArray:
+    """The closed loop's motor torque at the recording's samples, Nm.
+
+    The controller replica and the rigid plant driven by the recording's set
+    points (see the module notes); the residual ``monitor --residual
+    closed-loop`` compares with.
+
+    Raises
+    ------
+    EstimationError
+        When the recording cannot be simulated (no speed set point, starts in
+        motion, no motion).
+    """
+    return _closed_loop(recording, profile, params, payload_kg)[1]
+
+
 def _closed_loop(
     recording: Recording, profile: ConveyorProfile, params: TwinParameters, payload_kg: float
 ) -> tuple[FloatArray, FloatArray]:
@@ -372,11 +391,13 @@ def _closed_loop(
     )
     base = prep.base
     listed = base.motor_inertia_kgm2 + base.gear_inertia_kgm2
+    # an identified loss slightly below zero (within its noise) is simulated as none:
+    # the plant refuses negative losses
     values: Mapping[str, float] = {
         "mu": params.mu,
-        "loss_constant_nm": params.loss_constant_nm,
-        "loss_viscous_nm_s_rad": params.loss_viscous_nm_s_rad,
-        "loss_quadratic_nm_s2_rad2": params.loss_quadratic_nm_s2_rad2,
+        "loss_constant_nm": max(params.loss_constant_nm, 0.0),
+        "loss_viscous_nm_s_rad": max(params.loss_viscous_nm_s_rad, 0.0),
+        "loss_quadratic_nm_s2_rad2": max(params.loss_quadratic_nm_s2_rad2, 0.0),
         "drive_inertia_scale": params.drive_inertia_kgm2 / listed,
     }
     plant = plant_of(base, values, (base.motor_inertia_kgm2, base.gear_inertia_kgm2))

@@ -162,6 +162,7 @@ FEATURES: dict[str, FeatureSpec] = {
     "impact_energy_max": FeatureSpec(None, 0.0, "J"),
     "impact_isolated": FeatureSpec(None, 0.0, "-"),
     "belt_travel_m": FeatureSpec(None, 0.0, "m"),
+    "usage_kg_m": FeatureSpec(None, 0.0, "kg·m"),  # payload × travel (wear.py), set by the monitor
     "impact_hits_per_rev": FeatureSpec("obstruction", 0.0, "1/rev", min_scale=0.1),
 }
 """Every tracked feature (``comb_<shaft>`` features are added per profile, cause gear)."""

@@ -41,6 +41,7 @@ from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording, RecordingWarning
 from chaintwin.validate.checks import Inspection
 from chaintwin.validate.phases import Phase, segment
+from chaintwin.weigh.tlf import belt_travel_m
 from chaintwin.weigh.weigh import reweigh
 
 from . import alarms, baseline, monitor_state
@@ -397,6 +398,13 @@ class ConveyorMonitor:
             return base
         w = feats.weighing
         values = dict(feats.values)
+        # usage (chaintwin.diagnose.wear): payload times belt travel, kg·m
+        payload = values.get("payload_kg", float("nan"))
+        values["usage_kg_m"] = (
+            payload * belt_travel_m(recording, self.calibration.id_profile)
+            if math.isfinite(payload)
+            else float("nan")
+        )
         # retired: scope positions are not comparable across recordings
         values["belt_bump"] = float("nan")
         # an obstacle is hit once per belt revolution: isolated impacts pooled

@@ -52,6 +52,7 @@ __all__ = [
     "PUBLISHED_TLF",
     "PUBLISHED_TLF_NOTE",
     "TLF_DEFINITIONS",
+    "belt_travel_m",
     "motor_shaft_transport_loss_factor",
     "motor_shaft_work",
     "sprocket_work_and_distance",
@@ -104,10 +105,10 @@ def sprocket_work_and_distance(
     )
     h = np.diff(t)
     work = float(np.sum(0.5 * (p_out[1:] + p_out[:-1]) * h))
-    return work, _belt_travel_m(recording, profile)
+    return work, belt_travel_m(recording, profile)
 
 
-def _belt_travel_m(recording: Recording, profile: ConveyorProfile) -> float:
+def belt_travel_m(recording: Recording, profile: ConveyorProfile) -> float:
     """Belt travel ``∫|ω|·r/i dt`` over the recording, m."""
     speed = np.abs(recording.speed) * profile.chordal_radius_m / profile.kinematic_ratio
     return float(np.sum(0.5 * (speed[1:] + speed[:-1]) * np.diff(recording.time)))
@@ -138,7 +139,7 @@ def motor_shaft_transport_loss_factor(
     """
     if payload_kg is None or payload_kg < MIN_PAYLOAD_KG:
         return None
-    distance = _belt_travel_m(recording, profile)
+    distance = belt_travel_m(recording, profile)
     if distance <= 0.0:
         return None
     return motor_shaft_work(recording) / (payload_kg * G * distance)

@@ -120,3 +120,14 @@ def test_monitor_alarms_on_a_limit(friction_series: list[Path], rule: str) -> No
     assert all(r.alarm for r, flag in zip(results, limit_alarm, strict=True) if flag)
     opened = [a for a in mon.open_alarms() if a.kind == "limit"]
     assert [(a.feature, a.rule, a.limit) for a in opened] == [("friction", rule, 1.2)]
+
+
+def test_a_key_with_a_line_break_gives_a_one_line_error() -> None:
+    # found by tests/test_loader_fuzz.py: the field path named the key as written
+    data = PROFILE.model_dump(mode="json") | {"be\nlt": 1}
+    with pytest.raises(ProfileError) as info:
+        parse_profile(data, "x.yaml")
+    assert "\n" not in str(info.value) and "be\\nlt" in str(info.value)
+    with pytest.raises(MonitorError) as err:
+        ConveyorMonitor(_with_limits({"fric\ntion": {"alarm": 1.3}}), SETTINGS)
+    assert "\n" not in str(err.value) and "fric\\ntion" in str(err.value)

@@ -72,8 +72,9 @@ def check_limit_names(profile: ConveyorProfile) -> None:
     """
     for name in profile.limits or {}:
         if name not in FEATURES and not name.startswith("comb_"):
+            shown = "".join(c if c.isprintable() else repr(c)[1:-1] for c in name)
             raise MonitorError(
-                f"profile '{profile.id}': limits.{name}: no such feature; limits apply to "
+                f"profile '{profile.id}': limits.{shown}: no such feature; limits apply to "
                 f"{', '.join(sorted(FEATURES))} and comb_<shaft>",
                 field="limits",
             )

@@ -383,8 +383,11 @@ def _format_validation_error(source: str, exc: ValidationError) -> str:
     parts = []
     for err in exc.errors()[:3]:
         path = ".".join(str(p) for p in err["loc"]) or "(top level)"
+        # a key the file spells with a line break or other control character: shown
+        # escaped, so that the error stays on one line
+        path = "".join(c if c.isprintable() else repr(c)[1:-1] for c in path)
         kind = err["type"]
-        msg = err["msg"]
+        msg = " ".join(str(err["msg"]).split())
         if kind == "missing":
             hint = "add it"
         elif kind == "extra_forbidden":

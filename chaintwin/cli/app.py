@@ -73,6 +73,7 @@ def _register() -> None:
         simulate_cmd,
         spectrum_cmd,
         store_cmd,
+        verify_cmd,
     )
 
     inspect_cmd.register(app)
@@ -86,6 +87,7 @@ def _register() -> None:
     db_cmd.register(app)
     serve_cmd.register(app)
     drive_sim_cmd.register(app)
+    verify_cmd.register(app)
 
 
 _register()

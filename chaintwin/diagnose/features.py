@@ -71,9 +71,10 @@ import numpy as np
 
 from chaintwin._types import FloatArray
 from chaintwin.diagnose.impacts import Impact, impact_features, scan_impacts
-from chaintwin.errors import EstimationError
+from chaintwin.errors import EstimationError, ModelError
 from chaintwin.identify.calibration import Calibration
 from chaintwin.identify.signatures import fit_condition
+from chaintwin.identify.verification import closed_loop_torque, twin_parameters
 from chaintwin.model.frequencies import (
     SHAFT_HARMONICS,
     apparent_orders,
@@ -188,6 +189,7 @@ FEATURES: dict[str, FeatureSpec] = {
     "impact_isolated": FeatureSpec(None, 0.0, "-"),
     "impact_drags": FeatureSpec(None, 0.0, "-"),
     "belt_travel_m": FeatureSpec(None, 0.0, "m"),
+    "usage_kg_m": FeatureSpec(None, 0.0, "kg·m"),  # payload × travel (wear.py), set by the monitor
     "impact_hits_per_rev": FeatureSpec("obstruction", 0.0, "1/rev", min_scale=0.1),
 }
 """Every tracked feature (``comb_<shaft>`` features are added per profile, cause gear)."""
@@ -329,7 +331,9 @@ def _line_sum(spec: Spectrum, orders: list[float], ts: float, avoid: Sequence[fl
     return _line_sums(spec, {"": _line_centres(spec, orders, ts, avoid)})[""]
 
 
-def recording_features(inspection: Inspection, calibration: Calibration) -> RecordingFeatures:
+def recording_features(
+    inspection: Inspection, calibration: Calibration, *, residual: str = "inverse"
+) -> RecordingFeatures:
     """Weigh a recording and extract its condition features.
 
     Parameters
@@ -339,6 +343,12 @@ def recording_features(inspection: Inspection, calibration: Calibration) -> Reco
         phases (validation's segmentation, used as it is).
     calibration : Calibration
         The conveyor's calibration (from a file or learned).
+    residual : {"inverse", "closed-loop"}
+        The model torque of the residual features: the rigid model driven by
+        the measured speed, or the controller replica driven by the recorded
+        set points (:func:`chaintwin.identify.verification.closed_loop_torque`;
+        when the recording cannot be simulated, the inverse model with the
+        warning ``closed_loop_unavailable``).
 
     Returns
     -------
@@ -431,6 +441,16 @@ def recording_features(inspection: Inspection, calibration: Calibration) -> Reco
         )
 
     model = model_torque(recording, prof, params, load_kg, tray_kg=tray, motoring=mot)
+    if residual == "closed-loop":
+        try:
+            model = closed_loop_torque(recording, prof, twin_parameters(prof, calibration), load_kg)
+        except (EstimationError, ModelError) as exc:
+            warnings.append(
+                RecordingWarning(
+                    "closed_loop_unavailable",
+                    f"the closed loop cannot be simulated ({exc}); residual of the inverse model",
+                )
+            )
     report = residual_analysis(recording, model, phases=phases)
     steady = report.by_phase.get("constant")
     values["residual_std"] = steady.std if steady else nan

@@ -163,9 +163,12 @@ class ConveyorData:
                 best = (h, t)
         return None if best is None else best[1]
 
-    def recent_tlf(self) -> float:
-        """Median TLF of the latest :data:`RECENT` recordings with one (NaN if none)."""
-        vals = [r["tlf"] for r in self.results if r.get("tlf") is not None][-RECENT:]
+    def recent_tlf(self, key: str = "tlf") -> float:
+        """Median TLF of the latest :data:`RECENT` recordings with one (NaN if none).
+
+        ``key``: ``tlf`` (sprocket work) or ``tlf_motor_shaft`` (motor-shaft work).
+        """
+        vals = [r[key] for r in self.results if r.get(key) is not None][-RECENT:]
         return float(statistics.median(vals)) if vals else math.nan
 
     def recent_payload(self) -> float:

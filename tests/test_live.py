@@ -671,3 +671,28 @@ def test_drives_hook_counts_recordings_connections_and_missed_scopes(
     with Session(store.engine) as s:
         assert s.get(LeaseRow, f"opcua:{PROFILE.id}") is None  # handed back on stop
     store.close()
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["--notify-url", "http://127.0.0.1:9/hook"], "--notify-url needs --notify-secret-file"),
+        (["--notify-url", "ftp://x", "--notify-secret-file", "KEY"], "not an http"),
+        (["--notify-url", "http://x/h", "--notify-secret-file", "EMPTY"], "the file is empty"),
+        (["--watch", "NOWHERE"], "no such folder"),
+        (["--settle-s", "-1"], "--settle-s -1.0 must be zero or more"),
+        (["--opcua", "drives.yaml"], "not available in this build"),
+    ],
+)
+def test_serve_refuses_bad_options_in_one_line(
+    args: list[str], says: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "KEY").write_text("k\n")
+    (tmp_path / "EMPTY").write_text("\n")
+    named = [str(tmp_path / a) if a in ("KEY", "EMPTY", "NOWHERE") else a for a in args]
+    db = tmp_path / "plant.db"
+    code = main(["serve", "--db", f"sqlite:///{db}", "--no-web", *named])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert says in err and len(err.strip().splitlines()) == 1
+    assert not db.exists()  # refused before the store is touched

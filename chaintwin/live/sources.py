@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import hashlib
+import itertools
 import logging
 import re
 import tempfile
@@ -147,6 +148,7 @@ class Ingestor:
         self._stored_profiles: dict[str, ConveyorProfile] = {}
         self._profiles_at = -1e9
         self._spool = Path(tempfile.mkdtemp(prefix="chaintwin-spool-"))
+        self._serial = itertools.count()
         # one thread of its own: the pipeline's memory stays in one allocator arena
         # (the loop's default pool spreads it over many, and the process grows)
         self._thread = ThreadPoolExecutor(max_workers=1, thread_name_prefix="chaintwin-ingest")
@@ -166,7 +168,8 @@ class Ingestor:
         from chaintwin.read.writer import write_recording
 
         ready = time.monotonic()
-        path = self._spool / f"{_SAFE.sub('_', source_key)[-150:]}.csv"
+        # unique per call: the same scope submitted twice at once is two files
+        path = self._spool / f"{_SAFE.sub('_', source_key)[-150:]}-{next(self._serial)}.csv"
         try:
             await asyncio.to_thread(write_recording, recording, path)
         except (ChaintwinError, OSError, ValueError) as exc:

@@ -1,4 +1,5 @@
-"""Fidelity evaluation of dynamic weighing over randomly drawn conveyors (issue 16).
+"""Fidelity evaluation of dynamic weighing (issue 16) and monitoring (issue 17, see
+``scripts/fidelity_monitoring.py``) over randomly drawn conveyors.
 
 Run::
 
@@ -555,7 +556,7 @@ def _fmt(x: float | None) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("what", choices=["weighing"])
+    parser.add_argument("what", choices=["weighing", "monitoring"])
     parser.add_argument("--conveyors", type=int, default=30)
     parser.add_argument("--seed", type=int, default=20261125)
     parser.add_argument(
@@ -565,8 +566,23 @@ def main(argv: list[str] | None = None) -> int:
         choices=[*RICHER, "export"],
         help="leave one effect of the richer plant out (repeatable), to see what it costs",
     )
-    parser.add_argument("--json", type=Path, default=Path("fidelity-weighing.json"))
+    parser.add_argument("--json", type=Path, default=None, help="fidelity-WHAT.json by default")
+    parser.add_argument("--per-fault", type=int, default=8, help="monitoring: conveyors per fault")
+    parser.add_argument("--healthy", type=int, default=12, help="monitoring: healthy sequences")
+    parser.add_argument("--recordings", type=int, default=200, help="monitoring: per sequence")
+    parser.add_argument("--workers", type=int, default=2, help="monitoring: processes")
+    parser.add_argument(
+        "--only", nargs="*", default=None, help="monitoring: fault types (or healthy) to run"
+    )
     args = parser.parse_args(argv)
+    args.json = args.json or Path(f"fidelity-{args.what}.json")
+    if args.what == "monitoring":
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        from fidelity_monitoring import run_monitoring
+
+        result = run_monitoring(args, draw_conveyor, calibration_runs)
+        args.json.write_text(json.dumps(json_ready(result), indent=1, allow_nan=False))
+        return 0
     started = time.perf_counter()
     _header(args)
     rng = np.random.default_rng(args.seed)

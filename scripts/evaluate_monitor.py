@@ -45,6 +45,8 @@ SERIES: list[tuple[str, list[Fault], int]] = [
     ("obstruction", [Fault("obstruction", 0.5)], 6),
     ("rail_obstacle", [Fault("rail_obstacle", 1.0)], 6),
     ("elongation", [Fault("elongation", 1.0)], 6),
+    ("sprocket", [Fault("sprocket", 1.0)], 6),
+    ("healthy-events", [Fault("payload_event", 1.0)], 0),
 ]
 """(name, faults at their final severity, onset day)."""
 
@@ -56,6 +58,7 @@ EXPECTED = {
     "obstruction": "obstruction",
     "rail_obstacle": "obstruction",
     "elongation": "elongation",
+    "sprocket": "sprocket",
 }
 
 
@@ -107,8 +110,11 @@ def run_series(
     false_alarms = sum(
         1
         for r in results
-        if r.alarm and (not faults or (onset_at is not None and (r.recorded_at or "") < onset_at))
+        if r.alarm
+        and (name not in EXPECTED or (onset_at is not None and (r.recorded_at or "") < onset_at))
     )
+    events_noted = sum(1 for r in results if any(c["cause"] == "payload_event" for c in r.causes))
+    events_true = sum(1 for t in truth if t.get("payload_event_s"))
     sev = None
     cause = None
     if first is not None:
@@ -132,6 +138,8 @@ def run_series(
         "cause": cause,
         "expected": EXPECTED.get(name),
         "false_alarms": false_alarms,
+        "events_noted": events_noted,
+        "events_true": events_true,
         "recordings": len(results),
         "ms_per_recording": 1000.0 * elapsed,
         "first_causes": None if first is None else first.causes,
@@ -189,6 +197,12 @@ def main() -> None:
         f"alarmed {alarmed} of {faults} fault series, cause right for {right}; "
         f"false alarms on healthy series: {healthy_false}"
     )
+    for r in rows:
+        if r["events_true"] or r["events_noted"]:
+            print(
+                f"{r['series']}: {r['events_true']} recordings with a simulated payload event, "
+                f"{r['events_noted']} noted as payload_event"
+            )
     print("probable causes given over each whole series (first cause of every alarm):")
     for r in rows:
         print(f"  {r['series']:12s} {', '.join(r['every_cause']) or '-'}")

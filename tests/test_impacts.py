@@ -11,6 +11,7 @@ from chaintwin.diagnose.impacts import (
     detect_impacts,
     hits_per_revolution,
     impact_features,
+    less_periodic,
     periodic,
 )
 from chaintwin.read.profile import ConveyorProfile
@@ -70,3 +71,80 @@ def test_regular_knocks_are_periodic_and_isolated_ones_pool_per_revolution(
     rows.append({"impact_isolated": 1.0, "belt_travel_m": 4.3})
     assert hits_per_revolution(rows, 8.6) == pytest.approx(1.0)
     assert np.isnan(hits_per_revolution([{}], 8.6))
+
+
+def _with(rec: object, torque: np.ndarray) -> object:
+    return dataclasses.replace(rec, channels={**rec.channels, "torque": torque})  # type: ignore[type-var]
+
+
+def test_a_knock_and_its_ringing_are_one_event_and_a_ringing_alone_is_none(
+    reference_profile: ConveyorProfile,
+) -> None:
+    ins, model = _steady(reference_profile)
+    rec = ins.recording  # type: ignore[attr-defined]
+    phases = list(ins.phases)  # type: ignore[attr-defined]
+    t = rec.time
+    noise = np.random.default_rng(4).normal(0.0, 0.01, rec.samples)
+    # a belt ringing at 3 Hz for a second, 0.3 Nm, no hit
+    ring = np.where((t > 4.0) & (t < 5.0), 0.3 * np.sin(2 * np.pi * 3.0 * (t - 4.0)), 0.0)
+    assert detect_impacts(_with(rec, model + noise + ring), model, phases) == []
+    # a knock of 0.6 Nm followed by the drive's ringing 20-60 ms later
+    k = int(np.searchsorted(t, 5.0))
+    knock = np.zeros(rec.samples)
+    knock[k : k + 2] = 0.6
+    knock[k + 4 : k + 6] = -0.2
+    knock[k + 8 : k + 10] = 0.1
+    (hit,) = detect_impacts(_with(rec, model + noise + knock), model, phases)
+    assert hit.sign == 1 and hit.peak_nm == pytest.approx(0.6, abs=0.05)
+    assert hit.width_s <= 2 * rec.sample_time_s + 1e-9
+
+
+def test_spikes_as_large_both_ways_are_no_hits(reference_profile: ConveyorProfile) -> None:
+    ins, model = _steady(reference_profile)
+    rec = ins.recording  # type: ignore[attr-defined]
+    torque = model + np.random.default_rng(5).normal(0.0, 0.01, rec.samples)
+    for t0, sign in ((2.5, 1.0), (4.5, -1.0), (7.0, 1.0)):  # aliased line content
+        torque[int(np.searchsorted(rec.time, t0))] += sign * 0.3
+    events = detect_impacts(_with(rec, torque), model, list(ins.phases))  # type: ignore[attr-defined]
+    assert [e.sign for e in events] == [-1]  # the resisting ones do not stand out
+    feats = impact_features(events, rec, list(ins.phases), 0.001)  # type: ignore[attr-defined]
+    assert feats["impact_count"] == 0
+
+
+def test_a_drag_is_told_from_a_knock(reference_profile: ConveyorProfile) -> None:
+    ins, model = _steady(reference_profile)
+    rec = ins.recording  # type: ignore[attr-defined]
+    phases = list(ins.phases)  # type: ignore[attr-defined]
+    torque = model + np.random.default_rng(6).normal(0.0, 0.01, rec.samples)
+    drag = (rec.time > 4.0) & (rec.time < 4.5)  # an item caught for half a second
+    torque[drag] += 0.2
+    (event,) = detect_impacts(_with(rec, torque), model, phases)
+    assert event.sign == 1 and event.width_s == pytest.approx(0.5, abs=0.05)
+    feats = impact_features([event], rec, phases, 0.001)
+    assert feats["impact_drags"] == 1 and feats["impact_isolated"] == 0
+
+
+def test_what_repeats_at_a_given_order_is_taken_away_and_a_single_hit_stays(
+    reference_profile: ConveyorProfile,
+) -> None:
+    ins, model = _steady(reference_profile)
+    rec = ins.recording  # type: ignore[attr-defined]
+    phases = list(ins.phases)  # type: ignore[attr-defined]
+    order = 0.3  # per motor revolution: a sprocket's tooth pass, say
+    comb = 0.25 * (np.mod(order * rec.position, 2 * np.pi) < 0.3)  # a short knock per tooth
+    torque = model + np.random.default_rng(7).normal(0.0, 0.01, rec.samples) + comb
+    k = int(np.searchsorted(rec.time, 5.5))
+    torque[k : k + 2] += 0.5
+    with_comb = _with(rec, torque)
+    # without knowing the order the comb's knocks read as one long drag
+    (blur,) = [e for e in detect_impacts(with_comb, model, phases) if e.sign > 0]
+    assert blur.duration_s > 5.0
+    # a knock narrower than a phase bin leaves some of it either way: what
+    # resists the motion (what the features count) is the single hit alone
+    resisting = [e for e in detect_impacts(with_comb, model, phases, [order]) if e.sign > 0]
+    (hit,) = resisting
+    assert hit.t_s <= rec.time[k] <= hit.t_s + hit.duration_s
+    assert hit.peak_nm == pytest.approx(0.5, abs=0.1) and hit.duration_s < 1.0
+    x = np.sin(np.linspace(0.0, 40.0 * np.pi, 4000))
+    flat = less_periodic(x, np.linspace(0.0, 40.0 * np.pi, 4000), [1.0])
+    assert float(np.max(np.abs(flat))) < 0.05  # a pure line at the order goes

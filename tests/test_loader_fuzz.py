@@ -165,7 +165,7 @@ def test_calibrations_with_any_value_anywhere(path: list[Any], value: Any) -> No
 STATE_SHAPE = {
     "conveyor": "c",
     "profile_sha256": "0" * 64,
-    "settings": {"baseline_n": 20, "x": 3, "y": 10, "z_limit": 5.0},
+    "settings": {"baseline_n": 20, "x": 3, "y": 10, "z_limit": 5.0, "residual": "inverse"},
     "calibration": None,
     "calibration_source": "none",
     "pending": [{"path": "a.csv", "file": "a.csv", "sha256": "0", "warnings": []}],
@@ -191,6 +191,8 @@ STATE_SHAPE = {
             "last_seen": None,
             "status": "open",
             "acknowledged": {"by": "x", "why": "y", "at": "2026-01-01T00:00:00+00:00"},
+            "rule": "x_of_y",
+            "kind": "statistical",
         }
     ],
     "events": [
@@ -212,6 +214,12 @@ STATE_SHAPE = {
 
 def test_the_state_shape_is_a_valid_state() -> None:
     assert MonitorState.from_dict(STATE_SHAPE).to_dict() == STATE_SHAPE
+    # a state written before the residual setting and the alarms' rule existed
+    old = json.loads(json.dumps(STATE_SHAPE))
+    del old["settings"]["residual"]
+    for key in ("rule", "kind"):
+        del old["alarms"][0][key]
+    assert MonitorState.from_dict(old).to_dict() == STATE_SHAPE
 
 
 @FUZZ

@@ -82,6 +82,19 @@ def test_conveyor_page_has_every_section_with_real_plots(
             assert float(img[..., :3].std()) > 0.02, f"a blank plot in {ident}"
     # the friction rise: an open friction alarm, named in the summary and the alarm table
     assert "open alarm on friction" in _section(html, "summary")
+    # both transport loss factors, labelled, with the published value beside them
+    tlf_row = re.search(r"TLF ([0-9.]+) \(sprocket work\), ([0-9.]+) \(motor-shaft work\)", html)
+    assert tlf_row is not None
+    assert float(tlf_row.group(2)) > float(tlf_row.group(1)) > 0.0
+    assert "published 0.01-0.02: not comparable" in html
+    # the twin verified against the latest recording: REP of speed and torque per phase
+    table = _section(html, "residuals").split("Verification of the twin, latest recording")
+    assert len(table) == 2 and table[1].startswith(" (trapezoid")
+    rows = dict(re.findall(r"<tr><td>([a-z ]+)</td>(.*?)</tr>", table[1]))
+    assert {"whole movement", "accelerate fwd", "constant fwd", "decelerate fwd"} <= set(rows)
+    cells = [float(x) for x in re.findall(r'<td class="num">([-0-9.]+)</td>', rows["constant fwd"])]
+    # six numbers; the torque's mean REP within what the realism (noise, ringing) allows
+    assert len(cells) == 6 and abs(cells[3]) < 20.0
     alarms = _section(html, "alarms")
     assert re.search(r"<td>friction</td><td>friction</td>", alarms)
     # one trend plot per tracked feature, friction among them

@@ -312,13 +312,13 @@ def test_cli_json_with_profile(bearing_csv: Path, capsys: pytest.CaptureFixture[
     code = main(["spectrum", str(bearing_csv), "--profile", str(REFERENCE_PROFILE), "--json"])
     out = json.loads(capsys.readouterr().out)
     assert code == 0
-    assert set(out) == {"file", "kind", "speed_rpm", "resolution", "lines", "peaks"}
+    assert {"file", "kind", "speed_rpm", "resolution", "lines", "peaks"} <= set(out)
     assert out["file"] == str(bearing_csv)
     assert out["kind"] == "frequency"
     assert out["speed_rpm"] == pytest.approx(NOMINAL_RPM, rel=0.01)
     assert out["resolution"] == pytest.approx(1.0 / (512 * 0.006))
     lines = {ln["name"]: ln for ln in out["lines"]}
-    assert set(lines["rotor"]) == {"name", "order", "apparent", "amplitude"}
+    assert {"name", "order", "apparent", "amplitude"} <= set(lines["rotor"])
     mesh = lines["stage1_mesh"]  # order 12: 283 Hz, folded into [0, 83.3] Hz
     assert mesh["order"] == 12.0
     assert 0.0 <= mesh["apparent"] <= 0.5 / 0.006

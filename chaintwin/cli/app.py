@@ -64,6 +64,7 @@ def _register() -> None:
     from chaintwin.cli import (
         db_cmd,
         demo_cmd,
+        drive_sim_cmd,
         identify_cmd,
         inspect_cmd,
         monitor_cmd,
@@ -72,6 +73,7 @@ def _register() -> None:
         simulate_cmd,
         spectrum_cmd,
         store_cmd,
+        verify_cmd,
     )
 
     inspect_cmd.register(app)
@@ -84,6 +86,8 @@ def _register() -> None:
     report_cmd.register(app)
     db_cmd.register(app)
     serve_cmd.register(app)
+    drive_sim_cmd.register(app)
+    verify_cmd.register(app)
 
 
 _register()

@@ -52,6 +52,7 @@ OPTION_OF_FIELD: dict[str, str] = {
     "out": "--out",
     "per_day": "--per-day",
     "png": "--png",
+    "residual": "--residual",
     "scheduler": "--scheduler",
     "state": "--state",
     "url": "--db",

@@ -262,7 +262,15 @@ def register(app: typer.Typer) -> None:
         serve: Annotated[
             bool, typer.Option("--serve", help="Then serve the store's dashboard (Ctrl-C stops).")
         ] = False,
-        port: Annotated[int, typer.Option("--port", help="Port for --serve.")] = 8000,
+        port: Annotated[int, typer.Option("--port", help="Port for --serve or --live.")] = 8000,
+        live: Annotated[
+            bool,
+            typer.Option(
+                "--live",
+                help="Then run the plant as drives over OPC UA, followed live with the "
+                "dashboard and a webhook receiver (Ctrl-C stops).",
+            ),
+        ] = False,
     ) -> None:
         """The main job on a virtual plant: simulate, calibrate, ingest, monitor, report.
 
@@ -272,9 +280,17 @@ def register(app: typer.Typer) -> None:
         an embedded SQLite store (weighed and monitored), and HTML reports are
         written. Prints a summary table, where the reports are, and the
         command that serves the dashboard with a new token (--serve runs it).
+        --live then turns the plant into simulated drives publishing over OPC
+        UA, which the live service follows into the same store, with the
+        dashboard and signed alarm notifications to a webhook receiver.
         """
         console = Console()
         run_demo(out, days=days, per_day=per_day, workers=workers, console=console)
+        if live:
+            from chaintwin.cli.demo_live import run_live
+
+            run_live(out, port=port, console=console)
+            return
         token = demo_token(out)
         db = f"sqlite:///{out / 'plant.db'}"
         console.print(

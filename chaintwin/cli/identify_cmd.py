@@ -22,6 +22,15 @@ from chaintwin.cli.common import (
 from chaintwin.errors import CalibrationError, ChaintwinError, EstimationError, RecordingError
 from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.calibration import Calibration, load_calibration
+from chaintwin.identify.losses import loss_verdict
+from chaintwin.identify.methods import (
+    DEFAULT_HOLD_FIRST,
+    METHODS,
+    identify_oe,
+    identify_rls,
+    in_time_order,
+)
+from chaintwin.identify.tracking import DEFAULT_FORGETTING
 from chaintwin.read.columns import ColumnMap, load_column_map
 from chaintwin.read.profile import ConveyorProfile, load_profile
 from chaintwin.read.recording import Recording
@@ -112,6 +121,12 @@ def identify_dict(cal: Calibration) -> dict[str, Any]:
         value, err = pair(name, key)
         out[name] = value
         out[f"{name}_stderr"] = err
+    verdict = loss_verdict(p, cal.plateau_speeds_rpm)
+    if not verdict.separated:
+        # a split the runs cannot make is not reported (the sum is, in "losses")
+        for key in ("BmB", "BmC"):
+            out[key] = out[f"{key}_stderr"] = None
+    out["losses"] = verdict.to_dict()
     out["inertia_kgm2"] = cal.inertia_kgm2
     out["inertia_kgm2_stderr"] = p.stderr("J_d")
     out["torque_lag_s"] = cal.torque_lag_s
@@ -149,6 +164,33 @@ def register(app: typer.Typer) -> None:
         profile: Annotated[Path, typer.Option("--profile", help="Conveyor profile YAML.")],
         as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
         columns: ColumnsOption = None,
+        method: Annotated[
+            str,
+            typer.Option(
+                "--method",
+                help="ls: windowed batch least squares (default); rls: recursive least "
+                "squares over the recordings in time order, tracking BmA and BmB; oe: "
+                "output-error fit of the closed loop.",
+            ),
+        ] = "ls",
+        forgetting: Annotated[
+            float,
+            typer.Option(
+                "--forgetting",
+                min=0.5,
+                max=1.0,
+                help=f"rls: forgetting factor λ [{DEFAULT_FORGETTING}].",
+            ),
+        ] = DEFAULT_FORGETTING,
+        hold_first: Annotated[
+            int,
+            typer.Option(
+                "--hold-first",
+                min=1,
+                help="rls: J_d, mu and BmC are held at the batch fit of this many first "
+                f"recordings [{DEFAULT_HOLD_FIRST}].",
+            ),
+        ] = DEFAULT_HOLD_FIRST,
     ) -> None:
         """Identify friction, gear losses, inertia and torque lag from known-load recordings.
 
@@ -156,24 +198,47 @@ def register(app: typer.Typer) -> None:
         friction and the constant loss BmA cannot be separated (a warning says
         what was assumed). Exit code 2 when a file was refused.
         """
+        if method not in METHODS:
+            raise EstimationError(f"--method: '{method}' is not one of {', '.join(METHODS)}")
         prof = load_profile(profile)
         cmap = load_column_map(columns) if columns is not None else None
         recs, refused = _read_all(expand_recordings(files), prof, cmap, known=True)
         if not recs:
             raise _none_usable(refused, "identify")
-        cal = calibrate(recs, prof, version=__version__)
+        extra: dict[str, Any] = {}
+        if method == "rls":
+            cal, track = identify_rls(
+                in_time_order(recs),
+                prof,
+                forgetting=forgetting,
+                hold_first=hold_first,
+                version=__version__,
+            )
+            extra["forgetting"] = forgetting
+            extra["track"] = [p.to_dict() for p in track]
+        elif method == "oe":
+            cal, details = identify_oe(recs, prof, version=__version__)
+            extra["output_error"] = details
+        else:
+            cal = calibrate(recs, prof, version=__version__)
         out = identify_dict(cal)
+        out["method"] = method
+        out["method_description"] = cal.method
+        out.update(extra)
         out["refused"] = refused
         if as_json:
             print_json(out)
         else:
             console = Console()
-            table = Table(title=f"chaintwin identify: {safe(prof.id)}")
+            table = Table(title=f"chaintwin identify ({method}): {safe(prof.id)}")
             for col in ("parameter", "value", "std. error", "unit"):
                 table.add_column(col)
             units = {"mu": "-", "BmA": "Nm", "BmB": "Nm·s/rad", "BmC": "Nm·s²/rad²"}
             for key, unit in [*units.items(), ("inertia_kgm2", "kg·m²"), ("torque_lag_s", "s")]:
                 value, err = out[key], out[f"{key}_stderr"]
+                if key in ("BmB", "BmC") and out["losses"]["verdict"] == "not_separable":
+                    table.add_row(key, "not separable", "-", unit)
+                    continue
                 table.add_row(
                     key,
                     "-" if value is None else f"{value:.5g}",
@@ -181,6 +246,7 @@ def register(app: typer.Typer) -> None:
                     unit,
                 )
             console.print(table)
+            console.print(f"losses: {safe(out['losses']['message'])}", highlight=False)
             for w in out["warnings"]:
                 print_warning(console, "", w["code"], w["message"])
             _print_refused(console, refused)

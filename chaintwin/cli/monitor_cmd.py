@@ -218,9 +218,9 @@ def _print_table(results: list[RecordingResult], monitors: list[ConveyorMonitor]
             )
         for fc in s["forecasts"]:
             console.print(
-                f"  forecast: {fc['feature']} ({fc['cause']}) crosses {fc['limit']:.4g} about "
-                f"{fc['crosses_at'][:10]} (90 %: {fc['earliest'][:10]} to "
-                f"{(fc['latest'] or 'beyond a year')[:10]})",
+                f"  forecast ({fc.get('model', 'line')}): {fc['feature']} ({fc['cause']}) crosses "
+                f"{fc['limit']:.4g} about {fc['crosses_at'][:10]} (90 %: {fc['earliest'][:10]} "
+                f"to {(fc['latest'] or 'beyond a year')[:10]})",
                 highlight=False,
             )
         for n in s["notes"]:
@@ -259,6 +259,14 @@ def register(app: typer.Typer) -> None:
         as_json: Annotated[bool, typer.Option("--json", help=_JSON_HELP)] = False,
         fail_on_alarm: Annotated[bool, typer.Option("--fail-on-alarm", help=_FAIL_HELP)] = False,
         columns: ColumnsOption = None,
+        residual: Annotated[
+            str | None,
+            typer.Option(
+                "--residual",
+                help="Residual features against the inverse model (measured speed) or the "
+                "closed loop (recorded set points) [inverse; a state keeps its own].",
+            ),
+        ] = None,
     ) -> None:
         """Follow conveyors' health over their recordings: baselines, alarms, causes, forecasts.
 
@@ -268,7 +276,7 @@ def register(app: typer.Typer) -> None:
         profs = load_profiles(profile, profiles)
         cals = [load_calibration(c) for c in calibration or []]
         x, y = _parse_rule(alarm_rule) if alarm_rule is not None else (None, None)
-        settings = SettingsGiven(baseline_n=baseline, x=x, y=y, z_limit=z_limit)
+        settings = SettingsGiven(baseline_n=baseline, x=x, y=y, z_limit=z_limit, residual=residual)
         settings.merged(None)  # checks the values before anything is read
         data = load_state(state) if state is not None else None
         cmap = load_column_map(columns) if columns is not None else None

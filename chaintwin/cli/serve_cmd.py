@@ -66,15 +66,11 @@ def serve(
     from chaintwin.web.app import create_app
 
     live = live or LiveArgs()
+    drives = None
     if live.opcua is not None:
-        # wiring (chaintwin.live.opcua): cfg = load_opcua_config(live.opcua);
-        # status = DriveStatus(drives={}); service.add_drives(
-        #     "opcua:" + <conveyor or config path>,
-        #     lambda submit, stop: follow_drives(cfg, submit, stop, status), status)
-        raise StoreError(
-            f"--opcua {live.opcua}: OPC UA is not available in this build of chaintwin; "
-            "follow the drives' exports with --watch DIR"
-        )
+        from chaintwin.live.opcua import load_opcua_config
+
+        drives = load_opcua_config(live.opcua)  # a one-line error naming the field
     if (ssl_certfile is None) != (ssl_keyfile is None):
         raise StoreError("give both --ssl-certfile and --ssl-keyfile, or neither")
     if max_upload_mb <= 0:
@@ -121,6 +117,8 @@ def serve(
             service = LiveService(store, profs, options)
             for folder in live.watch:
                 service.add_folder(folder)
+            if drives is not None:
+                service.add_opcua(drives)
             config = None
             if not live.no_web:
                 app = create_app(
@@ -144,7 +142,10 @@ def serve(
                     # a stop waits for the requests in hand, not for ever
                     timeout_graceful_shutdown=20,
                 )
-            following = ", ".join(str(f) for f in live.watch) or "no folders"
+            followed = [str(f) for f in live.watch]
+            if drives is not None:
+                followed += [f"{d.conveyor} at {d.endpoint}" for d in drives.drives]
+            following = ", ".join(followed) or "no folders or drives"
             where = "no web" if live.no_web else f"{scheme}://{host}:{port}/ (API docs at /docs)"
             print(
                 f"chaintwin serve: {safe_url(url)} at {where}; following {following}; "

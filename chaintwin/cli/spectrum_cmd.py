@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -14,7 +15,13 @@ from chaintwin.diagnose.lines import band_amplitude
 from chaintwin.diagnose.peaks import strongest_peaks
 from chaintwin.diagnose.spectra import MIN_SPEED_RPM, Spectrum, order_spectrum, welch_spectrum
 from chaintwin.errors import EstimationError, RecordingError
-from chaintwin.model.frequencies import apparent_order, line_orders
+from chaintwin.model.frequencies import (
+    apparent_order,
+    characteristic_lines,
+    fold_frequency,
+    lateral_modes_note,
+    line_orders,
+)
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.report.spectrum_plot import plot_spectrum
 from chaintwin.validate.checks import load_recording
@@ -35,14 +42,25 @@ LOW_BINS = 6
 
 
 def line_rows(
-    spectrum: Spectrum, profile: ConveyorProfile | None, sample_time_s: float
+    spectrum: Spectrum,
+    profile: ConveyorProfile | None,
+    sample_time_s: float,
+    *,
+    payload_kg: float = 0.0,
 ) -> list[dict[str, Any]]:
     """The characteristic lines: where the scope shows them and the amplitude there.
 
-    One row per line of :func:`~chaintwin.model.frequencies.line_orders` with
-    ``name``, ``order``, ``frequency_hz`` (at the spectrum's mean speed),
-    ``apparent`` (folded; Hz for a frequency spectrum, orders for an order
-    spectrum), ``amplitude`` (Nm, ±2 bins) and ``aliased``; none without a profile.
+    One row per line of :func:`~chaintwin.model.frequencies.line_orders` (the
+    speed-locked lines) and per structural mode of
+    :func:`~chaintwin.model.frequencies.characteristic_lines` (longitudinal
+    belt modes, two-mass mode, lateral modes), with ``name``, ``order`` (None
+    for a structural mode, which does not scale with speed), ``frequency_hz``
+    (at the spectrum's mean speed), ``apparent`` (folded; Hz for a frequency
+    spectrum, orders for an order spectrum), ``amplitude`` (Nm, ±2 bins),
+    ``aliased`` and ``resolvable``. A line the spectrum cannot resolve (below
+    one bin, or less than one bin from another line) has amplitude None and a
+    ``reason``: the amplitude there would be another line's or the trend's.
+    None without a profile.
 
     Raises
     ------
@@ -62,25 +80,55 @@ def line_rows(
         frequency = order * rot_hz
         folded = apparent_order(order, spectrum.speed_rpm, sample_time_s)
         apparent = folded if spectrum.kind == "order" else folded * rot_hz
+        rows.append({"name": name, "order": order, "frequency_hz": frequency, "apparent": apparent})
+    for line in characteristic_lines(profile, spectrum.speed_rpm, payload_kg=payload_kg):
+        if line.order is not None:
+            continue
+        folded_hz = fold_frequency(line.frequency_hz, sample_time_s)
+        apparent = folded_hz if spectrum.kind == "frequency" else folded_hz / rot_hz
         rows.append(
             {
-                "name": name,
-                "order": order,
-                "frequency_hz": frequency,
+                "name": line.name,
+                "order": None,
+                "frequency_hz": line.frequency_hz,
                 "apparent": apparent,
-                "amplitude": band_amplitude(spectrum, apparent),
-                "aliased": frequency > 0.5 / sample_time_s,
             }
         )
+    bin_width = spectrum.resolution
+    for row in rows:
+        row["aliased"] = row["frequency_hz"] > 0.5 / sample_time_s
+        reason = _unresolvable(row, rows, bin_width)
+        row["resolvable"] = reason is None
+        row["amplitude"] = None if reason is not None else band_amplitude(spectrum, row["apparent"])
+        if reason is not None:
+            row["reason"] = reason
     return rows
+
+
+def _unresolvable(row: dict[str, Any], rows: list[dict[str, Any]], bin_width: float) -> str | None:
+    """Why a line's amplitude cannot be read from a spectrum of this bin width, or None."""
+    x = row["apparent"]
+    if x < bin_width:
+        return f"at {x:.3g}, below one bin ({bin_width:.3g}): not resolved from the trend"
+    close = [
+        r["name"]
+        for r in rows
+        if r is not row
+        and abs(r["apparent"] - x) < bin_width
+        and not math.isclose(r["frequency_hz"], row["frequency_hz"], rel_tol=1e-9)
+    ]
+    if close:
+        return f"less than one bin ({bin_width:.3g}) from {', '.join(close)}: not told apart"
+    return None
 
 
 def spectrum_dict(file: str, spectrum: Spectrum, rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Return the ``spectrum --json`` object.
 
     ``{file, kind, speed_rpm, resolution, lines: [{name, order, apparent,
-    amplitude}], peaks: [{x, amplitude}]}`` with ``rows`` from :func:`line_rows`;
-    the peaks leave out the lowest bins, which hold trend leakage.
+    amplitude, resolvable, reason?}], peaks: [{x, amplitude}]}`` with ``rows``
+    from :func:`line_rows`; the peaks leave out the lowest bins, which hold
+    trend leakage.
     """
     peaks = strongest_peaks(spectrum, top=PEAKS, min_x=LOW_BINS * spectrum.resolution)
     return {
@@ -88,7 +136,11 @@ def spectrum_dict(file: str, spectrum: Spectrum, rows: list[dict[str, Any]]) -> 
         "kind": spectrum.kind,
         "speed_rpm": spectrum.speed_rpm,
         "resolution": spectrum.resolution,
-        "lines": [{k: r[k] for k in ("name", "order", "apparent", "amplitude")} for r in rows],
+        "lines": [
+            {k: r[k] for k in ("name", "order", "apparent", "amplitude", "resolvable")}
+            | ({"reason": r["reason"]} if "reason" in r else {})
+            for r in rows
+        ],
         "peaks": [{"x": x, "amplitude": a} for x, a in peaks],
     }
 
@@ -112,10 +164,10 @@ def _print_tables(out: dict[str, Any], rows: list[dict[str, Any]], sample_time_s
         for r in rows:
             table.add_row(
                 r["name"],
-                f"{r['order']:.4g}",
+                "-" if r["order"] is None else f"{r['order']:.4g}",
                 f"{r['frequency_hz']:.4g}",
                 f"{r['apparent']:.4g}",
-                f"{r['amplitude']:.3g}",
+                "unresolvable" if r["amplitude"] is None else f"{r['amplitude']:.3g}",
                 "[yellow]yes[/yellow]" if r["aliased"] else "no",
             )
         console.print(table)
@@ -161,10 +213,13 @@ def register(app: typer.Typer) -> None:
         spec = order_spectrum(rec) if orders else welch_spectrum(rec)
         ts = rec.sample_time_s
         try:
-            rows = line_rows(spec, prof, ts)
+            rows = line_rows(spec, prof, ts, payload_kg=rec.metadata.payload_kg or 0.0)
         except EstimationError as exc:
             raise EstimationError(f"{file}: {exc}") from None
         out = spectrum_dict(str(file), spec, rows)
+        note = lateral_modes_note(prof) if prof is not None else None
+        if note is not None:
+            out["notes"] = [note]
         if png is not None:
             kind = "order" if orders else "Welch"
             marks = {r["name"]: r["apparent"] for r in rows}
@@ -173,5 +228,7 @@ def register(app: typer.Typer) -> None:
             print_json(out)
         else:
             _print_tables(out, rows, ts)
+            if note is not None:
+                Console().print(f"note: {safe(note)}", highlight=False, soft_wrap=True)
             for w in rec.warnings:
                 print_warning(Console(), str(file), w.code, w.message)

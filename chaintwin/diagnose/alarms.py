@@ -13,7 +13,15 @@ from .features import feature_spec
 from .health import FeatureBaseline, x_of_y
 from .records import Alarm, MonitorSettings, iso_utc
 
-__all__ = ["close_quiet_alarms", "judge", "open_alarm"]
+__all__ = ["LIMIT_PREFIX", "close_quiet_alarms", "judge", "open_alarm", "window_key"]
+
+LIMIT_PREFIX = "limit:"
+"""Prefix of the exceedance windows of absolute limits (``limit:<feature>``)."""
+
+
+def window_key(feature: str, kind: str = "statistical") -> str:
+    """The key of a feature's exceedance window: its name, or ``limit:<name>`` for a limit."""
+    return f"{LIMIT_PREFIX}{feature}" if kind == "limit" else feature
 
 
 def open_alarm(
@@ -26,15 +34,19 @@ def open_alarm(
     when: datetime | None,
     window: list[bool],
     window_times: list[str | None],
+    rule: str = "x_of_y",
+    kind: str = "statistical",
+    limit: float | None = None,
 ) -> Alarm:
     """The open alarm of a feature, opened now if there is none.
 
     Its cause and change are the latest known (a recording that cannot tell
     keeps the last change); a new alarm dates from the first exceedance in
-    the feature's window.
+    the feature's window. A feature has at most one open alarm per ``kind``
+    (``statistical`` or ``limit``); ``rule`` says what raised it.
     """
     for alarm in alarms:
-        if alarm.is_open and alarm.feature == feature:
+        if alarm.is_open and alarm.feature == feature and alarm.kind == kind:
             alarm.cause = cause
             if change is not None:
                 alarm.change = change
@@ -50,6 +62,9 @@ def open_alarm(
         since=since,
         opened_at=iso_utc(when),
         last_seen=iso_utc(when),
+        rule=rule,
+        kind=kind,
+        limit=limit,
     )
     alarms.append(alarm)
     return alarm
@@ -65,7 +80,7 @@ def close_quiet_alarms(
     for alarm in alarms:
         if not alarm.is_open:
             continue
-        win = windows.get(alarm.feature, [])
+        win = windows.get(window_key(alarm.feature, alarm.kind), [])
         if len(win) >= y and not any(win):
             alarm.close(iso_utc(when), f"no exceedance in the last {y} recordings")
 

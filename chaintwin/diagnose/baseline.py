@@ -10,7 +10,8 @@ from typing import Any
 import numpy as np
 
 from .features import FEATURES, feature_spec
-from .health import FeatureBaseline, fit_baseline, forecast_crossing
+from .forecasting import forecast_feature
+from .health import FeatureBaseline, fit_baseline
 from .records import as_number
 
 __all__ = ["NO_FORECAST", "fit_features", "forecasts"]
@@ -97,7 +98,7 @@ def forecasts(
             - fb.slope * (as_number(h["features"].get(spec.regressor)) - fb.mean_payload_kg)
             for h in rows
         ]
-        fc = forecast_crossing(name, times, vals, fb.limit(z_limit, spec.min_rel))
+        fc = forecast_feature(name, times, vals, fb.limit(z_limit, spec.min_rel))
         if fc is not None:
             out.append(fc.to_dict() | {"cause": spec.cause})
     return out

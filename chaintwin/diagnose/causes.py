@@ -2,12 +2,22 @@
 
 from __future__ import annotations
 
-from .features import feature_spec
+from collections.abc import Collection, Mapping
 
-__all__ = ["CAUSE_PRIORITY", "EXPLAINED_BY", "cause_priority", "resolve_causes"]
+from .features import IMPULSIVE, feature_spec
+
+__all__ = [
+    "CAUSE_PRIORITY",
+    "EXPLAINED_BY",
+    "NOTE_CAUSES",
+    "cause_priority",
+    "impact_context",
+    "resolve_causes",
+]
 
 CAUSE_PRIORITY: tuple[str, ...] = (
     "obstruction",
+    "sprocket",
     "elongation",
     "gear",
     "bearing",
@@ -20,25 +30,74 @@ chain's articulation raises friction, a broken tooth raises the broadband
 residual), so those are read as the specific fault when it is present."""
 
 EXPLAINED_BY: dict[str, tuple[str, ...]] = {
-    "friction": ("obstruction", "elongation"),
-    "residual_std": ("obstruction", "gear", "elongation"),
-    "residual_kurtosis": ("obstruction",),
-    "crest_factor": ("obstruction",),
-    "unexplained_peak": ("obstruction", "gear"),
-    "comb": ("obstruction",),
+    "friction": ("obstruction", "sprocket", "elongation"),
+    "residual_std": ("obstruction", "sprocket", "gear", "elongation"),
+    "unexplained_peak": ("obstruction", "sprocket", "gear"),
+    "comb": ("obstruction", "sprocket"),
+    "tooth_pass": ("sprocket",),
+    IMPULSIVE: ("obstruction", "sprocket", "gear"),
 }
 """Which more specific causes explain a feature's rise (``comb`` stands for
-every ``comb_<shaft>``): an obstruction's bump, passed once in a scope, is
-an impulse whose spectrum spreads over the shaft lines too."""
+every ``comb_<shaft>``, ``impulsive`` every feature of
+:data:`~chaintwin.diagnose.features.IMPULSIVE` cause): an obstruction's bump,
+passed once in a scope, is an impulse whose spectrum spreads over the shaft
+lines too; a worn sprocket's knocks raise the tooth-pass lines an elongated
+chain raises, and more."""
+
+NOTE_CAUSES = frozenset({"payload_event", IMPULSIVE})
+"""Causes reported on the recording and never alarmed: an item caught for a
+while, a tray dropped, is an event of operation, not wear; an impulsive
+residual that nothing explains yet names no cause to page anyone about."""
+
+HITS_PER_REV = (0.5, 2.0)
+"""Pooled knocks per belt revolution that read as one obstacle on the rail."""
 
 
-def resolve_causes(features: list[str]) -> dict[str, str]:
+def impact_context(values: Mapping[str, float], exceeded: Collection[str]) -> str:
+    """What made a recording's torque impulsive, from its own features.
+
+    Parameters
+    ----------
+    values : dict of str to float
+        The recording's features (``impact_isolated``, ``impact_drags``,
+        ``impact_hits_per_rev``).
+    exceeded : collection of str
+        Features this recording exceeded (a worn sprocket's ``sprocket_comb``,
+        a tooth's ``comb_<shaft>``).
+
+    Returns
+    -------
+    str
+        ``obstruction`` (knocks at about one per belt revolution, pooled over
+        recordings), ``sprocket``, ``gear``, ``payload_event`` (impacts with
+        no such rate, or dragging ones) or ``impulsive`` (no impact stands
+        out and no line rose: nothing names a cause, a note until something
+        does; a bearing's spalls, a tooth whose comb has not risen yet).
+    """
+    knocks = values.get("impact_isolated") or 0.0
+    drags = values.get("impact_drags") or 0.0
+    rate = values.get("impact_hits_per_rev", float("nan"))
+    if HITS_PER_REV[0] <= rate <= HITS_PER_REV[1]:
+        return "obstruction"
+    if "sprocket_comb" in exceeded:
+        return "sprocket"
+    if any(e.startswith("comb_") for e in exceeded):
+        return "gear"
+    if knocks > 0 or drags > 0 or rate > 0:
+        return "payload_event"
+    return IMPULSIVE
+
+
+def resolve_causes(features: list[str], context: str | None = None) -> dict[str, str]:
     """The probable cause of each feature that met the alarm rule together.
 
     Parameters
     ----------
     features : list of str
         Features whose X-of-Y rule is met at one recording.
+    context : str, optional
+        What the recording's impacts say (:func:`impact_context`): the cause
+        of an impulsive feature when no more specific cause is present.
 
     Returns
     -------
@@ -51,10 +110,16 @@ def resolve_causes(features: list[str]) -> dict[str, str]:
     present = set(own.values())
     out: dict[str, str] = {}
     for f, cause in own.items():
-        for specific in EXPLAINED_BY.get("comb" if f.startswith("comb_") else f, ()):
+        key = "comb" if f.startswith("comb_") else IMPULSIVE if cause == IMPULSIVE else f
+        for specific in EXPLAINED_BY.get(key, ()):
             if specific in present:
                 cause = specific
                 break
+        if cause == IMPULSIVE:
+            cause = context or "unknown"
+            if cause == IMPULSIVE and f.startswith("impact_"):
+                # impacts met the rule, none with a wear pattern: events of operation
+                cause = "payload_event"
         out[f] = cause
     return out
 

@@ -20,13 +20,24 @@ learned from the conveyor's first recordings, :mod:`chaintwin.diagnose.learned`)
     Of the constant-speed residual (measured − model torque,
     :mod:`chaintwin.diagnose.residuals`): broadband noise (bearing).
 ``residual_kurtosis``, ``crest_factor``
-    Of the same residual: impulses. Tracked and reported, not alarmed on:
-    an obstruction passed once in a scope moves them as much as a damaged
-    tooth, so the gear is judged by its shaft comb instead.
+    Of the same residual: impulses. Alarmed when they leave their baseline
+    band, with the probable cause of what made them impulsive (an obstacle,
+    a tooth, a worn sprocket; a bearing when no impact stands out; a
+    payload event, reported and not alarmed, when the impacts drag):
+    :func:`~chaintwin.diagnose.causes.resolve_causes`.
+``impact_count``, ``impact_rate_per_m``, ``impact_energy_max``
+    The recording's impacts (:mod:`chaintwin.diagnose.impacts`): how many,
+    per metre of belt travel, the largest work, J. Alarmed like kurtosis.
 ``tooth_pass``
     Sum of the residual spectrum's amplitudes (Nm) at the sprocket
     tooth-pass order and its 2nd and 3rd harmonic: the chain's engagement
     with the sprocket (elongation).
+``sprocket_comb``
+    Sum of the residual spectrum's amplitudes (Nm) at the 4th to 8th
+    harmonic of the tooth-pass order, away from the shaft combs: a worn
+    sprocket's teeth knock at every engagement, a short impulse whose
+    spectrum spreads to many harmonics, where an elongated chain's smoother
+    engagement ripple stays in the first three (``tooth_pass``).
 ``comb_<shaft>``
     Sum of the amplitudes (Nm) at the first :data:`COMB_HARMONICS`
     harmonics of a gear shaft's order: one damaged tooth on that shaft hits
@@ -51,16 +62,19 @@ above the Nyquist frequency of the scope are looked for where they fold
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from chaintwin.diagnose.impacts import Impact, detect_impacts, impact_features
-from chaintwin.errors import EstimationError
+from chaintwin._types import FloatArray
+from chaintwin.diagnose.impacts import Impact, impact_features, scan_impacts
+from chaintwin.errors import EstimationError, ModelError
 from chaintwin.identify.calibration import Calibration
 from chaintwin.identify.signatures import fit_condition
+from chaintwin.identify.verification import closed_loop_torque, twin_parameters
 from chaintwin.model.frequencies import (
     SHAFT_HARMONICS,
     apparent_orders,
@@ -70,18 +84,20 @@ from chaintwin.model.frequencies import (
 from chaintwin.model.physics import loss_torque_nm
 from chaintwin.model.rigid import model_torque, motoring_mask
 from chaintwin.model.windows import WindowIntegrals, window_integrals
-from chaintwin.read.recording import RecordingWarning
+from chaintwin.read.recording import Recording, RecordingWarning
 from chaintwin.validate.checks import Inspection
+from chaintwin.validate.phases import Phase
 from chaintwin.weigh.drift import LossDrift
 from chaintwin.weigh.weigh import WeighResult, reweigh, weigh
 
 from .lines import band_amplitudes
-from .residuals import residual_analysis
+from .residuals import residual_analysis, residual_stats
 from .spectra import Spectrum, welch_spectrum
 
 __all__ = [
     "COMB_HARMONICS",
     "FEATURES",
+    "IMPULSIVE",
     "FeatureSpec",
     "RecordingFeatures",
     "recording_features",
@@ -92,6 +108,11 @@ COMB_HARMONICS = SHAFT_HARMONICS
 
 TOOTH_PASS_HARMONICS = 3
 """Harmonics of the tooth-pass order summed into ``tooth_pass``."""
+
+SPROCKET_HARMONICS = (4, 5, 6, 7, 8)
+"""Harmonics of the tooth-pass order summed into ``sprocket_comb``: beyond the
+smooth engagement ripple an elongated chain makes (``tooth_pass``), the comb a
+short knock at every tooth engagement (a worn sprocket) spreads to."""
 
 GUARD_BINS = 4
 """Bins (of the zero-padded spectrum) either side of a line that belong to it."""
@@ -123,12 +144,12 @@ class FeatureSpec:
         Floor of the baseline's robust scale (feature units), for features
         whose baseline can hold few distinct values.
     regressor : str
-        The payload estimate the baseline regresses on: ``load_kg`` (the
-        weighing's signatures combined trusting the calibration's losses:
-        the most precise load reading, which a slow loss drift moves a little
-        but smoothly), or ``payload_inertia_kg`` for a feature that a
-        friction change moves together with the friction payload (which
-        would hide it).
+        The payload estimate the baseline regresses on: ``payload_inertia_kg``
+        (the inertia signature: neither a loss drift nor a friction change
+        moves it), or ``load_kg`` (the signatures combined trusting the
+        calibration's losses: more precise, but a +-10 % loss drift moves it
+        by up to 10 kg on a conveyor with high losses, over random conveyors,
+        which reads as a change of every payload-dependent feature).
     """
 
     cause: str | None
@@ -136,31 +157,39 @@ class FeatureSpec:
     unit: str
     payload_dependent: bool = False
     min_scale: float = 0.0
-    regressor: str = "load_kg"
+    regressor: str = "payload_inertia_kg"
 
+
+IMPULSIVE = "impulsive"
+"""Stand-in cause of the features any impulsive torque raises (kurtosis, crest
+factor, the impact features): :func:`~chaintwin.diagnose.causes.resolve_causes`
+names the specific one from what else rose and from the recording's impacts."""
 
 FEATURES: dict[str, FeatureSpec] = {
     "friction": FeatureSpec(
         "friction", 0.05, "-", payload_dependent=True, regressor="payload_inertia_kg"
     ),
-    "speed_loss": FeatureSpec("lubrication", 0.15, "-", payload_dependent=True),
+    "speed_loss": FeatureSpec("lubrication", 0.3, "-", payload_dependent=True),
     "residual_std": FeatureSpec(
         "bearing", 0.3, "Nm", payload_dependent=True, regressor="payload_inertia_kg"
     ),
-    "residual_kurtosis": FeatureSpec(None, 0.0, "-"),
-    "crest_factor": FeatureSpec(None, 0.0, "-"),
+    "residual_kurtosis": FeatureSpec(IMPULSIVE, 0.5, "-", min_scale=0.1),
+    "crest_factor": FeatureSpec(IMPULSIVE, 0.3, "-", min_scale=0.1),
     "tooth_pass": FeatureSpec("elongation", 0.08, "Nm", payload_dependent=True),
+    "sprocket_comb": FeatureSpec("sprocket", 0.5, "Nm", payload_dependent=True),
     "unexplained_peak": FeatureSpec("bearing", 1.0, "-"),
     "belt_bump": FeatureSpec("obstruction", 1.5, "-", min_scale=0.5),  # retired: always NaN
     "payload_kg": FeatureSpec(None, 0.0, "kg"),
     "load_kg": FeatureSpec(None, 0.0, "kg"),
     "payload_inertia_kg": FeatureSpec(None, 0.0, "kg"),
     "tlf": FeatureSpec(None, 0.0, "-"),
-    "impact_count": FeatureSpec(None, 0.0, "-"),
-    "impact_rate_per_m": FeatureSpec(None, 0.0, "1/m"),
-    "impact_energy_max": FeatureSpec(None, 0.0, "J"),
+    "impact_count": FeatureSpec(IMPULSIVE, 0.0, "-", min_scale=0.15),
+    "impact_rate_per_m": FeatureSpec(IMPULSIVE, 0.0, "1/m", min_scale=0.01),
+    "impact_energy_max": FeatureSpec(IMPULSIVE, 0.0, "J", min_scale=0.01),
     "impact_isolated": FeatureSpec(None, 0.0, "-"),
+    "impact_drags": FeatureSpec(None, 0.0, "-"),
     "belt_travel_m": FeatureSpec(None, 0.0, "m"),
+    "usage_kg_m": FeatureSpec(None, 0.0, "kg·m"),  # payload × travel (wear.py), set by the monitor
     "impact_hits_per_rev": FeatureSpec("obstruction", 0.0, "1/rev", min_scale=0.1),
 }
 """Every tracked feature (``comb_<shaft>`` features are added per profile, cause gear)."""
@@ -175,6 +204,9 @@ def feature_spec(name: str) -> FeatureSpec:
         return COMB_SPEC
     return FEATURES[name]
 
+
+RINGING_AFTER_S = 0.1
+"""Left out after an impact in the broadband residual: the drive rings after a hit, s."""
 
 IMPACT_MARGIN_S = 0.02
 """Margin around an impact within which a window counts as touched by it, s."""
@@ -228,6 +260,29 @@ class RecordingFeatures:
     impacts: tuple[Impact, ...] = ()
 
 
+def _std_without(
+    recording: Recording, model: FloatArray, phases: Sequence[Phase], impacts: Sequence[Impact]
+) -> float:
+    """Standard deviation of the constant-speed residual outside the impacts, Nm (NaN: too few).
+
+    The samples of each event from :data:`IMPACT_MARGIN_S` before it to
+    :data:`RINGING_AFTER_S` after it are left out, and the ramp corners as
+    :func:`~chaintwin.diagnose.residuals.residual_analysis` leaves them.
+    """
+    spans = [np.arange(p.start + 3, p.stop - 3) for p in phases if p.kind == "constant"]
+    idx = np.concatenate(spans) if spans else np.empty(0, dtype=np.intp)
+    y = recording.torque[idx].copy()
+    t = recording.time[idx]
+    for hit in impacts:
+        y[(t >= hit.t_s - IMPACT_MARGIN_S) & (t <= hit.t_s + hit.duration_s + RINGING_AFTER_S)] = (
+            np.nan
+        )
+    try:
+        return residual_stats(y, model[idx]).std
+    except EstimationError:
+        return float("nan")
+
+
 def _line_centres(
     spec: Spectrum, orders: list[float], ts: float, avoid: Sequence[float] = ()
 ) -> list[float]:
@@ -276,7 +331,9 @@ def _line_sum(spec: Spectrum, orders: list[float], ts: float, avoid: Sequence[fl
     return _line_sums(spec, {"": _line_centres(spec, orders, ts, avoid)})[""]
 
 
-def recording_features(inspection: Inspection, calibration: Calibration) -> RecordingFeatures:
+def recording_features(
+    inspection: Inspection, calibration: Calibration, *, residual: str = "inverse"
+) -> RecordingFeatures:
     """Weigh a recording and extract its condition features.
 
     Parameters
@@ -286,6 +343,12 @@ def recording_features(inspection: Inspection, calibration: Calibration) -> Reco
         phases (validation's segmentation, used as it is).
     calibration : Calibration
         The conveyor's calibration (from a file or learned).
+    residual : {"inverse", "closed-loop"}
+        The model torque of the residual features: the rigid model driven by
+        the measured speed, or the controller replica driven by the recorded
+        set points (:func:`chaintwin.identify.verification.closed_loop_torque`;
+        when the recording cannot be simulated, the inverse model with the
+        warning ``closed_loop_unavailable``).
 
     Returns
     -------
@@ -322,7 +385,14 @@ def recording_features(inspection: Inspection, calibration: Calibration) -> Reco
     # impacts (an obstacle hit, a caught item) are no load and no friction: the
     # windows they touch are left out of the weighing and the condition fit
     first = model_torque(recording, prof, params, _model_load(w), tray_kg=tray, motoring=mot)
-    impacts = detect_impacts(recording, first, phases)
+    # what repeats with the sprocket's teeth or a shaft is no impact
+    orders = characteristic_orders(prof)
+    periodic_orders = [
+        o for name, o in orders.items() if name in ("sprocket_tooth_pass", "output_shaft")
+    ]
+    impacts, looked_at = scan_impacts(
+        recording, first, phases, [*periodic_orders, *shaft_orders(prof).values()]
+    )
     if impacts and every is not None:
         touched = np.zeros(every.count, dtype=bool)
         for hit in impacts:
@@ -371,13 +441,34 @@ def recording_features(inspection: Inspection, calibration: Calibration) -> Reco
         )
 
     model = model_torque(recording, prof, params, load_kg, tray_kg=tray, motoring=mot)
+    if residual == "closed-loop":
+        try:
+            model = closed_loop_torque(recording, prof, twin_parameters(prof, calibration), load_kg)
+        except (EstimationError, ModelError) as exc:
+            warnings.append(
+                RecordingWarning(
+                    "closed_loop_unavailable",
+                    f"the closed loop cannot be simulated ({exc}); residual of the inverse model",
+                )
+            )
     report = residual_analysis(recording, model, phases=phases)
     steady = report.by_phase.get("constant")
     values["residual_std"] = steady.std if steady else nan
+    if steady and impacts:
+        # broadband noise (a bearing) is judged without the impacts: an item
+        # caught for a while is no bearing
+        clean = _std_without(recording, model, phases, impacts)
+        values["residual_std"] = clean if math.isfinite(clean) else values["residual_std"]
     values["residual_kurtosis"] = steady.kurtosis if steady else nan
     values["crest_factor"] = steady.crest_factor if steady else nan
     values.update(
-        impact_features(impacts, recording, phases, prof.chordal_radius_m / prof.kinematic_ratio)
+        impact_features(
+            impacts,
+            recording,
+            phases,
+            prof.chordal_radius_m / prof.kinematic_ratio,
+            looked_at,
+        )
     )
 
     plateaus = [p for p in phases if p.kind == "constant"]
@@ -400,18 +491,25 @@ def recording_features(inspection: Inspection, calibration: Calibration) -> Reco
         tp = orders.get("sprocket_tooth_pass")
         tp_orders = [h * tp for h in range(1, TOOTH_PASS_HARMONICS + 1)] if tp else []
         centres: dict[str, list[float]] = {}
+        shafts = shaft_orders(calibration.id_profile)
         if tp:
             centres["tooth_pass"] = _line_centres(spectrum, tp_orders, ts)
-        for name, order in shaft_orders(calibration.id_profile).items():
+            # a shaft's comb would read as the sprocket's where they meet
+            combs = [h * o for o in shafts.values() for h in range(1, COMB_HARMONICS + 1)]
+            centres["sprocket_comb"] = _line_centres(
+                spectrum, [h * tp for h in SPROCKET_HARMONICS], ts, [*tp_orders, *combs]
+            )
+        for name, order in shafts.items():
             centres[f"comb_{name}"] = _line_centres(
                 spectrum, [h * order for h in range(1, COMB_HARMONICS + 1)], ts, tp_orders
             )
         sums = _line_sums(spectrum, centres)
         values["tooth_pass"] = sums["tooth_pass"] if tp else nan
+        values["sprocket_comb"] = sums["sprocket_comb"] if tp else nan
         for name in shaft_orders(calibration.id_profile):
             values[f"comb_{name}"] = sums[f"comb_{name}"]
     else:
-        values["tooth_pass"] = nan
+        values["tooth_pass"] = values["sprocket_comb"] = nan
         warnings.append(
             RecordingWarning(
                 "no_plateau_spectrum",

@@ -243,10 +243,18 @@ class Forecast:
     """None when the 90 % band does not cross within the horizon."""
     crossed: bool = False
     """The fitted line is already above the limit at the last value."""
+    model: str = "line"
+    """``line`` (:func:`forecast_crossing`: the mean's confidence band), or the model
+    :func:`chaintwin.diagnose.forecasting.forecast_feature` chose (``line``, ``ets``,
+    ``arima``; the band is then a prediction interval)."""
+    backtest_mae: float | None = None
+    """The chosen model's backtest mean absolute error, feature units."""
+    last: datetime | None = None
+    """When the last value was recorded (the remaining life counts from there)."""
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready."""
-        return {
+        """JSON-ready; with ``remaining_life_days`` (earliest, expected, latest) from ``last``."""
+        out: dict[str, Any] = {
             "feature": self.feature,
             "limit": self.limit,
             "slope_per_day": self.slope_per_day,
@@ -254,7 +262,22 @@ class Forecast:
             "earliest": self.earliest.isoformat(),
             "latest": None if self.latest is None else self.latest.isoformat(),
             "crossed": self.crossed,
+            "model": self.model,
         }
+        if self.backtest_mae is not None:
+            out["backtest_mae"] = self.backtest_mae
+        last = self.last
+        if last is not None:
+
+            def days(at: datetime | None) -> float | None:
+                return None if at is None else max(0.0, (at - last).total_seconds() / 86400.0)
+
+            out["remaining_life_days"] = {
+                "earliest": days(self.earliest),
+                "expected": days(self.crosses_at),
+                "latest": days(self.latest),
+            }
+        return out
 
 
 def forecast_crossing(

@@ -41,15 +41,17 @@ from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording, RecordingWarning
 from chaintwin.validate.checks import Inspection
 from chaintwin.validate.phases import Phase, segment
+from chaintwin.weigh.tlf import belt_travel_m
 from chaintwin.weigh.weigh import reweigh
 
 from . import alarms, baseline, monitor_state
-from .causes import cause_priority, resolve_causes
+from .causes import NOTE_CAUSES, cause_priority, impact_context, resolve_causes
 from .features import FEATURES, RecordingFeatures, feature_spec
 from .features import recording_features as extract
 from .health import FeatureBaseline
 from .impacts import POOL, hits_per_revolution
 from .learned import learn_calibration
+from .limits import check_limit_names, judge_limits
 from .monitor_state import MonitorState
 from .peaks import median_spectrum, spectrum_from_state, unexplained_peak
 from .records import (
@@ -98,6 +100,7 @@ class ConveyorMonitor:
         *,
         loader: Callable[[str], Recording] | None = None,
     ) -> None:
+        check_limit_names(profile)
         self.profile = profile
         self.settings = settings or MonitorSettings()
         self.loader = loader
@@ -383,6 +386,7 @@ class ConveyorMonitor:
                         not recording.has_warning("incomplete_cycle"),
                     ),
                     self.calibration,
+                    residual=self.settings.residual,
                 )
             )
         except EstimationError as exc:
@@ -394,6 +398,13 @@ class ConveyorMonitor:
             return base
         w = feats.weighing
         values = dict(feats.values)
+        # usage (chaintwin.diagnose.wear): payload times belt travel, kg·m
+        payload = values.get("payload_kg", float("nan"))
+        values["usage_kg_m"] = (
+            payload * belt_travel_m(recording, self.calibration.id_profile)
+            if math.isfinite(payload)
+            else float("nan")
+        )
         # retired: scope positions are not comparable across recordings
         values["belt_bump"] = float("nan")
         # an obstacle is hit once per belt revolution: isolated impacts pooled
@@ -458,6 +469,7 @@ class ConveyorMonitor:
                 ).to_dict()
             )
             base.features = {k: finite_or_none(v) for k, v in values.items()}
+            base.alarm = self._judge_limits(values, when, causes, warnings)
             if n >= self.settings.baseline_n:
                 self._form_baseline()
         else:
@@ -469,7 +481,20 @@ class ConveyorMonitor:
             )
             base.exceeded.extend(exceeded)
             self._late_baselines(values)
-            resolved = resolve_causes(met)
+            context = impact_context(values, exceeded)
+            resolved = resolve_causes(met, context)
+            noted = [n for n in met if resolved[n] in NOTE_CAUSES]
+            met = [n for n in met if n not in noted]
+            for name in noted:
+                # an event of operation (an item caught): reported, not alarmed
+                causes.append(
+                    {
+                        "cause": resolved[name],
+                        "feature": name,
+                        "change": change.get(name),
+                        "since": iso_utc(when),
+                    }
+                )
             for name in met:
                 alarm = self._open_alarm(name, resolved[name], change.get(name), when)
                 detail = {
@@ -481,8 +506,9 @@ class ConveyorMonitor:
                 if name == "unexplained_peak" and math.isfinite(peak_order):
                     detail["order"] = peak_order
                 causes.append(detail)
+            limit_met = self._judge_limits(values, when, causes, warnings)
             self._close_alarms(when)
-            base.alarm = bool(met)
+            base.alarm = bool(met) or limit_met
             if any(feature_spec(e).cause in FRICTION_CAUSES for e in exceeded) or any(
                 a.cause in FRICTION_CAUSES for a in self.open_alarms()
             ):
@@ -490,9 +516,24 @@ class ConveyorMonitor:
                 w = reweigh(w, w.loss_drift, friction=False)
                 warnings = [x for x in warnings if x.get("code") not in _BY_INERTIA]
                 warnings += [x.to_dict() for x in w.warnings if x.code in _BY_INERTIA]
+        if (
+            (values.get("impact_count") or 0.0) > 0.0
+            and impact_context(values, base.exceeded) == "payload_event"
+            and not any(c["cause"] == "payload_event" for c in causes)
+        ):
+            # impacts that are no wear (an item caught, a tray dropped): a note
+            causes.append(
+                {
+                    "cause": "payload_event",
+                    "feature": "impact_count",
+                    "change": None,
+                    "since": iso_utc(when),
+                }
+            )
         base.payload_kg = finite_or_none(w.payload_kg)
         base.uncertainty_kg = finite_or_none(w.uncertainty_kg)
         base.tlf = finite_or_none(w.tlf)
+        base.tlf_motor_shaft = finite_or_none(w.tlf_motor_shaft)
         base.impacts = [i.to_dict() for i in feats.impacts]
         causes.sort(key=lambda c: (cause_priority(c["cause"]), -abs(c["change"] or 0.0)))
         base.causes = causes
@@ -552,6 +593,55 @@ class ConveyorMonitor:
             window=self.windows.get(feature, []),
             window_times=self.window_times.get(feature, []),
         )
+
+    def _judge_limits(
+        self,
+        values: Mapping[str, float],
+        when: datetime | None,
+        causes: list[dict[str, Any]],
+        warnings: list[dict[str, str]],
+    ) -> bool:
+        """Judge the profile's absolute limits (:mod:`.limits`); whether one alarms."""
+        limits = self.profile.limits
+        if not limits:
+            return False
+        checks = judge_limits(
+            limits, values, self.windows, self.window_times, self.settings, iso_utc(when)
+        )
+        any_met = False
+        for c in checks:
+            if c.warning is not None:
+                warnings.append(c.warning)
+            if not c.met:
+                continue
+            any_met = True
+            key = alarms.window_key(c.feature, "limit")
+            alarm = alarms.open_alarm(
+                self.alarms,
+                conveyor=self.profile.id,
+                feature=c.feature,
+                cause=feature_spec(c.feature).cause or "limit",
+                change=None,
+                when=when,
+                window=self.windows.get(key, []),
+                window_times=self.window_times.get(key, []),
+                rule=c.limit.rule,
+                kind="limit",
+                limit=c.limit.alarm,
+            )
+            causes.append(
+                {
+                    "cause": alarm.cause,
+                    "feature": c.feature,
+                    "change": None,
+                    "since": alarm.since,
+                    "rule": c.limit.rule,
+                    "limit": c.limit.alarm,
+                    "value": c.value,
+                }
+            )
+        alarms.close_quiet_alarms(self.alarms, self.windows, self.settings.y, when)
+        return any_met
 
     def _close_alarms(self, when: datetime | None) -> None:
         alarms.close_quiet_alarms(self.alarms, self.windows, self.settings.y, when)

@@ -24,6 +24,7 @@ from . import baseline
 from .health import FeatureBaseline
 from .records import Alarm, Event, MonitorSettings
 from .state import STATE_VERSION
+from .wear import usage_summary, wear_rates
 
 if TYPE_CHECKING:
     from .monitor import ConveyorMonitor
@@ -137,7 +138,12 @@ class MonitorState:
         try:
             s = data["settings"]
             settings = MonitorSettings(
-                int(s["baseline_n"]), int(s["x"]), int(s["y"]), float(s["z_limit"])
+                int(s["baseline_n"]),
+                int(s["x"]),
+                int(s["y"]),
+                float(s["z_limit"]),
+                # states written before the option existed used the inverse model
+                str(s.get("residual", "inverse")),
             )
             cal = data["calibration"]
             stored = data["baselines"]
@@ -296,6 +302,8 @@ def read_health(state: MonitorState) -> StoredHealth:
         else [],
         "events": [e.to_dict() for e in state.events],
         "notes": state.notes,
+        "usage": usage_summary(state.history),
+        "wear": wear_rates(baselines, state.history, since or "") if baselines else [],
     }
     return StoredHealth(summary, baselines, z_limit, since, state.calibration)
 

@@ -46,8 +46,16 @@ class MonitorSettings:
     x: int = 3
     y: int = 10
     z_limit: float = 5.0
+    residual: str = "inverse"
+    """The model the residual features compare with: ``inverse`` (the rigid model
+    driven by the measured speed) or ``closed-loop`` (the controller replica driven
+    by the recorded set points, :mod:`chaintwin.identify.verification`)."""
 
     def __post_init__(self) -> None:
+        if self.residual not in ("inverse", "closed-loop"):
+            raise MonitorError(
+                f"residual '{self.residual}' must be inverse or closed-loop", field="residual"
+            )
         if self.baseline_n < 5:
             raise MonitorError(
                 f"baseline_n {self.baseline_n} must be at least 5 recordings", field="baseline_n"
@@ -73,6 +81,7 @@ class SettingsGiven:
     x: int | None = None
     y: int | None = None
     z_limit: float | None = None
+    residual: str | None = None
 
     def merged(self, stored: MonitorSettings | None) -> MonitorSettings:
         """The settings to use: given, else stored, else the defaults.
@@ -88,6 +97,7 @@ class SettingsGiven:
             x=base.x if self.x is None else self.x,
             y=base.y if self.y is None else self.y,
             z_limit=base.z_limit if self.z_limit is None else self.z_limit,
+            residual=base.residual if self.residual is None else self.residual,
         )
 
 
@@ -106,12 +116,15 @@ class RecordingResult:
     payload_kg: float | None = None
     uncertainty_kg: float | None = None
     tlf: float | None = None
+    """Transport loss factor from the work at the sprocket (:mod:`chaintwin.weigh.tlf`)."""
     features: dict[str, float | None] = field(default_factory=dict)
     exceeded: list[str] = field(default_factory=list)
     warnings: list[dict[str, str]] = field(default_factory=list)
     error: str | None = None
     impacts: list[dict[str, Any]] = field(default_factory=list)
     """Torque impacts of the recording (:mod:`chaintwin.diagnose.impacts`)."""
+    tlf_motor_shaft: float | None = None
+    """Transport loss factor from the work at the motor shaft (the published definition)."""
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready; a refused recording gives ``file`` and ``error`` only."""
@@ -124,6 +137,7 @@ class RecordingResult:
             "causes": self.causes,
             "payload_kg": self.payload_kg,
             "tlf": self.tlf,
+            "tlf_motor_shaft": self.tlf_motor_shaft,
             "warnings": self.warnings,
             "conveyor": self.conveyor,
             "status": self.status,
@@ -188,6 +202,14 @@ class Alarm:
         Set while open: it stays open but no longer fails ``--fail-on-alarm``.
     closed_at, closed_by : str or None
         When and by what (quiet recordings, a maintenance event) it closed.
+    rule : str
+        The rule that raised it: ``x_of_y`` (X exceedances in the last Y
+        recordings) or ``immediate`` (the first exceedance).
+    kind : str
+        ``statistical`` (against the baseline) or ``limit`` (an absolute limit
+        of the profile's ``limits:``).
+    limit : float or None
+        The absolute limit exceeded (feature units), for ``kind`` ``limit``.
     """
 
     id: str
@@ -202,6 +224,9 @@ class Alarm:
     acknowledged: Acknowledgement | None = None
     closed_at: str | None = None
     closed_by: str | None = None
+    rule: str = "x_of_y"
+    kind: str = "statistical"
+    limit: float | None = None
 
     @property
     def is_open(self) -> bool:
@@ -227,7 +252,11 @@ class Alarm:
             "last_seen": self.last_seen,
             "status": self.status,
             "acknowledged": None if self.acknowledged is None else self.acknowledged.to_dict(),
+            "rule": self.rule,
+            "kind": self.kind,
         }
+        if self.limit is not None:
+            out["limit"] = self.limit
         if self.status == "closed":
             out["closed_at"] = self.closed_at
             out["closed_by"] = self.closed_by
@@ -260,6 +289,10 @@ class Alarm:
             acknowledged=None if ack is None else Acknowledgement.from_dict(ack),
             closed_at=data.get("closed_at"),
             closed_by=data.get("closed_by"),
+            # alarms stored before rules and limits existed were statistical X-of-Y ones
+            rule=str(data.get("rule", "x_of_y")),
+            kind=str(data.get("kind", "statistical")),
+            limit=None if data.get("limit") is None else float(data["limit"]),
         )
 
 

@@ -78,6 +78,9 @@ def resume(
     if saved is None:
         return ConveyorMonitor(profile, settings, calibration, loader=loader), []
     mon = saved
+    if settings.residual != mon.settings.residual:
+        # the residual features mean something else: the baseline starts again
+        mon.restart_baseline()
     mon.settings = settings
     if calibration is None or (
         mon.calibration is not None and _same_parameters(calibration, mon.calibration)

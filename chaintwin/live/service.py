@@ -36,7 +36,7 @@ import uuid
 from collections.abc import Awaitable, Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.read.profile import ConveyorProfile
@@ -46,6 +46,9 @@ from .ledger import acquire_lease, release_lease, source_records, update_source
 from .metrics import Metrics
 from .sources import DriveStatusLike, Ingestor, Job, Outcome, Submit
 from .watch import FolderSource
+
+if TYPE_CHECKING:
+    from .opcua import OpcuaConfig
 
 __all__ = ["LiveOptions", "LiveService", "Source"]
 
@@ -185,6 +188,25 @@ class LiveService:
             self.drive_status = status
             self.metrics.drive_status = status
         self.sources.append(Source(key, "opcua", body))
+
+    def add_opcua(self, config: OpcuaConfig) -> None:
+        """Follow each drive of an OPC UA configuration under a lease of its own.
+
+        One lease per drive (``opcua:<conveyor>``): several ``serve``
+        processes on one store share the drives, and a drive whose holder
+        died is taken over. The drives' states (connected, missed scopes) are
+        one :class:`~.opcua.DriveStatus`, which the metrics and health read.
+        """
+        from .opcua import DriveStatus, OpcuaConfig, follow_drives  # asyncua: only when used
+
+        status = DriveStatus(drives={})
+        for drive in config.drives:
+            one = OpcuaConfig(drives=[drive], reconnect=config.reconnect)
+
+            async def follow(submit: Submit, stop: asyncio.Event, one: OpcuaConfig = one) -> None:
+                await follow_drives(one, submit, stop, status)
+
+            self.add_drives(f"opcua:{drive.conveyor}", follow, status)
 
     # ---------------------------------------------------------------- outcomes
     def _queue_depth(self) -> float:

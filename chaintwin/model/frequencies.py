@@ -14,6 +14,7 @@ name                        kind         order (per motor revolution)
 ``belt_revolution``         belt         (2π·r/i)/(2L + π·d)
 ``belt_mode_<n>``           structural   None: does not scale with speed
 ``two_mass_mode``           structural   None
+``lateral_mode_<n>``        structural   None
 ==========================  ===========  =========================================
 
 Kinematics
@@ -52,8 +53,14 @@ Lines that cannot be computed are left out: the stage lines when
 ``gear.stages`` is not given, the tooth-pass line when ``sprocket.teeth`` is
 not given, and the structural lines when the belt stiffness is unknown (no
 ``model.belt_stiffness_n_m`` and no ``youngs_modulus_pa`` with
-``cross_section_m2``). Transverse (string) modes of the strands are not
-listed: they need the belt tension, which the profile does not hold.
+``cross_section_m2``).
+
+* ``lateral_mode_<n>``: transverse (string) modes of a free strand of length
+  L (``belt.length_m``) under the static pretension T (``belt.tension_n``)
+  with the belt's mass per metre m' (``belt.mass_per_m_kg``; the free strand
+  carries no trays or payload): ``f_n = n/(2L)·√(T/m')``. They need the
+  tension: without ``belt.tension_n`` they are left out and
+  :func:`lateral_modes_note` says so.
 
 Aliasing
 --------
@@ -86,6 +93,8 @@ __all__ = [
     "fold_frequencies",
     "fold_frequency",
     "known_line_orders",
+    "lateral_mode_hz",
+    "lateral_modes_note",
     "line_orders",
     "shaft_orders",
 ]
@@ -270,6 +279,35 @@ def _kind_of(name: str) -> LineKind:
     return "mesh" if name.endswith("_mesh") else "shaft"
 
 
+def lateral_mode_hz(profile: ConveyorProfile, n: int = 1) -> float | None:
+    """The n-th transverse (string) mode of a free strand, Hz; None without a tension.
+
+    ``f_n = n/(2L)·√(T/m')`` with L = ``belt.length_m`` (m), T =
+    ``belt.tension_n`` (N) and m' = ``belt.mass_per_m_kg`` (kg/m).
+
+    Raises
+    ------
+    ModelError
+        When ``n`` is not a whole number ≥ 1.
+    """
+    if n < 1:
+        raise ModelError(f"lateral mode number n={n} must be ≥ 1")
+    tension = profile.belt.tension_n
+    if tension is None:
+        return None
+    return n / (2.0 * profile.belt.length_m) * math.sqrt(tension / profile.belt.mass_per_m_kg)
+
+
+def lateral_modes_note(profile: ConveyorProfile) -> str | None:
+    """Why the lateral modes are left out (no ``belt.tension_n``), or None when listed."""
+    if profile.belt.tension_n is not None:
+        return None
+    return (
+        f"profile '{profile.id}': no belt.tension_n, so the lateral (string) modes of the "
+        "free strands are left out; give the static pretension in N to list them"
+    )
+
+
 def characteristic_lines(
     profile: ConveyorProfile,
     motor_speed_rpm: float,
@@ -292,7 +330,8 @@ def characteristic_lines(
     payload_kg : float
         Payload on the belt, kg; moves the structural modes only.
     belt_modes : int
-        How many longitudinal belt modes to list (0 for none).
+        How many longitudinal belt modes, and lateral modes when
+        ``belt.tension_n`` is given, to list (0 for none).
 
     Returns
     -------
@@ -316,6 +355,10 @@ def characteristic_lines(
         CharacteristicLine(name, _kind_of(name), order, order * rotor_hz)
         for name, order in characteristic_orders(profile).items()
     ]
+    for n in range(1, belt_modes + 1):
+        f_lateral = lateral_mode_hz(profile, n)
+        if f_lateral is not None:
+            lines.append(CharacteristicLine(f"lateral_mode_{n}", "structural", None, f_lateral))
 
     k = profile.belt_stiffness_n_m()
     if k is None:

@@ -25,9 +25,17 @@ controller.position_gain_1_s           20.0
 controller.speed_gain_nm_s_rad         0.2
 controller.speed_integral_time_s       0.05
 controller.torque_limit_nm             3 × nominal torque when known, else none
+belt.tension_n                         none        lateral (string) modes of the
+                                                   free strands left out
 tray_mass_kg                           0.0         no carrier
 model                                  none        simulation only
+limits                                 none        statistical alarms only
 =====================================  ==========  ==============================
+
+``limits:`` sets engineer-chosen absolute limits per monitored feature, in
+the feature's own units: ``limits: {friction: {warn: 1.15, alarm: 1.30, rule:
+x_of_y}}`` (:class:`LimitSpec`). Profiles without ``limits`` or
+``belt.tension_n`` keep the content hash they had before these fields existed.
 
 The optional ``model:`` section describes a plant for simulation; the
 identification, calibration and weighing code never reads it.
@@ -39,7 +47,7 @@ import hashlib
 import json
 import math
 from pathlib import Path
-from typing import Annotated, Any, ClassVar
+from typing import Annotated, Any, ClassVar, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -53,6 +61,7 @@ __all__ = [
     "ControllerSpec",
     "ConveyorProfile",
     "GearSpec",
+    "LimitSpec",
     "ModelSpec",
     "MotorSpec",
     "SprocketSpec",
@@ -85,6 +94,8 @@ class BeltSpec(_Spec):
     """Belt material density, kg/m³ (optional)."""
     cross_section_m2: Positive | None = None
     """Load-bearing cross-section of the belt, m² (optional)."""
+    tension_n: Positive | None = None
+    """Static pretension of the free strands, N (optional; for their lateral modes)."""
 
 
 class SprocketSpec(_Spec):
@@ -198,6 +209,31 @@ MAX_ID_LENGTH = 100
 """Longest conveyor id, characters (it names files, store rows and pages)."""
 
 
+class LimitSpec(_Spec):
+    """An engineer-set absolute limit of one monitored feature, in its own units.
+
+    A value above ``warn`` attaches a warning to the recording's result; above
+    ``alarm`` it counts as an exceedance, alarmed by ``rule``: ``x_of_y`` as
+    the statistical alarms (X exceedances in the last Y recordings), or
+    ``immediate`` (the first recording above it). Limits are upper limits.
+    """
+
+    warn: Annotated[float, Field(allow_inf_nan=False, strict=True)] | None = None
+    """Warning level, feature units (optional)."""
+    alarm: Annotated[float, Field(allow_inf_nan=False, strict=True)] | None = None
+    """Alarm level, feature units (optional)."""
+    rule: Literal["x_of_y", "immediate"] = "x_of_y"
+    """How exceedances of ``alarm`` raise an alarm."""
+
+    @model_validator(mode="after")
+    def _levels(self) -> LimitSpec:
+        if self.warn is None and self.alarm is None:
+            raise ValueError("give warn, alarm or both")
+        if self.warn is not None and self.alarm is not None and self.warn > self.alarm:
+            raise ValueError(f"warn {self.warn:g} lies above alarm {self.alarm:g}")
+        return self
+
+
 class ConveyorProfile(_Spec):
     """A conveyor's known data (docs/data-contract.md, section 2), validated.
 
@@ -215,6 +251,8 @@ class ConveyorProfile(_Spec):
     """Carrier mass that is not payload, kg."""
     model: ModelSpec | None = None
     """Plant parameters for simulation only; never read by identification."""
+    limits: dict[Annotated[str, Field(min_length=1, max_length=100)], LimitSpec] | None = None
+    """Absolute limits per monitored feature name (optional)."""
 
     # ---------------------------------------------------------------- derived
     @property
@@ -327,6 +365,11 @@ class ConveyorProfile(_Spec):
         hashes of profiles written before them stay what they were.
         """
         data = self.model_dump(mode="json")
+        # fields added later: hashed only when set
+        if data.get("limits") is None:
+            data.pop("limits", None)
+        if data["belt"].get("tension_n") is None:
+            data["belt"].pop("tension_n", None)
         model = data.get("model")
         if isinstance(model, dict):
             for name, default in ModelSpec.LATER_FIELDS.items():
@@ -340,8 +383,11 @@ def _format_validation_error(source: str, exc: ValidationError) -> str:
     parts = []
     for err in exc.errors()[:3]:
         path = ".".join(str(p) for p in err["loc"]) or "(top level)"
+        # a key the file spells with a line break or other control character: shown
+        # escaped, so that the error stays on one line
+        path = "".join(c if c.isprintable() else repr(c)[1:-1] for c in path)
         kind = err["type"]
-        msg = err["msg"]
+        msg = " ".join(str(err["msg"]).split())
         if kind == "missing":
             hint = "add it"
         elif kind == "extra_forbidden":

@@ -87,7 +87,8 @@ class FeatureTrend:
     expected: float | None
     limit: float | None
     before: list[bool] = field(default_factory=list)
-    """Whether the recording came before the current baseline (judged against an earlier one)."""
+    """Whether the recording was not judged against the current baseline: it came
+    before it (judged against an earlier one) or formed it."""
 
     def health_index(self, recent: int = RECENT) -> float:
         """Median of ``(value − expected)/(limit − expected)`` over the latest values.
@@ -163,9 +164,12 @@ class ConveyorData:
                 best = (h, t)
         return None if best is None else best[1]
 
-    def recent_tlf(self) -> float:
-        """Median TLF of the latest :data:`RECENT` recordings with one (NaN if none)."""
-        vals = [r["tlf"] for r in self.results if r.get("tlf") is not None][-RECENT:]
+    def recent_tlf(self, key: str = "tlf") -> float:
+        """Median TLF of the latest :data:`RECENT` recordings with one (NaN if none).
+
+        ``key``: ``tlf`` (sprocket work) or ``tlf_motor_shaft`` (motor-shaft work).
+        """
+        vals = [r[key] for r in self.results if r.get(key) is not None][-RECENT:]
         return float(statistics.median(vals)) if vals else math.nan
 
     def recent_payload(self) -> float:
@@ -232,7 +236,9 @@ def _trends(
             vals.append(v)
             exc.append(name in (r.get("exceeded") or []))
             at = r.get("recorded_at")
-            before.append(bool(baseline_since and at and at < baseline_since))
+            # the baseline's own recordings are not judged against it either
+            learning = r.get("status") == "baseline"
+            before.append(bool(learning or (baseline_since and at and at < baseline_since)))
         if not any(math.isfinite(v) for v in vals):
             continue  # never known (a retired feature such as belt_bump): no trend to draw
         out.append(

@@ -26,8 +26,10 @@ from jinja2 import Environment, PackageLoader, StrictUndefined
 from chaintwin import __version__
 from chaintwin.diagnose.residuals import residual_analysis
 from chaintwin.errors import ChaintwinError, StoreError
+from chaintwin.identify.verification import verify_recording
 from chaintwin.read.files import write_atomic
 from chaintwin.store.store import Store
+from chaintwin.weigh.tlf import PUBLISHED_TLF, PUBLISHED_TLF_NOTE
 
 from . import figures
 from .data import RECENT, STATUS_ORDER, ConveyorData, conveyor_data
@@ -169,6 +171,35 @@ def _residual_table(d: ConveyorData) -> list[tuple[str, dict[str, Any]]]:
     return rows
 
 
+def _verification_table(d: ConveyorData) -> tuple[str, list[tuple[str, list[float | None]]]]:
+    """The twin's REP against the latest recording (closed loop), whole and per phase.
+
+    Returns the movement's name and rows ``(what, [speed mean, std, max|.|,
+    torque mean, std, max|.|])`` in %; empty when it cannot be computed (no
+    recording, calibration or payload; no set point; not starting at rest).
+    """
+    rec, cal = d.latest, d.calibration
+    pay = (d.latest_result or {}).get("payload_kg")
+    if rec is None or cal is None or not isinstance(pay, int | float) or not math.isfinite(pay):
+        return "", []
+    try:
+        v = verify_recording(
+            rec, cal.id_profile, calibration=cal, residual="closed-loop", payload_kg=float(pay)
+        ).to_dict()
+    except ChaintwinError:
+        return "", []
+    keys = ("rep_mean_pct", "rep_std_pct", "rep_absmax_pct")
+
+    def cells(speed: dict[str, Any] | None, torque: dict[str, Any] | None) -> list[float | None]:
+        return [(speed or {}).get(k) for k in keys] + [(torque or {}).get(k) for k in keys]
+
+    rows = [("whole movement", cells(v["speed"], v["torque"]))]
+    for ph in v["phases"]:
+        what = f"{ph['kind']} {'fwd' if ph['direction'] > 0 else 'bwd'}"
+        rows.append((what, cells(ph["speed"], ph["torque"])))
+    return str(v["movement"]), rows
+
+
 def conveyor_page(
     store: Store, conveyor: str, *, fleet_link: str | None = None
 ) -> tuple[str, ConveyorData]:
@@ -212,11 +243,14 @@ def conveyor_page(
         calibration_text=_calibration_text(d),
         baseline_text=_baseline_text(d),
         recent=RECENT,
+        published_tlf=PUBLISHED_TLF,
+        published_tlf_note=PUBLISHED_TLF_NOTE,
         trend_figures=trend_figures,
         payload_figure=figures.payload_tlf_figure(d),
         residual_figure=figures.residual_figure(d),
         residual_columns=RESIDUAL_COLUMNS,
         residual_table=_residual_table(d),
+        verification=_verification_table(d),
         waterfall_figure=figures.waterfall_figure(d),
         waterfall_count=len(d.waterfall),
         latest_figure=figures.latest_figure(d),

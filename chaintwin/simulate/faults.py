@@ -34,7 +34,21 @@ rail_obstacle   an obstacle fixed to the rail (a bent guide, a screw head) that
                 one tray hits once per belt revolution: a resisting force of
                 s × 3 × the whole belt's rail friction over 10 mm of travel,
                 at a place of the loop that differs per conveyor
+sprocket        a worn drive sprocket (hooked, thinned teeth): the chain snaps
+                off each tooth as it leaves it, a resisting impulse once per
+                tooth engagement of s × 15 % of nominal torque over 15 % of
+                the tooth pitch (the tooth-pass order z/i); no friction or
+                radius change (that is ``elongation``)
+payload_event   an item caught between a tray and a guide for part of a
+                cycle: in a recording with probability 0.05, a resisting force
+                of s × the whole belt's rail friction over 0.2-1.0 s of
+                travel at a random time of the constant-speed run (a drag, not
+                a knock); nothing in the other recordings
 ==============  ==============================================================
+
+A plant has one impulse train (``gear_tooth`` or ``sprocket``) and one
+resisting place on the belt (``obstruction``, ``rail_obstacle`` or
+``payload_event``): two faults that need the same one are refused together.
 """
 
 from __future__ import annotations
@@ -48,8 +62,15 @@ from chaintwin.errors import ModelError
 __all__ = [
     "BEARING_ORDER",
     "ELONGATION_IMPACT",
+    "EXCLUSIVE",
     "FAULT_NAMES",
+    "PAYLOAD_EVENT_CHANCE",
+    "PAYLOAD_EVENT_FORCE",
+    "PAYLOAD_EVENT_S",
+    "SPROCKET_IMPACT",
+    "SPROCKET_WIDTH",
     "Fault",
+    "check_exclusive",
     "parse_fault",
     "parse_faults",
 ]
@@ -63,6 +84,8 @@ FAULT_NAMES = (
     "elongation",
     "payload_step",
     "rail_obstacle",
+    "sprocket",
+    "payload_event",
 )
 """Every fault the virtual conveyor can inject."""
 
@@ -92,6 +115,27 @@ ELONGATION_IMPACT = 0.02
 
 PAYLOAD_STEP_KG = 20.0
 """Mass placed on the moving belt per unit severity, kg."""
+
+SPROCKET_IMPACT = 0.15
+"""Worn-sprocket impulse per unit severity, share of nominal torque."""
+
+SPROCKET_WIDTH = 0.15
+"""Worn-sprocket impulse width, share of the tooth pitch (motor angle per tooth pass)."""
+
+PAYLOAD_EVENT_CHANCE = 0.05
+"""Probability that a recording holds a payload event."""
+
+PAYLOAD_EVENT_FORCE = 1.0
+"""Payload event force per unit severity, in units of the belt's rail friction."""
+
+PAYLOAD_EVENT_S = (0.2, 1.0)
+"""Range of a payload event's duration, s (drawn uniformly)."""
+
+EXCLUSIVE = (
+    ("gear_tooth", "sprocket"),
+    ("obstruction", "rail_obstacle", "payload_event"),
+)
+"""Faults that share one mechanism of the plant: at most one of each group at a time."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -141,4 +185,23 @@ def parse_faults(texts: Iterable[str]) -> tuple[Fault, ...]:
     for n in names:
         if names.count(n) > 1:
             raise ModelError(f"fault '{n}' is given twice; give each fault once")
+    check_exclusive(names)
     return faults
+
+
+def check_exclusive(names: Iterable[str]) -> None:
+    """Refuse two faults that need the same mechanism of the plant (:data:`EXCLUSIVE`).
+
+    Raises
+    ------
+    ModelError
+        Naming the two faults.
+    """
+    given = set(names)
+    for group in EXCLUSIVE:
+        both = [n for n in group if n in given]
+        if len(both) > 1:
+            raise ModelError(
+                f"faults {' and '.join(both)} cannot be simulated together (one plant "
+                f"mechanism for {', '.join(group)}); give one of them"
+            )

@@ -31,6 +31,7 @@ from datetime import datetime
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from chaintwin._types import FloatArray
 from chaintwin.errors import ModelError
@@ -47,8 +48,14 @@ from chaintwin.simulate.faults import (
     OBSTACLE_FORCE,
     OBSTACLE_WIDTH_M,
     OBSTRUCTION_WIDTH_M,
+    PAYLOAD_EVENT_CHANCE,
+    PAYLOAD_EVENT_FORCE,
+    PAYLOAD_EVENT_S,
     PAYLOAD_STEP_KG,
+    SPROCKET_IMPACT,
+    SPROCKET_WIDTH,
     Fault,
+    check_exclusive,
 )
 from chaintwin.simulate.plant import PlantParameters
 from chaintwin.simulate.setpoints import Setpoints, from_arrays, trapezoid
@@ -203,6 +210,7 @@ def faulty_plant(
         Multiplies the gear losses BmA, BmB, BmC (temperature drift).
     """
     realism = realism or Realism()
+    check_exclusive(f.name for f in faults if f.severity > 0.0)
     plant = PlantParameters.from_profile(profile, payload_kg=payload_kg, model=model)
     tn = _nominal_torque(profile)
     changes: dict[str, Any] = {
@@ -242,6 +250,12 @@ def faulty_plant(
             changes["impulse_period_rad"] = period
             changes["impulse_width_rad"] = period / teeth
             changes["impulse_amplitude_nm"] = s * GEAR_TOOTH_AMPLITUDE * tn
+        elif fault.name == "sprocket" and plant.teeth > 0:
+            # one engagement per tooth: the motor turns ratio/z per tooth pass
+            period = 2.0 * math.pi * plant.ratio / plant.teeth
+            changes["impulse_period_rad"] = period
+            changes["impulse_width_rad"] = SPROCKET_WIDTH * period
+            changes["impulse_amplitude_nm"] = s * SPROCKET_IMPACT * tn
         elif fault.name == "obstruction":
             rail = plant.mu * G * (plant.belt_mass_kg + plant.tray_mass_kg)
             changes["obstruction_position_m"] = OBSTRUCTION_PLACE * plant.loop_length_m
@@ -317,6 +331,46 @@ def default_setpoints(
 
 def _quantise(x: FloatArray, step: float) -> FloatArray:
     return np.round(x / step) * step
+
+
+def _payload_event(
+    faults: Sequence[Fault],
+    plant: PlantParameters,
+    setpoints: Setpoints,
+    moving: npt.NDArray[np.intp],
+    belt0: float,
+    rng: np.random.Generator,
+) -> tuple[float, float, float, float, float] | None:
+    """A ``payload_event`` in this recording, or None.
+
+    Drawn only when the fault is present (other recordings' random draws
+    stay as they were). An item caught for a while is a resisting force
+    over the stretch of belt that passes during the event.
+
+    Returns
+    -------
+    (float, float, float, float, float) or None
+        Start s, duration s, belt position where the stretch starts m, its
+        length m, and the force N.
+    """
+    s = sum(f.severity for f in faults if f.name == "payload_event")
+    if s <= 0.0 or moving.size < 2 or rng.random() >= PAYLOAD_EVENT_CHANCE:
+        return None
+    t = setpoints.time
+    t0, t1 = float(t[moving[0]]), float(t[moving[-1]])
+    duration = min(float(rng.uniform(*PAYLOAD_EVENT_S)), 0.6 * (t1 - t0))
+    if duration <= 0.0:
+        return None
+    start = float(rng.uniform(t0 + 0.2 * (t1 - t0), t1 - duration))
+    krv = plant.belt_speed_per_motor_speed
+    pos = setpoints.position
+    ka, kb = np.searchsorted(t, [start, start + duration])
+    kb = min(int(kb), pos.shape[0] - 1)
+    xa = belt0 + krv * float(pos[int(ka)] - pos[0])
+    xb = belt0 + krv * float(pos[kb] - pos[0])
+    width = min(abs(xb - xa), plant.loop_length_m)
+    rail = plant.mu * G * (plant.belt_mass_kg + plant.tray_mass_kg)
+    return start, duration, min(xa, xb) % plant.loop_length_m, width, s * PAYLOAD_EVENT_FORCE * rail
 
 
 def run_virtual(
@@ -423,6 +477,13 @@ def run_virtual(
         else float(rng.uniform(0.0, 2000.0 * 2.0 * math.pi))
     )
     belt0 = (theta0 * plant.belt_speed_per_motor_speed) % plant.loop_length_m
+    event = _payload_event(faults, plant, setpoints, moving, belt0, rng)
+    if event is not None:
+        plant = plant.replace(
+            obstruction_position_m=event[2],
+            obstruction_width_m=event[3],
+            obstruction_force_n=event[4],
+        )
     sim = simulate(plant, setpoints, initial_motor_angle=theta0, initial_belt_position_m=belt0)
     if not sim.success:
         raise ModelError(f"simulation failed: {sim.message}")
@@ -511,5 +572,6 @@ def run_virtual(
         "friction": plant.mu,
         "payload_step_kg": plant.payload_step_kg,
         "payload_step_time_s": plant.payload_step_time_s if plant.payload_step_kg else None,
+        "payload_event_s": None if event is None else [event[0], event[1]],
     }
     return VirtualRun(recording, sim, plant, truth)

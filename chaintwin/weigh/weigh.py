@@ -53,7 +53,7 @@ from chaintwin.read.recording import RecordingWarning
 from chaintwin.units import RPM_TO_RAD_S
 from chaintwin.validate.checks import Inspection
 from chaintwin.weigh.drift import LossDrift
-from chaintwin.weigh.tlf import transport_loss_factor
+from chaintwin.weigh.tlf import motor_shaft_transport_loss_factor, transport_loss_factor
 
 __all__ = [
     "CONSISTENCY_SIGMA",
@@ -224,7 +224,10 @@ class WeighResult:
     segments : tuple of Segment
         Loads of the movement's parts when the load changed; else empty.
     tlf : float or None
-        Transport loss factor (None under 1 kg).
+        Transport loss factor from the work at the sprocket (None under 1 kg).
+    tlf_motor_shaft : float or None
+        Transport loss factor from the work at the motor shaft, the published
+        definition (None under 1 kg); see :mod:`chaintwin.weigh.tlf`.
     warnings : tuple of RecordingWarning
         The recording's and the weighing's warnings.
     signatures : Signatures or None
@@ -244,6 +247,7 @@ class WeighResult:
     segments: tuple[Segment, ...] = ()
     tlf: float | None = None
     warnings: tuple[RecordingWarning, ...] = field(default_factory=tuple)
+    tlf_motor_shaft: float | None = None
     signatures: Signatures | None = None
     loss_drift: LossDrift = field(default_factory=LossDrift.unknown)
 
@@ -266,6 +270,7 @@ class WeighResult:
             "consistent": self.consistent,
             "segments": [s.to_dict() for s in self.segments],
             "tlf": self.tlf,
+            "tlf_motor_shaft": self.tlf_motor_shaft,
             "warnings": [w.to_dict() for w in self.warnings],
             "friction_uncertainty_kg": self.friction_uncertainty_kg,
             "inertia_uncertainty_kg": self.inertia_uncertainty_kg,
@@ -530,6 +535,7 @@ def weigh(
         out = _no_payload(name, (*warnings, *combined.warnings), drifted)
         return dataclasses.replace(out, segments=segments, signatures=signatures)
     tlf = transport_loss_factor(recording, prof, params, combined.payload_kg)
+    tlf_shaft = motor_shaft_transport_loss_factor(recording, prof, combined.payload_kg)
     return WeighResult(
         file=name,
         payload_kg=combined.payload_kg,
@@ -541,6 +547,7 @@ def weigh(
         consistent=combined.consistent,
         segments=segments,
         tlf=tlf,
+        tlf_motor_shaft=tlf_shaft,
         warnings=(*warnings, *combined.warnings),
         signatures=signatures,
         loss_drift=drifted,

@@ -1,0 +1,324 @@
+"""The ``monitoring`` part of the fidelity evaluation (issue 17).
+
+Run::
+
+    OPENBLAS_NUM_THREADS=1 python scripts/evaluate_fidelity.py monitoring \
+        [--per-fault 8] [--healthy 12] [--recordings 200] [--workers 2] \
+        [--json fidelity-monitoring.json]
+
+Conveyors are drawn from the weighing evaluation's design distribution
+(every realism effect on, the richer plant, 1, 6 or 12 ms scopes). For each
+of the seven fault types, ``--per-fault`` conveyors get a degradation
+sequence of ``--recordings`` recordings: the fault's severity is 0 until an
+onset drawn between recordings 80 and 120 (scaled with the length) and then
+grows linearly to its end value (:data:`END_SEVERITY`) at the last
+recording. ``--healthy`` more conveyors get healthy sequences with payload
+events (:mod:`chaintwin.simulate.faults` ``payload_event`` at severity 1).
+Every sequence has payloads drawn per recording (10-40 % of the conveyor's
+largest), a slow +-10 % drift of the gear losses, belt positions that carry
+on between recordings (the scope's position offset is arbitrary), and is
+calibrated from the ``several_loads`` protocol's runs.
+
+Printed per fault type: sequences alarmed after the onset, probable cause
+right (the first alarm's first cause), median delay after the onset
+(recordings), false alarms (alarms before the onset); for the healthy
+sequences the alarms and the payload events noted; and how far a rail
+obstacle moved the friction feature and the weighing (largest |z| of the
+friction feature against its baseline after the onset, and the median
+payload error before and after the onset).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from datetime import UTC, datetime, timedelta
+from typing import Any
+
+import numpy as np
+
+from chaintwin.diagnose.monitor import ConveyorMonitor
+from chaintwin.diagnose.records import MonitorSettings
+from chaintwin.errors import ChaintwinError
+from chaintwin.identify.calibrating import calibrate
+from chaintwin.simulate.faults import Fault
+from chaintwin.simulate.virtual import default_setpoints, run_virtual
+from chaintwin.validate import inspect_recording
+
+FAULT_TYPES = (
+    "friction",
+    "lubrication",
+    "bearing",
+    "gear_tooth",
+    "rail_obstacle",
+    "elongation",
+    "sprocket",
+)
+"""The seven fault types (``rail_obstacle`` is the issue's obstruction)."""
+
+EXPECTED = {
+    "friction": "friction",
+    "lubrication": "lubrication",
+    "bearing": "bearing",
+    "gear_tooth": "gear",
+    "rail_obstacle": "obstruction",
+    "elongation": "elongation",
+    "sprocket": "sprocket",
+}
+"""The probable cause each fault type should be given."""
+
+END_SEVERITY = {
+    "friction": 0.5,
+    "lubrication": 1.0,
+    "bearing": 0.5,
+    "gear_tooth": 0.5,
+    "rail_obstacle": 1.0,
+    "elongation": 1.0,
+    "sprocket": 1.0,
+    "payload_event": 1.0,
+}
+"""Severity at the last recording (the scales of :mod:`chaintwin.simulate.faults`)."""
+
+DRIFT = 0.10
+"""Amplitude of the slow gear-loss drift, 1."""
+
+
+def _sequence(task: dict[str, Any]) -> dict[str, Any]:
+    """Simulate and monitor one sequence (runs in a worker process)."""
+    conv = task["conveyor"]
+    fault: str | None = task["fault"]
+    healthy: bool = task.get("healthy", False)
+    n: int = task["recordings"]
+    onset: int = task["onset"]
+    rng = np.random.default_rng(task["seed"])
+    profile = conv.profile
+    try:
+        cal = calibrate(task["calibration"], profile)
+    except ChaintwinError as exc:
+        return {"fault": fault, "conveyor": profile.id, "error": f"calibration: {exc}"}
+    monitor = ConveyorMonitor(profile, MonitorSettings(), cal)
+    window = 2048 * conv.sample_time_s
+    ramp = min(0.5, window / 8)
+    setpoints = default_setpoints(
+        profile,
+        duration_s=window,
+        ramp_s=ramp,
+        hold_s=max(0.5, window - 2 * ramp - 0.6),
+        direction=conv.direction,
+    )
+    start = datetime(2026, 3, 2, 6, 0, tzinfo=UTC)
+    angle = float(rng.uniform(0.0, 2.0e4))
+    phase = float(rng.uniform(0.0, 2.0 * math.pi))
+    first_alarm: int | None = None
+    first_cause: str | None = None
+    first_feature: str | None = None
+    false_alarms = 0
+    false_by: dict[str, int] = {}
+    events_true = events_noted = 0
+    friction: list[tuple[int, float | None, float | None]] = []
+    errors: list[tuple[int, float, float]] = []
+    for k in range(n):
+        severity = 0.0
+        if fault is not None and k >= onset:
+            severity = END_SEVERITY[fault] * (k - onset + 1) / max(n - onset, 1)
+        faults = [Fault(fault, severity)] if fault is not None and severity > 0 else []
+        payload = float(rng.uniform(0.1, 0.4)) * conv.max_payload_kg
+        scale = 1.0 + DRIFT * math.sin(2.0 * math.pi * k / n * 1.5 + phase)
+        run = run_virtual(
+            profile,
+            payload_kg=payload,
+            sample_time_s=conv.sample_time_s,
+            faults=faults,
+            seed=int(rng.integers(2**31)),
+            setpoints=setpoints,
+            recorded_at=start + timedelta(hours=3 * k),
+            loss_scale=scale,
+            initial_motor_angle=angle,
+            source=f"{profile.id}-{k:03d}",
+        )
+        # unrecorded moves between scopes carry the belt on
+        angle = float(run.simulation.position[-1]) + float(rng.uniform(0.0, 3000.0))
+        events_true += run.truth["payload_event_s"] is not None
+        for r in monitor.process(inspect_recording(run.recording, profile=profile)):
+            idx = int(r.file.rsplit("-", 1)[1])
+            if r.alarm and not healthy and idx >= onset and first_alarm is None:
+                first_alarm = idx
+                first_cause = r.causes[0]["cause"] if r.causes else None
+                first_feature = r.causes[0]["feature"] if r.causes else None
+            if r.alarm and (healthy or idx < onset):
+                false_alarms += 1
+                for c in r.causes:
+                    key = f"{c['cause']}:{c['feature']}"
+                    false_by[key] = false_by.get(key, 0) + 1
+            events_noted += any(c["cause"] == "payload_event" for c in r.causes)
+            if r.status == "monitored":
+                feats = r.features or {}
+                friction.append((idx, feats.get("friction"), feats.get("payload_inertia_kg")))
+            if r.payload_kg is not None and r.uncertainty_kg:
+                err = r.payload_kg - payload_truth(run.truth)
+                errors.append((idx, err, err / r.uncertainty_kg))
+    z_after = _friction_z(monitor, friction, onset)
+    return {
+        "fault": fault,
+        "conveyor": profile.id,
+        "sample_time_ms": conv.sample_time_s * 1e3,
+        "onset": onset if fault is not None else None,
+        "first_alarm": first_alarm,
+        "delay": None if first_alarm is None else first_alarm - onset,
+        "cause": first_cause,
+        "feature": first_feature,
+        "right": fault is not None and first_cause == EXPECTED.get(fault),
+        "false_alarms": false_alarms,
+        "false_alarm_causes": false_by,
+        "events_true": events_true,
+        "events_noted": events_noted,
+        "friction_z_max_after_onset": z_after,
+        "payload_error_before_kg": _median_abs([e for i, e, _ in errors if i < onset]),
+        "payload_error_after_kg": _median_abs([e for i, e, _ in errors if i >= onset]),
+        # in reported standard uncertainties: what the weighing promised
+        "payload_z_before": _median_abs([z for i, _, z in errors if i < onset]),
+        "payload_z_after": _median_abs([z for i, _, z in errors if i >= onset]),
+    }
+
+
+def payload_truth(truth: dict[str, Any]) -> float:
+    """The simulated payload of a recording, kg."""
+    return float(truth["payload_kg"])
+
+
+def _median_abs(values: list[float]) -> float | None:
+    return float(np.median(np.abs(values))) if values else None
+
+
+def _friction_z(
+    monitor: ConveyorMonitor, rows: list[tuple[int, float | None, float | None]], onset: int
+) -> float | None:
+    """Largest z of the friction feature against its baseline after the onset."""
+    base = (monitor.baselines or {}).get("friction")
+    if base is None:
+        return None
+    zs = [
+        (v - base.expected(load)) / base.scale
+        for i, v, load in rows
+        if i >= onset and v is not None and load is not None and base.scale > 0
+    ]
+    zs = [z for z in zs if math.isfinite(z)]
+    return max(zs) if zs else None
+
+
+def run_monitoring(
+    args: Any,
+    draw_conveyor: Callable[..., Any],
+    calibration_runs: Callable[..., dict[str, list[Any]]],
+) -> dict[str, Any]:
+    """Draw the conveyors, run every sequence, print the table; the JSON-ready result."""
+    started = time.perf_counter()
+    rng = np.random.default_rng(args.seed + 17)
+    n = args.recordings
+    lo, hi = round(0.4 * n), round(0.6 * n)
+    tasks: list[dict[str, Any]] = []
+    plan = [f for f in FAULT_TYPES for _ in range(args.per_fault)] + [None] * args.healthy
+    only = set(getattr(args, "only", None) or [])
+    for k, fault in enumerate(plan):
+        conv = draw_conveyor(rng, 100 + k)
+        onset = int(rng.integers(lo, hi + 1)) if fault is not None else 0
+        if only and (fault or "healthy") not in only:
+            continue  # drawn all the same: the others stay the whole run's
+        seed = args.seed + 5000 + 17 * k
+        tasks.append(
+            {
+                "conveyor": conv,
+                "fault": fault or "payload_event",
+                "healthy": fault is None,
+                "recordings": n,
+                "onset": onset,
+                "seed": seed + 1,
+                "calibration": calibration_runs(conv, seed)["several_loads"],
+            }
+        )
+    with ProcessPoolExecutor(max(1, args.workers)) as ex:
+        rows = list(ex.map(_run_task, tasks))
+    seconds = time.perf_counter() - started
+    table = _table(rows)
+    _print(table, rows, args, seconds)
+    return {"table": table, "sequences": rows, "seconds": seconds}
+
+
+def _run_task(task: dict[str, Any]) -> dict[str, Any]:
+    row = _sequence(task)
+    if task["healthy"]:  # payload events only: any alarm is a false one
+        row.update(fault=None, right=False, onset=None)
+    return row
+
+
+def _table(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    out = []
+    for fault in (*FAULT_TYPES, None):
+        mine = [r for r in rows if r["fault"] == fault and "error" not in r]
+        delays = [r["delay"] for r in mine if r.get("delay") is not None]
+        out.append(
+            {
+                "fault": fault or "healthy",
+                "sequences": len(mine),
+                "not_run": sum(1 for r in rows if r["fault"] == fault and "error" in r),
+                "alarmed": sum(1 for r in mine if r.get("first_alarm") is not None),
+                "right": sum(1 for r in mine if r.get("right")),
+                "median_delay": float(np.median(delays)) if delays else None,
+                "false_alarms": sum(int(r["false_alarms"]) for r in mine),
+                "events_true": sum(int(r["events_true"]) for r in mine),
+                "events_noted": sum(int(r["events_noted"]) for r in mine),
+            }
+        )
+    return out
+
+
+def _fmt(x: float | None, spec: str = ".1f") -> str:
+    return "-" if x is None else format(x, spec)
+
+
+def _print(table: list[dict[str, Any]], rows: list[dict[str, Any]], args: Any, s: float) -> None:
+    print(
+        f"monitoring over random conveyors (seed {args.seed}): {args.per_fault} per fault type, "
+        f"{args.healthy} healthy, {args.recordings} recordings each, every realism effect on, "
+        f"loss drift +-{DRIFT:.0%}"
+    )
+    print(f"{'fault':14s} {'seq':>4s} {'alarmed':>8s} {'right':>6s} {'delay':>6s} {'false':>6s}")
+    for t in table:
+        print(
+            f"{t['fault']:14s} {t['sequences']:4d} {t['alarmed']:8d} {t['right']:6d} "
+            f"{_fmt(t['median_delay']):>6s} {t['false_alarms']:6d}"
+            + (f"  (not run: {t['not_run']})" if t["not_run"] else "")
+        )
+    healthy = table[-1]
+    print(
+        f"healthy sequences: {healthy['events_true']} recordings with a payload event, "
+        f"{healthy['events_noted']} recordings noted as payload_event"
+    )
+    obstacle = [r for r in rows if r["fault"] == "rail_obstacle" and "error" not in r]
+    if obstacle:
+        print(
+            "rail obstacle: friction feature's largest z after the onset; median |payload "
+            "error| in kg and in reported uncertainties u, before and after the onset"
+        )
+        for r in obstacle:
+            print(
+                f"  {r['conveyor']} ({r['sample_time_ms']:.0f} ms): "
+                f"z {_fmt(r['friction_z_max_after_onset'])}, "
+                f"error {_fmt(r['payload_error_before_kg'], '.2f')} kg "
+                f"({_fmt(r['payload_z_before'], '.2f')} u) before, "
+                f"{_fmt(r['payload_error_after_kg'], '.2f')} kg "
+                f"({_fmt(r['payload_z_after'], '.2f')} u) after"
+            )
+    print("missed or wrong:")
+    for r in rows:
+        if "error" in r:
+            print(f"  {r['conveyor']} {r['fault']}: not run ({r['error']})")
+        elif r["fault"] is not None and not r["right"]:
+            print(
+                f"  {r['conveyor']} {r['fault']} ({r['sample_time_ms']:.0f} ms): "
+                f"first alarm {r['first_alarm']} (onset {r['onset']}), cause {r['cause']}"
+                + (f" ({r['feature']})" if r["feature"] else "")
+            )
+    print(f"total run time {s:.0f} s")

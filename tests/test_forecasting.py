@@ -1,0 +1,86 @@
+"""Forecasts with prediction intervals, model choice by backtest and remaining life."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime, timedelta
+
+import numpy as np
+import pytest
+
+from chaintwin.diagnose.forecasting import (
+    MODELS,
+    WINDOW,
+    backtest_errors,
+    forecast_feature,
+    predict,
+    resample_even,
+)
+
+T0 = datetime(2026, 1, 1, tzinfo=UTC)
+
+
+def _times(n: int, step_days: float = 0.5) -> list[datetime]:
+    return [T0 + timedelta(days=step_days * k) for k in range(n)]
+
+
+def test_resample_even_means_per_step_and_fills_gaps() -> None:
+    t = np.array([0.0, 0.4, 1.0, 1.2, 3.1])
+    v = np.array([1.0, 3.0, 4.0, 6.0, 10.0])
+    grid, series, step = resample_even(t, v, 1.0)
+    assert step == 1.0
+    np.testing.assert_allclose(grid, [0.5, 1.5, 2.5, 3.5])
+    # step 2 is empty: interpolated between its neighbours' means (5 and 10)
+    np.testing.assert_allclose(series, [2.0, 5.0, 7.5, 10.0])
+
+
+def test_line_interval_is_a_prediction_interval() -> None:
+    # 300 series of a line with white noise: the 90 % interval covers ~90 % of the
+    # next values (the mean's confidence band would cover far fewer)
+    rng = np.random.default_rng(0)
+    inside = total = 0
+    for _ in range(300):
+        y = 1.0 + 0.01 * np.arange(40) + rng.normal(0.0, 0.05, 40)
+        _mean, lower, upper = predict("line", y[:30], 10)
+        inside += int(np.count_nonzero((y[30:] >= lower) & (y[30:] <= upper)))
+        total += 10
+    assert 0.86 <= inside / total <= 0.94
+
+
+def test_a_linear_rise_is_forecast_with_its_crossing_inside_the_band() -> None:
+    rng = np.random.default_rng(1)
+    n = 60
+    values = 1.0 + 0.01 * 0.5 * np.arange(n) + rng.normal(0.0, 0.02, n)
+    fc = forecast_feature("friction", _times(n), values, 1.5)
+    assert fc is not None
+    truth = T0 + timedelta(days=50.0)  # 1 + 0.01·d = 1.5
+    assert fc.latest is not None
+    assert fc.earliest <= truth <= fc.latest
+    assert abs((fc.crosses_at - truth).total_seconds()) < 5 * 86400
+    assert fc.model in MODELS
+    d = fc.to_dict()
+    assert {"crosses_at", "earliest", "latest", "model"} <= set(d)
+    life = d["remaining_life_days"]
+    assert life["earliest"] <= life["expected"] <= life["latest"]
+    # counted from the last value (day 29.5)
+    assert life["expected"] == pytest.approx((fc.crosses_at - T0).days - 29.5, abs=1.0)
+
+
+def test_the_backtest_picks_the_model_and_a_random_walk_is_not_a_line() -> None:
+    rng = np.random.default_rng(1)
+    n = 60
+    _ = rng.normal(0.0, 0.02, n)  # the same draws as above, then the walk
+    walk = 1.0 + np.cumsum(0.005 + rng.normal(0.0, 0.02, n))
+    errors = backtest_errors(walk[-WINDOW:])  # the models see the last WINDOW steps
+    assert set(errors) == set(MODELS)
+    assert min(errors["ets"], errors["arima"]) < errors["line"]
+    fc = forecast_feature("friction", _times(n), walk, float(walk[-1]) + 0.3)
+    assert fc is not None
+    assert fc.model == min(MODELS, key=lambda m: errors[m])
+    assert fc.backtest_mae == pytest.approx(errors[fc.model])
+
+
+def test_no_rising_trend_no_forecast() -> None:
+    rng = np.random.default_rng(2)
+    flat = 1.0 + rng.normal(0.0, 0.02, 60)
+    assert forecast_feature("friction", _times(60), flat, 1.5) is None
+    assert forecast_feature("friction", _times(8), flat[:8], 1.5) is None

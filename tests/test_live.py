@@ -681,7 +681,7 @@ def test_drives_hook_counts_recordings_connections_and_missed_scopes(
         (["--notify-url", "http://x/h", "--notify-secret-file", "EMPTY"], "the file is empty"),
         (["--watch", "NOWHERE"], "no such folder"),
         (["--settle-s", "-1"], "--settle-s -1.0 must be zero or more"),
-        (["--opcua", "drives.yaml"], "drives.yaml"),
+        (["--opcua", "NOWHERE"], "cannot be read (No such file or directory)"),
     ],
 )
 def test_serve_refuses_bad_options_in_one_line(

@@ -468,6 +468,7 @@ def recording_features(
             phases,
             prof.chordal_radius_m / prof.kinematic_ratio,
             looked_at,
+            prof.loop_length_m,
         )
     )
 

@@ -87,6 +87,12 @@ SMOOTH_S = 0.05
 PERIODIC_CV = 0.15
 """Impacts whose spacings vary by less than this (coefficient of variation) are periodic."""
 
+PATTERN_MIN = 4
+"""Fewest alike knocks in one recording that make a pattern (:func:`_a_pattern`)."""
+
+PATTERN_CV = 0.2
+"""Largest coefficient of variation of their peaks that makes them alike."""
+
 POOL = 20
 """Recordings pooled for the rate of isolated impacts per belt revolution."""
 
@@ -405,19 +411,44 @@ def periodic(impacts: list[Impact]) -> bool:
     return bool(np.all(np.abs(ratios - np.round(ratios)) < PERIODIC_CV))
 
 
+def _a_pattern(hits: list[Impact], revolution_s: float | None) -> bool:
+    """Whether resisting events repeat as a pattern of the drive, not as hits.
+
+    Regular spacings (:func:`periodic`) belong to an order (a tooth, a
+    sprocket, a line aliased by the sampling), unless the spacing is the
+    belt's revolution (an obstacle on a short belt, hit again and again
+    within one long scope). So do :data:`PATTERN_MIN` or more knocks as alike
+    as a line's samples (peaks within :data:`PATTERN_CV`): a sampled line
+    beating against the sample rate leaves spikes in a few repeating gaps.
+    """
+    if revolution_s is not None and len(hits) >= 2:
+        gaps = np.diff([i.t_s for i in hits])
+        ratios = gaps / revolution_s
+        if np.all(np.abs(ratios - np.round(ratios)) < PERIODIC_CV) and np.all(ratios > 0.5):
+            return False  # once per belt revolution: the obstacle itself
+    if periodic(hits):
+        return True
+    if len(hits) >= PATTERN_MIN:
+        peaks = np.abs([i.peak_nm for i in hits])
+        return bool(peaks.std() < PATTERN_CV * peaks.mean())
+    return False
+
+
 def impact_features(
     impacts: list[Impact],
     recording: Recording,
     phases: list[Phase],
     belt_per_rad_m: float,
     spans: Sequence[tuple[int, int]] | None = None,
+    loop_length_m: float | None = None,
 ) -> dict[str, float]:
     """A recording's impact features.
 
     ``spans`` are the sample spans the impacts were looked for in
     (:func:`scan_impacts`; default: the constant phases less their edges),
     over which the belt travel is counted; ``belt_per_rad_m`` is the belt
-    travel per motor radian, m.
+    travel per motor radian, m; ``loop_length_m`` the belt loop (hits once
+    per revolution of it are the obstacle's, however regular).
 
     Only impacts that resist the motion (``sign`` +1) count: a hit does,
     the belt springing back after it does not; and none when they come at a
@@ -448,7 +479,11 @@ def impact_features(
     # hits at a regular spacing belong to an order (a tooth, a sprocket, a line
     # aliased by the sampling) and are judged by its spectral lines
     hits = [i for i in impacts if i.sign > 0]
-    if periodic(hits):
+    revolution_s = None
+    if loop_length_m and travel > 0 and spans:
+        searched = sum(b - a for a, b in spans) * dt
+        revolution_s = loop_length_m / (travel / searched)  # at the mean belt speed
+    if _a_pattern(hits, revolution_s):
         hits = []
     knocks = [i for i in hits if i.width_s <= KNOCK_MAX_S]
     return {

@@ -387,11 +387,12 @@ def recording_features(
     first = model_torque(recording, prof, params, _model_load(w), tray_kg=tray, motoring=mot)
     # what repeats with the sprocket's teeth or a shaft is no impact
     orders = characteristic_orders(prof)
+    shafts = shaft_orders(prof)
     periodic_orders = [
         o for name, o in orders.items() if name in ("sprocket_tooth_pass", "output_shaft")
     ]
     impacts, looked_at = scan_impacts(
-        recording, first, phases, [*periodic_orders, *shaft_orders(prof).values()]
+        recording, first, phases, [*periodic_orders, *shafts.values()]
     )
     if impacts and every is not None:
         touched = np.zeros(every.count, dtype=bool)
@@ -488,11 +489,9 @@ def recording_features(
             spectrum = None
     ts = recording.sample_time_s
     if spectrum is not None:
-        orders = characteristic_orders(prof)
         tp = orders.get("sprocket_tooth_pass")
         tp_orders = [h * tp for h in range(1, TOOTH_PASS_HARMONICS + 1)] if tp else []
         centres: dict[str, list[float]] = {}
-        shafts = shaft_orders(calibration.id_profile)
         if tp:
             centres["tooth_pass"] = _line_centres(spectrum, tp_orders, ts)
             # a shaft's comb would read as the sprocket's where they meet
@@ -507,7 +506,7 @@ def recording_features(
         sums = _line_sums(spectrum, centres)
         values["tooth_pass"] = sums["tooth_pass"] if tp else nan
         values["sprocket_comb"] = sums["sprocket_comb"] if tp else nan
-        for name in shaft_orders(calibration.id_profile):
+        for name in shafts:
             values[f"comb_{name}"] = sums[f"comb_{name}"]
     else:
         values["tooth_pass"] = values["sprocket_comb"] = nan

@@ -36,7 +36,7 @@ import numpy as np
 
 from chaintwin._types import FloatArray
 
-from .health import Forecast
+from .health import Forecast, in_days
 
 __all__ = [
     "BACKTEST_ORIGINS",
@@ -294,15 +294,10 @@ def forecast_feature(
     """
     import statsmodels.api as sm
 
-    v = np.asarray(values, dtype=np.float64)
-    ok = np.isfinite(v)
-    if ok.sum() < MIN_POINTS:
+    days = in_days(times, values, MIN_POINTS)
+    if days is None:
         return None
-    t0 = times[0]
-    t = np.array([(ti - t0).total_seconds() / 86400.0 for ti in times])[ok]
-    v = v[ok]
-    if float(np.ptp(t)) <= 0.0:
-        return None
+    t0, t, v = days
     grid, series, step = resample_even(t, v)
     if series.shape[0] < MIN_POINTS:
         return None

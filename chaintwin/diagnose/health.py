@@ -45,6 +45,7 @@ __all__ = [
     "Forecast",
     "fit_baseline",
     "forecast_crossing",
+    "in_days",
     "x_of_y",
 ]
 
@@ -280,6 +281,28 @@ class Forecast:
         return out
 
 
+def in_days(
+    times: Sequence[datetime], values: Sequence[float], min_points: int
+) -> tuple[datetime, FloatArray, FloatArray] | None:
+    """A feature's finite values against days since its first time.
+
+    Returns
+    -------
+    (datetime, FloatArray, FloatArray) or None
+        The first time, the days of the finite values since it and those
+        values; None with fewer than ``min_points`` of them or no time span.
+    """
+    v = np.asarray(values, dtype=np.float64)
+    ok = np.isfinite(v)
+    if ok.sum() < min_points:
+        return None
+    t0 = times[0]
+    t = np.array([(ti - t0).total_seconds() / 86400.0 for ti in times])[ok]
+    if float(np.ptp(t)) <= 0.0:
+        return None
+    return t0, t, v[ok]
+
+
 def forecast_crossing(
     feature: str,
     times: Sequence[datetime],
@@ -321,15 +344,10 @@ def forecast_crossing(
         cross within the horizon. When the fitted line is above the limit
         already, ``crossed`` is True and the times say when it got there.
     """
-    v = np.asarray(values, dtype=np.float64)
-    ok = np.isfinite(v)
-    if ok.sum() < 8:
+    days = in_days(times, values, 8)
+    if days is None:
         return None
-    t0 = times[0]
-    t = np.array([(ti - t0).total_seconds() / 86400.0 for ti in times])[ok]
-    v = v[ok]
-    if float(np.ptp(t)) <= 0.0:
-        return None
+    t0, t, v = days
     # imported here: statsmodels (and pandas) cost about 0.3 s, which every
     # command that imports the monitor would pay whether it forecasts or not
     import statsmodels.api as sm

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 from types import ModuleType
 
+import numpy as np
 import pytest
 
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "evaluate_fidelity.py"
@@ -37,11 +38,13 @@ def test_with_the_drift_allowance_the_uncertainty_is_honest_over_random_conveyor
     data = json.loads(out.read_text())
     rows = {(s["protocol"], s["drift"], s["mode"]): s for s in data["summary"]}
     assert len(data["conveyors"]) == 30
-    # several_loads: honest (the target: >= 90 % within 2u, none beyond 5u,
-    # at most 2 % unweighable); one_load_several_speeds falls short where the
-    # slow plateaus meet Stribeck friction (documented in the user guide):
-    # these bounds guard what is reached now
-    bounds = {"several_loads": (0.9, 0.0, 2.4), "one_load_several_speeds": (0.85, 0.04, 2.2)}
+    # both honest (the target: >= 90 % within 2u, none beyond 5u, at most 2 %
+    # unweighable); empty runs stay honest where slow plateaus stick-slip because
+    # the calibration falls back to losses linear in speed and says so. The
+    # median uncertainty over the median error misses the 2.2 target with empty
+    # runs (2.76: the ±10 % drift allowance is carried where no drift happened;
+    # documented in the user guide): these bounds guard what is reached now
+    bounds = {"several_loads": (0.9, 0.0, 2.4), "one_load_several_speeds": (0.95, 0.0, 2.9)}
     for protocol, (within_2u, beyond_5u, inflation) in bounds.items():
         for drift in ("none", "drift10"):
             s = rows[protocol, drift, "unknown"]
@@ -54,8 +57,51 @@ def test_with_the_drift_allowance_the_uncertainty_is_honest_over_random_conveyor
         assert both["u_over_error"] <= inflation, both
         # trusting the calibration's losses under drift is what is dishonest
         assert rows[protocol, "drift10", "trusted"]["beyond_5u"] > 0.2
+    # the published one-speed method: honest, and where its uncertainty exceeds the
+    # belt's own mass, no number at all (the largest error was 670 kg before)
+    one = rows["one_load_one_speed", "both", "unknown"]
+    assert one["within_2u"] >= 0.95 and one["beyond_5u"] == 0.0, one
+    assert one["max_kg"] < 200.0 and 0.02 < one["unweighable_share"] < 0.15, one
     assert {t["protocol"] for t in data["targets"]} == {"several_loads", "one_load_several_speeds"}
     # a reference load measures the payload's torque: a belt mass 3 % off in the
     # profile does not move the weight; empty runs alone lean on the profile
     assert rows["several_loads", "none", "unknown"]["belt_mass_3pct_median_kg"] < 0.05
     assert rows["one_load_several_speeds", "none", "unknown"]["belt_mass_3pct_median_kg"] > 0.1
+
+
+def test_stick_slip_on_a_slow_plateau_is_found_and_kept_out_of_mu() -> None:
+    """Empty runs at 30/60/100 % on a drawn conveyor whose slow plateau stick-slips.
+
+    The exactly determined three-speed fit reads the stick-slip as losses that
+    fall with speed and puts μ 11 % off at ±0.2 %; the calibration finds the
+    plateau, refits with losses linear in speed and widens μ by half the change.
+    """
+    from chaintwin.identify.calibrating import calibrate, identification_profile
+    from chaintwin.identify.regression import RigidModelRegression
+
+    ef = _script()
+    rng = np.random.default_rng(4242)  # a seed the evaluation does not use
+    conv = [ef.draw_conveyor(rng, k) for k in range(30)][29]
+    truth = conv.profile.model.friction
+    recs = ef.calibration_runs(conv, 777 + 29)["one_load_several_speeds"]
+    cal = calibrate(recs, conv.profile)
+    codes = {w.code for w in cal.warnings}
+    assert {"stick_slip", "losses_not_physical"} <= codes
+    assert cal.case == "one_load_several_speeds" and "BmC" in cal.parameters.fixed
+    mu, sd = cal.parameters["mu"], cal.parameters.stderr("mu")
+    assert abs(mu - truth) <= 2.0 * sd and abs(mu / truth - 1.0) < 0.05
+    plain = RigidModelRegression().fit(recs, identification_profile(conv.profile)).parameters_
+    assert abs(plain["mu"] - truth) > 5.0 * plain.stderr("mu")  # what the check repairs
+
+
+def test_a_payload_less_certain_than_the_belt_is_heavy_is_no_number() -> None:
+    from chaintwin.weigh.drift import LossDrift
+    from chaintwin.weigh.weigh import UNWEIGHABLE, Signatures, _combine
+
+    loose = Signatures(183.0, 1050.0**2, None, None, 0.0, 0.0, moving_mass_kg=430.0)
+    out = _combine(loose, LossDrift())
+    assert out.payload_kg is None and out.uncertainty_kg is None
+    assert [w.code for w in out.warnings] == [UNWEIGHABLE]
+    assert "exceeds the belt's and tray's own mass (430 kg)" in out.warnings[0].message
+    tight = Signatures(183.0, 40.0**2, None, None, 0.0, 0.0, moving_mass_kg=430.0)
+    assert _combine(tight, LossDrift()).payload_kg == 183.0

@@ -33,6 +33,7 @@ from chaintwin.read.files import read_limited
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording, RecordingWarning
 from chaintwin.units import RPM_TO_RAD_S
+from chaintwin.validate.phases import segment
 
 __all__ = ["calibrate"]
 
@@ -187,6 +188,124 @@ def _ramp_check(
     return replace(parameters, covariance=cov), [note]
 
 
+STICK_SLIP_RATIO = 3.0
+"""A plateau stick-slips when its speed ripple exceeds this many times the fastest ones'."""
+STICK_SLIP_MIN_CV = 0.01
+"""... and this share of its mean speed (polygon ripple and noise stay below), 1."""
+LOSS_SIGNIFICANCE = 2.0
+"""A loss coefficient this many standard errors below zero is physically impossible."""
+
+
+def plateau_ripple(recording: Recording) -> tuple[float, float] | None:
+    """Speed ripple on a recording's longest constant-speed phase.
+
+    Returns
+    -------
+    tuple of float or None
+        ``(cv, speed)``: the standard deviation of the speed over the phase's
+        middle half divided by its mean magnitude (1), and that mean (rad/s);
+        None without a constant phase of 8 samples or more.
+    """
+    phases = [p for p in segment(recording) if p.kind == "constant" and p.stop - p.start >= 8]
+    if not phases:
+        return None
+    ph = max(phases, key=lambda p: p.stop - p.start)
+    quarter = (ph.stop - ph.start) // 4
+    w = recording.speed[ph.start + quarter : ph.stop - quarter]
+    mean = float(np.mean(np.abs(w)))
+    if mean <= 0.0:
+        return None
+    return float(np.std(w)) / mean, mean
+
+
+def _stick_slip(recordings: Sequence[Recording]) -> list[tuple[str, float, float, float]]:
+    """Plateaus that stick-slip: ``(source, cv, reference cv, speed rad/s)`` each.
+
+    Slow plateaus of a long, elastic belt whose friction falls with speed
+    (Stribeck) stick and slip: the speed ripples and the mean torque no longer
+    reads the sliding friction. The reference is the median ripple of the
+    fastest speed's plateaus (polygon effect and noise).
+    """
+    ripples = [(rec.source, plateau_ripple(rec)) for rec in recordings]
+    found = [(src, r) for src, r in ripples if r is not None]
+    if len(found) < 2:
+        return []
+    speeds = speed_clusters([r[1] for _, r in found])
+    fastest = [r[0] for _, r in found if r[1] >= speeds[-1] / (1.0 + 0.05)]
+    ref = float(np.median(fastest))
+    return [
+        (src, cv, ref, speed)
+        for src, (cv, speed) in found
+        if cv > max(STICK_SLIP_MIN_CV, STICK_SLIP_RATIO * ref) and speed < speeds[-1] / 1.05
+    ]
+
+
+def _loss_check(
+    settings: RigidModelRegression,
+    recordings: Sequence[Recording],
+    profile: ConveyorProfile,
+    parameters: RigidParameters,
+) -> tuple[RigidParameters, list[RecordingWarning]]:
+    """Empty runs at several speeds: fall back to linear losses where the fit is not physical.
+
+    Three plateau speeds determine μ, BmB and BmC exactly, so the fit cannot
+    show its own model error, and an error of the slowest plateau's torque
+    reaches μ about three times amplified (the losses' extrapolation to
+    standstill). Two signs that this happened: a loss coefficient
+    significantly below zero (losses that fall with speed do not exist), or a
+    plateau that stick-slips. Then the fit is repeated with BmC fixed to 0
+    (losses linear in speed: fewer unknowns than speeds, so the plateaus
+    check each other) and half the difference of the two μ joins μ's
+    uncertainty (the split-half allowance of :func:`_ramp_check`).
+    """
+    notes: list[RecordingWarning] = []
+    reasons: list[str] = []
+    for name in ("BmB", "BmC"):
+        sd = parameters.stderr(name)
+        if name not in parameters.fixed and sd > 0 and parameters[name] < -LOSS_SIGNIFICANCE * sd:
+            reasons.append(
+                f"{name} = {parameters[name]:.3g} is below zero by "
+                f"{-parameters[name] / sd:.1f} standard errors"
+            )
+    for src, cv, ref, speed in _stick_slip(recordings):
+        reasons.append(
+            f"{src}: the plateau at {speed / RPM_TO_RAD_S:.0f} rpm stick-slips (speed ripple "
+            f"{cv:.1%}, {ref:.1%} at the top speed)"
+        )
+        notes.append(
+            RecordingWarning(
+                "stick_slip",
+                f"{src}: the plateau at {speed / RPM_TO_RAD_S:.0f} rpm stick-slips (speed ripple "
+                f"{cv:.1%} of its speed, {ref:.1%} on the fastest plateaus); its torque does not "
+                "read the sliding friction. Record the slow runs faster (at least twice this "
+                "speed) or add a run with a known reference load",
+            )
+        )
+    if not reasons or not settings.fit_bmc:
+        return parameters, notes
+    linear = copy.copy(settings)
+    linear.fit_bmc = False
+    try:
+        refit = linear.fit(recordings, profile).parameters_
+    except EstimationError:
+        return parameters, notes
+    half = 0.5 * abs(parameters["mu"] - refit["mu"])
+    k = PARAMETER_NAMES.index("mu")
+    cov = np.array(refit.covariance, dtype=np.float64)
+    cov[k, k] += half * half
+    notes.append(
+        RecordingWarning(
+            "losses_not_physical",
+            "the plateaus do not fit losses that rise with speed as physics has them ("
+            + "; ".join(reasons)
+            + f"): refitted with losses linear in speed, mu = {refit['mu']:.4f} instead of "
+            f"{parameters['mu']:.4f}; half the difference ({half / max(refit['mu'], 1e-12):.1%}"
+            " of mu) is added to mu's uncertainty",
+        )
+    )
+    return replace(refit, covariance=cov), notes
+
+
 def calibrate(
     recordings: Sequence[Recording],
     profile: ConveyorProfile,
@@ -237,6 +356,8 @@ def calibrate(
     ramp_notes: list[RecordingWarning] = []
     if case == "one_load_one_speed":
         parameters, ramp_notes = _ramp_check(settings, recordings, id_prof, parameters)
+    elif case == "one_load_several_speeds":
+        parameters, ramp_notes = _loss_check(settings, recordings, id_prof, parameters)
     tau, tau_err, lag_warn = _torque_lag(recordings, id_prof)
     rec_info: list[dict[str, Any]] = []
     for k, rec in enumerate(recordings):

@@ -99,6 +99,10 @@ class Signatures:
         the inertia one is small, from the ramps).
     widen : float
         Factor on every uncertainty (2 for an incomplete cycle).
+    moving_mass_kg : float
+        The belt's and the tray's own mass, kg: a payload whose standard
+        uncertainty exceeds it cannot be told from the belt (unweighable;
+        infinite: no such limit).
     """
 
     friction_kg: float
@@ -109,6 +113,7 @@ class Signatures:
     drift_friction_kg: float
     drift_inertia_kg: float = 0.0
     widen: float = 1.0
+    moving_mass_kg: float = float("inf")
 
 
 @dataclass(frozen=True, slots=True)
@@ -127,6 +132,27 @@ def _unweighable(reason: str) -> RecordingWarning:
 
 
 def _combine(sig: Signatures, drift: LossDrift, friction: bool = True) -> _Combined:
+    """The payload from both signatures, or none when its uncertainty exceeds the belt's mass.
+
+    See :func:`_combine_signatures`; a payload whose standard uncertainty is
+    larger than the belt's and tray's own mass (:attr:`Signatures.moving_mass_kg`)
+    is no number to stand behind (a 1 ms scope of a long, heavy belt can
+    give 183 ± 1050 kg): unweighable, with the reason and what to record.
+    """
+    out = _combine_signatures(sig, drift, friction)
+    u = out.uncertainty_kg
+    if out.payload_kg is None or u is None or u <= sig.moving_mass_kg:
+        return out
+    reason = (
+        f"the payload's uncertainty (±{u:.0f} kg, 1 sigma) exceeds the belt's and tray's own "
+        f"mass ({sig.moving_mass_kg:.0f} kg): the recording cannot tell the payload from the "
+        "belt; record at 6-12 ms with a longer constant-speed run, or calibrate with a "
+        "reference load"
+    )
+    return _Combined(None, None, None, None, None, False, (*out.warnings, _unweighable(reason)))
+
+
+def _combine_signatures(sig: Signatures, drift: LossDrift, friction: bool = True) -> _Combined:
     """The payload from both signatures, corrected for the loss drift.
 
     Each signature is moved by ``drift.mean`` times its drift gradient and
@@ -517,6 +543,7 @@ def weigh(
         drift_friction_kg=float(grad[0]),
         drift_inertia_kg=float(grad[1]) / calibration.inertia_gain if fit.has_inertia else 0.0,
         widen=widen,
+        moving_mass_kg=prof.belt_mass_kg + tray,
     )
     cal_speeds = calibration.plateau_speeds_rpm
     wi = fit.windows

@@ -164,3 +164,16 @@ def test_a_rail_obstacle_is_hit_about_once_per_belt_revolution(
 
     assert per_revolution([]) == 0.0
     assert 0.5 <= per_revolution([Fault("rail_obstacle", 1.0)]) <= 1.5
+
+
+def test_an_unexplained_peak_on_the_output_shafts_comb_reads_as_the_gear() -> None:
+    """Orders seen on a drawn conveyor with a damaged output-stage tooth (i = 16.144)."""
+    from chaintwin.diagnose.causes import shaft_harmonic
+
+    out = 1.0 / 16.144114705460915
+    tol = 1.5 * (1.0 / 24.576) / (1400.0 / 60.0)  # a 12 ms scope's bin at 1400 rpm, in orders
+    for order in (0.1256, 0.1849, 0.3104, 0.3732, 0.4953):  # k = 2, 3, 5, 6, 8
+        assert shaft_harmonic(order, out, tol), order
+    assert not shaft_harmonic(3.57, out, tol)  # a bearing's outer-race order: k = 58
+    assert not shaft_harmonic(0.5 * (0.1849 + 0.2477), out, tol)  # between two harmonics
+    assert not shaft_harmonic(0.1849, 0.0, tol)

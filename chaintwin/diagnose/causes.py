@@ -13,6 +13,7 @@ __all__ = [
     "cause_priority",
     "impact_context",
     "resolve_causes",
+    "shaft_harmonic",
 ]
 
 CAUSE_PRIORITY: tuple[str, ...] = (
@@ -48,6 +49,9 @@ NOTE_CAUSES = frozenset({"payload_event", IMPULSIVE})
 """Causes reported on the recording and never alarmed: an item caught for a
 while, a tray dropped, is an event of operation, not wear; an impulsive
 residual that nothing explains yet names no cause to page anyone about."""
+
+OUTPUT_HARMONICS = 16
+"""Harmonics of the output shaft's order an unexplained peak is read as the gear's at."""
 
 HITS_PER_REV = (0.5, 2.0)
 """Pooled knocks per belt revolution that read as one obstacle on the rail."""
@@ -126,3 +130,30 @@ def resolve_causes(features: list[str], context: str | None = None) -> dict[str,
 
 def cause_priority(cause: str) -> int:
     return CAUSE_PRIORITY.index(cause) if cause in CAUSE_PRIORITY else len(CAUSE_PRIORITY)
+
+
+def shaft_harmonic(
+    order: float, shaft_order: float, tolerance: float, harmonics: int = OUTPUT_HARMONICS
+) -> bool:
+    """Whether an order is one of a shaft's first harmonics, within a tolerance.
+
+    A damaged tooth of the gear unit's output stage (or its shaft) knocks once
+    per output revolution: a comb at ``k/i`` that the characteristic lines do
+    not list (the output shaft is too slow for the ``comb_`` features), so
+    its tallest line shows as an unexplained peak. A bearing's defect orders
+    (outer and inner race, ball spin: 2-7 per motor revolution) lie far above
+    the output shaft's first harmonics on any gear unit with ``i >= 3``.
+
+    Parameters
+    ----------
+    order, shaft_order : float
+        The peak's order and the shaft's, per motor revolution.
+    tolerance : float
+        How close counts, in orders (about a spectral bin and a half).
+    harmonics : int
+        Highest harmonic counted.
+    """
+    if not (shaft_order > 0.0 and order > 0.0):
+        return False
+    k = round(order / shaft_order)
+    return 1 <= k <= harmonics and abs(order - k * shaft_order) <= tolerance

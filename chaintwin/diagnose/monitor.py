@@ -36,7 +36,7 @@ import numpy.typing as npt
 
 from chaintwin.errors import EstimationError, StoreError
 from chaintwin.identify.calibration import Calibration
-from chaintwin.model.frequencies import known_line_orders
+from chaintwin.model.frequencies import characteristic_orders, known_line_orders
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording, RecordingWarning
 from chaintwin.validate.checks import Inspection
@@ -45,7 +45,13 @@ from chaintwin.weigh.tlf import belt_travel_m
 from chaintwin.weigh.weigh import reweigh
 
 from . import alarms, baseline, monitor_state
-from .causes import NOTE_CAUSES, cause_priority, impact_context, resolve_causes
+from .causes import (
+    NOTE_CAUSES,
+    cause_priority,
+    impact_context,
+    resolve_causes,
+    shaft_harmonic,
+)
 from .features import FEATURES, RecordingFeatures, feature_spec
 from .features import recording_features as extract
 from .health import FeatureBaseline
@@ -337,6 +343,16 @@ class ConveyorMonitor:
         bx, ba, floor = self._baseline_arrays(self.baseline_spectrum)
         return unexplained_peak(spectrum, bx, ba, floor, self._line_orders(self.calibration))
 
+    def _output_harmonic(self, spectrum: Spectrum | None, order: float) -> bool:
+        """Whether an unexplained peak lies on the output shaft's comb (:func:`shaft_harmonic`)."""
+        if spectrum is None or self.calibration is None or not math.isfinite(order):
+            return False
+        speed_hz = spectrum.speed_rpm / 60.0
+        if speed_hz <= 0.0:
+            return False
+        shaft = characteristic_orders(self.calibration.id_profile)["output_shaft"]
+        return shaft_harmonic(order, shaft, 1.5 * spectrum.resolution / speed_hz)
+
     def _line_orders(self, calibration: Calibration) -> npt.NDArray[np.float64]:
         """:func:`known_line_orders` of the calibration, computed once per calibration."""
         cached = self._orders_cache
@@ -483,6 +499,10 @@ class ConveyorMonitor:
             self._late_baselines(values)
             context = impact_context(values, exceeded)
             resolved = resolve_causes(met, context)
+            if resolved.get("unexplained_peak") == "bearing" and self._output_harmonic(
+                feats.spectrum, peak_order
+            ):
+                resolved["unexplained_peak"] = "gear"
             noted = [n for n in met if resolved[n] in NOTE_CAUSES]
             met = [n for n in met if n not in noted]
             for name in noted:

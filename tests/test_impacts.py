@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from chaintwin.diagnose.impacts import (
+    MIN_SHARE,
     detect_impacts,
     hits_per_revolution,
     impact_features,
@@ -33,19 +34,33 @@ def test_an_added_knock_is_found_with_its_time_duration_sign_and_energy(
     noise = np.random.default_rng(1).normal(0.0, 0.01, rec.samples)
     torque = model + noise
     k = int(np.searchsorted(rec.time, 5.0))
-    torque[k : k + 3] += 0.4  # 0.4 Nm more for three samples: something resisted
+    n = 4  # samples: 24 ms at 6 ms, the shortest hit (MIN_IMPACT_S) and then some
+    assert rec.sample_time_s == pytest.approx(0.006)
+    torque[k : k + n] += 0.4  # 0.4 Nm more for four samples: something resisted
     knocked = dataclasses.replace(rec, channels={**rec.channels, "torque": torque})
     phases = list(ins.phases)  # type: ignore[attr-defined]
     (hit,) = detect_impacts(knocked, model, phases)
     assert hit.t_s == pytest.approx(rec.time[k])
-    assert hit.duration_s == pytest.approx(3 * rec.sample_time_s)
+    assert hit.duration_s == pytest.approx(n * rec.sample_time_s)
     assert hit.sign == 1
-    # by hand: 0.4 Nm times the speed over three samples (the noise aside)
-    expected = 0.4 * float(np.sum(rec.speed[k : k + 3])) * rec.sample_time_s
+    # by hand: 0.4 Nm times the speed over four samples (the noise aside)
+    expected = 0.4 * float(np.sum(rec.speed[k : k + n])) * rec.sample_time_s
     assert hit.energy_j == pytest.approx(expected, rel=0.1)
-    # nothing in the same recording without the knock
+    # nothing in the same recording without the knock, nor with a one-sample glitch,
+    # nor with two samples at 1.5 times the floor (less work than the floor in 20 ms)
     plain = dataclasses.replace(rec, channels={**rec.channels, "torque": model + noise})
     assert detect_impacts(plain, model, phases) == []
+    floor = MIN_SHARE * rec.metadata.nominal_torque_nm
+    for width, height in ((1, 0.4), (2, 1.5 * floor)):
+        spiked = model + noise
+        spiked[k : k + width] += height
+        spike = dataclasses.replace(rec, channels={**rec.channels, "torque": spiked})
+        assert detect_impacts(spike, model, phases) == [], (width, height)
+    spiked[k : k + 2] += 1.5 * floor  # twice as high: the work of a hit
+    (short,) = detect_impacts(
+        dataclasses.replace(spike, channels={**rec.channels, "torque": spiked}), model, phases
+    )
+    assert short.duration_s == pytest.approx(2 * rec.sample_time_s)
     feats = impact_features([hit], knocked, phases, reference_profile.pitch_radius_m / 30.99)
     assert feats["impact_count"] == 1 and feats["impact_isolated"] == 1
     assert feats["belt_travel_m"] > 0 and feats["impact_energy_max"] == pytest.approx(
@@ -61,7 +76,7 @@ def test_regular_knocks_are_periodic_and_isolated_ones_pool_per_revolution(
     torque = model + np.random.default_rng(2).normal(0.0, 0.01, rec.samples)
     for t in (3.0, 4.0, 5.0, 6.0):  # a tooth once a second
         k = int(np.searchsorted(rec.time, t))
-        torque[k : k + 2] += 0.4
+        torque[k : k + 4] += 0.4
     toothy = dataclasses.replace(rec, channels={**rec.channels, "torque": torque})
     hits = detect_impacts(toothy, model, list(ins.phases))  # type: ignore[attr-defined]
     assert len(hits) == 4 and periodic(hits)
@@ -71,6 +86,8 @@ def test_regular_knocks_are_periodic_and_isolated_ones_pool_per_revolution(
     rows.append({"impact_isolated": 1.0, "belt_travel_m": 4.3})
     assert hits_per_revolution(rows, 8.6) == pytest.approx(1.0)
     assert np.isnan(hits_per_revolution([{}], 8.6))
+    # one knock says nothing of a rate: no obstacle read from it
+    assert hits_per_revolution(rows[:2], 8.6) == 0.0
 
 
 def _with(rec: object, torque: np.ndarray) -> object:
@@ -104,7 +121,8 @@ def test_spikes_as_large_both_ways_are_no_hits(reference_profile: ConveyorProfil
     rec = ins.recording  # type: ignore[attr-defined]
     torque = model + np.random.default_rng(5).normal(0.0, 0.01, rec.samples)
     for t0, sign in ((2.5, 1.0), (4.5, -1.0), (7.0, 1.0)):  # aliased line content
-        torque[int(np.searchsorted(rec.time, t0))] += sign * 0.3
+        k = int(np.searchsorted(rec.time, t0))
+        torque[k : k + 4] += sign * 0.3
     events = detect_impacts(_with(rec, torque), model, list(ins.phases))  # type: ignore[attr-defined]
     assert [e.sign for e in events] == [-1]  # the resisting ones do not stand out
     feats = impact_features(events, rec, list(ins.phases), 0.001)  # type: ignore[attr-defined]
@@ -134,7 +152,7 @@ def test_what_repeats_at_a_given_order_is_taken_away_and_a_single_hit_stays(
     comb = 0.25 * (np.mod(order * rec.position, 2 * np.pi) < 0.3)  # a short knock per tooth
     torque = model + np.random.default_rng(7).normal(0.0, 0.01, rec.samples) + comb
     k = int(np.searchsorted(rec.time, 5.5))
-    torque[k : k + 2] += 0.5
+    torque[k : k + 4] += 0.5
     with_comb = _with(rec, torque)
     # without knowing the order the comb's knocks read as one long drag
     (blur,) = [e for e in detect_impacts(with_comb, model, phases) if e.sign > 0]

@@ -8,7 +8,12 @@ import numpy as np
 import pytest
 
 from chaintwin import examples
-from chaintwin.diagnose.causes import NOTE_CAUSES, impact_context, resolve_causes
+from chaintwin.diagnose.causes import (
+    NOTE_CAUSES,
+    impact_context,
+    one_per_revolution,
+    resolve_causes,
+)
 from chaintwin.diagnose.features import recording_features
 from chaintwin.errors import ModelError
 from chaintwin.identify.calibrating import calibrate
@@ -106,13 +111,19 @@ def test_impulsive_features_take_their_cause_from_what_else_rose_and_the_impacts
     assert resolve_causes(["tooth_pass", "sprocket_comb"])["tooth_pass"] == "sprocket"
     assert resolve_causes(["tooth_pass"])["tooth_pass"] == "elongation"
     # else the recording's own impacts say
-    obstacle = {"impact_isolated": 1.0, "impact_hits_per_rev": 0.9}
+    obstacle = {"impact_isolated": 1.0, "impact_hits_per_rev": 0.9, "impact_pooled_hits": 3.0}
     assert impact_context(obstacle, []) == "obstruction"
     # the rate is pooled: a recording between two hits still names the obstacle
-    assert impact_context({"impact_hits_per_rev": 0.9}, []) == "obstruction"
-    assert impact_context({"impact_isolated": 1.0, "impact_hits_per_rev": 0.1}, []) == (
-        "payload_event"
-    )
+    pooled = {"impact_hits_per_rev": 0.9, "impact_pooled_hits": 3.0}
+    assert impact_context(pooled, []) == "obstruction"
+    # by hand (Poisson): 2 knocks over 4.55 revolutions, P(N <= 2) = 0.17: consistent;
+    # 3 over 30 revolutions, P(N <= 3) = 3e-10: knocks, but not one per revolution
+    assert one_per_revolution(2.0, 2.0 / 4.55)
+    assert not one_per_revolution(3.0, 0.1)
+    assert not one_per_revolution(12.0, 12.0 / 4.0)  # P(N >= 12 | 4) = 0.0009: too many
+    assert not one_per_revolution(0.0, 0.0)
+    few = {"impact_isolated": 1.0, "impact_hits_per_rev": 0.1, "impact_pooled_hits": 3.0}
+    assert impact_context(few, []) == "payload_event"
     assert impact_context({"impact_drags": 1.0}, []) == "payload_event"
     assert impact_context({}, ["sprocket_comb"]) == "sprocket"
     assert impact_context({}, ["comb_rotor"]) == "gear"

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Collection, Mapping
+
+from scipy import stats
 
 from .features import IMPULSIVE, feature_spec
 
@@ -12,6 +15,7 @@ __all__ = [
     "NOTE_CAUSES",
     "cause_priority",
     "impact_context",
+    "one_per_revolution",
     "resolve_causes",
     "shaft_harmonic",
 ]
@@ -53,8 +57,8 @@ residual that nothing explains yet names no cause to page anyone about."""
 OUTPUT_HARMONICS = 16
 """Harmonics of the output shaft's order an unexplained peak is read as the gear's at."""
 
-HITS_PER_REV = (0.5, 2.0)
-"""Pooled knocks per belt revolution that read as one obstacle on the rail."""
+ONE_PER_REV_P = 0.05
+"""Two-sided significance below which pooled knocks are not one per belt revolution."""
 
 
 def impact_context(values: Mapping[str, float], exceeded: Collection[str]) -> str:
@@ -81,7 +85,7 @@ def impact_context(values: Mapping[str, float], exceeded: Collection[str]) -> st
     knocks = values.get("impact_isolated") or 0.0
     drags = values.get("impact_drags") or 0.0
     rate = values.get("impact_hits_per_rev", float("nan"))
-    if HITS_PER_REV[0] <= rate <= HITS_PER_REV[1]:
+    if one_per_revolution(values.get("impact_pooled_hits") or 0.0, rate):
         return "obstruction"
     if "sprocket_comb" in exceeded:
         return "sprocket"
@@ -90,6 +94,24 @@ def impact_context(values: Mapping[str, float], exceeded: Collection[str]) -> st
     if knocks > 0 or drags > 0 or rate > 0:
         return "payload_event"
     return IMPULSIVE
+
+
+def one_per_revolution(hits: float, rate: float) -> bool:
+    """Whether pooled knocks are consistent with one hit per belt revolution.
+
+    ``hits`` knocks over ``hits / rate`` revolutions: a Poisson count whose
+    mean would be the revolutions for an obstacle fixed to the rail. Consistent
+    when neither tail probability is below :data:`ONE_PER_REV_P` / 2 (two knocks
+    over 4.6 revolutions are: p = 0.17 below). Needs at least
+    :data:`~chaintwin.diagnose.impacts.MIN_POOLED_HITS` knocks (the rate is 0
+    with fewer).
+    """
+    if not (hits > 0 and rate > 0 and math.isfinite(rate)):
+        return False
+    revolutions = hits / rate
+    low = float(stats.poisson.cdf(hits, revolutions))
+    high = float(stats.poisson.sf(hits - 1, revolutions))
+    return min(low, high) >= ONE_PER_REV_P / 2.0
 
 
 def resolve_causes(features: list[str], context: str | None = None) -> dict[str, str]:

@@ -191,6 +191,7 @@ FEATURES: dict[str, FeatureSpec] = {
     "belt_travel_m": FeatureSpec(None, 0.0, "m"),
     "usage_kg_m": FeatureSpec(None, 0.0, "kg·m"),  # payload × travel (wear.py), set by the monitor
     "impact_hits_per_rev": FeatureSpec("obstruction", 0.0, "1/rev", min_scale=0.1),
+    "impact_pooled_hits": FeatureSpec(None, 0.0, "-"),  # isolated knocks behind the rate above
 }
 """Every tracked feature (``comb_<shaft>`` features are added per profile, cause gear)."""
 

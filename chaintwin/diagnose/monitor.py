@@ -55,7 +55,7 @@ from .causes import (
 from .features import FEATURES, RecordingFeatures, feature_spec
 from .features import recording_features as extract
 from .health import FeatureBaseline
-from .impacts import POOL, hits_per_revolution
+from .impacts import POOL, hits_per_revolution, pooled_hits
 from .learned import learn_calibration
 from .limits import check_limit_names, judge_limits
 from .monitor_state import MonitorState
@@ -431,6 +431,7 @@ class ConveyorMonitor:
         values["impact_hits_per_rev"] = hits_per_revolution(
             [*pooled, values], self.calibration.id_profile.loop_length_m
         )
+        values["impact_pooled_hits"] = pooled_hits([*pooled, values])
         warnings = [x.to_dict() for x in w.warnings] + [x.to_dict() for x in feats.warnings]
         # features computed elsewhere (an ingest worker) may predate a warning
         # the recording got since (e.g. no_recorded_at): none is lost

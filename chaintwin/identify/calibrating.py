@@ -268,17 +268,17 @@ def _loss_check(
                 f"{-parameters[name] / sd:.1f} standard errors"
             )
     for src, cv, ref, speed in _stick_slip(recordings):
-        reasons.append(
+        reason = (
             f"{src}: the plateau at {speed / RPM_TO_RAD_S:.0f} rpm stick-slips (speed ripple "
-            f"{cv:.1%}, {ref:.1%} at the top speed)"
+            f"{cv:.1%} of its speed, {ref:.1%} on the fastest plateaus)"
         )
+        reasons.append(reason)
         notes.append(
             RecordingWarning(
                 "stick_slip",
-                f"{src}: the plateau at {speed / RPM_TO_RAD_S:.0f} rpm stick-slips (speed ripple "
-                f"{cv:.1%} of its speed, {ref:.1%} on the fastest plateaus); its torque does not "
-                "read the sliding friction. Record the slow runs faster (at least twice this "
-                "speed) or add a run with a known reference load",
+                reason + "; its torque does not read the sliding friction. Record the slow "
+                "runs faster (at least twice this speed) or add a run with a known reference "
+                "load",
             )
         )
     if not reasons or not settings.fit_bmc:

@@ -21,15 +21,18 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
 
+from chaintwin._types import FloatArray
 from chaintwin.diagnose.spectra import Spectrum, order_spectrum, welch_spectrum
 from chaintwin.errors import ChaintwinError
-from chaintwin.model.frequencies import apparent_order, line_orders
+from chaintwin.model.frequencies import apparent_order, characteristic_lines, line_orders
 from chaintwin.read.recording import Recording
 from chaintwin.units import RPM_TO_RAD_S
 
 from .data import ConveyorData, FeatureTrend
 
 __all__ = [
+    "campbell_figure",
+    "campbell_peaks",
     "fleet_health_figure",
     "fleet_tlf_figure",
     "latest_figure",
@@ -301,6 +304,85 @@ def waterfall_figure(data: ConveyorData) -> str | None:
         _waterfall_panel(ax, labels_f, freqs, wanted)
         ax.set_xlabel("frequency [Hz] (constant-speed plateau, Welch, median of segments)")
         ax.set_title("torque spectrum at constant speed, per recording", fontsize=10)
+    return _uri(fig)
+
+
+CAMPBELL_PEAKS = 8
+"""Strongest spectral peaks per recording drawn on the Campbell plot."""
+CAMPBELL_PEAK_RATIO = 4.0
+"""A peak is drawn when it stands this many times above the spectrum's median."""
+
+
+def campbell_peaks(sp: Spectrum) -> tuple[FloatArray, FloatArray]:
+    """The :data:`CAMPBELL_PEAKS` strongest local maxima standing out of the floor."""
+    a = sp.amplitude
+    if a.shape[0] < 3:
+        return np.empty(0), np.empty(0)
+    inner = (a[1:-1] > a[:-2]) & (a[1:-1] >= a[2:])
+    idx = np.flatnonzero(inner) + 1
+    idx = idx[a[idx] > CAMPBELL_PEAK_RATIO * float(np.median(a))]
+    idx = idx[np.argsort(a[idx])[::-1][:CAMPBELL_PEAKS]]
+    return sp.x[idx], a[idx]
+
+
+def campbell_figure(data: ConveyorData) -> str | None:
+    """Speed sweep (Campbell plot): the recordings' spectral peaks against their speed.
+
+    x is the motor speed of each recording's constant-speed plateau (rpm), y
+    the frequency (Hz); each recording's strongest peaks are dots sized and
+    coloured by amplitude. The speed-locked lines are rays through the
+    origin (frequency = order × speed), the structural modes horizontal
+    lines (they do not move with speed); the scope's Nyquist frequency is
+    marked, above which a line shows folded. A peak that follows a ray is
+    the drive's; one that stays put while the speed changes is a structure's
+    resonance. Recordings at one speed only give one column of dots.
+    """
+    if not data.waterfall:
+        return None
+    _labels, spectra = _spectra(data.waterfall, "frequency")
+    if not spectra:
+        return None
+    ts = float(np.median([rec.sample_time_s for _l, rec in data.waterfall]))
+    nyquist = 0.5 / ts
+    speeds = np.array([abs(sp.speed_rpm) for sp in spectra])
+    top_rpm = 1.15 * float(speeds.max())
+    top_hz = min(nyquist, max(float(sp.x[-1]) for sp in spectra))
+    fig = _figure(9.0, 5.5)
+    ax = fig.add_subplot(1, 1, 1)
+    rpm = np.array([0.0, top_rpm])
+    lines = characteristic_lines(data.profile, float(np.median(speeds)), belt_modes=2)
+    for line in lines:
+        if line.order is not None and _main(line.name):
+            f_top = line.order * top_rpm / 60.0
+            ax.plot(rpm, rpm / 60.0 * line.order, color="0.55", linewidth=0.7)
+            if 0 < f_top <= top_hz:
+                ax.text(top_rpm, f_top, f" {_short(line.name)}", fontsize=6, va="center")
+            elif f_top > top_hz and line.order > 0:
+                x_at = 60.0 * top_hz / line.order
+                ax.text(x_at, top_hz, _short(line.name), fontsize=6, rotation=60, va="bottom")
+        elif line.order is None and 0 < line.frequency_hz < top_hz:
+            ax.axhline(line.frequency_hz, color="tab:orange", linewidth=0.8, linestyle="--")
+            ax.text(0.0, line.frequency_hz, f"{_short(line.name)} ", fontsize=6, ha="right")
+    xs, ys, amps = [], [], []
+    for sp, speed in zip(spectra, speeds, strict=True):
+        f, a = campbell_peaks(sp)
+        xs += [speed] * f.shape[0]
+        ys += list(f)
+        amps += list(a)
+    if amps:
+        amp = np.asarray(amps)
+        size = 8.0 + 60.0 * amp / float(amp.max())
+        dots = ax.scatter(xs, ys, s=size, c=amp, cmap="viridis", norm=LogNorm(), zorder=3)
+        fig.colorbar(dots, ax=ax, label="torque amplitude [Nm]")
+    ax.axhline(nyquist, color="tab:red", linewidth=0.8)
+    ax.text(0.02 * top_rpm, nyquist, "Nyquist: lines above show folded", fontsize=7, va="bottom")
+    ax.set_xlim(0.0, top_rpm)
+    ax.set_ylim(0.0, 1.08 * nyquist)
+    ax.set_xlabel("motor speed of the constant-speed plateau [rpm]")
+    ax.set_ylabel("frequency [Hz]")
+    ax.set_title(
+        f"Campbell plot: peaks of {len(spectra)} recordings against their speed", fontsize=10
+    )
     return _uri(fig)
 
 

@@ -253,6 +253,7 @@ def conveyor_page(
         verification=_verification_table(d),
         waterfall_figure=figures.waterfall_figure(d),
         waterfall_count=len(d.waterfall),
+        campbell_figure=figures.campbell_figure(d),
         latest_figure=figures.latest_figure(d),
     )
     return html, d

@@ -14,6 +14,7 @@ from chaintwin.diagnose.impacts import (
     impact_features,
     less_periodic,
     periodic,
+    pooled_hits,
 )
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.simulate.virtual import Realism, run_virtual
@@ -88,6 +89,34 @@ def test_regular_knocks_are_periodic_and_isolated_ones_pool_per_revolution(
     assert np.isnan(hits_per_revolution([{}], 8.6))
     # one knock says nothing of a rate: no obstacle read from it
     assert hits_per_revolution(rows[:2], 8.6) == 0.0
+
+
+def test_knocks_one_obstacle_cannot_have_made_are_not_pooled_as_its_hits(
+    reference_profile: ConveyorProfile,
+) -> None:
+    ins, model = _steady(reference_profile)
+    rec = ins.recording  # type: ignore[attr-defined]
+    phases = list(ins.phases)  # type: ignore[attr-defined]
+    belt_per_rad = reference_profile.pitch_radius_m / 30.99
+    torque = model + np.random.default_rng(5).normal(0.0, 0.01, rec.samples)
+    for t in (3.0, 4.5):  # two knocks 1.5 s apart
+        k = int(np.searchsorted(rec.time, t))
+        torque[k : k + 4] += 0.4
+    hits = detect_impacts(_with(rec, torque), model, phases)  # type: ignore[arg-type]
+    assert len(hits) == 2
+    base = impact_features(hits, rec, phases, belt_per_rad)
+    speed = base["belt_travel_m"] / sum(  # the mean belt speed over the searched spans
+        (p.stop - p.start) * rec.sample_time_s for p in phases if p.kind == "constant"
+    )
+    # a loop ten times the knocks' spacing: one obstacle passes once in 15 s, not twice in 1.5 s
+    long_loop = impact_features(hits, rec, phases, belt_per_rad, loop_length_m=15.0 * speed)
+    assert long_loop["impact_isolated"] == 2 and long_loop["impact_rail_hits"] == 0
+    # a loop the belt travels in 1.5 s: the same obstacle twice, both its hits
+    one_rev = impact_features(hits, rec, phases, belt_per_rad, loop_length_m=1.5 * speed)
+    assert one_rev["impact_rail_hits"] == 2
+    # the pool counts the rail hits; rows stored before them count their knocks
+    rows = [long_loop, {"impact_isolated": 1.0, "belt_travel_m": 1.0}]
+    assert pooled_hits(rows) == 1.0
 
 
 def _with(rec: object, torque: np.ndarray) -> object:

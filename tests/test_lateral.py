@@ -2,16 +2,20 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from conftest import EXAMPLES, REFERENCE_PROFILE
 
 from chaintwin.cli import spectrum_cmd
 from chaintwin.cli.app import main
+from chaintwin.diagnose.features import feature_spec, recording_features
+from chaintwin.identify.calibrating import calibrate
 from chaintwin.model.frequencies import (
     characteristic_lines,
     lateral_mode_hz,
@@ -21,6 +25,9 @@ from chaintwin.read.profile import ConveyorProfile, load_profile
 from chaintwin.read.writer import write_recording
 from chaintwin.report.spectrum_plot import _label_groups
 from chaintwin.simulate import run_virtual
+from chaintwin.simulate.fleet import generate
+from chaintwin.validate import inspect_recording
+from chaintwin.validate.checks import load_recording
 
 WHITE = load_profile(REFERENCE_PROFILE)
 SHORT = load_profile(EXAMPLES / "profiles" / "short-fast-03.yaml")
@@ -112,3 +119,31 @@ def test_spectrum_draws_the_lateral_mode_and_refuses_unresolvable_amplitudes(
     code = main(["spectrum", str(rec), "--profile", str(REFERENCE_PROFILE), "--json"])
     out = json.loads(capsys.readouterr().out)
     assert "belt.tension_n" in out["notes"][0]
+
+
+def test_a_structural_mode_is_monitored_where_resolvable(tmp_path: Path) -> None:
+    out = generate(WHITE, tmp_path / "w", days=1, per_day=1, seed=3)
+    cal_files = sorted((out.folder / "calibration").glob("*.csv"))
+    cal = calibrate([load_recording(f, profile=WHITE).recording for f in cal_files], WHITE)
+    run = run_virtual(WHITE, payload_kg=20.0, seed=4)
+    plain = recording_features(inspect_recording(run.recording, WHITE), cal)
+    modes = {k: v for k, v in plain.values.items() if k.startswith("mode_")}
+    # the first belt mode (72 Hz at 6 ms) stands clear; the two-mass mode lies in a
+    # shaft comb and the second belt mode folds onto one: unresolvable, no number
+    assert set(modes) == {"mode_belt_mode_1", "mode_belt_mode_2", "mode_two_mass_mode"}
+    assert math.isfinite(modes["mode_belt_mode_1"]) and modes["mode_belt_mode_1"] < 0.01
+    assert math.isnan(modes["mode_two_mass_mode"]) and math.isnan(modes["mode_belt_mode_2"])
+    # a resonance of 0.05 Nm at the mode: read at its amplitude
+    (line,) = [
+        ln
+        for ln in characteristic_lines(  # as identification reads the profile (no model:)
+            cal.id_profile, plain.spectrum.speed_rpm, payload_kg=plain.values["payload_kg"]
+        )
+        if ln.name == "belt_mode_1"
+    ]
+    rec = run.recording
+    ringing = rec.torque + 0.05 * np.sin(2.0 * np.pi * line.frequency_hz * rec.time)
+    rung = dataclasses.replace(rec, channels={**rec.channels, "torque": ringing})
+    feats = recording_features(inspect_recording(rung, WHITE), cal)
+    assert feats.values["mode_belt_mode_1"] == pytest.approx(0.05, rel=0.2)
+    assert feature_spec("mode_belt_mode_1").cause == "structure"

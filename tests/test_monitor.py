@@ -77,6 +77,30 @@ def test_baseline_regresses_on_payload_and_leaves_out_outliers() -> None:
     assert fit_baseline([1.0, np.nan, 2.0], [1, 2, 3], payload_dependent=False) is None
 
 
+def test_a_two_valued_baseline_keeps_both_values_and_neither_exceeds() -> None:
+    # a line sum at 3.8 mNm in 14 healthy scopes and 8.5 mNm in 6 (a line falling on
+    # or beside a bin): by the MAD alone the high ones were outliers and exceeded later
+    rng = np.random.default_rng(3)
+    values = np.r_[rng.normal(0.0038, 0.0002, 14), rng.normal(0.0085, 0.0003, 6)]
+    rng.shuffle(values)
+    fb = fit_baseline(values, np.full(20, 20.0), payload_dependent=False)
+    assert fb is not None and fb.outliers == 0
+    q25, q75 = np.percentile(values, [25, 75])
+    assert fb.scale == pytest.approx((q75 - q25) / 1.349)
+    assert not fb.check(0.0090, 20.0, 5.0, 0.5).exceeded
+    # the high level in a fifth of the scopes only: left out of the line and scale as
+    # outliers, but a value the baseline itself reached twice is no exceedance
+    few = np.r_[rng.normal(0.0038, 0.0002, 16), [0.0085, 0.0080, 0.0087, 0.0084]]
+    fb4 = fit_baseline(few, np.full(20, 20.0), payload_dependent=False)
+    assert fb4 is not None and fb4.outliers == 4
+    assert fb4.top_residual == pytest.approx(0.0085 - fb4.intercept)
+    assert not fb4.check(0.0084, 20.0, 5.0, 0.5).exceeded
+    assert fb4.check(0.0100, 20.0, 5.0, 0.5).exceeded
+    # a normal spread: both estimates are its sigma, the scale is not inflated
+    normal = fit_baseline(rng.normal(1.0, 0.01, 200), np.full(200, 20.0), payload_dependent=False)
+    assert normal is not None and normal.scale == pytest.approx(0.01, rel=0.15)
+
+
 def test_forecast_of_a_linear_trend_brackets_the_true_crossing() -> None:
     t0 = datetime(2026, 1, 1, tzinfo=UTC)
     rng = np.random.default_rng(1)

@@ -15,8 +15,10 @@ from chaintwin.diagnose.monitor import ConveyorMonitor
 from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.diagnose.wear import usage_summary, wear_rates
 from chaintwin.identify.calibrating import calibrate
-from chaintwin.read.profile import load_profile
+from chaintwin.read.profile import load_profile, parse_profile
+from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate
+from chaintwin.simulate.virtual import run_virtual
 from chaintwin.validate.checks import load_recording
 from chaintwin.weigh.tlf import belt_travel_m
 
@@ -77,3 +79,49 @@ def test_monitor_records_the_usage_of_each_recording(tmp_path: Path) -> None:
     usage = mon.summary()["usage"]
     assert usage["total_t_km"] == pytest.approx(total / 1e6)
     assert usage["recordings"] == 6
+
+
+def _friction_run(profile: Any, cal: Any) -> tuple[ConveyorMonitor, list[Any]]:
+    """30 recordings, the rail friction rising linearly to +30 % from the 9th."""
+    rng = np.random.default_rng(1)
+    mon = ConveyorMonitor(profile, MonitorSettings(baseline_n=5, x=3, y=10), cal)
+    results = []
+    for k in range(30):
+        rise = 0.3 * (k - 7) / 22
+        run = run_virtual(
+            PROFILE,
+            payload_kg=float(rng.uniform(10.0, 40.0)),
+            faults=[Fault("friction", rise)] if rise > 0 else [],
+            seed=k,
+            recorded_at=T0 + timedelta(hours=3 * k),
+        )
+        results += mon.process(run.recording, f"r{k:02d}")
+    return mon, results + mon.finish()
+
+
+def test_wear_that_usage_explains_is_expected_not_alarmed(tmp_path: Path) -> None:
+    out = generate(PROFILE, tmp_path / "w", days=1, per_day=1, seed=3)
+    cal_files = sorted((out.folder / "calibration").glob("*.csv"))
+    cal = calibrate([load_recording(f, profile=PROFILE).recording for f in cal_files], PROFILE)
+    mon, plain = _friction_run(PROFILE, cal)
+    assert any(a.feature == "friction" for a in mon.alarms)
+    # the usage since the baseline: the monitored recordings' usage summed, in t·km
+    monitored = [r for r in plain if r.status == "monitored"]
+    used = np.cumsum([r.features["usage_kg_m"] or 0.0 for r in monitored]) / 1e6
+    got = [r.features["usage_since_baseline_t_km"] for r in monitored]
+    assert got == pytest.approx(list(used))
+    assert mon.baselines is not None
+    fb = mon.baselines["friction"]
+    weighed = [(r, u) for r, u in zip(monitored, used, strict=True) if r.payload_kg is not None]
+    rise = max((r.features["friction"] - fb.expected(20.0)) / u for r, u in weighed)
+    assert rise > 0.0
+    data = PROFILE.model_dump(mode="json")
+    # wear at twice the largest rise per t·km: expected, no friction alarm
+    expected = parse_profile(data | {"expected_wear": {"friction": 2.0 * rise}}, "w.yaml")
+    mon2, worn = _friction_run(expected, cal)
+    assert not any(a.feature == "friction" for a in mon2.alarms)
+    assert [r.features["friction"] for r in worn] == [r.features["friction"] for r in plain]
+    # a tenth of it: the friction rises faster than the usage explains and alarms
+    little = parse_profile(data | {"expected_wear": {"friction": 0.1 * rise}}, "w.yaml")
+    mon3, _ = _friction_run(little, cal)
+    assert any(a.feature == "friction" for a in mon3.alarms)

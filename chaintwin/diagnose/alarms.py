@@ -9,6 +9,7 @@ import math
 import uuid
 from datetime import datetime
 
+from .baseline import regressor_of
 from .features import feature_spec
 from .health import FeatureBaseline, x_of_y
 from .records import Alarm, MonitorSettings, iso_utc
@@ -112,7 +113,7 @@ def judge(
         if spec.cause is None:
             continue
         value = values.get(name, float("nan"))
-        load = values.get(spec.regressor, float("nan"))
+        load = values.get(regressor_of(name, fb), float("nan"))
         ex = fb.check(value, load, settings.z_limit, spec.min_rel)
         win = windows.setdefault(name, [])
         times = window_times.setdefault(name, [])

@@ -28,6 +28,7 @@ CAUSE_PRIORITY: tuple[str, ...] = (
     "bearing",
     "lubrication",
     "friction",
+    "structure",
 )
 """Causes from the most specific to the least: a specific fault also moves
 the general features (an obstruction raises the mean friction, an elongated
@@ -40,10 +41,11 @@ EXPLAINED_BY: dict[str, tuple[str, ...]] = {
     "unexplained_peak": ("obstruction", "sprocket", "gear"),
     "comb": ("obstruction", "sprocket"),
     "tooth_pass": ("sprocket",),
+    "mode": ("obstruction", "sprocket", "gear", "elongation", "bearing"),
     IMPULSIVE: ("obstruction", "sprocket", "gear"),
 }
 """Which more specific causes explain a feature's rise (``comb`` stands for
-every ``comb_<shaft>``, ``impulsive`` every feature of
+every ``comb_<shaft>``, ``mode`` every ``mode_<line>``, ``impulsive`` every feature of
 :data:`~chaintwin.diagnose.features.IMPULSIVE` cause): an obstruction's bump,
 passed once in a scope, is an impulse whose spectrum spreads over the shaft
 lines too; a worn sprocket's knocks raise the tooth-pass lines an elongated
@@ -136,7 +138,15 @@ def resolve_causes(features: list[str], context: str | None = None) -> dict[str,
     present = set(own.values())
     out: dict[str, str] = {}
     for f, cause in own.items():
-        key = "comb" if f.startswith("comb_") else IMPULSIVE if cause == IMPULSIVE else f
+        key = (
+            "comb"
+            if f.startswith("comb_")
+            else "mode"
+            if f.startswith("mode_")
+            else IMPULSIVE
+            if cause == IMPULSIVE
+            else f
+        )
         for specific in EXPLAINED_BY.get(key, ()):
             if specific in present:
                 cause = specific

@@ -78,19 +78,23 @@ from chaintwin.identify.verification import closed_loop_torque, twin_parameters
 from chaintwin.model.frequencies import (
     SHAFT_HARMONICS,
     apparent_orders,
+    characteristic_lines,
     characteristic_orders,
+    fold_frequency,
+    known_line_orders,
     shaft_orders,
 )
 from chaintwin.model.physics import loss_torque_nm
 from chaintwin.model.rigid import model_torque, motoring_mask
 from chaintwin.model.windows import WindowIntegrals, window_integrals
+from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording, RecordingWarning
 from chaintwin.validate.checks import Inspection
 from chaintwin.validate.phases import Phase
 from chaintwin.weigh.drift import LossDrift
 from chaintwin.weigh.weigh import WeighResult, reweigh, weigh
 
-from .lines import band_amplitudes
+from .lines import band_amplitude, band_amplitudes
 from .residuals import residual_analysis, residual_stats
 from .spectra import Spectrum, welch_spectrum
 
@@ -100,7 +104,10 @@ __all__ = [
     "IMPULSIVE",
     "FeatureSpec",
     "RecordingFeatures",
+    "feature_spec",
+    "is_tracked",
     "recording_features",
+    "structural_modes",
 ]
 
 COMB_HARMONICS = SHAFT_HARMONICS
@@ -149,7 +156,18 @@ class FeatureSpec:
         moves it), or ``load_kg`` (the signatures combined trusting the
         calibration's losses: more precise, but a +-10 % loss drift moves it
         by up to 10 kg on a conveyor with high losses, over random conveyors,
-        which reads as a change of every payload-dependent feature).
+        which reads as a change of every payload-dependent feature), or
+        ``payload_kg`` (the weighing's own estimate: the torque amplitudes'
+        alternative, since they follow the real load and on a 1 ms scope the
+        inertia signature alone is too noisy for them: on one drawn conveyor
+        the residual's spread correlated 0.85 with the weighed payload and
+        0.39 with the inertia payload, and the baseline's line through the
+        latter raised alarms on a healthy drive; used alone, the weighed
+        payload's drift with the losses raised alarms on 12 ms conveyors).
+    alternative : str or None
+        A second payload estimate the baseline may regress on instead, when
+        the usual one's line explains little of the baseline
+        (:data:`~chaintwin.diagnose.baseline.ALTERNATIVE_SHARE`).
     """
 
     cause: str | None
@@ -158,7 +176,21 @@ class FeatureSpec:
     payload_dependent: bool = False
     min_scale: float = 0.0
     regressor: str = "payload_inertia_kg"
+    alternative: str | None = None
 
+
+AMPLITUDE = "payload_kg"
+"""The torque amplitudes' alternative regressor (see :class:`FeatureSpec`)."""
+
+SPEED_LOSS_MIN_REL = 0.5
+"""Smallest rise of ``speed_loss`` that counts. The condition fit puts a
+change of every gear loss into the speed-dependent one, so a +-10 % drift of
+the losses (oil temperature) moved ``speed_loss`` by about +-15 %: from 0.79 to
+1.07 of the calibration's on a healthy drawn conveyor whose baseline was
+learned in the drift's trough, +36 %. At 0.3 that raised lubrication alarms
+on healthy drives; a lubrication fault is told from the drift only once it
+is larger than the drift (severity about 0.4 on the scale of
+:mod:`chaintwin.simulate.faults`)."""
 
 IMPULSIVE = "impulsive"
 """Stand-in cause of the features any impulsive torque raises (kurtosis, crest
@@ -169,14 +201,18 @@ FEATURES: dict[str, FeatureSpec] = {
     "friction": FeatureSpec(
         "friction", 0.05, "-", payload_dependent=True, regressor="payload_inertia_kg"
     ),
-    "speed_loss": FeatureSpec("lubrication", 0.3, "-", payload_dependent=True),
+    "speed_loss": FeatureSpec("lubrication", SPEED_LOSS_MIN_REL, "-", payload_dependent=True),
     "residual_std": FeatureSpec(
-        "bearing", 0.3, "Nm", payload_dependent=True, regressor="payload_inertia_kg"
+        "bearing", 0.3, "Nm", payload_dependent=True, alternative=AMPLITUDE
     ),
     "residual_kurtosis": FeatureSpec(IMPULSIVE, 0.5, "-", min_scale=0.1),
     "crest_factor": FeatureSpec(IMPULSIVE, 0.3, "-", min_scale=0.1),
-    "tooth_pass": FeatureSpec("elongation", 0.08, "Nm", payload_dependent=True),
-    "sprocket_comb": FeatureSpec("sprocket", 0.5, "Nm", payload_dependent=True),
+    "tooth_pass": FeatureSpec(
+        "elongation", 0.08, "Nm", payload_dependent=True, alternative=AMPLITUDE
+    ),
+    "sprocket_comb": FeatureSpec(
+        "sprocket", 0.5, "Nm", payload_dependent=True, alternative=AMPLITUDE
+    ),
     "unexplained_peak": FeatureSpec("bearing", 1.0, "-"),
     "belt_bump": FeatureSpec("obstruction", 1.5, "-", min_scale=0.5),  # retired: always NaN
     "payload_kg": FeatureSpec(None, 0.0, "kg"),
@@ -187,23 +223,83 @@ FEATURES: dict[str, FeatureSpec] = {
     "impact_rate_per_m": FeatureSpec(IMPULSIVE, 0.0, "1/m", min_scale=0.01),
     "impact_energy_max": FeatureSpec(IMPULSIVE, 0.0, "J", min_scale=0.01),
     "impact_isolated": FeatureSpec(None, 0.0, "-"),
+    "impact_rail_hits": FeatureSpec(None, 0.0, "-"),  # knocks one rail obstacle could have made
     "impact_drags": FeatureSpec(None, 0.0, "-"),
     "belt_travel_m": FeatureSpec(None, 0.0, "m"),
     "usage_kg_m": FeatureSpec(None, 0.0, "kg·m"),  # payload × travel (wear.py), set by the monitor
+    "usage_since_baseline_t_km": FeatureSpec(None, 0.0, "t·km"),  # what expected_wear is taken for
     "impact_hits_per_rev": FeatureSpec("obstruction", 0.0, "1/rev", min_scale=0.1),
     "impact_pooled_hits": FeatureSpec(None, 0.0, "-"),  # isolated knocks behind the rate above
 }
 """Every tracked feature (``comb_<shaft>`` features are added per profile, cause gear)."""
 
-COMB_SPEC = FeatureSpec("gear", 0.5, "Nm", payload_dependent=True, regressor="payload_inertia_kg")
+COMB_SPEC = FeatureSpec("gear", 0.5, "Nm", payload_dependent=True, alternative=AMPLITUDE)
 """Spec of the ``comb_<shaft>`` features."""
 
 
+MODE_SPEC = FeatureSpec("structure", 1.0, "Nm", payload_dependent=True, alternative=AMPLITUDE)
+"""Spec of the ``mode_<line>`` features (a structural mode's amplitude doubled)."""
+
+PER_PROFILE = ("comb_", "mode_")
+"""Prefixes of the features a profile adds (one per shaft, one per structural mode)."""
+
+STRUCTURAL_MODES = 2
+"""Longitudinal and lateral belt modes looked at (each ``n`` up to this)."""
+
+
+def is_tracked(name: str) -> bool:
+    """Whether the health model tracks a feature of this name."""
+    return name in FEATURES or name.startswith(PER_PROFILE)
+
+
 def feature_spec(name: str) -> FeatureSpec:
-    """The spec of a feature, ``comb_<shaft>`` included."""
+    """The spec of a feature, ``comb_<shaft>`` and ``mode_<line>`` included."""
     if name.startswith("comb_"):
         return COMB_SPEC
+    if name.startswith("mode_"):
+        return MODE_SPEC
     return FEATURES[name]
+
+
+def structural_modes(
+    spectrum: Spectrum, profile: ConveyorProfile, payload_kg: float, sample_time_s: float
+) -> dict[str, float]:
+    """Amplitude (Nm) of the residual spectrum at each structural mode, by ``mode_<line>``.
+
+    The modes of :func:`~chaintwin.model.frequencies.characteristic_lines`
+    (longitudinal belt modes and the two-mass mode from the belt's stiffness,
+    lateral modes from ``belt.tension_n``; none without those data) at the
+    recording's payload, where the scope shows them (folded above the
+    Nyquist frequency). A mode is resolvable when its place lies above
+    :data:`LOW_FREQUENCY_HZ`, below the spectrum's top and more than
+    :data:`GUARD_BINS` bins from every speed-locked line and harmonic and
+    from the other modes; an unresolvable one is NaN (never alarmed).
+    """
+    load = payload_kg if math.isfinite(payload_kg) and payload_kg > 0.0 else 0.0
+    lines = characteristic_lines(
+        profile, spectrum.speed_rpm, payload_kg=load, belt_modes=STRUCTURAL_MODES
+    )
+    places = {
+        f"mode_{ln.name}": fold_frequency(ln.frequency_hz, sample_time_s)
+        for ln in lines
+        if ln.kind == "structural"
+    }
+    if not places:
+        return {}
+    speed_hz = spectrum.speed_rpm / 60.0
+    locked = apparent_orders(known_line_orders(profile), spectrum.speed_rpm, sample_time_s)
+    locked_hz = np.asarray(locked) * speed_hz
+    guard = GUARD_BINS * spectrum.resolution
+    top = float(spectrum.x[-1])
+    out: dict[str, float] = {}
+    for name, x in places.items():
+        near_line = bool(np.any(np.abs(locked_hz - x) <= guard))
+        near_mode = any(abs(y - x) <= guard for n, y in places.items() if n != name)
+        if LOW_FREQUENCY_HZ < x < top and not near_line and not near_mode:
+            out[name] = band_amplitude(spectrum, x, half_width_bins=2)
+        else:
+            out[name] = math.nan
+    return out
 
 
 RINGING_AFTER_S = 0.1
@@ -509,6 +605,7 @@ def recording_features(
         values["sprocket_comb"] = sums["sprocket_comb"] if tp else nan
         for name in shafts:
             values[f"comb_{name}"] = sums[f"comb_{name}"]
+        values.update(structural_modes(spectrum, prof, values["payload_kg"], ts))
     else:
         values["tooth_pass"] = values["sprocket_comb"] = nan
         warnings.append(

@@ -446,6 +446,23 @@ def _a_pattern(hits: list[Impact], revolution_s: float | None) -> bool:
     return False
 
 
+def _one_obstacle(knocks: list[Impact], revolution_s: float | None) -> bool:
+    """Whether one obstacle fixed to the rail could have made all of a recording's knocks.
+
+    It is passed once per belt revolution: two knocks of one recording are
+    its only when a whole number of revolutions (at the recording's mean
+    belt speed, within :data:`PERIODIC_CV`) lies between them. On a 23 m
+    loop, two knocks 1.5 m apart are something else (an item, a polygon
+    spike), and pooled they read as an obstacle on a healthy conveyor.
+    """
+    if len(knocks) < 2:
+        return True
+    if revolution_s is None:
+        return False
+    ratios = np.diff([i.t_s for i in knocks]) / revolution_s
+    return bool(np.all(ratios > 0.5) and np.all(np.abs(ratios - np.round(ratios)) < PERIODIC_CV))
+
+
 def impact_features(
     impacts: list[Impact],
     recording: Recording,
@@ -471,6 +488,8 @@ def impact_features(
     ``impact_isolated`` (the knocks, impacts no longer than
     :data:`KNOCK_MAX_S` above half their peak, when they are not periodic,
     else 0);
+    ``impact_rail_hits`` (the knocks, when one obstacle fixed to the rail
+    could have made them all: :func:`_one_obstacle`; else 0);
     ``impact_drags`` (the longer ones: an item caught for a while) and
     ``belt_travel_m`` (the travel they were looked for over), which the
     monitor pools over recordings (:func:`hits_per_revolution`).
@@ -503,6 +522,7 @@ def impact_features(
         "impact_rate_per_m": len(hits) / travel if travel > 0 else float("nan"),
         "impact_energy_max": max((abs(i.energy_j) for i in hits), default=0.0),
         "impact_isolated": float(len(knocks)),
+        "impact_rail_hits": float(len(knocks)) if _one_obstacle(knocks, revolution_s) else 0.0,
         "impact_drags": float(len(hits) - len(knocks)),
         "belt_travel_m": travel,
     }
@@ -523,8 +543,13 @@ MIN_POOLED_HITS = 2
 
 
 def pooled_hits(rows: Sequence[Mapping[str, Any]]) -> float:
-    """Isolated knocks over recordings' features (what :func:`hits_per_revolution` pools)."""
-    return sum(float(r.get("impact_isolated") or 0.0) for r in rows)
+    """Knocks one rail obstacle could have made, over recordings' features.
+
+    What :func:`hits_per_revolution` pools: each recording's
+    ``impact_rail_hits`` (its ``impact_isolated`` when stored before that
+    feature existed).
+    """
+    return sum(float(r.get("impact_rail_hits", r.get("impact_isolated")) or 0.0) for r in rows)
 
 
 def hits_per_revolution(rows: Sequence[Mapping[str, Any]], loop_length_m: float) -> float:

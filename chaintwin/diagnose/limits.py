@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from chaintwin.errors import MonitorError
 from chaintwin.read.profile import ConveyorProfile, LimitSpec
 
-from .features import FEATURES
+from .features import FEATURES, is_tracked
 from .health import x_of_y
 from .records import MonitorSettings
 
@@ -63,21 +63,22 @@ class LimitCheck:
 
 
 def check_limit_names(profile: ConveyorProfile) -> None:
-    """Refuse limits on features the monitor does not compute.
+    """Refuse limits and expected wear on features the monitor does not compute.
 
     Raises
     ------
     MonitorError
         Naming the profile field and the features there are.
     """
-    for name in profile.limits or {}:
-        if name not in FEATURES and not name.startswith("comb_"):
-            shown = "".join(c if c.isprintable() else repr(c)[1:-1] for c in name)
-            raise MonitorError(
-                f"profile '{profile.id}': limits.{shown}: no such feature; limits apply to "
-                f"{', '.join(sorted(FEATURES))} and comb_<shaft>",
-                field="limits",
-            )
+    for key, names in (("limits", profile.limits), ("expected_wear", profile.expected_wear)):
+        for name in names or {}:
+            if not is_tracked(name):
+                shown = "".join(c if c.isprintable() else repr(c)[1:-1] for c in name)
+                raise MonitorError(
+                    f"profile '{profile.id}': {key}.{shown}: no such feature; {key} apply to "
+                    f"{', '.join(sorted(FEATURES))}, comb_<shaft> and mode_<line>",
+                    field=key,
+                )
 
 
 def judge_limits(

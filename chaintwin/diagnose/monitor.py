@@ -52,7 +52,7 @@ from .causes import (
     resolve_causes,
     shaft_harmonic,
 )
-from .features import FEATURES, RecordingFeatures, feature_spec
+from .features import RecordingFeatures, feature_spec, is_tracked
 from .features import recording_features as extract
 from .health import FeatureBaseline
 from .impacts import POOL, hits_per_revolution, pooled_hits
@@ -70,6 +70,7 @@ from .records import (
 )
 from .spectra import Spectrum
 from .state import apply_events, close_alarms, new_event
+from .wear import KG_M_PER_T_KM, usage_of
 
 __all__ = ["FRICTION_CAUSES", "ConveyorMonitor"]
 
@@ -134,6 +135,8 @@ class ConveyorMonitor:
         self.history: list[dict[str, Any]] = []
         self.processed: dict[str, int] = {}
         self.last_recorded_at: str | None = None
+        # usage carried since the baseline (kg·m): derived from the history when None
+        self._usage_kg_m: float | None = None
         # derived once, not state: (the object they were derived from, values)
         self._orders_cache: tuple[Calibration, npt.NDArray[np.float64]] | None = None
         self._baseline_cache: (
@@ -197,6 +200,7 @@ class ConveyorMonitor:
         self.belt_prev = []
         self.windows = {}
         self.window_times = {}
+        self._usage_kg_m = None
 
     # ---------------------------------------------------------- processing
     def process(
@@ -492,9 +496,10 @@ class ConveyorMonitor:
         else:
             peak, peak_order = self._unexplained_peak(feats.spectrum)
             values["unexplained_peak"] = peak
+            judged = self._after_expected_wear(values)
             base.features = {k: finite_or_none(v) for k, v in values.items()}
             met, change, exceeded = alarms.judge(
-                self.baselines, values, self.windows, self.window_times, self.settings, when
+                self.baselines, judged, self.windows, self.window_times, self.settings, when
             )
             base.exceeded.extend(exceeded)
             self._late_baselines(values)
@@ -564,6 +569,31 @@ class ConveyorMonitor:
             self.processed[sha256] = len(self.history) - 1
         return base
 
+    def _after_expected_wear(self, values: dict[str, float]) -> dict[str, float]:
+        """The values the baselines judge: the profile's expected wear taken off.
+
+        Sets ``usage_since_baseline_t_km`` (this recording included) in
+        ``values``; each feature of the profile's ``expected_wear`` is judged
+        less its rate times that usage (:mod:`.wear`), so wear that usage
+        explains does not alarm.
+        """
+        if self._usage_kg_m is None:
+            since = self.baseline_since or ""
+            self._usage_kg_m = sum(
+                usage_of(h)
+                for h in self.history
+                if h.get("status") == "monitored" and (h.get("recorded_at") or "") >= since
+            )
+        here = values.get("usage_kg_m", float("nan"))
+        self._usage_kg_m += here if math.isfinite(here) and here > 0.0 else 0.0
+        used = self._usage_kg_m / KG_M_PER_T_KM
+        values["usage_since_baseline_t_km"] = used
+        judged = dict(values)
+        for name, rate in (self.profile.expected_wear or {}).items():
+            if name in judged:
+                judged[name] = judged[name] - rate * used
+        return judged
+
     def _form_baseline(self) -> None:
         rows = self.baseline_rows
         own = [None if sp is None else spectrum_from_state(*sp) for sp in self.baseline_spectra]
@@ -590,9 +620,7 @@ class ConveyorMonitor:
         missing = [
             k
             for k in values
-            if k not in self.baselines
-            and (k in FEATURES or k.startswith("comb_"))
-            and feature_spec(k).cause is not None
+            if k not in self.baselines and is_tracked(k) and feature_spec(k).cause is not None
         ]
         if not missing:
             return

@@ -24,11 +24,12 @@ from typing import Any
 
 import numpy as np
 
+from .baseline import regressor_of
 from .features import feature_spec
 from .health import FeatureBaseline
 from .records import as_number
 
-__all__ = ["KG_M_PER_T_KM", "MIN_ROWS", "usage_summary", "wear_rates"]
+__all__ = ["KG_M_PER_T_KM", "MIN_ROWS", "usage_of", "usage_summary", "wear_rates"]
 
 KG_M_PER_T_KM = 1.0e6
 """kg·m in one tonne-kilometre."""
@@ -37,7 +38,8 @@ MIN_ROWS = 8
 """Fewest monitored results with a usage a wear rate is fitted to."""
 
 
-def _usage(row: Mapping[str, Any]) -> float:
+def usage_of(row: Mapping[str, Any]) -> float:
+    """A stored result's usage, kg·m (0 when unknown)."""
     value = as_number((row.get("features") or {}).get("usage_kg_m"))
     return value if math.isfinite(value) and value > 0.0 else 0.0
 
@@ -47,7 +49,7 @@ def usage_summary(history: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
 
     ``recordings`` counts the results with a known usage.
     """
-    known = [_usage(h) for h in history if h.get("status") in ("baseline", "monitored")]
+    known = [usage_of(h) for h in history if h.get("status") in ("baseline", "monitored")]
     return {
         "total_t_km": sum(known) / KG_M_PER_T_KM,
         "recordings": sum(1 for u in known if u > 0.0),
@@ -86,7 +88,7 @@ def wear_rates(
     ]
     if len(rows) < MIN_ROWS:
         return []
-    used = np.cumsum([_usage(h) for h in rows]) / KG_M_PER_T_KM
+    used = np.cumsum([usage_of(h) for h in rows]) / KG_M_PER_T_KM
     if float(used[-1]) <= 0.0:
         return []
     out = []
@@ -98,7 +100,10 @@ def wear_rates(
             [
                 as_number((h.get("features") or {}).get(name))
                 - fb.slope
-                * (as_number((h.get("features") or {}).get(spec.regressor)) - fb.mean_payload_kg)
+                * (
+                    as_number((h.get("features") or {}).get(regressor_of(name, fb)))
+                    - fb.mean_payload_kg
+                )
                 for h in rows
             ]
         )

@@ -30,12 +30,22 @@ belt.tension_n                         none        lateral (string) modes of the
 tray_mass_kg                           0.0         no carrier
 model                                  none        simulation only
 limits                                 none        statistical alarms only
+expected_wear                          none        no wear expected with usage
 =====================================  ==========  ==============================
 
 ``limits:`` sets engineer-chosen absolute limits per monitored feature, in
 the feature's own units: ``limits: {friction: {warn: 1.15, alarm: 1.30, rule:
 x_of_y}}`` (:class:`LimitSpec`). Profiles without ``limits`` or
 ``belt.tension_n`` keep the content hash they had before these fields existed.
+
+``expected_wear:`` gives the change of a monitored feature that usage is
+expected to cause, in the feature's units per t·km carried
+(``expected_wear: {friction: 0.004}``): the monitor judges the feature after
+taking off that rate times the usage since the baseline, so a heavily loaded
+conveyor's faster, expected wear does not alarm
+(:mod:`chaintwin.diagnose.wear` reports each feature's measured rate per
+t·km, which is where a fleet's typical value comes from). Left out of the
+content hash when absent, like ``limits``.
 
 The optional ``model:`` section describes a plant for simulation; the
 identification, calibration and weighing code never reads it.
@@ -253,6 +263,10 @@ class ConveyorProfile(_Spec):
     """Plant parameters for simulation only; never read by identification."""
     limits: dict[Annotated[str, Field(min_length=1, max_length=100)], LimitSpec] | None = None
     """Absolute limits per monitored feature name (optional)."""
+    expected_wear: dict[Annotated[str, Field(min_length=1, max_length=100)], NonNegative] | None = (
+        None
+    )
+    """Expected change per t·km of usage per monitored feature, its units per t·km (optional)."""
 
     # ---------------------------------------------------------------- derived
     @property
@@ -368,6 +382,8 @@ class ConveyorProfile(_Spec):
         # fields added later: hashed only when set
         if data.get("limits") is None:
             data.pop("limits", None)
+        if data.get("expected_wear") is None:
+            data.pop("expected_wear", None)
         if data["belt"].get("tension_n") is None:
             data["belt"].pop("tension_n", None)
         model = data.get("model")

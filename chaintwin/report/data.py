@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from chaintwin._types import FloatArray
+from chaintwin.diagnose.baseline import regressor_of
 from chaintwin.diagnose.features import FeatureSpec, feature_spec
 from chaintwin.diagnose.health import FeatureBaseline
 from chaintwin.diagnose.monitor_state import read_health
@@ -214,7 +215,12 @@ def _trends(
     baselines: dict[str, FeatureBaseline],
     z_limit: float,
     baseline_since: str | None,
+    expected_wear: dict[str, float] | None = None,
 ) -> list[FeatureTrend]:
+    """Each alarmed feature's series as judged: the profile's expected wear
+    (rate × ``usage_since_baseline_t_km``) taken off, moved to the baseline's
+    mean payload (:func:`_at_mean_payload`)."""
+    wear = expected_wear or {}
     names: list[str] = []
     for r in results:
         for k in r.get("features") or {}:
@@ -230,8 +236,13 @@ def _trends(
             if name not in feats:
                 continue
             v = _number(feats.get(name))
+            used = _number(feats.get("usage_since_baseline_t_km"))
+            if name in wear and math.isfinite(used):
+                v -= wear[name] * used
             if fb is not None:
-                v = _at_mean_payload(fb, v, _number(feats.get(spec.regressor)), z_limit, spec)
+                v = _at_mean_payload(
+                    fb, v, _number(feats.get(regressor_of(name, fb))), z_limit, spec
+                )
             idx.append(k)
             vals.append(v)
             exc.append(name in (r.get("exceeded") or []))
@@ -346,7 +357,7 @@ def conveyor_data(
         events=store.events(conveyor),
         summary=summary,
         forecasts=forecasts,
-        trends=_trends(results, baselines, z_limit, baseline_since),
+        trends=_trends(results, baselines, z_limit, baseline_since, profile.expected_wear),
         calibration=calibration,
         baseline_since=baseline_since,
         notes=notes,

@@ -69,6 +69,7 @@ from typing import Any
 
 import numpy as np
 
+from chaintwin._stats import median
 from chaintwin._types import FloatArray
 from chaintwin.diagnose.impacts import Impact, impact_features, scan_impacts
 from chaintwin.errors import EstimationError, ModelError
@@ -436,7 +437,7 @@ def recording_features(
         # an inertia payload that would take away half the belt is no reading
         values["friction"] = (m0 + p_f) / (m0 + p_i) if m0 + p_i > 0.5 * m0 else nan
         wi = cond.windows
-        omega = float(np.median(wi.mean_speed[wi.constant])) if wi.constant.any() else nan
+        omega = median(wi.mean_speed[wi.constant]) if wi.constant.any() else nan
         loss = loss_torque_nm(omega, *params.losses)
         values["speed_loss"] = (
             1.0 + float(cond.estimate[2]) * omega / loss if loss > 0 and omega > 0 else nan

@@ -309,7 +309,7 @@ def scan_impacts(
         if not beyond.any():
             continue
         speed = recording.speed[lo:hi]
-        direction = 1.0 if float(np.median(speed)) >= 0.0 else -1.0
+        direction = 1.0 if median(speed) >= 0.0 else -1.0
         found: list[Impact] = []
         least: dict[float, float] = {}  # per event (by time): the least work of a hit, J
         for a, b in _merged(_runs(beyond), fast, round(MERGE_S / dt)):
@@ -348,7 +348,7 @@ def _quiet_from(x: FloatArray, box: int) -> int:
     At most half of ``x`` is given up.
     """
     env = np.sqrt(uniform_filter1d(x * x, size=box, mode="nearest"))
-    loud = env > RING_RATIO * float(np.median(env))
+    loud = env > RING_RATIO * median(env)
     if not bool(loud[0]):
         return 0
     half = int(x.shape[0]) // 2

@@ -83,7 +83,7 @@ from chaintwin.model.frequencies import (
     shaft_orders,
 )
 from chaintwin.model.physics import loss_torque_nm
-from chaintwin.model.rigid import model_torque, motoring_mask
+from chaintwin.model.rigid import acceleration, model_torque, motoring_mask
 from chaintwin.model.windows import WindowIntegrals, window_integrals
 from chaintwin.read.recording import Recording, RecordingWarning
 from chaintwin.validate.checks import Inspection
@@ -366,10 +366,14 @@ def recording_features(
     prof = calibration.id_profile
     params = calibration.parameters
     warnings: list[RecordingWarning] = []
+    # the acceleration (a Savitzky-Golay derivative) serves the power-flow mask
+    # and both model torques: computed once
+    alpha = acceleration(recording)
     mot = motoring_mask(
         recording,
         drive_inertia_kgm2=params["J_d"],
         losses=params.losses,
+        alpha=alpha,
     )
     # the window integrals serve weighing and the condition fit alike; when
     # there are none, weighing refuses the recording in its own words
@@ -386,7 +390,9 @@ def recording_features(
     tray = prof.tray_mass_kg if tray is None else tray
     # impacts (an obstacle hit, a caught item) are no load and no friction: the
     # windows they touch are left out of the weighing and the condition fit
-    first = model_torque(recording, prof, params, _model_load(w), tray_kg=tray, motoring=mot)
+    first = model_torque(
+        recording, prof, params, _model_load(w), tray_kg=tray, motoring=mot, alpha=alpha
+    )
     # what repeats with the sprocket's teeth or a shaft is no impact
     orders = characteristic_orders(prof)
     shafts = shaft_orders(prof)
@@ -443,7 +449,7 @@ def recording_features(
             1.0 + float(cond.estimate[2]) * omega / loss if loss > 0 and omega > 0 else nan
         )
 
-    model = model_torque(recording, prof, params, load_kg, tray_kg=tray, motoring=mot)
+    model = model_torque(recording, prof, params, load_kg, tray_kg=tray, motoring=mot, alpha=alpha)
     if residual == "closed-loop":
         try:
             model = closed_loop_torque(recording, prof, twin_parameters(prof, calibration), load_kg)

@@ -710,3 +710,44 @@ def test_a_damaged_stored_health_model_leaves_the_page_with_a_note(tmp_path: Pat
         assert any("health model not readable" in n for n in page.notes)
     finally:
         store.close()
+
+
+def test_a_long_ingest_keeps_only_the_stored_history_in_memory(
+    plant: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Memory stays flat over a long batch, and the results stay the same (issue 22)."""
+    import chaintwin.store.ingest as ingest_module
+    from chaintwin.diagnose.monitor import ConveyorMonitor
+
+    files = _recordings(plant)
+    settings = MonitorSettings(baseline_n=5)
+
+    def run(name: str) -> tuple[list[dict[str, Any]], list[dict[str, Any]], int]:
+        url = f"sqlite:///{tmp_path / name}"
+        _calibrate(plant, url)
+        lengths: list[int] = []
+        process = ConveyorMonitor.process
+
+        def spy(self: ConveyorMonitor, *args: Any, **kwargs: Any) -> Any:
+            lengths.append(len(self.history))
+            return process(self, *args, **kwargs)
+
+        with monkeypatch.context() as m:
+            m.setattr(ConveyorMonitor, "process", spy)
+            store = Store(url)
+            summary = ingest(
+                files, {PROFILE.id: PROFILE}, store, settings=settings, workers=1, commit_group=3
+            )
+        assert summary.processed == len(files)
+        alarms = [a.to_dict() | {"id": None} for a in store.alarms()]
+        results = store.results()
+        store.close()
+        return results, alarms, max(lengths)
+
+    whole, whole_alarms, longest = run("whole.db")
+    assert longest == len(files) - 1  # without a cap the model keeps every result
+    monkeypatch.setattr(ingest_module, "HISTORY_IN_STATE", 4)
+    capped, capped_alarms, longest = run("capped.db")
+    assert longest <= 4 + 3  # the kept history and at most one group not yet stored
+    assert capped == whole
+    assert capped_alarms == whole_alarms

@@ -69,6 +69,7 @@ from typing import Any
 
 import numpy as np
 
+from chaintwin._stats import median
 from chaintwin._types import FloatArray
 from chaintwin.diagnose.impacts import Impact, impact_features, scan_impacts
 from chaintwin.errors import EstimationError, ModelError
@@ -85,7 +86,7 @@ from chaintwin.model.frequencies import (
     shaft_orders,
 )
 from chaintwin.model.physics import loss_torque_nm
-from chaintwin.model.rigid import model_torque, motoring_mask
+from chaintwin.model.rigid import acceleration, model_torque, motoring_mask
 from chaintwin.model.windows import WindowIntegrals, window_integrals
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording, RecordingWarning
@@ -461,10 +462,14 @@ def recording_features(
     prof = calibration.id_profile
     params = calibration.parameters
     warnings: list[RecordingWarning] = []
+    # the acceleration (a Savitzky-Golay derivative) serves the power-flow mask
+    # and both model torques: computed once
+    alpha = acceleration(recording)
     mot = motoring_mask(
         recording,
         drive_inertia_kgm2=params["J_d"],
         losses=params.losses,
+        alpha=alpha,
     )
     # the window integrals serve weighing and the condition fit alike; when
     # there are none, weighing refuses the recording in its own words
@@ -481,7 +486,9 @@ def recording_features(
     tray = prof.tray_mass_kg if tray is None else tray
     # impacts (an obstacle hit, a caught item) are no load and no friction: the
     # windows they touch are left out of the weighing and the condition fit
-    first = model_torque(recording, prof, params, _model_load(w), tray_kg=tray, motoring=mot)
+    first = model_torque(
+        recording, prof, params, _model_load(w), tray_kg=tray, motoring=mot, alpha=alpha
+    )
     # what repeats with the sprocket's teeth or a shaft is no impact
     orders = characteristic_orders(prof)
     shafts = shaft_orders(prof)
@@ -532,13 +539,13 @@ def recording_features(
         # an inertia payload that would take away half the belt is no reading
         values["friction"] = (m0 + p_f) / (m0 + p_i) if m0 + p_i > 0.5 * m0 else nan
         wi = cond.windows
-        omega = float(np.median(wi.mean_speed[wi.constant])) if wi.constant.any() else nan
+        omega = median(wi.mean_speed[wi.constant]) if wi.constant.any() else nan
         loss = loss_torque_nm(omega, *params.losses)
         values["speed_loss"] = (
             1.0 + float(cond.estimate[2]) * omega / loss if loss > 0 and omega > 0 else nan
         )
 
-    model = model_torque(recording, prof, params, load_kg, tray_kg=tray, motoring=mot)
+    model = model_torque(recording, prof, params, load_kg, tray_kg=tray, motoring=mot, alpha=alpha)
     if residual == "closed-loop":
         try:
             model = closed_loop_torque(recording, prof, twin_parameters(prof, calibration), load_kg)

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 from scipy.ndimage import median_filter, uniform_filter1d
 
+from chaintwin._stats import median, subtract_bin_medians
 from chaintwin._types import FloatArray
 from chaintwin.read.recording import Recording
 from chaintwin.validate.phases import Phase
@@ -174,10 +175,9 @@ def less_periodic(x: FloatArray, angle_rad: FloatArray, orders: Sequence[float])
         idx = np.minimum((phase / (2.0 * np.pi) * bins).astype(np.intp), bins - 1)
         order_idx = np.argsort(idx, kind="stable")
         bounds = np.searchsorted(idx[order_idx], np.arange(bins + 1))
-        for b in range(bins):
-            members = order_idx[bounds[b] : bounds[b + 1]]
-            if members.size:
-                out[members] -= np.median(out[members])
+        # each bin's median taken away in one compiled pass (the same numbers
+        # as np.median per bin, at a fraction of the calls)
+        subtract_bin_medians(out, order_idx, bounds)
     return out
 
 
@@ -185,7 +185,7 @@ def _robust_line(r: FloatArray) -> FloatArray:
     """A straight line through the medians of the two halves of ``r`` (hits barely move it)."""
     n = r.shape[0]
     h = n // 2
-    m1, m2 = float(np.median(r[:h])), float(np.median(r[h:]))
+    m1, m2 = median(r[:h]), median(r[h:])
     slope = (m2 - m1) / max(n - h, 1)  # the halves' centres lie n/2 samples apart
     line: FloatArray = 0.5 * (m1 + m2) + slope * (np.arange(n) - 0.5 * (n - 1))
     return line
@@ -217,7 +217,7 @@ def _beyond(x: FloatArray, floor: float, local: int) -> np.ndarray:
     stretch does not. A drag, lasting as long as the neighbourhood, is looked
     for averaged and against the whole span.
     """
-    scale = 1.4826 * float(np.median(np.abs(x - np.median(x))))
+    scale = 1.4826 * median(np.abs(x - median(x)))
     if local <= 0:
         whole: np.ndarray = np.abs(x) > max(THRESHOLD_SIGMA * scale, floor)
         return whole
@@ -309,7 +309,7 @@ def scan_impacts(
         if not beyond.any():
             continue
         speed = recording.speed[lo:hi]
-        direction = 1.0 if float(np.median(speed)) >= 0.0 else -1.0
+        direction = 1.0 if median(speed) >= 0.0 else -1.0
         found: list[Impact] = []
         least: dict[float, float] = {}  # per event (by time): the least work of a hit, J
         for a, b in _merged(_runs(beyond), fast, round(MERGE_S / dt)):
@@ -348,7 +348,7 @@ def _quiet_from(x: FloatArray, box: int) -> int:
     At most half of ``x`` is given up.
     """
     env = np.sqrt(uniform_filter1d(x * x, size=box, mode="nearest"))
-    loud = env > RING_RATIO * float(np.median(env))
+    loud = env > RING_RATIO * median(env)
     if not bool(loud[0]):
         return 0
     half = int(x.shape[0]) // 2

@@ -25,6 +25,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 from scipy.integrate import cumulative_trapezoid
 
+from chaintwin._stats import median as lean_median
 from chaintwin._types import FloatArray
 from chaintwin.errors import EstimationError
 from chaintwin.model.frequencies import _kinematic_ratio
@@ -197,7 +198,7 @@ def residual_stats(measured: FloatArray, model: FloatArray) -> ResidualStats:
     rms_measured = math.sqrt(float(y @ y) / n)
     return ResidualStats(
         mean=mean,
-        median=float(np.median(e)),
+        median=lean_median(e),
         std=std,
         variance=variance,
         rms=rms,

@@ -250,6 +250,7 @@ def model_torque(
     *,
     tray_kg: float | None = None,
     motoring: np.ndarray | None = None,
+    alpha: FloatArray | None = None,
 ) -> FloatArray:
     """Motor torque of the rigid model per sample, Nm (the equation of the module notes).
 
@@ -273,6 +274,9 @@ def model_torque(
     motoring : np.ndarray of bool, optional
         Power-flow direction per sample (True: motor → belt); default
         :func:`motoring_mask` with the given J_d and losses.
+    alpha : FloatArray, optional
+        The recording's acceleration, rad/s², when the caller has it already;
+        default :func:`acceleration`.
 
     Returns
     -------
@@ -298,7 +302,8 @@ def model_torque(
         tray_kg = profile.tray_mass_kg
 
     w = recording.speed
-    alpha = acceleration(recording)
+    if alpha is None:
+        alpha = acceleration(recording)
     if motoring is None:
         motoring = motoring_mask(recording, drive_inertia_kgm2=j_d, losses=losses, alpha=alpha)
     motoring = np.asarray(motoring, dtype=bool)

@@ -15,6 +15,7 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
+from chaintwin._stats import median
 from chaintwin._types import FloatArray
 
 __all__ = [
@@ -182,7 +183,7 @@ class Recording:
     @property
     def sample_time_s(self) -> float:
         """Sample time, s: the median time step of the time column."""
-        return float(np.median(np.diff(self.time)))
+        return median(np.diff(self.time))
 
     @property
     def duration_s(self) -> float:

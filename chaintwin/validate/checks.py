@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from chaintwin._stats import median
 from chaintwin._types import FloatArray
 from chaintwin.read.columns import ColumnMap
 from chaintwin.read.profile import ConveyorProfile
@@ -73,7 +74,7 @@ def check_sampling(recording: Recording) -> list[RecordingWarning]:
     t = recording.time
     with np.errstate(all="ignore"):
         dt = np.diff(t)
-        med = float(np.median(dt))
+        med = median(dt)
         bad = np.abs(dt - med) > max(0.01 * med, 1e-6)
     if bad.any():
         first = int(np.flatnonzero(bad)[0])

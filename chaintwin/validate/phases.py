@@ -17,6 +17,7 @@ from typing import Literal
 
 import numpy as np
 
+from chaintwin._stats import median
 from chaintwin._types import FloatArray
 from chaintwin.read.recording import Recording
 from chaintwin.units import RPM_TO_RAD_S
@@ -72,7 +73,7 @@ class Phase:
 def _noise_sigma(x: FloatArray) -> float:
     """Robust white-noise standard deviation from first differences."""
     d = np.diff(x)
-    mad = float(np.median(np.abs(d - np.median(d))))
+    mad = median(np.abs(d - median(d)))
     return float(1.4826 * mad / np.sqrt(2.0))
 
 
@@ -133,7 +134,7 @@ def segment_speed(time: FloatArray, speed: FloatArray, *, clean: bool) -> list[P
     """
     n = speed.shape[0]
     with np.errstate(all="ignore"):
-        dt = float(np.median(np.diff(time)))
+        dt = median(np.diff(time))
         if clean:
             w = speed.astype(np.float64, copy=True)
             sigma = 0.0

@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from chaintwin._stats import median
 from chaintwin.errors import EstimationError
 from chaintwin.identify.calibration import INERTIA_MODEL_REL, Calibration
 from chaintwin.identify.signatures import SignatureFit, fit_signatures
@@ -312,7 +313,7 @@ def _step(fit: SignatureFit) -> tuple[float, float, float] | None:
         return None
     q = fit.residual_per_kg[sel]
     d = np.diff(q)
-    sigma = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / np.sqrt(2.0)
+    sigma = 1.4826 * median(np.abs(d - median(d))) / np.sqrt(2.0)
     if sigma <= 0.0:
         sigma = float(np.std(q)) or 1e-12
     csum = np.cumsum(q)
@@ -366,7 +367,7 @@ def _uncovered_direction(inspection: Inspection, calibration: Calibration) -> st
     for phase in inspection.phases:
         if phase.kind != "constant" or phase.stop - phase.start < 2:
             continue
-        sign = 1 if float(np.median(speed[phase.start : phase.stop])) >= 0.0 else -1
+        sign = 1 if median(speed[phase.start : phase.stop]) >= 0.0 else -1
         if sign not in covered:
             word = {1: "positive", -1: "negative"}
             return (
@@ -548,7 +549,7 @@ def weigh(
     cal_speeds = calibration.plateau_speeds_rpm
     wi = fit.windows
     if cal_speeds and wi.constant.any():
-        plateau = float(np.median(wi.mean_speed[wi.constant])) / RPM_TO_RAD_S
+        plateau = median(wi.mean_speed[wi.constant]) / RPM_TO_RAD_S
         if plateau < 0.95 * min(cal_speeds) or plateau > 1.05 * max(cal_speeds):
             warnings.append(
                 RecordingWarning(

@@ -1,0 +1,51 @@
+"""The lean medians give numpy's numbers bit for bit (chaintwin._stats)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from chaintwin._stats import median, subtract_bin_medians
+
+floats = st.floats(allow_nan=True, allow_infinity=True, width=64)
+
+
+@settings(max_examples=300, deadline=None)
+@given(arrays(np.float64, st.integers(1, 60), elements=floats))
+def test_median_is_numpys(x: np.ndarray) -> None:
+    with np.errstate(all="ignore"):
+        want = np.median(x)
+        got = median(x)
+    assert (np.isnan(want) and np.isnan(got)) or got == want
+    assert np.signbit(got) == np.signbit(want) or np.isnan(want)
+
+
+def test_median_of_a_strided_view_and_of_nothing() -> None:
+    x = np.arange(20.0)[::3]
+    assert median(x) == np.median(x)
+    with pytest.warns(RuntimeWarning):
+        assert np.isnan(median(np.array([], dtype=np.float64)))
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    arrays(np.float64, st.integers(1, 80), elements=floats),
+    st.integers(1, 9),
+    st.randoms(use_true_random=False),
+)
+def test_bin_medians_are_numpys(x: np.ndarray, bins: int, rnd: object) -> None:
+    idx = np.array([rnd.randrange(bins) for _ in range(x.shape[0])], dtype=np.intp)  # type: ignore[attr-defined]
+    members = np.argsort(idx, kind="stable")
+    bounds = np.searchsorted(idx[members], np.arange(bins + 1))
+    want = x.copy()
+    with np.errstate(all="ignore"):  # inf - inf, huge + huge: the same NaN and inf both ways
+        for b in range(bins):
+            m = members[bounds[b] : bounds[b + 1]]
+            if m.size:
+                want[m] -= np.median(want[m])
+    got = x.copy()
+    subtract_bin_medians(got, members, bounds)
+    assert np.array_equal(got, want, equal_nan=True)

@@ -376,6 +376,66 @@ def test_results_without_a_time_come_last_and_page_through(served: Served) -> No
     assert len(dated) == total - untimed
 
 
+def _sse(lines: Iterator[str]) -> Iterator[tuple[str, dict[str, Any]]]:
+    """Events (name, data) from a server-sent event stream's lines (comments skipped)."""
+    name, data = "message", ""
+    for line in lines:
+        if line.startswith("event: "):
+            name = line.removeprefix("event: ")
+        elif line.startswith("data: "):
+            data = line.removeprefix("data: ")
+        elif line == "" and data:
+            yield name, json.loads(data)
+            name, data = "message", ""
+
+
+def test_the_event_stream_tells_of_stored_results_and_alarm_changes(
+    served: Served, fleet: Path, tmp_path: Path
+) -> None:
+    anon = served.client()
+    _error(anon.get("/api/v1/events"), 401, "unauthorized")
+    viewer, maintainer = served.client("viewer"), served.client("maintainer")
+    new = run_virtual(PROFILE, payload_kg=31.0, seed=123).recording
+    new_file = write_recording(new, tmp_path / "late.csv")
+    with viewer.stream("GET", "/api/v1/events") as stream:
+        assert stream.status_code == 200
+        assert stream.headers["content-type"].startswith("text/event-stream")
+        events = _sse(stream.iter_lines())
+        name, ready = next(events)
+        assert name == "ready" and ready["changed"] == []
+        # a second listener shares the one poll of the store
+        with viewer.stream("GET", "/api/v1/events") as other:
+            others = _sse(other.iter_lines())  # kept: a closed iterator closes the stream
+            assert next(others)[0] == "ready"
+            feed = served.app.state.web.extra["feed"]
+            assert feed.listeners == 2
+            polls = feed.polls
+            time.sleep(2.5)
+            assert 1 <= feed.polls - polls <= 4  # once a second, not once per listener
+        files = [("files", ("late.csv", new_file.read_bytes(), "text/csv"))]
+        stored = maintainer.post("/api/v1/recordings", files=files).json()["files"]
+        assert stored[0]["status"] == "stored"
+        name, update = next(events)
+        assert name == "update" and "results" in update["changed"]
+        assert update["results"] > ready["results"] and update["id"] != ready["id"]
+        body = {"kind": "other", "why": "checked after the late recording"}
+        assert maintainer.post(f"/api/v1/conveyors/{PROFILE.id}/maintenance", json=body).is_success
+        name, changed = next(events)
+        assert name == "update" and changed["changed"] == ["alarms"]
+        assert changed["results"] == update["results"]
+    # a browser reconnecting with the last id it saw is told at once what it missed
+    with viewer.stream("GET", "/api/v1/events", headers={"Last-Event-ID": ready["id"]}) as again:
+        name, missed = next(_sse(again.iter_lines()))
+        assert name == "update" and missed["id"] == changed["id"]
+        assert set(missed["changed"]) == {"results", "alarms"}
+    # the session cookie opens the stream too
+    with httpx.Client(base_url=served.base, timeout=30) as browser:
+        browser.post("/login", data={"token": served.tokens["viewer"]})
+        with browser.stream("GET", "/api/v1/events") as stream:
+            assert stream.status_code == 200
+            assert next(_sse(stream.iter_lines()))[0] == "ready"
+
+
 def test_token_commands(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     db = f"sqlite:///{tmp_path / 't.db'}"
     assert (
@@ -418,7 +478,12 @@ def test_every_operation_answers_as_its_schema_says(api_schema: Any) -> None:
     """
     from hypothesis import given
 
-    operations = [result.ok() for result in api_schema.get_all_operations()]
+    # the event stream is an endless text/event-stream, tested on its own above
+    operations = [
+        op
+        for result in api_schema.get_all_operations()
+        if (op := result.ok()).path != "/api/v1/events"
+    ]
     assert len(operations) >= 12
     for operation in operations:
 
@@ -463,6 +528,20 @@ def test_in_a_browser_log_in_see_charts_acknowledge_and_a_viewer_refused(
             page.wait_for_url(served.base + "/")
             page.wait_for_selector("#tlf-chart .main-svg")
             assert page.locator("#fleet tbody tr").count() == 1
+            # a recording stored meanwhile (here by ingest, as the live service would)
+            # changes the table through the event stream, without a reload
+            before = page.inner_text("#fleet tbody tr")
+            page.evaluate("window.notReloaded = true")
+            late = run_virtual(PROFILE, payload_kg=38.0, seed=321).recording
+            late_file = write_recording(late, tmp_path / "late.csv")
+            summary = ingest([str(late_file)], {PROFILE.id: PROFILE}, served.store, workers=1)
+            assert summary.refused == 0
+            page.wait_for_function(
+                "(before) => document.querySelector('#fleet tbody tr').innerText !== before",
+                arg=before,
+                timeout=15000,
+            )
+            assert page.evaluate("window.notReloaded === true && window.chaintwin.updates >= 1")
             page.click(f"#fleet a:text('{PROFILE.id}')")
             page.wait_for_selector("#trends .trend .main-svg", timeout=30000)
             page.wait_for_selector("#latest .main-svg", timeout=30000)

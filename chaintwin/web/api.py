@@ -18,8 +18,9 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 import orjson
-from fastapi import APIRouter, File, Query, Request, Response, UploadFile
+from fastapi import APIRouter, File, Header, Query, Request, Response, UploadFile
 from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import StreamingResponse
 from pydantic import BaseModel, Field
 
 from chaintwin import __version__
@@ -176,6 +177,45 @@ def store_counts(request: Request) -> dict[str, Any]:
 def fast_json(content: Any) -> Response:
     """A JSON response encoded by orjson at once (the polled lists: no generic encoder)."""
     return Response(orjson.dumps(content), media_type="application/json")
+
+
+@router.get(
+    "/events",
+    response_class=StreamingResponse,
+    responses={
+        200: {
+            "description": "A server-sent event stream (text/event-stream): `ready` when it "
+            "opens, `update` when results are stored or alarms change; it ends after "
+            "15 s and the browser reconnects",
+            "content": {"text/event-stream": {"schema": {"type": "string"}}},
+        }
+    },
+)
+async def events(
+    request: Request,
+    last_event_id: Annotated[str | None, Header(max_length=100)] = None,
+) -> StreamingResponse:
+    """Server-sent events when the store changes (viewer): the pages refresh on them.
+
+    The store is looked at once a second per server process, for all
+    listeners together; each ``update`` event's data says what changed
+    (``results``, ``alarms``, ``conveyors``) and carries the store's
+    signature (``id``, sent back as ``Last-Event-ID`` on reconnecting).
+    """
+    who(request, "viewer")
+    web = _web(request)
+    feed = web.extra.get("feed")
+    if feed is None:
+        from chaintwin.web.events import ChangeFeed
+
+        feed = web.extra.setdefault("feed", ChangeFeed(web.store))
+    from chaintwin.web.events import event_stream
+
+    return StreamingResponse(
+        event_stream(feed, last_event_id),
+        media_type="text/event-stream",
+        headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
+    )
 
 
 @router.get("/conveyors", response_model=list[dict[str, Any]])

@@ -43,34 +43,73 @@ window.chaintwin = (function () {
       { margin: { t: 10 }, yaxis: { title: "TLF" } }, { responsive: true });
   }
 
+  // Refresh on the server's events (GET /api/v1/events); poll every 30 s if they cannot come.
+  function live(onUpdate) {
+    let timer = null;
+    const fallback = () => { if (timer === null) timer = setInterval(onUpdate, 30000); };
+    if (!window.EventSource) { fallback(); return; }
+    const source = new EventSource("/api/v1/events");
+    source.addEventListener("update", (e) => {
+      window.chaintwin.updates += 1;
+      onUpdate(JSON.parse(e.data));
+    });
+    source.onerror = () => { if (source.readyState === EventSource.CLOSED) fallback(); };
+  }
+
+  function fillRow(tr, row) {
+    tr.querySelector(".health").textContent = health(row);
+    tr.querySelector(".alarms").textContent =
+      row.open_alarms.map((a) => `${a.cause} (${a.feature})`).join(", ");
+    tr.querySelector(".payload").textContent = text(row.payload_kg, 1);
+    tr.querySelector(".tlf").textContent = text(row.tlf, 3);
+    tr.querySelector(".last").textContent = row.last_recorded_at || "\u2013";
+  }
+
+  function newRow(row) {
+    // built from text nodes: an id holding markup stays text
+    const tr = document.createElement("tr");
+    tr.dataset.id = row.id;
+    const first = document.createElement("td");
+    const a = document.createElement("a");
+    a.href = "/conveyors/" + encodeURIComponent(row.id);
+    a.textContent = row.id;
+    first.appendChild(a);
+    tr.appendChild(first);
+    ["health", "alarms", "payload", "tlf", "last"].forEach((cls) => {
+      const td = document.createElement("td");
+      td.className = cls;
+      tr.appendChild(td);
+    });
+    return tr;
+  }
+
   async function fleetPage() {
     const table = document.getElementById("fleet");
     sortable(table);
     const filter = document.getElementById("filter");
-    filter.addEventListener("input", () => {
+    const applyFilter = () => {
       const q = filter.value.toLowerCase();
       Array.from(table.tBodies[0].rows).forEach((r) => {
         r.hidden = !r.textContent.toLowerCase().includes(q);
       });
-    });
+    };
+    filter.addEventListener("input", applyFilter);
     async function refresh() {
       const rows = await api("/api/v1/conveyors");
       if (!rows) return;
-      const byId = new Map(Array.from(table.tBodies[0].rows).map((r) => [r.dataset.id, r]));
+      const body = table.tBodies[0];
+      const byId = new Map(Array.from(body.rows).map((r) => [r.dataset.id, r]));
       rows.forEach((row) => {
-        const tr = byId.get(row.id);
-        if (!tr) { window.location.reload(); return; }  // a new conveyor: the whole table
-        tr.querySelector(".health").textContent = health(row);
-        tr.querySelector(".alarms").textContent =
-          row.open_alarms.map((a) => `${a.cause} (${a.feature})`).join(", ");
-        tr.querySelector(".payload").textContent = text(row.payload_kg, 1);
-        tr.querySelector(".tlf").textContent = text(row.tlf, 3);
-        tr.querySelector(".last").textContent = row.last_recorded_at || "\u2013";
+        let tr = byId.get(row.id);
+        if (!tr) { tr = newRow(row); body.appendChild(tr); }
+        fillRow(tr, row);
       });
+      applyFilter();
       tlfChart(rows);
+      document.getElementById("updated").textContent = new Date().toLocaleTimeString();
     }
     await refresh();
-    setInterval(refresh, 10000);
+    live(refresh);
   }
 
   async function trendChart(holder, conveyor, feature) {
@@ -107,15 +146,15 @@ window.chaintwin = (function () {
     };
     let shown = await newest();
     await drawConveyor(holder, conveyor, features);
-    // redraw when a new recording is stored (polling, no full reload)
-    setInterval(async () => {
+    // redraw when a new recording of this conveyor is stored (no full reload)
+    live(async () => {
       const now = await newest();
       if (now !== shown) {
         shown = now;
         holder.replaceChildren();
         await drawConveyor(holder, conveyor, features);
       }
-    }, 15000);
+    });
   }
 
   async function drawConveyor(holder, conveyor, features) {
@@ -136,5 +175,5 @@ window.chaintwin = (function () {
     }
   }
 
-  return { fleetPage, conveyorPage };
+  return { fleetPage, conveyorPage, updates: 0 };
 })();

@@ -436,6 +436,74 @@ def test_the_event_stream_tells_of_stored_results_and_alarm_changes(
             assert next(_sse(stream.iter_lines()))[0] == "ready"
 
 
+@pytest.fixture(scope="module")
+def rising(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
+    """A conveyor whose friction rises slowly from day 2: forecast, not yet in alarm."""
+    folder = tmp_path_factory.mktemp("rising")
+    generate(
+        PROFILE, folder, days=6, per_day=5, faults=[Fault("friction", 0.04)], onset_day=2, seed=5
+    )
+    s = Served(f"sqlite:///{tmp_path_factory.mktemp('rising-db') / 'plant.db'}", folder)
+    yield s
+    s.close()
+
+
+def test_trends_carry_the_monitors_forecast_with_its_band(rising: Served) -> None:
+    viewer = rising.client("viewer")
+    base = f"/api/v1/conveyors/{PROFILE.id}"
+    detail = viewer.get(base).json()
+    (forecast,) = [f for f in detail["forecasts"] if f["feature"] == "friction"]
+    assert forecast["crossed"] is False
+    trend = viewer.get(f"{base}/trends", params={"feature": "friction"}).json()
+    # the existing fields stay; the forecast is the monitor's, with its band beside it
+    assert {"points", "expected", "limit", "alarms", "unit", "cause"} <= set(trend)
+    got = trend["forecast"]
+    band = got.pop("band")
+    assert got == forecast
+    assert got["limit"] == pytest.approx(trend["limit"])
+    assert 0.0 < trend["health_index"] < 1.0  # rising, not at the limit yet
+    assert band["level"] == pytest.approx(0.9) and 2 < len(band["at"]) <= 120
+    lo, mid, hi = band["lower"], band["mean"], band["upper"]
+    assert all(a <= b <= c for a, b, c in zip(lo, mid, hi, strict=True))
+    assert band["at"][0] >= trend["points"][-1]["recorded_at"][:10]
+    assert band["at"][0] <= forecast["earliest"] <= forecast["crosses_at"] <= band["at"][-1]
+    assert max(hi) >= got["limit"] > mid[0]
+    other = viewer.get(f"{base}/trends", params={"feature": "speed_loss"}).json()
+    assert other["forecast"] is None
+
+
+def test_the_spectrum_waterfall_of_the_latest_recordings(served: Served) -> None:
+    viewer = served.client("viewer")
+    base = f"/api/v1/conveyors/{PROFILE.id}"
+    w = viewer.get(f"{base}/waterfall", params={"recordings": 5}).json()
+    assert w["kind"] == "order" and len(w["x"]) == 400
+    assert len(w["recordings"]) + len(w["left_out"]) == 5 and w["recordings"]
+    # the latest recordings, oldest first (the page draws the newest on top)
+    newest = viewer.get(f"{base}/recordings", params={"limit": 5}).json()["items"]
+    ids = [r["recording_id"] for r in reversed(newest)]
+    assert [r["recording_id"] for r in w["recordings"]] == ids[-len(w["recordings"]) :]
+    rows = w["amplitude_nm"]
+    assert len(rows) == len(w["recordings"]) and all(len(r) == 400 for r in rows)
+    values = [a for r in rows for a in r if a is not None]
+    assert values and min(values) >= 0.0 and max(values) > 0.0
+    assert w["lines"] and all(0.0 < x < w["x"][-1] + 1.0 for x in w["lines"].values())
+    # downsampled by the largest amplitude per bin: the highest line keeps its height
+    from chaintwin.diagnose.spectra import order_spectrum
+    from chaintwin.store.queries import recording_by_hash
+
+    found = recording_by_hash(served.store, w["recordings"][-1]["recording_id"])
+    assert found is not None
+    sp = order_spectrum(found[1])
+    top = 2 * w["x"][-1] - w["x"][-2]  # the axis' upper edge
+    inside = [float(a) for x, a in zip(sp.x, sp.amplitude, strict=True) if x <= top]
+    assert max(a for a in rows[-1] if a is not None) == pytest.approx(max(inside), rel=1e-9)
+    freq = viewer.get(f"{base}/waterfall", params={"kind": "frequency", "recordings": 3}).json()
+    assert freq["x_unit"] == "Hz" and freq["x"][-1] > w["x"][-1]
+    _error(viewer.get(f"{base}/waterfall", params={"kind": "bad"}), 422, "invalid")
+    _error(viewer.get("/api/v1/conveyors/nope/waterfall"), 404, "not_found")
+    _error(served.client().get(f"{base}/waterfall"), 401, "unauthorized")
+
+
 def test_token_commands(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     db = f"sqlite:///{tmp_path / 't.db'}"
     assert (
@@ -454,6 +522,28 @@ def test_token_commands(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> N
     assert main(["token", "list", "--db", db, "--json"]) == 0
     assert json.loads(capsys.readouterr().out)[0]["active"] is False
     assert main(["token", "revoke", "nope", "--db", db]) == 2
+
+
+def test_in_a_browser_a_trend_shows_its_forecast_band(rising: Served) -> None:
+    """The conveyor page draws the monitor's forecast and its 90 % band on the trend."""
+    if not CHROMIUM.exists():
+        pytest.fail("Chromium not found at /usr/bin/chromium: `make test` installs it")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=str(CHROMIUM))
+        page = browser.new_page()
+        page.goto(rising.base + "/login")
+        page.fill("#token", rising.tokens["viewer"])
+        page.click("form.login button")
+        page.wait_for_url(rising.base + "/")
+        page.goto(f"{rising.base}/conveyors/{PROFILE.id}")
+        chart = "#trends .trend[data-feature=friction]"
+        page.wait_for_selector(f"{chart} .main-svg", timeout=30000)
+        names = page.evaluate(f"document.querySelector('{chart}').data.map((t) => t.name)")
+        assert "forecast" in names and any("90 % band" in n for n in names)
+        assert page.locator("#forecasts tbody tr").count() == 1
+        browser.close()
 
 
 # ------------------------------------------------------------------ property-based
@@ -545,6 +635,8 @@ def test_in_a_browser_log_in_see_charts_acknowledge_and_a_viewer_refused(
             page.click(f"#fleet a:text('{PROFILE.id}')")
             page.wait_for_selector("#trends .trend .main-svg", timeout=30000)
             page.wait_for_selector("#latest .main-svg", timeout=30000)
+            page.wait_for_selector("#waterfall .main-svg", timeout=30000)
+            assert page.evaluate("document.getElementById('waterfall').data[0].type") == "heatmap"
             assert page.locator("#trends .trend").count() >= 3
             # acknowledge the open alarm as maintainer
             page.goto(served.base + "/alarms")

@@ -281,8 +281,11 @@ class StoredHealth:
     calibration: Calibration | None
 
 
-def read_health(state: MonitorState) -> StoredHealth:
-    """A saved state's health: summary, baselines and forecasts, without rebuilding the monitor."""
+def read_health(state: MonitorState, *, bands: bool = False) -> StoredHealth:
+    """A saved state's health: summary, baselines and forecasts, without rebuilding the monitor.
+
+    ``bands``: the forecasts carry their ``band`` (path and interval ahead, for plotting).
+    """
     baselines = state.baselines or {}
     z_limit = state.settings.z_limit
     since = state.baseline_since
@@ -297,7 +300,7 @@ def read_health(state: MonitorState) -> StoredHealth:
             "outliers": {k: v.outliers for k, v in baselines.items() if v.outliers},
         },
         "open_alarms": [a.to_dict() for a in state.alarms if a.is_open],
-        "forecasts": baseline.forecasts(baselines, state.history, since or "", z_limit)
+        "forecasts": baseline.forecasts(baselines, state.history, since or "", z_limit, bands=bands)
         if baselines
         else [],
         "events": [e.to_dict() for e in state.events],

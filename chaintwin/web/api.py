@@ -234,13 +234,13 @@ def conveyors(request: Request) -> Response:
     return fast_json(out)
 
 
-def _conveyor(request: Request, conveyor_id: str) -> Any:
+def _conveyor(request: Request, conveyor_id: str, *, bands: bool = False) -> Any:
     from chaintwin.report.data import conveyor_data
 
     store = _web(request).store
     if store.profile(conveyor_id) is None:
         raise ApiError(404, "not_found", f"no conveyor '{conveyor_id}' in the store")
-    return conveyor_data(store, conveyor_id, waterfall=0)
+    return conveyor_data(store, conveyor_id, waterfall=0, forecast_bands=bands)
 
 
 @router.get("/conveyors/{conveyor_id:path}/recordings", response_model=dict[str, Any])
@@ -265,7 +265,7 @@ def recordings(
 def trends(request: Request, conveyor_id: str, feature: str) -> dict[str, Any]:
     """A feature's series with its baseline band and alarm markers."""
     who(request, "viewer")
-    data = _conveyor(request, conveyor_id)
+    data = _conveyor(request, conveyor_id, bands=True)
     trend = next((t for t in data.trends if t.name == feature), None)
     if trend is None:
         names = ", ".join(t.name for t in data.trends) or "none yet"
@@ -285,6 +285,7 @@ def trends(request: Request, conveyor_id: str, feature: str) -> dict[str, Any]:
         for a in data.alarms
         if a.feature == feature
     ]
+    forecast = next((dict(f) for f in data.forecasts if f["feature"] == feature), None)
     return {
         "conveyor": conveyor_id,
         "feature": feature,
@@ -294,7 +295,33 @@ def trends(request: Request, conveyor_id: str, feature: str) -> dict[str, Any]:
         "limit": trend.limit,
         "points": points,
         "alarms": marks,
+        "health_index": _finite(float(trend.health_index())),
+        "forecast": forecast,
     }
+
+
+@router.get("/conveyors/{conveyor_id:path}/waterfall")
+def spectrum_waterfall(
+    request: Request,
+    conveyor_id: str,
+    kind: Literal["order", "frequency"] = "order",
+    recordings: Annotated[int, Query(ge=1, le=100)] = 20,
+) -> dict[str, Any]:
+    """The torque spectra of the latest recordings on one axis (viewer), for a waterfall.
+
+    Computed from the stored samples (order spectrum, or Welch at constant
+    speed for ``kind=frequency``), each downsampled to 400 bins by the
+    largest amplitude per bin; ``lines`` marks where the profile's
+    speed-locked lines appear.
+    """
+    from chaintwin.web.waterfall import SpectrumCache, waterfall
+
+    who(request, "viewer")
+    web = _web(request)
+    if web.store.profile(conveyor_id) is None:
+        raise ApiError(404, "not_found", f"no conveyor '{conveyor_id}' in the store")
+    cache = web.extra.setdefault("spectra", SpectrumCache())
+    return waterfall(web.store, conveyor_id, cache, kind=kind, count=recordings)
 
 
 @router.get("/conveyors/{conveyor_id:path}")

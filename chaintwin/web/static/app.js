@@ -128,6 +128,24 @@ window.chaintwin = (function () {
       shapes.push({ type: "rect", xref: "paper", x0: 0, x1: 1, y0: t.expected, y1: t.limit,
         fillcolor: "rgba(46, 204, 113, 0.12)", line: { width: 0 } });
     }
+    const f = t.forecast;
+    if (f && f.band && f.band.at.length) {
+      // the forecast's 90 % band (upper, then lower filled to it), its mean, and its crossings
+      const b = f.band;
+      const pct = Math.round(100 * b.level);
+      traces.push({ x: b.at, y: b.upper, mode: "lines", line: { width: 0 }, hoverinfo: "skip",
+        name: `${pct} % band` });
+      traces.push({ x: b.at, y: b.lower, mode: "lines", line: { width: 0 }, fill: "tonexty",
+        fillcolor: "rgba(230, 126, 34, 0.25)", name: `forecast ${pct} % band (${f.model})` });
+      traces.push({ x: b.at, y: b.mean, mode: "lines", line: { dash: "dot", color: "#e67e22" },
+        name: "forecast" });
+      traces.push({ x: [b.at[0], b.at[b.at.length - 1]], y: [f.limit, f.limit], mode: "lines",
+        line: { dash: "dash", color: "#c0392b" }, name: "alarm limit", showlegend: false });
+      [["earliest", f.earliest], ["crosses", f.crosses_at], ["latest", f.latest]].forEach(([n, at]) => {
+        if (at) shapes.push({ type: "line", x0: at, x1: at, yref: "paper", y0: 0, y1: 1,
+          line: { color: "#e67e22", width: 1, dash: n === "crosses" ? "solid" : "dot" } });
+      });
+    }
     t.alarms.forEach((a) => {
       if (a.since) shapes.push({ type: "line", x0: a.since, x1: a.since, yref: "paper", y0: 0, y1: 1,
         line: { color: "#c0392b", width: 1 } });
@@ -157,8 +175,29 @@ window.chaintwin = (function () {
     });
   }
 
+  async function waterfallChart(conveyor) {
+    const w = await api(`/api/v1/conveyors/${encodeURIComponent(conveyor)}/waterfall?recordings=20`);
+    const div = document.getElementById("waterfall");
+    if (!w || !w.recordings.length) { div.textContent = "No spectra yet."; return; }
+    const y = w.recordings.map((r, k) =>
+      r.recorded_at ? `${r.recorded_at.slice(0, 16).replace("T", " ")} #${k + 1}` : `#${k + 1} ${r.file}`);
+    const z = w.amplitude_nm.map((row) => row.map((a) => (a && a > 0 ? Math.log10(a) : null)));
+    const shapes = Object.entries(w.lines).map(([name, x]) => ({ type: "line", x0: x, x1: x,
+      yref: "paper", y0: 0, y1: 1, line: { color: "white", width: 1, dash: "dash" } }));
+    const notes = Object.entries(w.lines).map(([name, x]) => ({ x, y: 1, yref: "paper",
+      text: name.replace(/_/g, " "), showarrow: false, textangle: -90, font: { size: 9, color: "#fff" },
+      xanchor: "right", yanchor: "top" }));
+    Plotly.react(div, [{ type: "heatmap", x: w.x, y, z, colorscale: "Viridis",
+      colorbar: { title: { text: "log10 Nm" } },
+      hovertemplate: "%{x:.2f}: %{customdata:.3g} Nm<extra>%{y}</extra>",
+      customdata: w.amplitude_nm }],
+      { margin: { t: 10, l: 140 }, height: 380, shapes, annotations: notes,
+        xaxis: { title: w.x_unit }, yaxis: { type: "category" } }, { responsive: true });
+  }
+
   async function drawConveyor(holder, conveyor, features) {
     for (const f of features) await trendChart(holder, conveyor, f);
+    await waterfallChart(conveyor);
     const page = await api(`/api/v1/conveyors/${encodeURIComponent(conveyor)}/recordings?limit=1000`);
     const payloads = page.items.map((r) => r.payload_kg).filter((p) => p !== null);
     Plotly.newPlot("payloads", [{ type: "histogram", x: payloads }],

@@ -154,6 +154,11 @@ def test_reading_the_api_needs_a_token_and_pages_through_results(served: Served)
     detail = viewer.get(f"/api/v1/conveyors/{PROFILE.id}").json()
     assert detail["calibration"]["case"] == "several_loads"
     assert "friction" in detail["features"] and detail["recordings"] == 30
+    # the health index: the largest feature deviation, at least 1 with the alarm open
+    assert row["worst_feature"] == "friction" and row["deviation"] > 1.0
+    assert row["health_index"] == pytest.approx(max(1.0, row["deviation"]))
+    assert detail["deviation"] == pytest.approx(row["deviation"], rel=1e-9)
+    assert detail["health_index"] == pytest.approx(row["health_index"], rel=1e-9)
     _error(viewer.get("/api/v1/conveyors/nope"), 404, "not_found")
 
     # cursor pagination, newest first, every result once
@@ -470,6 +475,24 @@ def test_trends_carry_the_monitors_forecast_with_its_band(rising: Served) -> Non
     assert max(hi) >= got["limit"] > mid[0]
     other = viewer.get(f"{base}/trends", params={"feature": "speed_loss"}).json()
     assert other["forecast"] is None
+    # no alarm: the fleet's health index is the worst feature's deviation, below 1
+    (row,) = viewer.get("/api/v1/conveyors").json()
+    assert row["open_alarms"] == [] and row["health"] == "ok"
+    assert row["health_index"] == row["deviation"] == pytest.approx(detail["deviation"])
+    worst = viewer.get(f"{base}/trends", params={"feature": row["worst_feature"]}).json()
+    assert worst["health_index"] == pytest.approx(row["health_index"], rel=1e-9)
+    assert 0.3 < row["health_index"] < 1.0  # friction on its way up
+
+
+def test_the_health_index_of_a_conveyor() -> None:
+    from chaintwin.diagnose.monitor_state import health_index
+
+    assert health_index(None, 0) is None  # learning
+    assert health_index(0.3, 0) == 0.3
+    assert health_index(-0.2, 0) == -0.2  # below the baseline
+    assert health_index(0.3, 2) == 1.0  # an open alarm: at least 1
+    assert health_index(None, 1) == 1.0
+    assert health_index(2.5, 1) == 2.5
 
 
 def test_the_spectrum_waterfall_of_the_latest_recordings(served: Served) -> None:
@@ -618,6 +641,9 @@ def test_in_a_browser_log_in_see_charts_acknowledge_and_a_viewer_refused(
             page.wait_for_url(served.base + "/")
             page.wait_for_selector("#tlf-chart .main-svg")
             assert page.locator("#fleet tbody tr").count() == 1
+            page.wait_for_selector("#health-chart .main-svg")
+            index = float(page.inner_text("#fleet tbody tr .index"))
+            assert index >= 1.0  # the friction alarm is open
             # a recording stored meanwhile (here by ingest, as the live service would)
             # changes the table through the event stream, without a reload
             before = page.inner_text("#fleet tbody tr")

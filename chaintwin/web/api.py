@@ -24,6 +24,7 @@ from fastapi.responses import StreamingResponse
 from pydantic import BaseModel, Field
 
 from chaintwin import __version__
+from chaintwin.diagnose.monitor_state import health_index
 from chaintwin.diagnose.state import acknowledge_alarm, add_maintenance
 from chaintwin.errors import ChaintwinError, StoreError
 from chaintwin.store.access import (
@@ -35,7 +36,7 @@ from chaintwin.store.access import (
 )
 from chaintwin.store.engine import safe_url
 from chaintwin.store.migrate import revision_of
-from chaintwin.store.queries import fleet_rows, recording_by_hash, results_page
+from chaintwin.store.queries import recording_by_hash, results_page
 from chaintwin.web.security import ApiError, Principal, require
 
 __all__ = ["router"]
@@ -220,18 +221,23 @@ async def events(
 
 @router.get("/conveyors", response_model=list[dict[str, Any]])
 def conveyors(request: Request) -> Response:
-    """Each conveyor: health, open alarms, latest payload and TLF, last recording time."""
+    """Each conveyor: health, open alarms, latest payload and TLF, last recording time.
+
+    ``health_index``: the largest normalised deviation of its monitored
+    features from their baseline (``deviation``, of ``worst_feature``: 0 at
+    the baseline, 1 at the alarm limit, the median of the latest 10
+    recordings), at least 1 while an alarm is open; null while learning.
+    Higher is worse.
+    """
     who(request, "viewer")
-    out = []
-    for row in fleet_rows(_web(request).store):
-        if row["open_alarms"]:
-            row["health"] = "alarm"
-        elif row["status"] in (None, "baseline", "learning"):
-            row["health"] = "learning"
-        else:
-            row["health"] = "ok"
-        out.append(row)
-    return fast_json(out)
+    return fast_json(fleet_health(_web(request)).rows(_web(request).store))
+
+
+def fleet_health(web: Any) -> Any:
+    """The process's :class:`~chaintwin.web.fleet.FleetHealth`."""
+    from chaintwin.web.fleet import FleetHealth
+
+    return web.extra.setdefault("fleet_health", FleetHealth())
 
 
 def _conveyor(request: Request, conveyor_id: str, *, bands: bool = False) -> Any:
@@ -348,7 +354,8 @@ def conveyor(request: Request, conveyor_id: str) -> dict[str, Any]:
         "baseline_since": data.baseline_since,
         "summary": data.summary,
         "forecasts": data.forecasts,
-        "health_index": _finite(float(data.health_index)),
+        "health_index": health_index(_finite(float(data.health_index)), len(data.open_alarms())),
+        "deviation": _finite(float(data.health_index)),
         "status": data.status,
         "features": [t.name for t in data.trends],
         "open_alarms": [a.to_dict() for a in data.open_alarms()],

@@ -37,6 +37,17 @@ window.chaintwin = (function () {
     });
   }
 
+  function healthChart(rows) {
+    const have = rows.filter((r) => r.health_index !== null)
+      .sort((a, b) => b.health_index - a.health_index);
+    Plotly.react("health-chart", [{ type: "bar", x: have.map((r) => r.id), y: have.map((r) => r.health_index),
+      text: have.map((r) => r.worst_feature || ""), hovertemplate: "%{x}: %{y:.2f} (%{text})<extra></extra>",
+      marker: { color: have.map((r) => (r.health_index >= 1 ? "#c0392b" : r.health_index >= 0.7 ? "#e67e22" : "#27ae60")) } }],
+      { margin: { t: 10 }, yaxis: { title: "health index" },
+        shapes: [{ type: "line", xref: "paper", x0: 0, x1: 1, y0: 1, y1: 1, line: { dash: "dash", color: "#c0392b" } }] },
+      { responsive: true });
+  }
+
   function tlfChart(rows) {
     const have = rows.filter((r) => r.tlf !== null).sort((a, b) => b.tlf - a.tlf);
     Plotly.react("tlf-chart", [{ type: "bar", x: have.map((r) => r.id), y: have.map((r) => r.tlf) }],
@@ -58,6 +69,9 @@ window.chaintwin = (function () {
 
   function fillRow(tr, row) {
     tr.querySelector(".health").textContent = health(row);
+    const index = tr.querySelector(".index");
+    index.textContent = text(row.health_index, 2);
+    index.title = row.worst_feature || "";
     tr.querySelector(".alarms").textContent =
       row.open_alarms.map((a) => `${a.cause} (${a.feature})`).join(", ");
     tr.querySelector(".payload").textContent = text(row.payload_kg, 1);
@@ -75,7 +89,7 @@ window.chaintwin = (function () {
     a.textContent = row.id;
     first.appendChild(a);
     tr.appendChild(first);
-    ["health", "alarms", "payload", "tlf", "last"].forEach((cls) => {
+    ["health", "index", "alarms", "payload", "tlf", "last"].forEach((cls) => {
       const td = document.createElement("td");
       td.className = cls;
       tr.appendChild(td);
@@ -105,6 +119,7 @@ window.chaintwin = (function () {
         fillRow(tr, row);
       });
       applyFilter();
+      healthChart(rows);
       tlfChart(rows);
       document.getElementById("updated").textContent = new Date().toLocaleTimeString();
     }

@@ -441,6 +441,42 @@ def test_the_event_stream_tells_of_stored_results_and_alarm_changes(
             assert next(_sse(stream.iter_lines()))[0] == "ready"
 
 
+def test_the_fleet_answers_304_until_the_store_changes(served: Served, tmp_path: Path) -> None:
+    viewer, maintainer = served.client("viewer"), served.client("maintainer")
+    first = viewer.get("/api/v1/conveyors")
+    etag = first.headers["etag"]
+    assert first.status_code == 200 and etag.startswith('W/"')
+    assert first.headers["cache-control"] == "no-cache"
+    again = viewer.get("/api/v1/conveyors", headers={"If-None-Match": etag})
+    assert again.status_code == 304 and again.content == b"" and again.headers["etag"] == etag
+    assert viewer.get("/api/v1/conveyors", headers={"If-None-Match": "*"}).status_code == 304
+    other = viewer.get("/api/v1/conveyors", headers={"If-None-Match": 'W/"0.0.0.0"'})
+    assert other.status_code == 200 and other.json() == first.json()
+    # no token: 401 whatever the tag
+    _error(
+        served.client().get("/api/v1/conveyors", headers={"If-None-Match": etag}),
+        401,
+        "unauthorized",
+    )
+    # a stored result changes the tag and the rows
+    new = run_virtual(PROFILE, payload_kg=12.0, seed=777).recording
+    files = [
+        ("files", ("etag.csv", write_recording(new, tmp_path / "e.csv").read_bytes(), "text/csv"))
+    ]
+    assert (
+        maintainer.post("/api/v1/recordings", files=files).json()["files"][0]["status"] == "stored"
+    )
+    changed = viewer.get("/api/v1/conveyors", headers={"If-None-Match": etag})
+    assert changed.status_code == 200 and changed.headers["etag"] != etag
+    assert changed.json() != first.json()  # the new latest result
+    # so does a maintenance event (the health model's version)
+    etag = changed.headers["etag"]
+    body = {"kind": "other", "why": "etag"}
+    assert maintainer.post(f"/api/v1/conveyors/{PROFILE.id}/maintenance", json=body).is_success
+    after = viewer.get("/api/v1/conveyors", headers={"If-None-Match": etag})
+    assert after.status_code == 200 and after.headers["etag"] != etag
+
+
 @pytest.fixture(scope="module")
 def rising(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
     """A conveyor whose friction rises slowly from day 2: forecast, not yet in alarm."""
@@ -501,10 +537,10 @@ def test_the_spectrum_waterfall_of_the_latest_recordings(served: Served) -> None
     w = viewer.get(f"{base}/waterfall", params={"recordings": 5}).json()
     assert w["kind"] == "order" and len(w["x"]) == 400
     assert len(w["recordings"]) + len(w["left_out"]) == 5 and w["recordings"]
-    # the latest recordings, oldest first (the page draws the newest on top)
-    newest = viewer.get(f"{base}/recordings", params={"limit": 5}).json()["items"]
-    ids = [r["recording_id"] for r in reversed(newest)]
-    assert [r["recording_id"] for r in w["recordings"]] == ids[-len(w["recordings"]) :]
+    # the latest recordings monitored, oldest first (the page draws the newest on top)
+    names = [name for _rid, name, _at in served.store.recording_index(PROFILE.id)[-5:]]
+    assert [r["file"] for r in w["recordings"]] == [n for n in names if n not in w["left_out"]]
+    assert all(len(r["recording_id"]) == 64 for r in w["recordings"])
     rows = w["amplitude_nm"]
     assert len(rows) == len(w["recordings"]) and all(len(r) == 400 for r in rows)
     values = [a for r in rows for a in r if a is not None]

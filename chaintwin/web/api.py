@@ -36,7 +36,7 @@ from chaintwin.store.access import (
 )
 from chaintwin.store.engine import safe_url
 from chaintwin.store.migrate import revision_of
-from chaintwin.store.queries import recording_by_hash, results_page
+from chaintwin.store.queries import recording_by_hash, results_page, store_signature
 from chaintwin.web.security import ApiError, Principal, require
 
 __all__ = ["router"]
@@ -219,8 +219,27 @@ async def events(
     )
 
 
-@router.get("/conveyors", response_model=list[dict[str, Any]])
-def conveyors(request: Request) -> Response:
+def fleet_etag(store: Any) -> str:
+    """The fleet's ETag: its store signature (and this version's way of computing it)."""
+    return f'W/"{__version__}-{store_signature(store).id}"'
+
+
+def _matches(if_none_match: str | None, etag: str) -> bool:
+    if if_none_match is None:
+        return False
+    tags = [t.strip() for t in if_none_match.split(",")]
+    return "*" in tags or etag in tags or etag.removeprefix("W/") in tags
+
+
+@router.get(
+    "/conveyors",
+    response_model=list[dict[str, Any]],
+    responses={304: {"description": "Not modified: If-None-Match holds the current ETag"}},
+)
+def conveyors(
+    request: Request,
+    if_none_match: Annotated[str | None, Header(max_length=2000)] = None,
+) -> Response:
     """Each conveyor: health, open alarms, latest payload and TLF, last recording time.
 
     ``health_index``: the largest normalised deviation of its monitored
@@ -228,9 +247,23 @@ def conveyors(request: Request) -> Response:
     the baseline, 1 at the alarm limit, the median of the latest 10
     recordings), at least 1 while an alarm is open; null while learning.
     Higher is worse.
+
+    The response's ``ETag`` changes exactly when the store's results,
+    health models, conveyors or open alarms do: a poll sending it back as
+    ``If-None-Match`` gets 304 without the rows being read (a browser's
+    ``fetch`` does this by itself: the response says ``Cache-Control:
+    no-cache``).
     """
     who(request, "viewer")
-    return fast_json(fleet_health(_web(request)).rows(_web(request).store))
+    store = _web(request).store
+    # the signature first: a change while the rows are read makes the next poll read again
+    etag = fleet_etag(store)
+    headers = {"ETag": etag, "Cache-Control": "no-cache"}
+    if _matches(if_none_match, etag):
+        return Response(status_code=304, headers=headers)
+    out = fast_json(fleet_health(_web(request)).rows(store))
+    out.headers.update(headers)
+    return out
 
 
 def fleet_health(web: Any) -> Any:

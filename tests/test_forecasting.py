@@ -84,3 +84,29 @@ def test_no_rising_trend_no_forecast() -> None:
     flat = 1.0 + rng.normal(0.0, 0.02, 60)
     assert forecast_feature("friction", _times(60), flat, 1.5) is None
     assert forecast_feature("friction", _times(8), flat[:8], 1.5) is None
+
+
+def test_a_forecast_carries_its_band_for_plotting_beside_its_crossings() -> None:
+    rng = np.random.default_rng(1)
+    n = 60
+    values = 1.0 + 0.01 * 0.5 * np.arange(n) + rng.normal(0.0, 0.02, n)
+    fc = forecast_feature("friction", _times(n), values, 1.5)
+    assert fc is not None and fc.band is not None and fc.latest is not None
+    band = fc.band
+    assert band.level == pytest.approx(0.9)
+    assert 2 < len(band.at) <= 120
+    assert list(band.at) == sorted(band.at) and band.at[0] <= _times(n)[-1] + timedelta(days=1)
+    lo, mid, hi = (np.array(x) for x in (band.lower, band.mean, band.upper))
+    assert np.all(lo <= mid + 1e-12) and np.all(mid <= hi + 1e-12)
+    assert np.all(np.diff(hi - lo)[1:] >= -1e-9)  # the interval widens ahead
+    # the band reaches its crossings: the mean at crosses_at, the upper end at earliest,
+    # and it ends where its lower end reaches the limit (latest)
+    at = np.array([(t - T0).total_seconds() for t in band.at])
+
+    def when(series: np.ndarray) -> float:
+        return float(at[np.flatnonzero(series >= 1.5)[0]])
+
+    thin = float(np.max(np.diff(at)))
+    for series, crossing in ((mid, fc.crosses_at), (hi, fc.earliest), (lo, fc.latest)):
+        assert abs(when(series) - (crossing - T0).total_seconds()) <= thin + 1.0
+    assert "band" not in fc.to_dict()  # the monitor's JSON is unchanged

@@ -154,6 +154,11 @@ def test_reading_the_api_needs_a_token_and_pages_through_results(served: Served)
     detail = viewer.get(f"/api/v1/conveyors/{PROFILE.id}").json()
     assert detail["calibration"]["case"] == "several_loads"
     assert "friction" in detail["features"] and detail["recordings"] == 30
+    # the health index: the largest feature deviation, at least 1 with the alarm open
+    assert row["worst_feature"] == "friction" and row["deviation"] > 1.0
+    assert row["health_index"] == pytest.approx(max(1.0, row["deviation"]))
+    assert detail["deviation"] == pytest.approx(row["deviation"], rel=1e-9)
+    assert detail["health_index"] == pytest.approx(row["health_index"], rel=1e-9)
     _error(viewer.get("/api/v1/conveyors/nope"), 404, "not_found")
 
     # cursor pagination, newest first, every result once
@@ -376,6 +381,188 @@ def test_results_without_a_time_come_last_and_page_through(served: Served) -> No
     assert len(dated) == total - untimed
 
 
+def _sse(lines: Iterator[str]) -> Iterator[tuple[str, dict[str, Any]]]:
+    """Events (name, data) from a server-sent event stream's lines (comments skipped)."""
+    name, data = "message", ""
+    for line in lines:
+        if line.startswith("event: "):
+            name = line.removeprefix("event: ")
+        elif line.startswith("data: "):
+            data = line.removeprefix("data: ")
+        elif line == "" and data:
+            yield name, json.loads(data)
+            name, data = "message", ""
+
+
+def test_the_event_stream_tells_of_stored_results_and_alarm_changes(
+    served: Served, fleet: Path, tmp_path: Path
+) -> None:
+    anon = served.client()
+    _error(anon.get("/api/v1/events"), 401, "unauthorized")
+    viewer, maintainer = served.client("viewer"), served.client("maintainer")
+    new = run_virtual(PROFILE, payload_kg=31.0, seed=123).recording
+    new_file = write_recording(new, tmp_path / "late.csv")
+    with viewer.stream("GET", "/api/v1/events") as stream:
+        assert stream.status_code == 200
+        assert stream.headers["content-type"].startswith("text/event-stream")
+        events = _sse(stream.iter_lines())
+        name, ready = next(events)
+        assert name == "ready" and ready["changed"] == []
+        # a second listener shares the one poll of the store
+        with viewer.stream("GET", "/api/v1/events") as other:
+            others = _sse(other.iter_lines())  # kept: a closed iterator closes the stream
+            assert next(others)[0] == "ready"
+            feed = served.app.state.web.extra["feed"]
+            assert feed.listeners == 2
+            polls = feed.polls
+            time.sleep(2.5)
+            assert 1 <= feed.polls - polls <= 4  # once a second, not once per listener
+        files = [("files", ("late.csv", new_file.read_bytes(), "text/csv"))]
+        stored = maintainer.post("/api/v1/recordings", files=files).json()["files"]
+        assert stored[0]["status"] == "stored"
+        name, update = next(events)
+        assert name == "update" and "results" in update["changed"]
+        assert update["results"] > ready["results"] and update["id"] != ready["id"]
+        body = {"kind": "other", "why": "checked after the late recording"}
+        assert maintainer.post(f"/api/v1/conveyors/{PROFILE.id}/maintenance", json=body).is_success
+        name, changed = next(events)
+        assert name == "update" and changed["changed"] == ["alarms"]
+        assert changed["results"] == update["results"]
+    # a browser reconnecting with the last id it saw is told at once what it missed
+    with viewer.stream("GET", "/api/v1/events", headers={"Last-Event-ID": ready["id"]}) as again:
+        name, missed = next(_sse(again.iter_lines()))
+        assert name == "update" and missed["id"] == changed["id"]
+        assert set(missed["changed"]) == {"results", "alarms"}
+    # the session cookie opens the stream too
+    with httpx.Client(base_url=served.base, timeout=30) as browser:
+        browser.post("/login", data={"token": served.tokens["viewer"]})
+        with browser.stream("GET", "/api/v1/events") as stream:
+            assert stream.status_code == 200
+            assert next(_sse(stream.iter_lines()))[0] == "ready"
+
+
+def test_the_fleet_answers_304_until_the_store_changes(served: Served, tmp_path: Path) -> None:
+    viewer, maintainer = served.client("viewer"), served.client("maintainer")
+    first = viewer.get("/api/v1/conveyors")
+    etag = first.headers["etag"]
+    assert first.status_code == 200 and etag.startswith('W/"')
+    assert first.headers["cache-control"] == "no-cache"
+    again = viewer.get("/api/v1/conveyors", headers={"If-None-Match": etag})
+    assert again.status_code == 304 and again.content == b"" and again.headers["etag"] == etag
+    assert viewer.get("/api/v1/conveyors", headers={"If-None-Match": "*"}).status_code == 304
+    other = viewer.get("/api/v1/conveyors", headers={"If-None-Match": 'W/"0.0.0.0"'})
+    assert other.status_code == 200 and other.json() == first.json()
+    # no token: 401 whatever the tag
+    _error(
+        served.client().get("/api/v1/conveyors", headers={"If-None-Match": etag}),
+        401,
+        "unauthorized",
+    )
+    # a stored result changes the tag and the rows
+    new = run_virtual(PROFILE, payload_kg=12.0, seed=777).recording
+    files = [
+        ("files", ("etag.csv", write_recording(new, tmp_path / "e.csv").read_bytes(), "text/csv"))
+    ]
+    assert (
+        maintainer.post("/api/v1/recordings", files=files).json()["files"][0]["status"] == "stored"
+    )
+    changed = viewer.get("/api/v1/conveyors", headers={"If-None-Match": etag})
+    assert changed.status_code == 200 and changed.headers["etag"] != etag
+    assert changed.json() != first.json()  # the new latest result
+    # so does a maintenance event (the health model's version)
+    etag = changed.headers["etag"]
+    body = {"kind": "other", "why": "etag"}
+    assert maintainer.post(f"/api/v1/conveyors/{PROFILE.id}/maintenance", json=body).is_success
+    after = viewer.get("/api/v1/conveyors", headers={"If-None-Match": etag})
+    assert after.status_code == 200 and after.headers["etag"] != etag
+
+
+@pytest.fixture(scope="module")
+def rising(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
+    """A conveyor whose friction rises slowly from day 2: forecast, not yet in alarm."""
+    folder = tmp_path_factory.mktemp("rising")
+    generate(
+        PROFILE, folder, days=6, per_day=5, faults=[Fault("friction", 0.04)], onset_day=2, seed=5
+    )
+    s = Served(f"sqlite:///{tmp_path_factory.mktemp('rising-db') / 'plant.db'}", folder)
+    yield s
+    s.close()
+
+
+def test_trends_carry_the_monitors_forecast_with_its_band(rising: Served) -> None:
+    viewer = rising.client("viewer")
+    base = f"/api/v1/conveyors/{PROFILE.id}"
+    detail = viewer.get(base).json()
+    (forecast,) = [f for f in detail["forecasts"] if f["feature"] == "friction"]
+    assert forecast["crossed"] is False
+    trend = viewer.get(f"{base}/trends", params={"feature": "friction"}).json()
+    # the existing fields stay; the forecast is the monitor's, with its band beside it
+    assert {"points", "expected", "limit", "alarms", "unit", "cause"} <= set(trend)
+    got = trend["forecast"]
+    band = got.pop("band")
+    assert got == forecast
+    assert got["limit"] == pytest.approx(trend["limit"])
+    assert 0.0 < trend["health_index"] < 1.0  # rising, not at the limit yet
+    assert band["level"] == pytest.approx(0.9) and 2 < len(band["at"]) <= 120
+    lo, mid, hi = band["lower"], band["mean"], band["upper"]
+    assert all(a <= b <= c for a, b, c in zip(lo, mid, hi, strict=True))
+    assert band["at"][0] >= trend["points"][-1]["recorded_at"][:10]
+    assert band["at"][0] <= forecast["earliest"] <= forecast["crosses_at"] <= band["at"][-1]
+    assert max(hi) >= got["limit"] > mid[0]
+    other = viewer.get(f"{base}/trends", params={"feature": "speed_loss"}).json()
+    assert other["forecast"] is None
+    # no alarm: the fleet's health index is the worst feature's deviation, below 1
+    (row,) = viewer.get("/api/v1/conveyors").json()
+    assert row["open_alarms"] == [] and row["health"] == "ok"
+    assert row["health_index"] == row["deviation"] == pytest.approx(detail["deviation"])
+    worst = viewer.get(f"{base}/trends", params={"feature": row["worst_feature"]}).json()
+    assert worst["health_index"] == pytest.approx(row["health_index"], rel=1e-9)
+    assert 0.3 < row["health_index"] < 1.0  # friction on its way up
+
+
+def test_the_health_index_of_a_conveyor() -> None:
+    from chaintwin.diagnose.monitor_state import health_index
+
+    assert health_index(None, 0) is None  # learning
+    assert health_index(0.3, 0) == 0.3
+    assert health_index(-0.2, 0) == -0.2  # below the baseline
+    assert health_index(0.3, 2) == 1.0  # an open alarm: at least 1
+    assert health_index(None, 1) == 1.0
+    assert health_index(2.5, 1) == 2.5
+
+
+def test_the_spectrum_waterfall_of_the_latest_recordings(served: Served) -> None:
+    viewer = served.client("viewer")
+    base = f"/api/v1/conveyors/{PROFILE.id}"
+    w = viewer.get(f"{base}/waterfall", params={"recordings": 5}).json()
+    assert w["kind"] == "order" and len(w["x"]) == 400
+    assert len(w["recordings"]) + len(w["left_out"]) == 5 and w["recordings"]
+    # the latest recordings monitored, oldest first (the page draws the newest on top)
+    names = [name for _rid, name, _at in served.store.recording_index(PROFILE.id)[-5:]]
+    assert [r["file"] for r in w["recordings"]] == [n for n in names if n not in w["left_out"]]
+    assert all(len(r["recording_id"]) == 64 for r in w["recordings"])
+    rows = w["amplitude_nm"]
+    assert len(rows) == len(w["recordings"]) and all(len(r) == 400 for r in rows)
+    values = [a for r in rows for a in r if a is not None]
+    assert values and min(values) >= 0.0 and max(values) > 0.0
+    assert w["lines"] and all(0.0 < x < w["x"][-1] + 1.0 for x in w["lines"].values())
+    # downsampled by the largest amplitude per bin: the highest line keeps its height
+    from chaintwin.diagnose.spectra import order_spectrum
+    from chaintwin.store.queries import recording_by_hash
+
+    found = recording_by_hash(served.store, w["recordings"][-1]["recording_id"])
+    assert found is not None
+    sp = order_spectrum(found[1])
+    top = 2 * w["x"][-1] - w["x"][-2]  # the axis' upper edge
+    inside = [float(a) for x, a in zip(sp.x, sp.amplitude, strict=True) if x <= top]
+    assert max(a for a in rows[-1] if a is not None) == pytest.approx(max(inside), rel=1e-9)
+    freq = viewer.get(f"{base}/waterfall", params={"kind": "frequency", "recordings": 3}).json()
+    assert freq["x_unit"] == "Hz" and freq["x"][-1] > w["x"][-1]
+    _error(viewer.get(f"{base}/waterfall", params={"kind": "bad"}), 422, "invalid")
+    _error(viewer.get("/api/v1/conveyors/nope/waterfall"), 404, "not_found")
+    _error(served.client().get(f"{base}/waterfall"), 401, "unauthorized")
+
+
 def test_token_commands(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     db = f"sqlite:///{tmp_path / 't.db'}"
     assert (
@@ -394,6 +581,28 @@ def test_token_commands(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> N
     assert main(["token", "list", "--db", db, "--json"]) == 0
     assert json.loads(capsys.readouterr().out)[0]["active"] is False
     assert main(["token", "revoke", "nope", "--db", db]) == 2
+
+
+def test_in_a_browser_a_trend_shows_its_forecast_band(rising: Served) -> None:
+    """The conveyor page draws the monitor's forecast and its 90 % band on the trend."""
+    if not CHROMIUM.exists():
+        pytest.fail("Chromium not found at /usr/bin/chromium: `make test` installs it")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=str(CHROMIUM))
+        page = browser.new_page()
+        page.goto(rising.base + "/login")
+        page.fill("#token", rising.tokens["viewer"])
+        page.click("form.login button")
+        page.wait_for_url(rising.base + "/")
+        page.goto(f"{rising.base}/conveyors/{PROFILE.id}")
+        chart = "#trends .trend[data-feature=friction]"
+        page.wait_for_selector(f"{chart} .main-svg", timeout=30000)
+        names = page.evaluate(f"document.querySelector('{chart}').data.map((t) => t.name)")
+        assert "forecast" in names and any("90 % band" in n for n in names)
+        assert page.locator("#forecasts tbody tr").count() == 1
+        browser.close()
 
 
 # ------------------------------------------------------------------ property-based
@@ -418,7 +627,12 @@ def test_every_operation_answers_as_its_schema_says(api_schema: Any) -> None:
     """
     from hypothesis import given
 
-    operations = [result.ok() for result in api_schema.get_all_operations()]
+    # the event stream is an endless text/event-stream, tested on its own above
+    operations = [
+        op
+        for result in api_schema.get_all_operations()
+        if (op := result.ok()).path != "/api/v1/events"
+    ]
     assert len(operations) >= 12
     for operation in operations:
 
@@ -463,9 +677,28 @@ def test_in_a_browser_log_in_see_charts_acknowledge_and_a_viewer_refused(
             page.wait_for_url(served.base + "/")
             page.wait_for_selector("#tlf-chart .main-svg")
             assert page.locator("#fleet tbody tr").count() == 1
+            page.wait_for_selector("#health-chart .main-svg")
+            index = float(page.inner_text("#fleet tbody tr .index"))
+            assert index >= 1.0  # the friction alarm is open
+            # a recording stored meanwhile (here by ingest, as the live service would)
+            # changes the table through the event stream, without a reload
+            before = page.inner_text("#fleet tbody tr")
+            page.evaluate("window.notReloaded = true")
+            late = run_virtual(PROFILE, payload_kg=38.0, seed=321).recording
+            late_file = write_recording(late, tmp_path / "late.csv")
+            summary = ingest([str(late_file)], {PROFILE.id: PROFILE}, served.store, workers=1)
+            assert summary.refused == 0
+            page.wait_for_function(
+                "(before) => document.querySelector('#fleet tbody tr').innerText !== before",
+                arg=before,
+                timeout=15000,
+            )
+            assert page.evaluate("window.notReloaded === true && window.chaintwin.updates >= 1")
             page.click(f"#fleet a:text('{PROFILE.id}')")
             page.wait_for_selector("#trends .trend .main-svg", timeout=30000)
             page.wait_for_selector("#latest .main-svg", timeout=30000)
+            page.wait_for_selector("#waterfall .main-svg", timeout=30000)
+            assert page.evaluate("document.getElementById('waterfall').data[0].type") == "heatmap"
             assert page.locator("#trends .trend").count() >= 3
             # acknowledge the open alarm as maintainer
             page.goto(served.base + "/alarms")

@@ -99,6 +99,8 @@ def forecasts(
     history: Sequence[dict[str, Any]],
     since: str,
     z_limit: float,
+    *,
+    bands: bool = False,
 ) -> list[dict[str, Any]]:
     """When each tracked feature's trend crosses its limit (rising trends only).
 
@@ -112,6 +114,9 @@ def forecasts(
         ISO time the baseline dates from; earlier results are left out.
     z_limit : float
         The monitor's z limit.
+    bands : bool
+        Add each forecast's ``band`` (its path and 90 % interval ahead,
+        :class:`~chaintwin.diagnose.health.ForecastBand`; None when crossed).
     """
     out = []
     rows = [
@@ -134,5 +139,8 @@ def forecasts(
         ]
         fc = forecast_feature(name, times, vals, fb.limit(z_limit, spec.min_rel))
         if fc is not None:
-            out.append(fc.to_dict() | {"cause": spec.cause})
+            extra: dict[str, Any] = {"cause": spec.cause}
+            if bands:
+                extra["band"] = None if fc.band is None else fc.band.to_dict()
+            out.append(fc.to_dict() | extra)
     return out

@@ -36,7 +36,7 @@ import numpy as np
 
 from chaintwin._types import FloatArray
 
-from .health import Forecast, in_days
+from .health import Forecast, ForecastBand, in_days
 
 __all__ = [
     "BACKTEST_ORIGINS",
@@ -69,6 +69,9 @@ MAX_P_VALUE = 0.05
 
 WINDOW = 30
 """The models see the last this many even steps (a fault's rise, not the years before it)."""
+
+BAND_POINTS = 120
+"""Most points of a forecast's band kept for plotting."""
 
 
 def resample_even(
@@ -325,6 +328,20 @@ def forecast_feature(
         return None
     earliest = _first_cross(ahead, upper, limit)
     latest = _first_cross(ahead, lower, limit)
+    # the band to where its lower end crosses too (or to twice the mean's crossing)
+    stop = latest if latest is not None else grid[-1] + 2.0 * (cross - grid[-1])
+    keep = ahead <= stop + step
+    days_ahead = np.concatenate(([grid[-1]], ahead[keep]))
+    paths = [np.concatenate(([series[-1]], p[keep])) for p in (mean, lower, upper)]
+    n_band = days_ahead.shape[0]
+    k = np.unique(np.linspace(0, n_band - 1, min(BAND_POINTS, n_band)).round()).astype(np.int64)
+    band = ForecastBand(
+        at=tuple(t0 + float(d) * day for d in days_ahead[k]),
+        mean=tuple(float(v) for v in paths[0][k]),
+        lower=tuple(float(v) for v in paths[1][k]),
+        upper=tuple(float(v) for v in paths[2][k]),
+        level=1.0 - alpha,
+    )
     return Forecast(
         feature=feature,
         limit=limit,
@@ -336,4 +353,5 @@ def forecast_feature(
         model=model,
         backtest_mae=mae,
         last=t0 + float(t[-1]) * day,
+        band=band,
     )

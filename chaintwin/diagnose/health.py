@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from datetime import datetime, timedelta
 from typing import Any
 
@@ -48,6 +48,7 @@ __all__ = [
     "Exceedance",
     "FeatureBaseline",
     "Forecast",
+    "ForecastBand",
     "fit_baseline",
     "forecast_crossing",
     "in_days",
@@ -270,6 +271,37 @@ def x_of_y(exceeded: Sequence[bool], x: int, y: int) -> list[bool]:
 
 
 @dataclass(frozen=True, slots=True)
+class ForecastBand:
+    """A forecast's path: the mean and its prediction interval at times ahead.
+
+    Attributes
+    ----------
+    at : tuple of datetime
+        Times, from the last value of the even series on.
+    mean, lower, upper : tuple of float
+        The forecast mean and the interval's ends, feature units.
+    level : float
+        The interval's level (0.9: 90 %).
+    """
+
+    at: tuple[datetime, ...]
+    mean: tuple[float, ...]
+    lower: tuple[float, ...]
+    upper: tuple[float, ...]
+    level: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: ``at`` as ISO 8601 texts."""
+        return {
+            "at": [t.isoformat() for t in self.at],
+            "mean": list(self.mean),
+            "lower": list(self.lower),
+            "upper": list(self.upper),
+            "level": self.level,
+        }
+
+
+@dataclass(frozen=True, slots=True)
 class Forecast:
     """When a feature's trend crosses its limit."""
 
@@ -290,6 +322,9 @@ class Forecast:
     """The chosen model's backtest mean absolute error, feature units."""
     last: datetime | None = None
     """When the last value was recorded (the remaining life counts from there)."""
+    band: ForecastBand | None = field(default=None, compare=False, repr=False)
+    """The forecast's path with its interval, for plotting (:func:`~chaintwin.diagnose.
+    forecasting.forecast_feature` only, not crossed yet); not part of :meth:`to_dict`."""
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready; with ``remaining_life_days`` (earliest, expected, latest) from ``last``."""

@@ -296,7 +296,11 @@ def _spread(n: int, k: int) -> list[int]:
 
 
 def conveyor_data(
-    store: Store, conveyor: str, *, waterfall: int = WATERFALL_RECORDINGS
+    store: Store,
+    conveyor: str,
+    *,
+    waterfall: int = WATERFALL_RECORDINGS,
+    forecast_bands: bool = False,
 ) -> ConveyorData:
     """Gather a conveyor's page from the store.
 
@@ -308,6 +312,8 @@ def conveyor_data(
         Conveyor id.
     waterfall : int
         Most recordings rebuilt for the spectrum waterfall.
+    forecast_bands : bool
+        The forecasts carry their ``band`` (path and 90 % interval ahead).
 
     Raises
     ------
@@ -338,7 +344,7 @@ def conveyor_data(
     elif state is not None:
         # read what the store holds; the monitor is not rebuilt for a page
         try:
-            health = read_health(state)
+            health = read_health(state, bands=forecast_bands)
             if health.calibration is not None:
                 calibration = health.calibration
         except (ChaintwinError, KeyError, TypeError, ValueError) as exc:

@@ -12,15 +12,28 @@ import json
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import and_, or_, select
+from sqlalchemy import and_, func, or_, select
 from sqlalchemy.orm import Session
 
 from chaintwin.errors import StoreError
 from chaintwin.read.recording import Recording
-from chaintwin.store.schema import AlarmRow, ConveyorRow, RecordingRow, ResultRow
+from chaintwin.store.schema import (
+    AlarmRow,
+    ConveyorRow,
+    MonitorStateRow,
+    RecordingRow,
+    ResultRow,
+)
 from chaintwin.store.store import Store
 
-__all__ = ["Page", "fleet_rows", "recording_by_hash", "results_page"]
+__all__ = [
+    "Page",
+    "Signature",
+    "fleet_rows",
+    "recording_by_hash",
+    "results_page",
+    "store_signature",
+]
 
 _NULL_TIME = ""
 """Sort key of a recording without a time (oldest)."""
@@ -180,3 +193,57 @@ def fleet_rows(store: Store) -> list[dict[str, Any]]:
             }
         )
     return out
+
+
+@dataclass(frozen=True, slots=True)
+class Signature:
+    """What the fleet's pages show has changed exactly when this has.
+
+    Every stored result raises ``results`` (the highest result id); every
+    stored result, acknowledgement and maintenance event raises ``states``
+    (the sum of the health models' versions, each raised by every write of
+    its model); ``conveyors`` and ``open_alarms`` count.
+    """
+
+    results: int
+    states: int
+    conveyors: int
+    open_alarms: int
+
+    @property
+    def id(self) -> str:
+        """A short text of the four numbers (an SSE event id, an ETag)."""
+        return f"{self.results}.{self.states}.{self.conveyors}.{self.open_alarms}"
+
+    def changes(self, before: Signature | None) -> list[str]:
+        """What changed since ``before``: ``results``, ``alarms``, ``conveyors``."""
+        if before is None:
+            return []
+        out = []
+        if self.results != before.results:
+            out.append("results")
+        if self.states != before.states or self.open_alarms != before.open_alarms:
+            out.append("alarms")
+        if self.conveyors != before.conveyors:
+            out.append("conveyors")
+        return out
+
+
+def store_signature(store: Store) -> Signature:
+    """The store's :class:`Signature` in one round trip.
+
+    Cheap at any size: the highest result id is a primary-key seek; the
+    health models, conveyors and alarms are a row per conveyor or alarm.
+    """
+    query = select(
+        select(func.max(ResultRow.id)).scalar_subquery(),
+        select(func.coalesce(func.sum(MonitorStateRow.version), 0)).scalar_subquery(),
+        select(func.count()).select_from(ConveyorRow).scalar_subquery(),
+        select(func.count())
+        .select_from(AlarmRow)
+        .where(AlarmRow.status != "closed")
+        .scalar_subquery(),
+    )
+    with store.engine.connect() as c:
+        results, states, conveyors, open_alarms = c.execute(query).one()
+    return Signature(int(results or 0), int(states or 0), int(conveyors), int(open_alarms))

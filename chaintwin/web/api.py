@@ -18,11 +18,13 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 import orjson
-from fastapi import APIRouter, File, Query, Request, Response, UploadFile
+from fastapi import APIRouter, File, Header, Query, Request, Response, UploadFile
 from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import StreamingResponse
 from pydantic import BaseModel, Field
 
 from chaintwin import __version__
+from chaintwin.diagnose.monitor_state import health_index
 from chaintwin.diagnose.state import acknowledge_alarm, add_maintenance
 from chaintwin.errors import ChaintwinError, StoreError
 from chaintwin.store.access import (
@@ -34,7 +36,7 @@ from chaintwin.store.access import (
 )
 from chaintwin.store.engine import safe_url
 from chaintwin.store.migrate import revision_of
-from chaintwin.store.queries import fleet_rows, recording_by_hash, results_page
+from chaintwin.store.queries import recording_by_hash, results_page, store_signature
 from chaintwin.web.security import ApiError, Principal, require
 
 __all__ = ["router"]
@@ -178,29 +180,106 @@ def fast_json(content: Any) -> Response:
     return Response(orjson.dumps(content), media_type="application/json")
 
 
-@router.get("/conveyors", response_model=list[dict[str, Any]])
-def conveyors(request: Request) -> Response:
-    """Each conveyor: health, open alarms, latest payload and TLF, last recording time."""
+@router.get(
+    "/events",
+    response_class=StreamingResponse,
+    responses={
+        200: {
+            "description": "A server-sent event stream (text/event-stream): `ready` when it "
+            "opens, `update` when results are stored or alarms change; it ends after "
+            "15 s and the browser reconnects",
+            "content": {"text/event-stream": {"schema": {"type": "string"}}},
+        }
+    },
+)
+async def events(
+    request: Request,
+    last_event_id: Annotated[str | None, Header(max_length=100)] = None,
+) -> StreamingResponse:
+    """Server-sent events when the store changes (viewer): the pages refresh on them.
+
+    The store is looked at once a second per server process, for all
+    listeners together; each ``update`` event's data says what changed
+    (``results``, ``alarms``, ``conveyors``) and carries the store's
+    signature (``id``, sent back as ``Last-Event-ID`` on reconnecting).
+    """
     who(request, "viewer")
-    out = []
-    for row in fleet_rows(_web(request).store):
-        if row["open_alarms"]:
-            row["health"] = "alarm"
-        elif row["status"] in (None, "baseline", "learning"):
-            row["health"] = "learning"
-        else:
-            row["health"] = "ok"
-        out.append(row)
-    return fast_json(out)
+    web = _web(request)
+    feed = web.extra.get("feed")
+    if feed is None:
+        from chaintwin.web.events import ChangeFeed
+
+        feed = web.extra.setdefault("feed", ChangeFeed(web.store))
+    from chaintwin.web.events import event_stream
+
+    return StreamingResponse(
+        event_stream(feed, last_event_id),
+        media_type="text/event-stream",
+        headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
+    )
 
 
-def _conveyor(request: Request, conveyor_id: str) -> Any:
+def fleet_etag(store: Any) -> str:
+    """The fleet's ETag: its store signature (and this version's way of computing it)."""
+    return f'W/"{__version__}-{store_signature(store).id}"'
+
+
+def _matches(if_none_match: str | None, etag: str) -> bool:
+    if if_none_match is None:
+        return False
+    tags = [t.strip() for t in if_none_match.split(",")]
+    return "*" in tags or etag in tags or etag.removeprefix("W/") in tags
+
+
+@router.get(
+    "/conveyors",
+    response_model=list[dict[str, Any]],
+    responses={304: {"description": "Not modified: If-None-Match holds the current ETag"}},
+)
+def conveyors(
+    request: Request,
+    if_none_match: Annotated[str | None, Header(max_length=2000)] = None,
+) -> Response:
+    """Each conveyor: health, open alarms, latest payload and TLF, last recording time.
+
+    ``health_index``: the largest normalised deviation of its monitored
+    features from their baseline (``deviation``, of ``worst_feature``: 0 at
+    the baseline, 1 at the alarm limit, the median of the latest 10
+    recordings), at least 1 while an alarm is open; null while learning.
+    Higher is worse.
+
+    The response's ``ETag`` changes exactly when the store's results,
+    health models, conveyors or open alarms do: a poll sending it back as
+    ``If-None-Match`` gets 304 without the rows being read (a browser's
+    ``fetch`` does this by itself: the response says ``Cache-Control:
+    no-cache``).
+    """
+    who(request, "viewer")
+    store = _web(request).store
+    # the signature first: a change while the rows are read makes the next poll read again
+    etag = fleet_etag(store)
+    headers = {"ETag": etag, "Cache-Control": "no-cache"}
+    if _matches(if_none_match, etag):
+        return Response(status_code=304, headers=headers)
+    out = fast_json(fleet_health(_web(request)).rows(store))
+    out.headers.update(headers)
+    return out
+
+
+def fleet_health(web: Any) -> Any:
+    """The process's :class:`~chaintwin.web.fleet.FleetHealth`."""
+    from chaintwin.web.fleet import FleetHealth
+
+    return web.extra.setdefault("fleet_health", FleetHealth())
+
+
+def _conveyor(request: Request, conveyor_id: str, *, bands: bool = False) -> Any:
     from chaintwin.report.data import conveyor_data
 
     store = _web(request).store
     if store.profile(conveyor_id) is None:
         raise ApiError(404, "not_found", f"no conveyor '{conveyor_id}' in the store")
-    return conveyor_data(store, conveyor_id, waterfall=0)
+    return conveyor_data(store, conveyor_id, waterfall=0, forecast_bands=bands)
 
 
 @router.get("/conveyors/{conveyor_id:path}/recordings", response_model=dict[str, Any])
@@ -225,7 +304,7 @@ def recordings(
 def trends(request: Request, conveyor_id: str, feature: str) -> dict[str, Any]:
     """A feature's series with its baseline band and alarm markers."""
     who(request, "viewer")
-    data = _conveyor(request, conveyor_id)
+    data = _conveyor(request, conveyor_id, bands=True)
     trend = next((t for t in data.trends if t.name == feature), None)
     if trend is None:
         names = ", ".join(t.name for t in data.trends) or "none yet"
@@ -245,6 +324,7 @@ def trends(request: Request, conveyor_id: str, feature: str) -> dict[str, Any]:
         for a in data.alarms
         if a.feature == feature
     ]
+    forecast = next((dict(f) for f in data.forecasts if f["feature"] == feature), None)
     return {
         "conveyor": conveyor_id,
         "feature": feature,
@@ -254,7 +334,33 @@ def trends(request: Request, conveyor_id: str, feature: str) -> dict[str, Any]:
         "limit": trend.limit,
         "points": points,
         "alarms": marks,
+        "health_index": _finite(float(trend.health_index())),
+        "forecast": forecast,
     }
+
+
+@router.get("/conveyors/{conveyor_id:path}/waterfall")
+def spectrum_waterfall(
+    request: Request,
+    conveyor_id: str,
+    kind: Literal["order", "frequency"] = "order",
+    recordings: Annotated[int, Query(ge=1, le=100)] = 20,
+) -> dict[str, Any]:
+    """The torque spectra of the latest recordings on one axis (viewer), for a waterfall.
+
+    Computed from the stored samples (order spectrum, or Welch at constant
+    speed for ``kind=frequency``), each downsampled to 400 bins by the
+    largest amplitude per bin; ``lines`` marks where the profile's
+    speed-locked lines appear.
+    """
+    from chaintwin.web.waterfall import SpectrumCache, waterfall
+
+    who(request, "viewer")
+    web = _web(request)
+    if web.store.profile(conveyor_id) is None:
+        raise ApiError(404, "not_found", f"no conveyor '{conveyor_id}' in the store")
+    cache = web.extra.setdefault("spectra", SpectrumCache())
+    return waterfall(web.store, conveyor_id, cache, kind=kind, count=recordings)
 
 
 @router.get("/conveyors/{conveyor_id:path}")
@@ -281,7 +387,8 @@ def conveyor(request: Request, conveyor_id: str) -> dict[str, Any]:
         "baseline_since": data.baseline_since,
         "summary": data.summary,
         "forecasts": data.forecasts,
-        "health_index": _finite(float(data.health_index)),
+        "health_index": health_index(_finite(float(data.health_index)), len(data.open_alarms())),
+        "deviation": _finite(float(data.health_index)),
         "status": data.status,
         "features": [t.name for t in data.trends],
         "open_alarms": [a.to_dict() for a in data.open_alarms()],

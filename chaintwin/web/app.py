@@ -12,6 +12,7 @@ a page answers a missing login with a redirect to ``/login``.
 from __future__ import annotations
 
 import os
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,6 +31,7 @@ from fastapi.responses import (
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.types import ASGIApp, Receive, Scope, Send
 
 from chaintwin import __version__
 from chaintwin.errors import ChaintwinError
@@ -58,6 +60,38 @@ class WebState:
     def principal(self, request: Request) -> Principal | None:
         """Who is asking (None: nobody known)."""
         return principal_of(request, self.store, self.session_key)
+
+
+class UploadLimit:
+    """Refuse an oversized upload from its declared length, before its body is read.
+
+    Parameters
+    ----------
+    app : ASGI app
+        The application it wraps.
+    limit : callable
+        The largest upload request, bytes.
+    refuse : callable
+        The response to an oversized one (413).
+    """
+
+    PATHS = ("/api/v1/recordings", "/upload")
+
+    def __init__(
+        self, app: ASGIApp, limit: Callable[[], int], refuse: Callable[..., Awaitable[Response]]
+    ) -> None:
+        self.app = app
+        self.limit = limit
+        self.refuse = refuse
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] == "http" and scope["method"] == "POST" and scope["path"] in self.PATHS:
+            length = dict(scope["headers"]).get(b"content-length", b"")
+            if length.isdigit() and int(length) > self.limit():
+                response = await self.refuse(Request(scope, receive))
+                await response(scope, receive, send)
+                return
+        await self.app(scope, receive, send)
 
 
 def _static_dirs() -> dict[str, Path]:
@@ -131,26 +165,18 @@ def create_app(
         state.extra["live"] = live
     app.state.web = state
 
-    @app.middleware("http")
-    async def limit_uploads(request: Request, call_next: Any) -> Response:
-        # refuse an oversized upload before its body is read, from its declared length
-        length = request.headers.get("content-length")
-        if (
-            request.method == "POST"
-            and request.url.path in ("/api/v1/recordings", "/upload")
-            and length is not None
-            and length.isdigit()
-            and int(length) > state.max_upload_bytes
-        ):
-            message = (
-                f"the upload is larger than {state.max_upload_bytes / (1024 * 1024):g} MB; "
-                "send fewer files at once"
-            )
-            if _is_api(request):
-                return _error(413, "too_large", message)
-            return pages.error_page(request, 413, message)
-        out: Response = await call_next(request)
-        return out
+    async def too_large(request: Request) -> Response:
+        message = (
+            f"the upload is larger than {state.max_upload_bytes / (1024 * 1024):g} MB; "
+            "send fewer files at once"
+        )
+        if _is_api(request):
+            return _error(413, "too_large", message)
+        return pages.error_page(request, 413, message)
+
+    # a pure ASGI middleware, not @app.middleware: that one's wrapper cancels a
+    # streaming response (the event stream) as soon as its first chunk is sent
+    app.add_middleware(UploadLimit, limit=lambda: state.max_upload_bytes, refuse=too_large)
 
     for name, folder in _static_dirs().items():
         app.mount(f"/static/{name}", StaticFiles(directory=str(folder)), name=f"static-{name}")

@@ -27,7 +27,6 @@ from chaintwin.store.access import (
     role_at_least,
     verify_token,
 )
-from chaintwin.store.queries import fleet_rows
 from chaintwin.web.api import acknowledge_as, ingest_uploads, maintenance_as, read_uploads
 from chaintwin.web.security import COOKIE, SESSION_SECONDS, Principal, make_session_cookie, require
 
@@ -112,8 +111,11 @@ def logout(request: Request, csrf: Annotated[str, Form()] = "") -> Response:
 @router.get("/", response_class=HTMLResponse)
 def fleet(request: Request) -> HTMLResponse:
     """The fleet: health, open alarms, TLF ranking; refreshes itself."""
+    from chaintwin.web.api import fleet_health
+
     p = _viewer(request)
-    rows = fleet_rows(_web(request).store)
+    web = _web(request)
+    rows = fleet_health(web).rows(web.store)
     return _render(request, "fleet.html.j2", p, rows=rows)
 
 

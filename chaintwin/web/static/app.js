@@ -37,40 +37,94 @@ window.chaintwin = (function () {
     });
   }
 
+  function healthChart(rows) {
+    const have = rows.filter((r) => r.health_index !== null)
+      .sort((a, b) => b.health_index - a.health_index);
+    Plotly.react("health-chart", [{ type: "bar", x: have.map((r) => r.id), y: have.map((r) => r.health_index),
+      text: have.map((r) => r.worst_feature || ""), hovertemplate: "%{x}: %{y:.2f} (%{text})<extra></extra>",
+      marker: { color: have.map((r) => (r.health_index >= 1 ? "#c0392b" : r.health_index >= 0.7 ? "#e67e22" : "#27ae60")) } }],
+      { margin: { t: 10 }, yaxis: { title: "health index" },
+        shapes: [{ type: "line", xref: "paper", x0: 0, x1: 1, y0: 1, y1: 1, line: { dash: "dash", color: "#c0392b" } }] },
+      { responsive: true });
+  }
+
   function tlfChart(rows) {
     const have = rows.filter((r) => r.tlf !== null).sort((a, b) => b.tlf - a.tlf);
     Plotly.react("tlf-chart", [{ type: "bar", x: have.map((r) => r.id), y: have.map((r) => r.tlf) }],
       { margin: { t: 10 }, yaxis: { title: "TLF" } }, { responsive: true });
   }
 
+  // Refresh on the server's events (GET /api/v1/events); poll every 30 s if they cannot come.
+  function live(onUpdate) {
+    let timer = null;
+    const fallback = () => { if (timer === null) timer = setInterval(onUpdate, 30000); };
+    if (!window.EventSource) { fallback(); return; }
+    const source = new EventSource("/api/v1/events");
+    source.addEventListener("update", (e) => {
+      window.chaintwin.updates += 1;
+      onUpdate(JSON.parse(e.data));
+    });
+    source.onerror = () => { if (source.readyState === EventSource.CLOSED) fallback(); };
+  }
+
+  function fillRow(tr, row) {
+    tr.querySelector(".health").textContent = health(row);
+    const index = tr.querySelector(".index");
+    index.textContent = text(row.health_index, 2);
+    index.title = row.worst_feature || "";
+    tr.querySelector(".alarms").textContent =
+      row.open_alarms.map((a) => `${a.cause} (${a.feature})`).join(", ");
+    tr.querySelector(".payload").textContent = text(row.payload_kg, 1);
+    tr.querySelector(".tlf").textContent = text(row.tlf, 3);
+    tr.querySelector(".last").textContent = row.last_recorded_at || "\u2013";
+  }
+
+  function newRow(row) {
+    // built from text nodes: an id holding markup stays text
+    const tr = document.createElement("tr");
+    tr.dataset.id = row.id;
+    const first = document.createElement("td");
+    const a = document.createElement("a");
+    a.href = "/conveyors/" + encodeURIComponent(row.id);
+    a.textContent = row.id;
+    first.appendChild(a);
+    tr.appendChild(first);
+    ["health", "index", "alarms", "payload", "tlf", "last"].forEach((cls) => {
+      const td = document.createElement("td");
+      td.className = cls;
+      tr.appendChild(td);
+    });
+    return tr;
+  }
+
   async function fleetPage() {
     const table = document.getElementById("fleet");
     sortable(table);
     const filter = document.getElementById("filter");
-    filter.addEventListener("input", () => {
+    const applyFilter = () => {
       const q = filter.value.toLowerCase();
       Array.from(table.tBodies[0].rows).forEach((r) => {
         r.hidden = !r.textContent.toLowerCase().includes(q);
       });
-    });
+    };
+    filter.addEventListener("input", applyFilter);
     async function refresh() {
       const rows = await api("/api/v1/conveyors");
       if (!rows) return;
-      const byId = new Map(Array.from(table.tBodies[0].rows).map((r) => [r.dataset.id, r]));
+      const body = table.tBodies[0];
+      const byId = new Map(Array.from(body.rows).map((r) => [r.dataset.id, r]));
       rows.forEach((row) => {
-        const tr = byId.get(row.id);
-        if (!tr) { window.location.reload(); return; }  // a new conveyor: the whole table
-        tr.querySelector(".health").textContent = health(row);
-        tr.querySelector(".alarms").textContent =
-          row.open_alarms.map((a) => `${a.cause} (${a.feature})`).join(", ");
-        tr.querySelector(".payload").textContent = text(row.payload_kg, 1);
-        tr.querySelector(".tlf").textContent = text(row.tlf, 3);
-        tr.querySelector(".last").textContent = row.last_recorded_at || "\u2013";
+        let tr = byId.get(row.id);
+        if (!tr) { tr = newRow(row); body.appendChild(tr); }
+        fillRow(tr, row);
       });
+      applyFilter();
+      healthChart(rows);
       tlfChart(rows);
+      document.getElementById("updated").textContent = new Date().toLocaleTimeString();
     }
     await refresh();
-    setInterval(refresh, 10000);
+    live(refresh);
   }
 
   async function trendChart(holder, conveyor, feature) {
@@ -88,6 +142,24 @@ window.chaintwin = (function () {
         name: "alarm limit", line: { dash: "dash", color: "#c0392b" } });
       shapes.push({ type: "rect", xref: "paper", x0: 0, x1: 1, y0: t.expected, y1: t.limit,
         fillcolor: "rgba(46, 204, 113, 0.12)", line: { width: 0 } });
+    }
+    const f = t.forecast;
+    if (f && f.band && f.band.at.length) {
+      // the forecast's 90 % band (upper, then lower filled to it), its mean, and its crossings
+      const b = f.band;
+      const pct = Math.round(100 * b.level);
+      traces.push({ x: b.at, y: b.upper, mode: "lines", line: { width: 0 }, hoverinfo: "skip",
+        name: `${pct} % band` });
+      traces.push({ x: b.at, y: b.lower, mode: "lines", line: { width: 0 }, fill: "tonexty",
+        fillcolor: "rgba(230, 126, 34, 0.25)", name: `forecast ${pct} % band (${f.model})` });
+      traces.push({ x: b.at, y: b.mean, mode: "lines", line: { dash: "dot", color: "#e67e22" },
+        name: "forecast" });
+      traces.push({ x: [b.at[0], b.at[b.at.length - 1]], y: [f.limit, f.limit], mode: "lines",
+        line: { dash: "dash", color: "#c0392b" }, name: "alarm limit", showlegend: false });
+      [["earliest", f.earliest], ["crosses", f.crosses_at], ["latest", f.latest]].forEach(([n, at]) => {
+        if (at) shapes.push({ type: "line", x0: at, x1: at, yref: "paper", y0: 0, y1: 1,
+          line: { color: "#e67e22", width: 1, dash: n === "crosses" ? "solid" : "dot" } });
+      });
     }
     t.alarms.forEach((a) => {
       if (a.since) shapes.push({ type: "line", x0: a.since, x1: a.since, yref: "paper", y0: 0, y1: 1,
@@ -107,19 +179,40 @@ window.chaintwin = (function () {
     };
     let shown = await newest();
     await drawConveyor(holder, conveyor, features);
-    // redraw when a new recording is stored (polling, no full reload)
-    setInterval(async () => {
+    // redraw when a new recording of this conveyor is stored (no full reload)
+    live(async () => {
       const now = await newest();
       if (now !== shown) {
         shown = now;
         holder.replaceChildren();
         await drawConveyor(holder, conveyor, features);
       }
-    }, 15000);
+    });
+  }
+
+  async function waterfallChart(conveyor) {
+    const w = await api(`/api/v1/conveyors/${encodeURIComponent(conveyor)}/waterfall?recordings=20`);
+    const div = document.getElementById("waterfall");
+    if (!w || !w.recordings.length) { div.textContent = "No spectra yet."; return; }
+    const y = w.recordings.map((r, k) =>
+      r.recorded_at ? `${r.recorded_at.slice(0, 16).replace("T", " ")} #${k + 1}` : `#${k + 1} ${r.file}`);
+    const z = w.amplitude_nm.map((row) => row.map((a) => (a && a > 0 ? Math.log10(a) : null)));
+    const shapes = Object.entries(w.lines).map(([name, x]) => ({ type: "line", x0: x, x1: x,
+      yref: "paper", y0: 0, y1: 1, line: { color: "white", width: 1, dash: "dash" } }));
+    const notes = Object.entries(w.lines).map(([name, x]) => ({ x, y: 1, yref: "paper",
+      text: name.replace(/_/g, " "), showarrow: false, textangle: -90, font: { size: 9, color: "#fff" },
+      xanchor: "right", yanchor: "top" }));
+    Plotly.react(div, [{ type: "heatmap", x: w.x, y, z, colorscale: "Viridis",
+      colorbar: { title: { text: "log10 Nm" } },
+      hovertemplate: "%{x:.2f}: %{customdata:.3g} Nm<extra>%{y}</extra>",
+      customdata: w.amplitude_nm }],
+      { margin: { t: 10, l: 140 }, height: 380, shapes, annotations: notes,
+        xaxis: { title: w.x_unit }, yaxis: { type: "category" } }, { responsive: true });
   }
 
   async function drawConveyor(holder, conveyor, features) {
     for (const f of features) await trendChart(holder, conveyor, f);
+    await waterfallChart(conveyor);
     const page = await api(`/api/v1/conveyors/${encodeURIComponent(conveyor)}/recordings?limit=1000`);
     const payloads = page.items.map((r) => r.payload_kg).filter((p) => p !== null);
     Plotly.newPlot("payloads", [{ type: "histogram", x: payloads }],
@@ -136,5 +229,5 @@ window.chaintwin = (function () {
     }
   }
 
-  return { fleetPage, conveyorPage };
+  return { fleetPage, conveyorPage, updates: 0 };
 })();

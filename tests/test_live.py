@@ -592,11 +592,48 @@ def test_submit_stores_a_drives_recording_once_and_records_a_refusal(
         ("opcua:ghost-belt:7", "refused"),
     ]
     assert count(url, RecordingRow) == 1
-    assert store.results(PROFILE.id)[0]["status"] != "refused"
+    result = store.results(PROFILE.id)[0]
+    assert result["status"] != "refused"
+    # stored and shown under the drive's stable name, not the spool file's
+    assert result["file"] == "opcua://white-belt-01/1"
     with Session(store.engine) as s:
+        assert s.scalars(select(RecordingRow.file)).one() == "opcua://white-belt-01/1"
         row = s.scalars(select(RefusedFileRow)).one()
-    assert row.path == "opcua:ghost-belt:7" and row.source == "opcua:ghost-belt:7"
+    assert row.path == "opcua://ghost-belt/7" and row.source == "opcua:ghost-belt:7"
     assert "ghost-belt" in row.reason and "/chaintwin-spool-" not in row.reason
+    store.close()
+
+
+def test_stored_name_of_a_drives_scope() -> None:
+    from chaintwin.live.sources import stored_name
+
+    assert stored_name("opcua:white-belt-01:1234") == "opcua://white-belt-01/1234"
+    assert stored_name("folder:/data/in") == "folder:/data/in"
+    assert stored_name("opcua:white-belt-01") == "opcua:white-belt-01"
+
+
+def test_ingest_names_a_file_as_asked_in_the_store_results_and_refusals(
+    fleet: Path, tmp_path: Path
+) -> None:
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    calibrated(url, fleet)
+    store = Store(url)
+    good, bad = recordings(fleet)[0], tmp_path / "bad.csv"
+    bad.write_text("not a recording\n")
+    summary = ingest(
+        [str(good), str(bad)],
+        {PROFILE.id: PROFILE},
+        store,
+        workers=1,
+        names={str(good): "opcua://white-belt-01/5", str(bad): "opcua://white-belt-01/6"},
+    )
+    assert summary.processed == 1 and summary.refused == 1
+    assert store.results(PROFILE.id)[0]["file"] == "opcua://white-belt-01/5"
+    with Session(store.engine) as s:
+        assert s.scalars(select(RecordingRow.file)).one() == "opcua://white-belt-01/5"
+    (refusal,) = summary.refusals
+    assert refusal["file"] == "opcua://white-belt-01/6"
+    assert str(bad) not in refusal["error"] and "opcua://white-belt-01/6" in refusal["error"]
     store.close()
 
 

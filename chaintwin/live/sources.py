@@ -42,6 +42,7 @@ __all__ = [
     "Job",
     "Outcome",
     "Submit",
+    "stored_name",
 ]
 
 log = logging.getLogger("chaintwin.live")
@@ -72,6 +73,22 @@ class DriveStatusLike(Protocol):
     def drives(self) -> Mapping[str, DriveStateLike]:
         """Each drive's state by conveyor id."""
         ...
+
+
+def stored_name(source_key: str) -> str:
+    """The stable name a live source's recording is stored and shown under.
+
+    A drive's scope (``opcua:<conveyor>:<counter>``) becomes
+    ``opcua://<conveyor>/<counter>``: the store's ``file`` column, the
+    results, the refusals and the log name the drive and the scope, not the
+    spool file it passed through. Other keys are kept as they are.
+    """
+    kind, sep, rest = source_key.partition(":")
+    if kind == "opcua" and sep:
+        conveyor, sep2, counter = rest.rpartition(":")
+        if sep2 and conveyor:
+            return f"opcua://{conveyor}/{counter}"
+    return source_key
 
 
 Status = Literal["stored", "waiting", "already_stored", "refused", "gone", "failed"]
@@ -107,6 +124,12 @@ class Job:
     done: asyncio.Future[Outcome] | None = None
     spooled: bool = False
     """A file this service wrote (a drive's recording): removed once ingested."""
+
+    @property
+    def name(self) -> str:
+        """What the recording is stored and shown as: the file's path, or for a
+        spooled recording its source's stable name (:func:`stored_name`)."""
+        return stored_name(self.source) if self.spooled else self.path
 
 
 _SAFE = re.compile(r"[^A-Za-z0-9._-]+")
@@ -179,7 +202,7 @@ class Ingestor:
             )
             digest = hashlib.sha256(f"{source_key}\n{reason}".encode()).hexdigest()
             await asyncio.to_thread(
-                record_refusal, self.store, digest, source_key, source_key, reason
+                record_refusal, self.store, digest, stored_name(source_key), source_key, reason
             )
             if self.on_outcome is not None:
                 self.on_outcome(
@@ -250,22 +273,25 @@ class Ingestor:
             if is_refused(self.store, sha):
                 return Outcome("refused", sha, "refused before (unchanged since)")
             summary = ingest(
-                [job.path], self.profiles_for(), self.store, settings=self.settings, workers=1
+                [job.path],
+                self.profiles_for(),
+                self.store,
+                settings=self.settings,
+                workers=1,
+                names={job.path: job.name} if job.spooled else None,
             )
             seconds = time.monotonic() - job.ready_at
             if summary.refusals:
                 reason = summary.refusals[0]["error"]
                 if job.spooled:
-                    reason = reason.replace(job.path, job.source)
+                    reason = reason.replace(job.path, job.name)
                 log.warning(
                     "refused %s: %s",
-                    job.source if job.spooled else job.path,
+                    job.name,
                     reason,
-                    extra={"source": job.source, "file": job.path, "reason": reason},
+                    extra={"source": job.source, "file": job.name, "reason": reason},
                 )
-                record_refusal(
-                    self.store, sha, job.source if job.spooled else job.path, job.source, reason
-                )
+                record_refusal(self.store, sha, job.name, job.source, reason)
                 return Outcome("refused", sha, reason, seconds)
             if summary.duplicates:
                 return Outcome("already_stored", sha, None, seconds)
@@ -273,11 +299,11 @@ class Ingestor:
             log.info(
                 "%s %s in %.3f s",
                 status,
-                job.source if job.spooled else job.path,
+                job.name,
                 seconds,
                 extra={
                     "source": job.source,
-                    "file": job.path,
+                    "file": job.name,
                     "status": status,
                     "seconds": seconds,
                 },

@@ -27,9 +27,9 @@ from __future__ import annotations
 import os
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from typing import Any
 
@@ -320,8 +320,10 @@ class _Batch:
         column_map: ColumnMap | None,
         summary: IngestSummary,
         tick: Callable[[], None],
+        names: Mapping[str, str] | None = None,
     ) -> None:
         self.ex = ex
+        self.names = dict(names or {})
         self.profiles = profiles
         self.store = store
         self.window = window
@@ -420,7 +422,10 @@ class _Batch:
     def _refuse(self, f: str, error: str) -> None:
         self.tick()
         self.summary.refused += 1
-        self.summary.refusals.append({"file": f, "error": error})
+        name = self.names.get(f)
+        if name is not None:
+            error = error.replace(f, name)
+        self.summary.refusals.append({"file": name or f, "error": error})
 
     def _plan(self) -> None:
         """All is scanned: each conveyor's recorded order; the rest is sent in it."""
@@ -492,8 +497,13 @@ class _Batch:
                 self._refuse(f, prepared.error or "refused")
                 continue
             self.tick()
+            rec = prepared.recording
             if f in self.undated:
-                prepared = prepared._replace(recording=undated(prepared.recording))
+                rec = undated(rec)
+            if f in self.names:  # stored and reported under its name, not its path
+                rec = replace(rec, source=self.names[f])
+            if rec is not prepared.recording:
+                prepared = prepared._replace(recording=rec)
             conv.take(prepared, self.sha[f], cal)
         if not order:
             del self.untaken[cid]
@@ -520,6 +530,7 @@ def ingest(
     column_map: ColumnMap | None = None,
     progress: Callable[[int, int], None] | None = None,
     commit_group: int = COMMIT_GROUP,
+    names: Mapping[str, str] | None = None,
 ) -> IngestSummary:
     """Run the whole pipeline over recordings into the store.
 
@@ -543,6 +554,11 @@ def ingest(
         Called with (done, total).
     commit_group : int
         Most recordings stored in one transaction (1: each on its own).
+    names : mapping, optional
+        The name a file is stored and reported under, by its path as given
+        (the store's ``file`` column, the results' ``file``, the refusals);
+        default the path itself. The live service names a drive's recording,
+        spooled to a temporary file, ``opcua://<conveyor>/<counter>``.
 
     Returns
     -------
@@ -587,6 +603,7 @@ def ingest(
                 column_map,
                 summary,
                 tick,
+                names,
             ).run()
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM through the command line
         exc.add_note(

@@ -449,7 +449,7 @@ def test_serve_refuses_an_old_store_naming_db_upgrade_then_upgraded_it_runs(
     capsys.readouterr()
     engine = engine_for(db)
     with engine.connect() as c:
-        assert migrate.revision_of(c) == "0004" == migrate.HEAD_REVISION
+        assert migrate.revision_of(c) == "0005" == migrate.HEAD_REVISION
         # the new tables, empty: an upgraded store does not notify its past alarms
         for table in ("refused_files", "outbox", "outbox_deliveries", "live_sources", "leases"):
             assert c.execute(text(f"SELECT COUNT(*) FROM {table}")).scalar() == 0
@@ -733,3 +733,130 @@ def test_serve_refuses_bad_options_in_one_line(
     assert code == 2
     assert says in err and len(err.strip().splitlines()) == 1
     assert not db.exists()  # refused before the store is touched
+
+
+def test_files_refused_for_want_of_a_profile_are_read_again_when_it_is_added(
+    fleet: Path, tmp_path: Path
+) -> None:
+    """The profiles folder is followed: a profile added reads the files it was missing."""
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    Store(url).close()  # no profile in the store either
+    watched, profiles = tmp_path / "drop", tmp_path / "profiles"
+    watched.mkdir()
+    profiles.mkdir()
+    shutil.copy(PROFILES / "short-fast-03.yaml", profiles)  # not white-belt-01's
+    service = Service(
+        [
+            "--db", url, "--watch", str(watched), "--profiles", str(profiles),
+            "--settle-s", "0.3", "--no-web", "--log-json",
+        ],
+        tmp_path / "serve.log",
+    )  # fmt: skip
+    try:
+        files = recordings(fleet)[:2]
+        for f in files:
+            shutil.copy(f, watched / f.name)
+        (watched / "notes.csv").write_text("not a recording\n")
+        wait_for(lambda: count(url, RefusedFileRow) == 3, 60, "three files refused", service)
+        engine = engine_for(url)
+        with Session(engine) as s:
+            rows = {Path(r.path).name: r for r in s.scalars(select(RefusedFileRow))}
+        engine.dispose()
+        assert {rows[f.name].cause for f in files} == {"profile"}
+        assert {rows[f.name].conveyor for f in files} == {PROFILE.id}
+        assert rows["notes.csv"].cause == "recording"
+        # a profile that does not load: said in one line, nothing read again
+        (profiles / "white-belt-01.yaml").write_text("id: white-belt-01\nbelt: [\n")
+        wait_for(
+            lambda: any("not valid YAML" in line for line in service.lines()),
+            30,
+            "the bad profile said",
+            service,
+        )
+        assert count(url, RefusedFileRow) == 3
+        # fixed: the two recordings are read again and stored; the bad file stays refused
+        (profiles / "white-belt-01.yaml").write_text(REFERENCE_PROFILE.read_text())
+        wait_for(stored(url, [sha(f) for f in files]), 60, "the two stored", service)
+        wait_for(lambda: count(url, RefusedFileRow) == 1, 30, "their refusals gone", service)
+        assert any("reading" in line and "again" in line for line in service.lines())
+    finally:
+        code = service.stop()
+    assert code == 0, service.lines()[-5:]
+    assert count(url, RecordingRow) == 2
+
+
+def test_a_profile_added_while_the_service_was_down_reads_the_refused_files_at_start(
+    fleet: Path, tmp_path: Path
+) -> None:
+    from chaintwin.live.sources import Ingestor, Job
+
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    Store(url).close()  # no profile in the store either
+    store = Store(url)
+    f = recordings(fleet)[0]
+    refused = Ingestor(store, {}).ingest_one(Job(str(f), "folder:x"))
+    assert refused.status == "refused" and refused.cause == "profile"
+    store.close()
+    service = Service(
+        ["--db", url, "--profiles", str(PROFILES), "--no-web"], tmp_path / "serve.log"
+    )
+    try:
+        wait_for(stored(url, [sha(f)]), 60, "the refused file stored at start", service)
+    finally:
+        assert service.stop() == 0
+    assert count(url, RefusedFileRow) == 0
+
+
+def test_refused_list_and_retry_commands(
+    fleet: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from chaintwin.live.ledger import record_refusal
+    from chaintwin.live.sources import Ingestor, Job
+
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    Store(url).close()  # no profile in the store either
+    store = Store(url)
+    good = [str(f) for f in recordings(fleet)[:2]]
+    bad = tmp_path / "notes.csv"
+    bad.write_text("not a recording\n")
+    ingestor = Ingestor(store, {})
+    for f in [*good, str(bad)]:
+        assert ingestor.ingest_one(Job(f, "folder:x")).status == "refused"
+    ingestor.close()
+    record_refusal(store, "f" * 64, "opcua://ghost-belt/7", "opcua:ghost-belt:7", "no profile")
+    store.close()
+
+    assert main(["refused", "list", "--db", url, "--json"]) == 0
+    listed = json.loads(capsys.readouterr().out)
+    assert [(r["path"], r["cause"], r["conveyor"]) for r in listed] == [
+        (good[0], "profile", PROFILE.id),
+        (good[1], "profile", PROFILE.id),
+        (str(bad), "recording", None),
+        ("opcua://ghost-belt/7", "recording", None),
+    ]
+    assert "has no 'conveyor'" in listed[2]["reason"]
+    assert main(["refused", "list", "--db", url]) == 0
+    assert "chaintwin refused files (4)" in capsys.readouterr().out
+
+    # not among them: one line, exit 2
+    assert main(["refused", "retry", "--db", url, str(tmp_path / "other.csv")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "other.csv" in err and "refused list" in err
+
+    # one file, with its profile now: stored, its refusal gone
+    args = ["refused", "retry", "--db", url, "--profiles", str(PROFILES), "--json", good[0]]
+    assert main(args) == 0
+    # (stored waiting for the conveyor's calibration: this store has none yet)
+    assert json.loads(capsys.readouterr().out) == [
+        {"path": good[0], "status": "waiting", "reason": None}
+    ]
+    # all the others: one stored, the bad file refused again, the scope not kept
+    assert main(["refused", "retry", "--db", url, "--profiles", str(PROFILES), "--json"]) == 0
+    done = {d["path"]: d for d in json.loads(capsys.readouterr().out)}
+    assert done[good[1]]["status"] == "waiting"
+    assert done[str(bad)]["status"] == "refused" and "conveyor" in done[str(bad)]["reason"]
+    assert done["opcua://ghost-belt/7"]["status"] == "not_kept"
+    assert main(["refused", "list", "--db", url, "--json"]) == 0
+    left = [r["path"] for r in json.loads(capsys.readouterr().out)]
+    assert sorted(left) == sorted([str(bad), "opcua://ghost-belt/7"])
+    assert count(url, RecordingRow) == 2

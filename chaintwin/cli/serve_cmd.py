@@ -110,6 +110,7 @@ def serve(
         public_url=live.public_url or f"{scheme}://{host}:{port}",
         keep_samples_days=live.keep_samples_days,
         lease_s=live.lease_s,
+        profiles_dir=profiles,
     )
     try:
 

@@ -111,6 +111,8 @@ class Outcome:
     reason: str | None = None
     seconds: float = 0.0
     """Time from the recording being complete to its result stored, s."""
+    cause: str | None = None
+    """A refusal's cause: ``profile`` or ``recording`` (see :func:`~.ledger.record_refusal`)."""
 
 
 @dataclass
@@ -246,6 +248,31 @@ class Ingestor:
             if job.done is not None and not job.done.done():
                 job.done.cancel()
 
+    def set_profiles(self, profiles: Mapping[str, ConveyorProfile]) -> None:
+        """Ingest with these profiles from now on (``--profiles`` read again)."""
+        self.profiles = dict(profiles)
+        self._profiles_at = -1e9  # the store's again too
+
+    def _cause(self, job: Job, profile_refused: bool) -> tuple[str, str | None]:
+        """Why a file was refused: ``(cause, conveyor)`` (see :func:`~.ledger.record_refusal`).
+
+        ``profile`` when the conveyor the file names has no profile (adding
+        one fixes it), or the store monitors it with another profile;
+        ``recording`` otherwise.
+        """
+        from chaintwin.read.reader import parse_metadata
+
+        try:
+            conveyor = parse_metadata(Path(job.path).read_bytes(), job.name).conveyor
+        except (ChaintwinError, OSError):
+            return "recording", None
+        profiles = self.profiles_for()
+        if conveyor is None and len(profiles) == 1:
+            conveyor = next(iter(profiles))  # as ingest takes it
+        if conveyor is not None and (profile_refused or conveyor not in profiles):
+            return "profile", conveyor
+        return "recording", conveyor
+
     def profiles_for(self) -> dict[str, ConveyorProfile]:
         """The profiles to ingest with: the store's, and ``--profiles`` over them."""
         if time.monotonic() - self._profiles_at > self.PROFILES_REFRESH_S:
@@ -291,8 +318,11 @@ class Ingestor:
                     reason,
                     extra={"source": job.source, "file": job.name, "reason": reason},
                 )
-                record_refusal(self.store, sha, job.name, job.source, reason)
-                return Outcome("refused", sha, reason, seconds)
+                cause, conveyor = self._cause(job, job.name in summary.profile_refused)
+                record_refusal(
+                    self.store, sha, job.name, job.source, reason, cause=cause, conveyor=conveyor
+                )
+                return Outcome("refused", sha, reason, seconds, cause)
             if summary.duplicates:
                 return Outcome("already_stored", sha, None, seconds)
             status: Status = "waiting" if summary.waiting else "stored"

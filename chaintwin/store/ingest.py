@@ -72,6 +72,9 @@ class IngestSummary:
     """Stored without a result: held back until the conveyor's calibration is learned."""
     refusals: list[dict[str, str]] = field(default_factory=list)
     seconds: float = 0.0
+    profile_refused: set[str] = field(default_factory=set)
+    """Files (as named in ``refusals``) refused because the store monitors their
+    conveyor with another profile: a matter of the profile, not of the file."""
 
     def to_dict(self) -> dict[str, Any]:
         """The ``ingest --json`` object."""
@@ -414,18 +417,20 @@ class _Batch:
                 self.seen.add(item.sha256)
                 self.sha[item.path] = item.sha256
                 if cid in self.why:
-                    self._refuse(item.path, self.why[cid])
+                    self._refuse(item.path, self.why[cid], profile=True)
                     continue
                 self.found.setdefault(cid, []).append(item)
                 self.unsent.append((cid, item.path))
 
-    def _refuse(self, f: str, error: str) -> None:
+    def _refuse(self, f: str, error: str, *, profile: bool = False) -> None:
         self.tick()
         self.summary.refused += 1
         name = self.names.get(f)
         if name is not None:
             error = error.replace(f, name)
         self.summary.refusals.append({"file": name or f, "error": error})
+        if profile:
+            self.summary.profile_refused.add(name or f)
 
     def _plan(self) -> None:
         """All is scanned: each conveyor's recorded order; the rest is sent in it."""
@@ -450,7 +455,7 @@ class _Batch:
             self.why[cid] = str(exc)
         # nothing of it was sent yet: all its files are refused
         for _, f in (x for x in self.unsent if x[0] == cid):
-            self._refuse(f, self.why[cid])
+            self._refuse(f, self.why[cid], profile=True)
         self.unsent = deque(x for x in self.unsent if x[0] != cid)
         if self.untaken:  # planned: what is left to send is known
             self.window.left = len(self.unsent)

@@ -860,3 +860,197 @@ def test_refused_list_and_retry_commands(
     left = [r["path"] for r in json.loads(capsys.readouterr().out)]
     assert sorted(left) == sorted([str(bad), "opcua://ghost-belt/7"])
     assert count(url, RecordingRow) == 2
+
+
+class MailReceiver:
+    """A real SMTP server (aiosmtpd) that answers 451 to the first ``fail_first`` messages
+    and asks for a login."""
+
+    def __init__(self, fail_first: int, user: str = "twin", password: str = "pa ss") -> None:
+        from aiosmtpd.controller import Controller
+        from aiosmtpd.smtp import AuthResult, LoginPassword
+
+        self.fail_left = fail_first
+        self.attempts = 0
+        self.accepted: list[tuple[list[str], bytes]] = []
+        self.logins: list[str] = []
+        outer = self
+
+        class Handler:
+            async def handle_DATA(self, server: Any, session: Any, envelope: Any) -> str:
+                outer.attempts += 1
+                if outer.fail_left > 0:
+                    outer.fail_left -= 1
+                    return "451 4.3.0 try again later"
+                outer.accepted.append((list(envelope.rcpt_tos), bytes(envelope.content)))
+                return "250 OK"
+
+        def authenticator(
+            server: Any, session: Any, envelope: Any, mechanism: str, data: Any
+        ) -> Any:
+            ok = isinstance(data, LoginPassword) and (data.login, data.password) == (
+                user.encode(),
+                password.encode(),
+            )
+            if ok:
+                outer.logins.append(user)
+            return AuthResult(success=ok)
+
+        self.controller = Controller(
+            Handler(),
+            hostname="127.0.0.1",
+            port=_free_port(),
+            authenticator=authenticator,
+            auth_require_tls=False,
+        )
+        self.controller.start()
+        self.address = f"127.0.0.1:{self.controller.port}"
+
+    def messages(self) -> list[Any]:
+        from email import message_from_bytes, policy
+
+        return [message_from_bytes(raw, policy=policy.default) for _to, raw in self.accepted]
+
+    def close(self) -> None:
+        self.controller.stop()
+
+
+def test_alarm_notifications_by_mail_through_a_failing_smtp_server_once_per_id(
+    fleet: Path, tmp_path: Path
+) -> None:
+    from chaintwin.live.notify import ID_HEADER, MailSettings
+
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    calibrated(url, fleet)
+    store = Store(url)
+    ingest(
+        [str(f) for f in recordings(fleet)],
+        {PROFILE.id: PROFILE},
+        store,
+        settings=MonitorSettings(baseline_n=5),
+        workers=1,
+    )
+    with Session(store.engine) as s:
+        outbox = {r.id: r for r in s.scalars(select(OutboxRow))}
+    assert outbox, "the friction rise opens an alarm"
+    smtp = MailReceiver(fail_first=1)
+    host, port = smtp.address.split(":")
+    to = ("ops@plant.example", "shift@plant.example")
+    mail = MailSettings(host, int(port), to, "twin@plant.example", False, "twin", "pa ss")
+    secret = b"s3cret-key"
+
+    def run(done: Callable[[], bool], seconds: float) -> None:
+        async def go() -> None:
+            notifier = Notifier(
+                store, [], secret, "https://twin.example/", Metrics(store, lambda: 0.0), mail
+            )
+            stop = asyncio.Event()
+            task = asyncio.create_task(notifier.run(stop, tick_s=0.1))
+            deadline = time.monotonic() + seconds
+            while not done() and time.monotonic() < deadline:
+                await asyncio.sleep(0.05)
+            stop.set()
+            await task
+
+        asyncio.run(go())
+
+    try:
+        # the first attempt is refused (451); a restart goes on from the store's attempts
+        run(lambda: smtp.attempts >= 1, 10)
+        assert smtp.attempts >= 1 and len(smtp.accepted) < len(outbox) * len(to)
+        # one recipient's failure holds back none of the other's
+        assert all(rcpt != ["ops@plant.example"] for rcpt, _raw in smtp.accepted)
+        run(lambda: len(smtp.accepted) >= len(outbox) * len(to), 30)
+        run(lambda: False, 0.5)  # nothing sent twice after
+    finally:
+        smtp.close()
+    assert smtp.logins  # logged in with the user and password given
+    messages = smtp.messages()
+    assert len(messages) == len(outbox) * len(to)
+    for addr in to:  # each recipient once per notification, in order
+        ids = [
+            m[ID_HEADER]
+            for (rcpt, _raw), m in zip(smtp.accepted, messages, strict=True)
+            if rcpt == [addr]
+        ]
+        assert sorted(ids) == sorted(outbox) and len(set(ids)) == len(ids)
+    first = messages[0]
+    nid = first[ID_HEADER]
+    assert f"[{nid}]" in first["Subject"] and first["Message-ID"] == f"<{nid}@chaintwin>"
+    assert first["From"] == "twin@plant.example"
+    (attached,) = [
+        p for p in first.iter_attachments() if p.get_content_type() == "application/json"
+    ]
+    body = attached.get_content()
+    body = body if isinstance(body, bytes) else body.encode()
+    doc = json.loads(body)
+    assert doc["id"] == nid and doc["link"] == f"https://twin.example/conveyors/{PROFILE.id}"
+    expected = "sha256=" + hmac.new(secret, body, hashlib.sha256).hexdigest()
+    assert str(first[SIGNATURE_HEADER]).strip() == expected  # a long header is folded
+    text_part = first.get_body(preferencelist=("plain",))
+    assert text_part is not None and doc["link"] in text_part.get_content()
+    with Session(store.engine) as s:
+        deliveries = list(s.scalars(select(DeliveryRow)))
+    assert len(deliveries) == len(outbox) * len(to)
+    assert all(d.delivered_at is not None for d in deliveries)
+    assert sum(d.attempts for d in deliveries) == len(outbox) * len(to) + 1  # the one refused
+    store.close()
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--notify-smtp", "mail.example:99999", "--notify-mail-to", "a@b.c"], "--notify-smtp"),
+        (["--notify-smtp", "mail.example"], "--notify-mail-to"),
+        (["--notify-mail-to", "a@b.c"], "needs --notify-smtp"),
+        (["--notify-smtp", "mail.example", "--notify-mail-to", "not an address"], "not an e-mail"),
+        (
+            ["--notify-smtp", "m.example", "--notify-mail-to", "a@b.c", "--notify-smtp-login-file",
+             "/nonexistent/login"],
+            "--notify-smtp-login-file",
+        ),
+    ],
+)  # fmt: skip
+def test_serve_refuses_bad_mail_options_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], needle: str
+) -> None:
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    assert main(["serve", "--db", url, "--no-web", *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and needle in err, err
+
+
+def test_serve_mails_the_outbox_with_its_options(fleet: Path, tmp_path: Path) -> None:
+    """``serve --notify-smtp ... --notify-mail-to ...`` end to end, with a login file."""
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    calibrated(url, fleet)
+    store = Store(url)
+    ingest(
+        [str(f) for f in recordings(fleet)],
+        {PROFILE.id: PROFILE},
+        store,
+        settings=MonitorSettings(baseline_n=5),
+        workers=1,
+    )
+    with Session(store.engine) as s:
+        n = len(list(s.scalars(select(OutboxRow.id))))
+    store.close()
+    smtp = MailReceiver(fail_first=1)
+    login = tmp_path / "smtp-login"
+    login.write_text("twin\npa ss\n")
+    service = Service(
+        [
+            "--db", url, "--no-web", "--notify-smtp", smtp.address,
+            "--notify-mail-to", "ops@plant.example", "--notify-mail-from", "twin@plant.example",
+            "--notify-smtp-login-file", str(login), "--public-url", "https://twin.example",
+        ],
+        tmp_path / "serve.log",
+    )  # fmt: skip
+    try:
+        wait_for(lambda: len(smtp.accepted) >= n, 60, "the notifications mailed", service)
+    finally:
+        code = service.stop()
+        smtp.close()
+    assert code == 0
+    assert smtp.logins and len(smtp.accepted) == n and smtp.attempts == n + 1
+    assert all(m["From"] == "twin@plant.example" for m in smtp.messages())

@@ -55,6 +55,7 @@ from .sources import DriveStatusLike, Ingestor, Job, Outcome, Submit
 from .watch import FolderSource
 
 if TYPE_CHECKING:
+    from .notify import MailSettings
     from .opcua import OpcuaConfig
 
 __all__ = ["PROFILES_POLL_S", "LiveOptions", "LiveService", "Source", "read_profile_folder"]
@@ -141,6 +142,8 @@ class LiveOptions:
     poll: bool = False
     notify_urls: list[str] = field(default_factory=list)
     notify_secret: bytes | None = None
+    mail: MailSettings | None = None
+    """The e-mail channel of the notifications (``--notify-smtp``), if any."""
     public_url: str = "http://127.0.0.1:8000"
     keep_samples_days: float | None = None
     lease_s: float = 15.0
@@ -576,16 +579,17 @@ class LiveService:
                 loop.add_signal_handler(sig, self.request_stop)
         tasks: list[asyncio.Task[Any]] = [asyncio.create_task(self.ingestor.run(self.stop))]
         tasks += [asyncio.create_task(self._hold(s)) for s in self.sources]
-        if self.options.notify_urls:
+        if self.options.notify_urls or self.options.mail is not None:
             from .notify import Notifier
 
-            assert self.options.notify_secret is not None
+            assert self.options.notify_secret is not None or not self.options.notify_urls
             self.notifier = Notifier(
                 self.store,
                 self.options.notify_urls,
                 self.options.notify_secret,
                 self.options.public_url,
                 self.metrics,
+                self.options.mail,
             )
             notifier = self.notifier
             self.sources.append(Source("notify", "notify", notifier.run))

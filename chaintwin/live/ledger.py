@@ -20,7 +20,7 @@ from sqlalchemy import delete, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from chaintwin.store.schema import LeaseRow, LiveSourceRow, RefusedFileRow
+from chaintwin.store.schema import LeaseRow, LiveSourceRow, RecordingRow, RefusedFileRow
 from chaintwin.store.store import Store
 
 __all__ = [
@@ -29,6 +29,7 @@ __all__ = [
     "acquire_lease",
     "forget_refusal",
     "is_refused",
+    "known_paths",
     "record_refusal",
     "refusals",
     "release_lease",
@@ -83,6 +84,23 @@ def record_refusal(
             )
     except IntegrityError:
         pass  # refused already, by this content
+
+
+def known_paths(store: Store, paths: Collection[str], chunk: int = 500) -> set[str]:
+    """Which of these files the store has stored or refused, by path (as given).
+
+    A watched folder remembers the files it handed over for a while only
+    (:data:`~.watch.MAX_REMEMBERED`); its rescans ask the store about the
+    others, instead of reading and hashing every old file again.
+    """
+    out: set[str] = set()
+    todo = list(paths)
+    with Session(store.engine) as s:
+        for k in range(0, len(todo), chunk):
+            part = todo[k : k + chunk]
+            out.update(s.scalars(select(RecordingRow.file).where(RecordingRow.file.in_(part))))
+            out.update(s.scalars(select(RefusedFileRow.path).where(RefusedFileRow.path.in_(part))))
+    return out
 
 
 @dataclass(frozen=True, slots=True)

@@ -224,8 +224,14 @@ class LiveService:
     # ---------------------------------------------------------------- sources
     def add_folder(self, root: Path) -> None:
         """Follow a folder (recursively) under the lease ``folder:<absolute path>``."""
+        from .ledger import known_paths
+
         folder = FolderSource(
-            root.resolve(), self.options.settle_s, self.options.poll, self._enqueue_file(root)
+            root.resolve(),
+            self.options.settle_s,
+            self.options.poll,
+            self._enqueue_file(root),
+            lambda paths: known_paths(self.store, paths),
         )
         self.folders[folder.key] = folder
         self.sources.append(Source(folder.key, "folder", folder.run))
@@ -565,6 +571,57 @@ class LiveService:
                 log.error("retention: %s", exc)
             await self._sleep(3600.0)
 
+    async def _memory(self) -> None:
+        """Every :data:`~.memory.TRIM_EVERY_S`: glibc's free memory handed back to the
+        system (:func:`~.memory.trim`); with ``CHAINTWIN_MEMORY_LOG=1`` the memory
+        logged before and after (``memory`` in the JSON log)."""
+        from .memory import TRIM_EVERY_S, trim, usage
+
+        logging_on = os.environ.get("CHAINTWIN_MEMORY_LOG", "") not in ("", "0")
+        while not self.stop.is_set():
+            await self._sleep(TRIM_EVERY_S)
+            if self.stop.is_set():
+                break
+            before = usage() if logging_on else {}
+            await asyncio.to_thread(trim)
+            if logging_on:
+                after = usage()
+                log.info(
+                    "memory: %s MB; after trimming: %s MB",
+                    " ".join(f"{k} {v:.1f}" for k, v in before.items()),
+                    " ".join(f"{k} {v:.1f}" for k, v in after.items()),
+                    extra={"memory": {"before": before, "after": after}},
+                )
+
+    def _memory_snapshots(self, loop: asyncio.AbstractEventLoop) -> bool:
+        """With ``CHAINTWIN_TRACEMALLOC_DIR`` set, trace allocations and dump a snapshot
+        there on each SIGUSR1 (``snapshot-<n>.tracemalloc``, after a garbage collection).
+
+        A maintainers' tool (``benchmarks/bench_live.py --tracemalloc``): tracing
+        slows the service and costs memory of its own. ``CHAINTWIN_TRACEMALLOC_FRAMES``
+        (8) is the depth of the tracebacks kept. Returns whether it is on.
+        """
+        folder = os.environ.get("CHAINTWIN_TRACEMALLOC_DIR")
+        if not folder:
+            return False
+        import gc
+        import tracemalloc
+
+        tracemalloc.start(int(os.environ.get("CHAINTWIN_TRACEMALLOC_FRAMES", "8")))
+        count = 0
+
+        def dump() -> None:
+            nonlocal count
+            gc.collect()
+            path = Path(folder) / f"snapshot-{count}.tracemalloc"
+            count += 1
+            tracemalloc.take_snapshot().dump(str(path))
+            log.info("tracemalloc snapshot written to %s", path)
+
+        with contextlib.suppress(NotImplementedError, RuntimeError, AttributeError):
+            loop.add_signal_handler(signal.SIGUSR1, dump)
+        return True
+
     def request_stop(self) -> None:
         """Stop: the sources first, then the recording in hand, then the web server."""
         if not self.stop.is_set():
@@ -577,6 +634,7 @@ class LiveService:
         for sig in (signal.SIGTERM, signal.SIGINT):
             with contextlib.suppress(NotImplementedError, RuntimeError):
                 loop.add_signal_handler(sig, self.request_stop)
+        self._memory_snapshots(loop)
         tasks: list[asyncio.Task[Any]] = [asyncio.create_task(self.ingestor.run(self.stop))]
         tasks += [asyncio.create_task(self._hold(s)) for s in self.sources]
         if self.options.notify_urls or self.options.mail is not None:
@@ -598,6 +656,7 @@ class LiveService:
             tasks.append(asyncio.create_task(self._retention()))
         if self.options.profiles_dir is not None:
             tasks.append(asyncio.create_task(self._follow_profiles(self.options.profiles_dir)))
+        tasks.append(asyncio.create_task(self._memory()))
         server = None
         if web_config is not None:
             server = _Server(web_config).server

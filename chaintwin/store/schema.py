@@ -127,7 +127,7 @@ class RecordingRow(Base):
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     sha256: Mapped[str] = mapped_column(String(64), unique=True)
     conveyor_id: Mapped[str] = mapped_column(ForeignKey("conveyors.id"), index=True)
-    file: Mapped[str] = mapped_column(Text)
+    file: Mapped[str] = mapped_column(Text, index=True)
     recorded_at: Mapped[str | None] = mapped_column(String(40), index=True)
     meta: Mapped[dict[str, Any]] = mapped_column(JSON)
     warnings: Mapped[list[Any]] = mapped_column(JSON)
@@ -229,7 +229,7 @@ class RefusedFileRow(Base):
     __tablename__ = "refused_files"
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     sha256: Mapped[str] = mapped_column(String(64), unique=True)
-    path: Mapped[str] = mapped_column(Text)
+    path: Mapped[str] = mapped_column(Text, index=True)
     source: Mapped[str] = mapped_column(String(300))
     reason: Mapped[str] = mapped_column(Text)
     refused_at: Mapped[str] = mapped_column(String(40), index=True)

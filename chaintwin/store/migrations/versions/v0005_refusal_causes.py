@@ -1,4 +1,4 @@
-"""Refused files: why (their profile, or the file itself) and their conveyor.
+"""Refused files: why (their profile, or the file itself) and their conveyor; files by path.
 
 ``refused_files.cause`` is ``profile`` for a file refused because its
 conveyor had no profile, or the store monitors that conveyor with another
@@ -7,6 +7,9 @@ and ``recording`` for a file refused for what it holds.
 ``refused_files.conveyor`` is the conveyor the file names. The refusals
 already kept are sorted by their reason, in the words chaintwin wrote them;
 their conveyor is taken from the same words where they name it.
+``recordings.file`` and ``refused_files.path`` are indexed: a watched
+folder's rescan asks the store which of the files it no longer remembers
+are stored or refused, by path.
 
 Revision ID: 0005
 Revises: 0004
@@ -36,6 +39,8 @@ def upgrade() -> None:
         )
         batch.add_column(sa.Column("conveyor", sa.String(200), nullable=True))
         batch.create_index("ix_refused_files_conveyor", ["conveyor"])
+        batch.create_index("ix_refused_files_path", ["path"])
+    op.create_index("ix_recordings_file", "recordings", ["file"])
     table = sa.table(
         "refused_files",
         sa.column("id", sa.Integer()),
@@ -56,7 +61,9 @@ def upgrade() -> None:
 
 
 def downgrade() -> None:
+    op.drop_index("ix_recordings_file", table_name="recordings")
     with op.batch_alter_table("refused_files") as batch:
+        batch.drop_index("ix_refused_files_path")
         batch.drop_index("ix_refused_files_conveyor")
         batch.drop_column("conveyor")
         batch.drop_column("cause")

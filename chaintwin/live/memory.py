@@ -19,6 +19,7 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import os
+import sys
 from functools import cache
 from typing import Any
 
@@ -78,14 +79,21 @@ def trim() -> bool:
 
 
 def usage() -> dict[str, float]:
-    """The process's memory, MB: ``rss``, and where known ``heap_used``,
-    ``heap_free`` (held by glibc, not in use) and ``sqlite`` (SQLite's own)."""
+    """The process's memory, MB: ``rss`` (of which ``anon``: not backed by a file),
+    and where known ``heap_used``, ``heap_free`` (held by glibc, not in use),
+    ``sqlite`` (SQLite's own) and ``py_blocks`` (the Python allocator's blocks in use,
+    millions)."""
     out: dict[str, float] = {}
     try:
         with open(f"/proc/{os.getpid()}/statm") as f:
             out["rss"] = int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+        with open(f"/proc/{os.getpid()}/status") as f:
+            for line in f:
+                if line.startswith("RssAnon:"):
+                    out["anon"] = int(line.split()[1]) / 2**10
     except OSError:  # pragma: no cover - not Linux
         pass
+    out["py_blocks"] = sys.getallocatedblocks() / 1e6
     lib = _libc()
     if lib is not None and hasattr(lib, "mallinfo2"):
         lib.mallinfo2.restype = _MallInfo2

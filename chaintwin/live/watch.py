@@ -41,9 +41,9 @@ IGNORED_SUFFIXES = (".part", ".tmp")
 RESCAN_S = 300.0
 """A full rescan of a followed folder this often, s (events lost on a network share)."""
 
-MAX_REMEMBERED = 20_000
-"""The files handed over that a folder remembers (the latest; about 250 bytes each):
-older ones found again by a rescan are looked up in the store by path."""
+MAX_REMEMBERED = 2_000
+"""The files handed over that a folder remembers (the latest; about 250 bytes each,
+0.5 MB): older ones found again by a rescan are looked up in the store by path."""
 
 MAX_TICK_S = 1.0
 """The candidates are looked at again at the latest after this long, s (else when the

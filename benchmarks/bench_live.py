@@ -18,7 +18,18 @@ into its own sub-folder of one watched folder every ``--interval`` seconds
 4. recordings written and stored, and the service's resident memory (RSS)
    after start and at the end (target: flat).
 
-Run: ``.venv/bin/python benchmarks/bench_live.py [--seconds 3600] [--postgres URL]``.
+``--memory`` samples the service's resident size every ``--memory-every``
+seconds (10) and prints it every minute, with the growth per minute after
+the warm-up (``--warmup-s``, a least-squares line through the samples),
+and the service's own account of its memory every minute
+(``CHAINTWIN_MEMORY_LOG``: glibc's heap in use and free, SQLite's).
+``--tracemalloc`` traces the service's allocations
+(``CHAINTWIN_TRACEMALLOC_DIR``: slower, larger), takes a snapshot after the
+warm-up and another at the end, and prints the 15 lines whose allocations
+grew the most in between, and the tracebacks of the top three.
+
+Run: ``.venv/bin/python benchmarks/bench_live.py [--seconds 3600] [--postgres URL]
+[--memory] [--tracemalloc]``.
 """
 
 from __future__ import annotations
@@ -28,6 +39,7 @@ import json
 import os
 import re
 import shutil
+import signal
 import statistics
 import subprocess
 import sys
@@ -91,7 +103,22 @@ def main() -> None:
     ap.add_argument("--reference", type=int, default=5)
     ap.add_argument("--onset", type=int, default=22, help="Recordings before belt-00 turns faulty.")
     ap.add_argument("--postgres", help="PostgreSQL URL of an empty database (default: SQLite)")
+    ap.add_argument("--memory", action="store_true", help="Report the service's memory over time.")
+    ap.add_argument("--memory-every", type=float, default=10.0, help="RSS sample interval, s.")
+    ap.add_argument(
+        "--tracemalloc",
+        action="store_true",
+        help="Trace the service's allocations; print the growth between warm-up and end.",
+    )
+    ap.add_argument(
+        "--warmup-s",
+        type=float,
+        default=None,
+        help="Memory growth is counted from here, s (default: a fifth of the run, at most 120).",
+    )
     args = ap.parse_args()
+    if args.warmup_s is None:
+        args.warmup_s = min(120.0, args.seconds / 5)
 
     work = Path(tempfile.mkdtemp(prefix="chaintwin-bench-live-"))
     try:
@@ -162,6 +189,12 @@ def run(args: argparse.Namespace, work: Path) -> None:
     threading.Thread(target=hook.serve_forever, daemon=True).start()
     (work / "notify.key").write_text("bench-secret\n")
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PYTHONPATH=str(ROOT))
+    traces = work / "tracemalloc"
+    if args.tracemalloc:
+        traces.mkdir()
+        env["CHAINTWIN_TRACEMALLOC_DIR"] = str(traces)
+    if args.memory:
+        env["CHAINTWIN_MEMORY_LOG"] = "1"  # the service logs its heap every minute
     log = (work / "serve.log").open("wb")
     proc = subprocess.Popen(
         [
@@ -209,10 +242,24 @@ def run(args: argparse.Namespace, work: Path) -> None:
     threads = [threading.Thread(target=publish, args=(k, c)) for k, c in enumerate(ids)]
     for t in threads:
         t.start()
+    service = psutil.Process(proc.pid)
     rss: list[float] = []  # the service's resident size every tenth of the run, MB
-    for _ in range(10):
-        time.sleep(args.seconds / 10)
-        rss.append(psutil.Process(proc.pid).memory_info().rss / 2**20)
+    samples: list[tuple[float, float]] = []  # (s since the start, RSS MB) with --memory
+    begun = time.monotonic()
+    every = min(args.memory_every, args.seconds / 10)
+    marks = [begun + args.seconds * (k + 1) / 10 for k in range(10)]
+    snapped = False
+    while marks:
+        now = time.monotonic()
+        if args.tracemalloc and not snapped and now - begun >= args.warmup_s:
+            os.kill(proc.pid, signal.SIGUSR1)  # the snapshot after the warm-up
+            snapped = True
+        if now >= marks[0]:
+            marks.pop(0)
+            rss.append(service.memory_info().rss / 2**20)
+        if args.memory:
+            samples.append((now - begun, service.memory_info().rss / 2**20))
+        time.sleep(max(0.0, min(every, (marks[0] if marks else now) - time.monotonic())))
     stop.set()
     for t in threads:
         t.join()
@@ -227,6 +274,14 @@ def run(args: argparse.Namespace, work: Path) -> None:
         time.sleep(0.5)
     time.sleep(2.0)  # the last notifications
     rss_end = psutil.Process(proc.pid).memory_info().rss
+    growth = ""
+    if args.tracemalloc:
+        os.kill(proc.pid, signal.SIGUSR1)  # the snapshot at the end
+        deadline = time.monotonic() + 300
+        while not (traces / "snapshot-1.tracemalloc").exists() and time.monotonic() < deadline:
+            time.sleep(0.5)
+        time.sleep(2.0)  # written whole
+        growth = tracemalloc_growth(traces, args.warmup_s, args.seconds)
     proc.terminate()
     code = proc.wait(60)
     # the reference again, on the store as the run left it (larger)
@@ -283,6 +338,69 @@ def run(args: argparse.Namespace, work: Path) -> None:
     print(f"  service RSS: {rss_start / 2**20:.0f} MB after start, "
           f"{rss_end / 2**20:.0f} MB at the end; exit code on SIGTERM {code}")  # fmt: skip
     print(f"  RSS every {args.seconds / 10:g} s: {' '.join(f'{m:.0f}' for m in rss)} MB")
+    if args.memory:
+        print(memory_report(samples, args.warmup_s, rss_start / 2**20, rss_end / 2**20))
+        logged = [
+            line.split("memory: ", 1)[1]
+            for line in (work / "serve.log").read_text().splitlines()
+            if "memory: rss" in line
+        ]
+        print("  the service's own log each minute (MB; before/after handing free heap back):")
+        for line in logged:
+            print(f"    {line}")
+    if growth:
+        print(growth)
+
+
+def memory_report(
+    samples: list[tuple[float, float]], warmup_s: float, start_mb: float, end_mb: float
+) -> str:
+    """``--memory``: RSS every minute, and its growth after the warm-up (MB/min)."""
+    lines = [f"  memory: RSS {start_mb:.1f} MB after start, {end_mb:.1f} MB at the end"]
+    minute = [
+        m
+        for k, (t, m) in enumerate(samples)
+        if k == 0 or int(t // 60) > int(samples[k - 1][0] // 60)
+    ]
+    lines.append("  RSS each minute: " + " ".join(f"{m:.0f}" for m in minute) + " MB")
+    late = [(t, m) for t, m in samples if t >= warmup_s]
+    if len(late) >= 3:
+        tm = statistics.fmean(t for t, _ in late)
+        mm = statistics.fmean(m for _, m in late)
+        slope = sum((t - tm) * (m - mm) for t, m in late) / sum((t - tm) ** 2 for t, _ in late)
+        lines.append(
+            f"  growth after the warm-up ({warmup_s:g} s): {slope * 60:+.3f} MB/min "
+            f"(least squares over {len(late)} samples; {late[0][1]:.1f} -> {late[-1][1]:.1f} MB)"
+        )
+    return "\n".join(lines)
+
+
+def tracemalloc_growth(folder: Path, warmup_s: float, seconds: float) -> str:
+    """``--tracemalloc``: the 15 lines whose allocations grew most between the snapshots."""
+    import tracemalloc
+
+    first = tracemalloc.Snapshot.load(str(folder / "snapshot-0.tracemalloc"))
+    last = tracemalloc.Snapshot.load(str(folder / "snapshot-1.tracemalloc"))
+    ignore = [tracemalloc.Filter(False, tracemalloc.__file__)]
+    first, last = first.filter_traces(ignore), last.filter_traces(ignore)
+    total = sum(s.size for s in last.statistics("filename")) - sum(
+        s.size for s in first.statistics("filename")
+    )
+    lines = [
+        f"  tracemalloc: traced memory grew {total / 2**20:+.2f} MB between {warmup_s:g} s "
+        f"and the end ({seconds:g} s); the top 15 lines:"
+    ]
+    for stat in last.compare_to(first, "lineno")[:15]:
+        frame = stat.traceback[0]
+        lines.append(
+            f"    {stat.size_diff / 2**10:+9.1f} KiB {stat.count_diff:+7d} blocks  "
+            f"{frame.filename}:{frame.lineno}"
+        )
+    lines.append("  the top three's tracebacks (innermost last):")
+    for stat in last.compare_to(first, "traceback")[:3]:
+        lines.append(f"    {stat.size_diff / 2**10:+.1f} KiB in {stat.count_diff:+d} blocks:")
+        lines.extend(f"      {line}" for line in stat.traceback.format())
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,30 @@
-"""Benchmark: the OPC UA leg of the live service (a script, not a test).
+"""Benchmark: the live service over OPC UA, the whole chain and its OPC UA leg (a script).
 
-Scenario (issue 21): ``--drives`` (20) simulated drives
+**The whole chain** (the default): ``--drives`` (20) simulated drives in a
+child process publish a scope every ``--interval`` (2 s); ``chaintwin serve
+--no-web --opcua CONFIG`` in its own process follows them into a SQLite
+store that holds each conveyor's calibration, and posts the alarms to a
+webhook receiver in this process. The first drive turns faulty (friction)
+after ``--onset`` scopes, which opens an alarm. All three processes share
+the machine's 2 cores. Prints
+
+1. reference: ``ingest()`` of one recording in this process (read,
+   validate, weigh, monitor, store), the median of ``--ref-rounds``, at the
+   start and again at the end of the run;
+2. the chain: from a scope's trigger time (``recorded_at``, taken when the
+   simulator starts the scope, a few milliseconds before its counter
+   changes: the chain is over-estimated by that) to its result stored
+   (``results.stored_at``): median, p95, max, and the p95's ratio to the
+   reference (target: within 5x);
+3. the alarm's notification: from the trigger of the scope that opened it
+   to the webhook receiving it, and its ratio to the reference (target:
+   within 2x more than the recordings', i.e. 10x), and from the result
+   stored (its outbox row) to received;
+4. scopes published, stored, the service's resident memory.
+
+``--leg-only`` times the OPC UA leg alone, as below.
+
+**The OPC UA leg** (``--leg-only``): ``--drives`` (20) simulated drives
 (:class:`chaintwin.live.drive_sim.DriveSim`, the reference conveyor
 white-belt-01, one port each) run in a child process and publish a scope
 every ``--interval`` (2 s), their phases spread over the interval as
@@ -29,9 +53,9 @@ Prints:
 3. scopes published and read, counter gaps (missed) and refusals;
 4. this process's resident memory at the start and the end of the run.
 
-Run: ``.venv/bin/python benchmarks/bench_opcua.py [--drives 20] [--seconds 60]``
-(starting the drives takes about 4 s each: asyncua builds a server's
-standard address space).
+Run: ``.venv/bin/python benchmarks/bench_opcua.py [--drives 20] [--seconds 60]
+[--leg-only]`` (starting the drives takes a few seconds each: asyncua builds
+a server's standard address space).
 """
 
 from __future__ import annotations
@@ -49,6 +73,7 @@ import time
 from datetime import UTC, datetime
 from pathlib import Path
 
+from chaintwin.identify.calibration import Calibration
 from chaintwin.live.opcua import DriveStatus, OpcuaConfig, follow_drives
 from chaintwin.read.profile import load_profile
 from chaintwin.read.recording import Recording
@@ -80,9 +105,14 @@ def free_ports(n: int) -> list[int]:
 
 
 # ---------------------------------------------------------------- the drives (child process)
-async def serve(ports: list[int], interval: float) -> None:
-    """Run one DriveSim per port until SIGTERM; print ``ready`` once all listen."""
+async def serve(ports: list[int], interval: float, onset: int | None = None) -> None:
+    """Run one DriveSim per port until SIGTERM; print ``ready`` once all listen.
+
+    With ``onset``, the first drive's friction rises to its full fault after
+    that many scopes (an alarm for the notification's timing).
+    """
     from chaintwin.live.drive_sim import DriveSim
+    from chaintwin.simulate.faults import Fault
 
     profile = load_profile(PROFILE)
     sims = [
@@ -92,6 +122,8 @@ async def serve(ports: list[int], interval: float) -> None:
             host="127.0.0.1",
             interval_s=interval,
             seed=i,
+            faults=[Fault("friction", 1.0)] if onset is not None and i == 0 else (),
+            onset=onset or 0,
         )
         for i, p in enumerate(ports)
     ]
@@ -111,6 +143,227 @@ async def serve(ports: list[int], interval: float) -> None:
 
 
 # ---------------------------------------------------------------- the reference
+class Reference:
+    """``ingest()`` of one recording into a store with the conveyor's calibration,
+    in this process, timed (the chain's reference, measured in the same run)."""
+
+    def __init__(self, work: Path, rounds: int) -> None:
+        from chaintwin.identify.calibrating import calibrate
+        from chaintwin.simulate.fleet import generate
+        from chaintwin.store import Store
+        from chaintwin.validate import load_recording
+
+        self.profile = load_profile(PROFILE)
+        self.rounds = rounds
+        folder = work / "reference"
+        generate(self.profile, folder, days=1, per_day=2 * rounds + 2, seed=3)
+        cal_files = sorted((folder / "calibration").glob("*.csv"))
+        self.calibration = calibrate(
+            [load_recording(p, profile=self.profile).recording for p in cal_files], self.profile
+        )
+        self.files = sorted(str(p) for p in folder.glob("*.csv"))
+        self.store = Store(f"sqlite:///{work}/reference.db")
+        self.store.put_calibration(self.calibration)
+        self.used = 0
+
+    def time(self, warm_up: bool) -> float:
+        """The median time of ``rounds`` ingests of one recording, s."""
+        from chaintwin.store.ingest import ingest
+
+        times = []
+        for k in range(self.rounds + (1 if warm_up else 0)):
+            f = self.files[self.used]
+            self.used += 1
+            t0 = time.perf_counter()
+            summary = ingest([f], {self.profile.id: self.profile}, self.store, workers=1)
+            if k > 0 or not warm_up:  # the first one compiles and warms up
+                times.append(time.perf_counter() - t0)
+            assert summary.refused == 0, summary.refusals
+        return statistics.median(times)
+
+
+def conveyor_calibration(base: Calibration, cid: str) -> Calibration:
+    """The calibration of a conveyor like ``base`` under another id."""
+    from chaintwin.identify.calibration import Calibration
+
+    prof = load_profile(PROFILE).model_copy(update={"id": cid})
+    data = base.to_dict() | {
+        "conveyor": cid,
+        "profile": prof.model_dump(mode="json"),
+        "profile_sha256": prof.content_hash(),
+    }
+    return Calibration.from_dict(data, f"bench {cid}")
+
+
+def start_drives(ports: list[int], interval: float, onset: int | None) -> subprocess.Popen[str]:
+    """The drives' child process, once all listen."""
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": str(root), "OPENBLAS_NUM_THREADS": "1"}
+    cmd = [sys.executable, __file__, "--serve", ",".join(map(str, ports))]
+    cmd += ["--interval", str(interval)]
+    if onset is not None:
+        cmd += ["--onset", str(onset)]
+    child = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env
+    )
+    assert child.stdout is not None
+    line = child.stdout.readline()
+    if line.strip() != "ready":
+        raise SystemExit(f"the drives did not start: {line!r}")
+    return child
+
+
+def chain(args: argparse.Namespace) -> None:
+    """The whole chain: drives -> ``chaintwin serve --opcua`` -> store -> webhook."""
+    import json
+    import shutil
+    import threading
+    from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+    import psutil
+    from sqlalchemy import select
+
+    from chaintwin.store import Store
+    from chaintwin.store.schema import OutboxRow, RecordingRow, ResultRow
+
+    work = Path(tempfile.mkdtemp(prefix="chaintwin-bench-opcua-"))
+    try:
+        print("reference and calibrations ...", file=sys.stderr)
+        ref = Reference(work, args.ref_rounds)
+        ref_start = ref.time(warm_up=True)
+        url = f"sqlite:///{work}/plant.db"
+        store = Store(url)
+        cids = [conveyor_id(i) for i in range(args.drives)]
+        for cid in cids:
+            store.put_calibration(conveyor_calibration(ref.calibration, cid))
+        store.close()
+
+        received: dict[str, float] = {}
+
+        class Hook(BaseHTTPRequestHandler):
+            def do_POST(self) -> None:
+                body = self.rfile.read(int(self.headers["Content-Length"]))
+                received.setdefault(json.loads(body)["id"], time.time())
+                self.send_response(204)
+                self.end_headers()
+
+            def log_message(self, *a: object) -> None:
+                pass
+
+        hook = ThreadingHTTPServer(("127.0.0.1", 0), Hook)
+        threading.Thread(target=hook.serve_forever, daemon=True).start()
+        (work / "notify.key").write_text("bench-secret\n")
+
+        print(f"starting {args.drives} drives ...", file=sys.stderr)
+        ports = free_ports(args.drives)
+        t0 = time.perf_counter()
+        drives = start_drives(ports, args.interval, args.onset)
+        started = time.perf_counter() - t0
+        config = work / "drives.yaml"
+        config.write_text(
+            "drives:\n"
+            + "".join(
+                f"  - conveyor: {cid}\n    endpoint: opc.tcp://127.0.0.1:{p}\n"
+                for cid, p in zip(cids, ports, strict=True)
+            )
+        )
+        root = Path(__file__).resolve().parents[1]
+        env = {**os.environ, "PYTHONPATH": str(root), "OPENBLAS_NUM_THREADS": "1"}
+        log_path = work / "serve.log"
+        with log_path.open("wb") as log:
+            service = subprocess.Popen(
+                [
+                    sys.executable, "-m", "chaintwin", "serve", "--no-web", "--db", url,
+                    "--opcua", str(config),
+                    "--notify-url", f"http://127.0.0.1:{hook.server_address[1]}/hook",
+                    "--notify-secret-file", str(work / "notify.key"),
+                ],
+                stdout=subprocess.DEVNULL, stderr=log, env=env,
+            )  # fmt: skip
+        deadline = time.monotonic() + 120
+        while log_path.read_text().count(" connected (") < args.drives:
+            if service.poll() is not None or time.monotonic() > deadline:
+                drives.terminate()
+                raise SystemExit(f"the service did not connect: {log_path.read_text()[-2000:]}")
+            time.sleep(0.2)
+        ps = psutil.Process(service.pid)
+        rss_start = ps.memory_info().rss / 2**20
+        begun = datetime.now(UTC)
+        print(f"following for {args.seconds:g} s ...", file=sys.stderr)
+        rss = []
+        for _ in range(10):
+            time.sleep(args.seconds / 10)
+            rss.append(ps.memory_info().rss / 2**20)
+        drives.send_signal(signal.SIGTERM)
+        tail = drives.stdout.read() if drives.stdout else ""
+        drives.wait(30)
+        published = int(tail.split()[-1]) if tail.strip() else -1
+        time.sleep(3.0)  # the last results and notifications
+        rss_end = ps.memory_info().rss / 2**20
+        service.send_signal(signal.SIGTERM)
+        code = service.wait(60)
+        hook.shutdown()
+        ref_end = ref.time(warm_up=False)
+        ref.store.close()
+
+        store = Store(url)
+        with store.engine.connect() as c:
+            rows = c.execute(
+                select(RecordingRow.file, RecordingRow.recorded_at, ResultRow.stored_at).join(
+                    ResultRow, ResultRow.recording_id == RecordingRow.id
+                )
+            ).all()
+            outbox = c.execute(select(OutboxRow.id, OutboxRow.at, OutboxRow.created_at)).all()
+        store.close()
+        warm_from = begun.timestamp() + 5.0  # the scopes taken on connecting are older
+        latency = []
+        for _f, at, stored_at in rows:
+            if at is None or stored_at is None:
+                continue
+            trig = datetime.fromisoformat(at).timestamp()
+            if trig >= warm_from:
+                latency.append(datetime.fromisoformat(stored_at).timestamp() - trig)
+        if not latency:
+            raise SystemExit(f"nothing was stored: {log_path.read_text()[-2000:]}")
+        latency.sort()
+        p50, p95 = statistics.median(latency), latency[int(0.95 * (len(latency) - 1))]
+        named = sum(1 for f, _a, _s in rows if str(f).startswith("opcua://"))
+        print(
+            f"bench_opcua, the whole chain: {args.drives} drives, a scope every "
+            f"{args.interval:g} s each, {args.seconds:g} s (drives started in {started:.0f} s)"
+        )
+        print(
+            f"  1. reference ingest() of one recording: {ref_start * 1e3:.0f} ms at the start, "
+            f"{ref_end * 1e3:.0f} ms at the end (medians of {args.ref_rounds})"
+        )
+        print(
+            f"  2. counter change -> result stored: median {p50 * 1e3:.0f} ms, p95 "
+            f"{p95 * 1e3:.0f} ms, max {latency[-1] * 1e3:.0f} ms over {len(latency)} scopes; "
+            f"p95 / reference {p95 / ref_start:.2f}x (start), {p95 / ref_end:.2f}x (end) "
+            "(target <= 5x)"
+        )
+        lines = []
+        for oid, at, created in outbox:
+            if oid not in received or at is None:
+                continue
+            whole = received[oid] - datetime.fromisoformat(at).timestamp()
+            tail_s = received[oid] - datetime.fromisoformat(created).timestamp()
+            lines.append(
+                f"  3. notification {oid}: counter change -> received {whole * 1e3:.0f} ms "
+                f"({whole / ref_start:.2f}x the reference, target <= 10x; "
+                f"{whole / p95:.2f}x the recordings' p95, target <= 2x); result stored -> "
+                f"received {tail_s * 1e3:.0f} ms"
+            )
+        print("\n".join(lines) if lines else f"  3. no alarm opened ({len(outbox)} in the outbox)")
+        print(
+            f"  4. published {published}, stored {len(rows)} (named opcua://: {named}); "
+            f"service RSS {rss_start:.0f} MB after connecting, {rss_end:.0f} MB at the end "
+            f"({' '.join(f'{m:.0f}' for m in rss)}); exit code on SIGTERM {code}"
+        )
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
 def reference_ingest(rounds: int) -> tuple[float, float]:
     """Median times of ingesting one recording into a store with a calibration, s.
 
@@ -206,10 +459,19 @@ def main() -> None:
     parser.add_argument("--interval", type=float, default=2.0)
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--ref-rounds", type=int, default=3)
+    parser.add_argument(
+        "--onset", type=int, default=None, help="Scopes before the first drive turns faulty."
+    )
+    parser.add_argument("--leg-only", action="store_true", help="Time the OPC UA leg alone.")
     parser.add_argument("--serve", type=str, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.serve is not None:
-        asyncio.run(serve([int(p) for p in args.serve.split(",")], args.interval))
+        asyncio.run(serve([int(p) for p in args.serve.split(",")], args.interval, args.onset))
+        return
+    if not args.leg_only:
+        if args.onset is None:  # the baseline (20 scopes), then a few to open the alarm
+            args.onset = 22
+        chain(args)
         return
 
     ref, inproc = reference_ingest(args.ref_rounds)

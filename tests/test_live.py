@@ -449,7 +449,7 @@ def test_serve_refuses_an_old_store_naming_db_upgrade_then_upgraded_it_runs(
     capsys.readouterr()
     engine = engine_for(db)
     with engine.connect() as c:
-        assert migrate.revision_of(c) == "0004" == migrate.HEAD_REVISION
+        assert migrate.revision_of(c) == "0005" == migrate.HEAD_REVISION
         # the new tables, empty: an upgraded store does not notify its past alarms
         for table in ("refused_files", "outbox", "outbox_deliveries", "live_sources", "leases"):
             assert c.execute(text(f"SELECT COUNT(*) FROM {table}")).scalar() == 0
@@ -592,11 +592,48 @@ def test_submit_stores_a_drives_recording_once_and_records_a_refusal(
         ("opcua:ghost-belt:7", "refused"),
     ]
     assert count(url, RecordingRow) == 1
-    assert store.results(PROFILE.id)[0]["status"] != "refused"
+    result = store.results(PROFILE.id)[0]
+    assert result["status"] != "refused"
+    # stored and shown under the drive's stable name, not the spool file's
+    assert result["file"] == "opcua://white-belt-01/1"
     with Session(store.engine) as s:
+        assert s.scalars(select(RecordingRow.file)).one() == "opcua://white-belt-01/1"
         row = s.scalars(select(RefusedFileRow)).one()
-    assert row.path == "opcua:ghost-belt:7" and row.source == "opcua:ghost-belt:7"
+    assert row.path == "opcua://ghost-belt/7" and row.source == "opcua:ghost-belt:7"
     assert "ghost-belt" in row.reason and "/chaintwin-spool-" not in row.reason
+    store.close()
+
+
+def test_stored_name_of_a_drives_scope() -> None:
+    from chaintwin.live.sources import stored_name
+
+    assert stored_name("opcua:white-belt-01:1234") == "opcua://white-belt-01/1234"
+    assert stored_name("folder:/data/in") == "folder:/data/in"
+    assert stored_name("opcua:white-belt-01") == "opcua:white-belt-01"
+
+
+def test_ingest_names_a_file_as_asked_in_the_store_results_and_refusals(
+    fleet: Path, tmp_path: Path
+) -> None:
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    calibrated(url, fleet)
+    store = Store(url)
+    good, bad = recordings(fleet)[0], tmp_path / "bad.csv"
+    bad.write_text("not a recording\n")
+    summary = ingest(
+        [str(good), str(bad)],
+        {PROFILE.id: PROFILE},
+        store,
+        workers=1,
+        names={str(good): "opcua://white-belt-01/5", str(bad): "opcua://white-belt-01/6"},
+    )
+    assert summary.processed == 1 and summary.refused == 1
+    assert store.results(PROFILE.id)[0]["file"] == "opcua://white-belt-01/5"
+    with Session(store.engine) as s:
+        assert s.scalars(select(RecordingRow.file)).one() == "opcua://white-belt-01/5"
+    (refusal,) = summary.refusals
+    assert refusal["file"] == "opcua://white-belt-01/6"
+    assert str(bad) not in refusal["error"] and "opcua://white-belt-01/6" in refusal["error"]
     store.close()
 
 
@@ -696,3 +733,390 @@ def test_serve_refuses_bad_options_in_one_line(
     assert code == 2
     assert says in err and len(err.strip().splitlines()) == 1
     assert not db.exists()  # refused before the store is touched
+
+
+def test_files_refused_for_want_of_a_profile_are_read_again_when_it_is_added(
+    fleet: Path, tmp_path: Path
+) -> None:
+    """The profiles folder is followed: a profile added reads the files it was missing."""
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    Store(url).close()  # no profile in the store either
+    watched, profiles = tmp_path / "drop", tmp_path / "profiles"
+    watched.mkdir()
+    profiles.mkdir()
+    shutil.copy(PROFILES / "short-fast-03.yaml", profiles)  # not white-belt-01's
+    service = Service(
+        [
+            "--db", url, "--watch", str(watched), "--profiles", str(profiles),
+            "--settle-s", "0.3", "--no-web", "--log-json",
+        ],
+        tmp_path / "serve.log",
+    )  # fmt: skip
+    try:
+        files = recordings(fleet)[:2]
+        for f in files:
+            shutil.copy(f, watched / f.name)
+        (watched / "notes.csv").write_text("not a recording\n")
+        wait_for(lambda: count(url, RefusedFileRow) == 3, 60, "three files refused", service)
+        engine = engine_for(url)
+        with Session(engine) as s:
+            rows = {Path(r.path).name: r for r in s.scalars(select(RefusedFileRow))}
+        engine.dispose()
+        assert {rows[f.name].cause for f in files} == {"profile"}
+        assert {rows[f.name].conveyor for f in files} == {PROFILE.id}
+        assert rows["notes.csv"].cause == "recording"
+        # a profile that does not load: said in one line, nothing read again
+        (profiles / "white-belt-01.yaml").write_text("id: white-belt-01\nbelt: [\n")
+        wait_for(
+            lambda: any("not valid YAML" in line for line in service.lines()),
+            30,
+            "the bad profile said",
+            service,
+        )
+        assert count(url, RefusedFileRow) == 3
+        # fixed: the two recordings are read again and stored; the bad file stays refused
+        (profiles / "white-belt-01.yaml").write_text(REFERENCE_PROFILE.read_text())
+        wait_for(stored(url, [sha(f) for f in files]), 60, "the two stored", service)
+        wait_for(lambda: count(url, RefusedFileRow) == 1, 30, "their refusals gone", service)
+        assert any("reading" in line and "again" in line for line in service.lines())
+    finally:
+        code = service.stop()
+    assert code == 0, service.lines()[-5:]
+    assert count(url, RecordingRow) == 2
+
+
+def test_a_profile_added_while_the_service_was_down_reads_the_refused_files_at_start(
+    fleet: Path, tmp_path: Path
+) -> None:
+    from chaintwin.live.sources import Ingestor, Job
+
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    Store(url).close()  # no profile in the store either
+    store = Store(url)
+    f = recordings(fleet)[0]
+    refused = Ingestor(store, {}).ingest_one(Job(str(f), "folder:x"))
+    assert refused.status == "refused" and refused.cause == "profile"
+    store.close()
+    service = Service(
+        ["--db", url, "--profiles", str(PROFILES), "--no-web"], tmp_path / "serve.log"
+    )
+    try:
+        wait_for(stored(url, [sha(f)]), 60, "the refused file stored at start", service)
+    finally:
+        assert service.stop() == 0
+    assert count(url, RefusedFileRow) == 0
+
+
+def test_refused_list_and_retry_commands(
+    fleet: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from chaintwin.live.ledger import record_refusal
+    from chaintwin.live.sources import Ingestor, Job
+
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    Store(url).close()  # no profile in the store either
+    store = Store(url)
+    good = [str(f) for f in recordings(fleet)[:2]]
+    bad = tmp_path / "notes.csv"
+    bad.write_text("not a recording\n")
+    ingestor = Ingestor(store, {})
+    for f in [*good, str(bad)]:
+        assert ingestor.ingest_one(Job(f, "folder:x")).status == "refused"
+    ingestor.close()
+    record_refusal(store, "f" * 64, "opcua://ghost-belt/7", "opcua:ghost-belt:7", "no profile")
+    store.close()
+
+    assert main(["refused", "list", "--db", url, "--json"]) == 0
+    listed = json.loads(capsys.readouterr().out)
+    assert [(r["path"], r["cause"], r["conveyor"]) for r in listed] == [
+        (good[0], "profile", PROFILE.id),
+        (good[1], "profile", PROFILE.id),
+        (str(bad), "recording", None),
+        ("opcua://ghost-belt/7", "recording", None),
+    ]
+    assert "has no 'conveyor'" in listed[2]["reason"]
+    assert main(["refused", "list", "--db", url]) == 0
+    assert "chaintwin refused files (4)" in capsys.readouterr().out
+
+    # not among them: one line, exit 2
+    assert main(["refused", "retry", "--db", url, str(tmp_path / "other.csv")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "other.csv" in err and "refused list" in err
+
+    # one file, with its profile now: stored, its refusal gone
+    args = ["refused", "retry", "--db", url, "--profiles", str(PROFILES), "--json", good[0]]
+    assert main(args) == 0
+    # (stored waiting for the conveyor's calibration: this store has none yet)
+    assert json.loads(capsys.readouterr().out) == [
+        {"path": good[0], "status": "waiting", "reason": None}
+    ]
+    # all the others: one stored, the bad file refused again, the scope not kept
+    assert main(["refused", "retry", "--db", url, "--profiles", str(PROFILES), "--json"]) == 0
+    done = {d["path"]: d for d in json.loads(capsys.readouterr().out)}
+    assert done[good[1]]["status"] == "waiting"
+    assert done[str(bad)]["status"] == "refused" and "conveyor" in done[str(bad)]["reason"]
+    assert done["opcua://ghost-belt/7"]["status"] == "not_kept"
+    assert main(["refused", "list", "--db", url, "--json"]) == 0
+    left = [r["path"] for r in json.loads(capsys.readouterr().out)]
+    assert sorted(left) == sorted([str(bad), "opcua://ghost-belt/7"])
+    assert count(url, RecordingRow) == 2
+
+
+class MailReceiver:
+    """A real SMTP server (aiosmtpd) that answers 451 to the first ``fail_first`` messages
+    and asks for a login."""
+
+    def __init__(self, fail_first: int, user: str = "twin", password: str = "pa ss") -> None:
+        from aiosmtpd.controller import Controller
+        from aiosmtpd.smtp import AuthResult, LoginPassword
+
+        self.fail_left = fail_first
+        self.attempts = 0
+        self.accepted: list[tuple[list[str], bytes]] = []
+        self.logins: list[str] = []
+        outer = self
+
+        class Handler:
+            async def handle_DATA(self, server: Any, session: Any, envelope: Any) -> str:
+                outer.attempts += 1
+                if outer.fail_left > 0:
+                    outer.fail_left -= 1
+                    return "451 4.3.0 try again later"
+                outer.accepted.append((list(envelope.rcpt_tos), bytes(envelope.content)))
+                return "250 OK"
+
+        def authenticator(
+            server: Any, session: Any, envelope: Any, mechanism: str, data: Any
+        ) -> Any:
+            ok = isinstance(data, LoginPassword) and (data.login, data.password) == (
+                user.encode(),
+                password.encode(),
+            )
+            if ok:
+                outer.logins.append(user)
+            return AuthResult(success=ok)
+
+        self.controller = Controller(
+            Handler(),
+            hostname="127.0.0.1",
+            port=_free_port(),
+            authenticator=authenticator,
+            auth_require_tls=False,
+        )
+        self.controller.start()
+        self.address = f"127.0.0.1:{self.controller.port}"
+
+    def messages(self) -> list[Any]:
+        from email import message_from_bytes, policy
+
+        return [message_from_bytes(raw, policy=policy.default) for _to, raw in self.accepted]
+
+    def close(self) -> None:
+        self.controller.stop()
+
+
+def test_alarm_notifications_by_mail_through_a_failing_smtp_server_once_per_id(
+    fleet: Path, tmp_path: Path
+) -> None:
+    from chaintwin.live.notify import ID_HEADER, MailSettings
+
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    calibrated(url, fleet)
+    store = Store(url)
+    ingest(
+        [str(f) for f in recordings(fleet)],
+        {PROFILE.id: PROFILE},
+        store,
+        settings=MonitorSettings(baseline_n=5),
+        workers=1,
+    )
+    with Session(store.engine) as s:
+        outbox = {r.id: r for r in s.scalars(select(OutboxRow))}
+    assert outbox, "the friction rise opens an alarm"
+    smtp = MailReceiver(fail_first=1)
+    host, port = smtp.address.split(":")
+    to = ("ops@plant.example", "shift@plant.example")
+    mail = MailSettings(host, int(port), to, "twin@plant.example", False, "twin", "pa ss")
+    secret = b"s3cret-key"
+
+    def run(done: Callable[[], bool], seconds: float) -> None:
+        async def go() -> None:
+            notifier = Notifier(
+                store, [], secret, "https://twin.example/", Metrics(store, lambda: 0.0), mail
+            )
+            stop = asyncio.Event()
+            task = asyncio.create_task(notifier.run(stop, tick_s=0.1))
+            deadline = time.monotonic() + seconds
+            while not done() and time.monotonic() < deadline:
+                await asyncio.sleep(0.05)
+            stop.set()
+            await task
+
+        asyncio.run(go())
+
+    try:
+        # the first attempt is refused (451); a restart goes on from the store's attempts
+        run(lambda: smtp.attempts >= 1, 10)
+        assert smtp.attempts >= 1 and len(smtp.accepted) < len(outbox) * len(to)
+        # one recipient's failure holds back none of the other's
+        assert all(rcpt != ["ops@plant.example"] for rcpt, _raw in smtp.accepted)
+        run(lambda: len(smtp.accepted) >= len(outbox) * len(to), 30)
+        run(lambda: False, 0.5)  # nothing sent twice after
+    finally:
+        smtp.close()
+    assert smtp.logins  # logged in with the user and password given
+    messages = smtp.messages()
+    assert len(messages) == len(outbox) * len(to)
+    for addr in to:  # each recipient once per notification, in order
+        ids = [
+            m[ID_HEADER]
+            for (rcpt, _raw), m in zip(smtp.accepted, messages, strict=True)
+            if rcpt == [addr]
+        ]
+        assert sorted(ids) == sorted(outbox) and len(set(ids)) == len(ids)
+    first = messages[0]
+    nid = first[ID_HEADER]
+    assert f"[{nid}]" in first["Subject"] and first["Message-ID"] == f"<{nid}@chaintwin>"
+    assert first["From"] == "twin@plant.example"
+    (attached,) = [
+        p for p in first.iter_attachments() if p.get_content_type() == "application/json"
+    ]
+    body = attached.get_content()
+    body = body if isinstance(body, bytes) else body.encode()
+    doc = json.loads(body)
+    assert doc["id"] == nid and doc["link"] == f"https://twin.example/conveyors/{PROFILE.id}"
+    expected = "sha256=" + hmac.new(secret, body, hashlib.sha256).hexdigest()
+    assert str(first[SIGNATURE_HEADER]).strip() == expected  # a long header is folded
+    text_part = first.get_body(preferencelist=("plain",))
+    assert text_part is not None and doc["link"] in text_part.get_content()
+    with Session(store.engine) as s:
+        deliveries = list(s.scalars(select(DeliveryRow)))
+    assert len(deliveries) == len(outbox) * len(to)
+    assert all(d.delivered_at is not None for d in deliveries)
+    assert sum(d.attempts for d in deliveries) == len(outbox) * len(to) + 1  # the one refused
+    store.close()
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--notify-smtp", "mail.example:99999", "--notify-mail-to", "a@b.c"], "--notify-smtp"),
+        (["--notify-smtp", "mail.example"], "--notify-mail-to"),
+        (["--notify-mail-to", "a@b.c"], "needs --notify-smtp"),
+        (["--notify-smtp", "mail.example", "--notify-mail-to", "not an address"], "not an e-mail"),
+        (
+            ["--notify-smtp", "m.example", "--notify-mail-to", "a@b.c", "--notify-smtp-login-file",
+             "/nonexistent/login"],
+            "--notify-smtp-login-file",
+        ),
+    ],
+)  # fmt: skip
+def test_serve_refuses_bad_mail_options_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], needle: str
+) -> None:
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    assert main(["serve", "--db", url, "--no-web", *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and needle in err, err
+
+
+def test_serve_mails_the_outbox_with_its_options(fleet: Path, tmp_path: Path) -> None:
+    """``serve --notify-smtp ... --notify-mail-to ...`` end to end, with a login file."""
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    calibrated(url, fleet)
+    store = Store(url)
+    ingest(
+        [str(f) for f in recordings(fleet)],
+        {PROFILE.id: PROFILE},
+        store,
+        settings=MonitorSettings(baseline_n=5),
+        workers=1,
+    )
+    with Session(store.engine) as s:
+        n = len(list(s.scalars(select(OutboxRow.id))))
+    store.close()
+    smtp = MailReceiver(fail_first=1)
+    login = tmp_path / "smtp-login"
+    login.write_text("twin\npa ss\n")
+    service = Service(
+        [
+            "--db", url, "--no-web", "--notify-smtp", smtp.address,
+            "--notify-mail-to", "ops@plant.example", "--notify-mail-from", "twin@plant.example",
+            "--notify-smtp-login-file", str(login), "--public-url", "https://twin.example",
+        ],
+        tmp_path / "serve.log",
+    )  # fmt: skip
+    try:
+        wait_for(lambda: len(smtp.accepted) >= n, 60, "the notifications mailed", service)
+    finally:
+        code = service.stop()
+        smtp.close()
+    assert code == 0
+    assert smtp.logins and len(smtp.accepted) == n and smtp.attempts == n + 1
+    assert all(m["From"] == "twin@plant.example" for m in smtp.messages())
+
+
+def test_a_folder_remembers_recent_files_only_and_asks_the_store_about_older_ones(
+    fleet: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from chaintwin.live import watch
+    from chaintwin.live.ledger import known_paths, record_refusal
+
+    monkeypatch.setattr(watch, "MAX_REMEMBERED", 3)
+    folder = tmp_path / "in"
+    folder.mkdir()
+    names = [f"r{i}.csv" for i in range(5)]
+    for n in names:
+        (folder / n).write_text("x")
+    asked: list[list[str]] = []
+
+    def known(paths: list[str]) -> set[str]:
+        asked.append(sorted(paths))
+        return {p for p in paths if Path(p).name in names}  # the five are stored
+
+    async def enqueue(path: str, ready_at: float) -> None:
+        pass
+
+    source = watch.FolderSource(folder, 0.0, False, enqueue, known)
+    source._add(source._scan())
+    ready, _ = source._settled()
+    assert len(ready) == 5 and len(source.handed) == 3  # the latest three remembered
+    remembered = set(source.handed)
+    forgotten = sorted(set(ready) - remembered)
+    again = source._rescan()
+    # the two forgotten ones are asked about: stored, so not handed again; the
+    # remembered ones are looked at again (a change missed by the events)
+    assert asked == [forgotten]
+    assert set(again) == remembered
+    source._add(again)
+    assert source._settled()[0] == []  # unchanged: not handed again
+    # a file the store does not know is handed
+    (folder / "r5.csv").write_text("y")
+    source.handed.clear()
+    assert [Path(p).name for p in source._rescan()] == ["r5.csv"]
+
+    # the store's answer, by path: stored recordings and refused files
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    calibrated(url, fleet)
+    store = Store(url)
+    f = str(recordings(fleet)[0])
+    ingest([f], {PROFILE.id: PROFILE}, store, workers=1)
+    record_refusal(store, "e" * 64, "/in/bad.csv", "folder:/in", "bad")
+    assert known_paths(store, [f, "/in/bad.csv", "/in/new.csv"], chunk=2) == {f, "/in/bad.csv"}
+    store.close()
+
+
+def test_memory_usage_and_trim_on_glibc() -> None:
+    import ctypes
+
+    from chaintwin.live.memory import trim, usage
+
+    before = usage()
+    assert before["rss"] > 1.0
+    if not hasattr(ctypes.CDLL(None), "mallinfo2"):
+        pytest.skip("not glibc 2.33 or later")
+    blocks = [bytearray(64 * 1024) for _ in range(400)]  # 25 MB in the heap, then freed
+    assert usage()["heap_used"] > before["heap_used"] + 20
+    del blocks
+    assert trim() is True
+    assert usage()["heap_used"] < before["heap_used"] + 5

@@ -131,6 +131,57 @@ def test_the_store_of_0_1_0_is_refused_then_upgraded_and_reads_the_same(
     assert code == 0
 
 
+def test_the_fixture_store_at_0004_with_refusals_upgrades_and_sorts_their_causes(
+    db: str, tmp_path: Path
+) -> None:
+    """0005: the refusals a 0004 store kept get their cause and conveyor from their reason."""
+    from alembic import command
+
+    _legacy_store(db, tmp_path)
+    engine = engine_for(db)
+    with engine.begin() as connection:
+        command.stamp(migrate._config(connection), migrate.BASELINE_REVISION)
+        command.upgrade(migrate._config(connection), "0004")
+    reasons = {
+        "a.csv": "a.csv: is a recording of conveyor 'white-belt-01', for which no profile was "
+        "given (profiles: short-fast-03)",
+        "b.csv": "sqlite:///x.db: conveyor 'incline-line-02' is monitored with another "
+        "profile; ...",
+        "c.csv": "c.csv: has no 'conveyor' in its metadata; add '# conveyor: <profile id>'",
+    }
+    with engine.begin() as connection:
+        for k, (name, reason) in enumerate(reasons.items()):
+            connection.execute(
+                text(
+                    "INSERT INTO refused_files (sha256, path, source, reason, refused_at) "
+                    "VALUES (:sha, :path, 'folder:/in', :reason, '2026-11-25T00:00:00+00:00')"
+                ),
+                {"sha": f"{k}" * 64, "path": name, "reason": reason},
+            )
+    before, after = migrate.upgrade(engine)
+    assert (before, after) == ("0004", migrate.HEAD_REVISION)
+    with engine.connect() as connection:
+        rows = connection.execute(
+            text("SELECT path, cause, conveyor, reason FROM refused_files ORDER BY path")
+        ).all()
+    assert [tuple(r[:3]) for r in rows] == [
+        ("a.csv", "profile", "white-belt-01"),
+        ("b.csv", "profile", "incline-line-02"),
+        ("c.csv", "recording", None),
+    ]
+    assert [r[3] for r in rows] == list(reasons.values())  # kept as written
+    # and the store reads them, and the old exports, as before
+    store = Store(db)
+    from chaintwin.live.ledger import refusals
+
+    assert [r.path for r in refusals(store, cause="profile", conveyors={"white-belt-01"})] == [
+        "a.csv"
+    ]
+    assert len(store.results()) == len(LEGACY_EXPORT)
+    store.close()
+    engine.dispose()
+
+
 def test_a_store_newer_than_the_code_is_refused(tmp_path: Path) -> None:
     url = f"sqlite:///{tmp_path / 'new.db'}"
     Store(url).close()

@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import hashlib
 import json
+import re
 import socket
 import threading
 import time
@@ -726,3 +727,12 @@ def test_serve_follows_a_drive_over_opcua_and_stores_its_scopes(
             proc.kill()
             proc.wait(10)
     assert f"{CONVEYOR} at {sim.endpoint}" in log.read_text()
+    # stored under the drive's stable name, not the spool file it passed through
+    engine = engine_for(url)
+    with Session(engine) as s:
+        files = list(s.scalars(select(RecordingRow.file)))
+    engine.dispose()
+    assert files and all(re.fullmatch(rf"opcua://{CONVEYOR}/\d+", f) for f in files), files
+    results = Store(url).results(CONVEYOR)
+    assert {r["file"] for r in results} <= set(files)
+    assert "chaintwin-spool-" not in log.read_text()

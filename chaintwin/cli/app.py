@@ -68,6 +68,7 @@ def _register() -> None:
         identify_cmd,
         inspect_cmd,
         monitor_cmd,
+        refused_cmd,
         report_cmd,
         serve_cmd,
         simulate_cmd,
@@ -87,6 +88,7 @@ def _register() -> None:
     db_cmd.register(app)
     serve_cmd.register(app)
     drive_sim_cmd.register(app)
+    refused_cmd.register(app)
     verify_cmd.register(app)
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
@@ -13,6 +13,9 @@ from rich.table import Table
 
 from chaintwin.cli.common import print_json, safe
 from chaintwin.errors import StoreError
+
+if TYPE_CHECKING:
+    from chaintwin.live.notify import MailSettings
 
 __all__ = ["register"]
 
@@ -37,6 +40,11 @@ class LiveArgs:
     keep_samples_days: float | None = None
     lease_s: float = 15.0
     opcua: Path | None = None
+    notify_smtp: str | None = None
+    notify_mail_to: list[str] = field(default_factory=list)
+    notify_mail_from: str | None = None
+    notify_smtp_starttls: bool = False
+    notify_smtp_login_file: Path | None = None
 
 
 def serve(
@@ -97,6 +105,11 @@ def serve(
             if not u.startswith(("http://", "https://")):
                 raise StoreError(f"--notify-url {u}: not an http:// or https:// URL")
         secret = read_secret(live.notify_secret_file)
+    elif live.notify_secret_file is not None:
+        from chaintwin.live.notify import read_secret
+
+        secret = read_secret(live.notify_secret_file)  # signs the mails' JSON
+    mail = _mail_settings(live)
     profs = load_profiles(None, profiles) if profiles is not None else {}
     setup_logging(live.log_json)
     url = store_url(db)
@@ -107,9 +120,11 @@ def serve(
         poll=live.poll,
         notify_urls=live.notify_urls,
         notify_secret=secret,
+        mail=mail,
         public_url=live.public_url or f"{scheme}://{host}:{port}",
         keep_samples_days=live.keep_samples_days,
         lease_s=live.lease_s,
+        profiles_dir=profiles,
     )
     try:
 
@@ -158,6 +173,53 @@ def serve(
         asyncio.run(main())
     finally:
         store.close()
+
+
+def _mail_settings(live: LiveArgs) -> MailSettings | None:
+    """The e-mail channel of ``--notify-smtp`` and its options, checked (None: no e-mail).
+
+    Raises
+    ------
+    StoreError
+        On a bad host, address or login file, or mail options without
+        ``--notify-smtp`` (or it without ``--notify-mail-to``).
+    """
+    import socket
+
+    from chaintwin.live.notify import MailSettings, parse_mail_address, parse_smtp, read_login
+
+    if live.notify_smtp is None:
+        given = [
+            name
+            for name, value in (
+                ("--notify-mail-to", live.notify_mail_to),
+                ("--notify-mail-from", live.notify_mail_from),
+                ("--notify-smtp-starttls", live.notify_smtp_starttls),
+                ("--notify-smtp-login-file", live.notify_smtp_login_file),
+            )
+            if value
+        ]
+        if given:
+            raise StoreError(
+                f"{given[0]} needs --notify-smtp HOST[:PORT]: the SMTP server that sends the mail"
+            )
+        return None
+    host, port = parse_smtp(live.notify_smtp)
+    if not live.notify_mail_to:
+        raise StoreError(
+            "--notify-smtp needs --notify-mail-to ADDR (repeatable): whom to send the alarms to"
+        )
+    to = tuple(
+        dict.fromkeys(parse_mail_address(a, "--notify-mail-to") for a in live.notify_mail_to)
+    )
+    sender = parse_mail_address(
+        live.notify_mail_from or f"chaintwin@{socket.getfqdn() or 'localhost'}",
+        "--notify-mail-from",
+    )
+    user = password = None
+    if live.notify_smtp_login_file is not None:
+        user, password = read_login(live.notify_smtp_login_file)
+    return MailSettings(host, port, to, sender, live.notify_smtp_starttls, user, password)
 
 
 def register(app: typer.Typer) -> None:
@@ -237,6 +299,31 @@ def register(app: typer.Typer) -> None:
             Path | None,
             typer.Option("--opcua", help="Follow drives over OPC UA (config YAML)."),
         ] = None,
+        notify_smtp: Annotated[
+            str | None,
+            typer.Option(
+                "--notify-smtp", help="Mail alarm notifications through this SMTP HOST[:PORT]."
+            ),
+        ] = None,
+        notify_mail_to: Annotated[
+            list[str] | None,
+            typer.Option("--notify-mail-to", help="Mail the notifications to ADDR. Repeatable."),
+        ] = None,
+        notify_mail_from: Annotated[
+            str | None,
+            typer.Option("--notify-mail-from", help="The mails' sender [chaintwin@this host]."),
+        ] = None,
+        notify_smtp_starttls: Annotated[
+            bool,
+            typer.Option("--notify-smtp-starttls", help="Upgrade the SMTP link with STARTTLS."),
+        ] = False,
+        notify_smtp_login_file: Annotated[
+            Path | None,
+            typer.Option(
+                "--notify-smtp-login-file",
+                help="File with the SMTP user (first line) and password (second line).",
+            ),
+        ] = None,
     ) -> None:
         """Serve the dashboard and the HTTP API over a results store; follow live sources.
 
@@ -257,6 +344,11 @@ def register(app: typer.Typer) -> None:
             keep_samples_days=keep_samples_days,
             lease_s=lease_s,
             opcua=opcua,
+            notify_smtp=notify_smtp,
+            notify_mail_to=list(notify_mail_to or []),
+            notify_mail_from=notify_mail_from,
+            notify_smtp_starttls=notify_smtp_starttls,
+            notify_smtp_login_file=notify_smtp_login_file,
         )
         serve(db, profiles, host, port, max_upload_mb, ssl_certfile, ssl_keyfile, live)
 

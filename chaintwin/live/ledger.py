@@ -11,6 +11,7 @@ recording stored twice is refused by the database.
 from __future__ import annotations
 
 import time
+from collections.abc import Collection
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
@@ -19,14 +20,18 @@ from sqlalchemy import delete, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from chaintwin.store.schema import LeaseRow, LiveSourceRow, RefusedFileRow
+from chaintwin.store.schema import LeaseRow, LiveSourceRow, RecordingRow, RefusedFileRow
 from chaintwin.store.store import Store
 
 __all__ = [
+    "Refusal",
     "SourceRecord",
     "acquire_lease",
+    "forget_refusal",
     "is_refused",
+    "known_paths",
     "record_refusal",
+    "refusals",
     "release_lease",
     "source_records",
     "update_source",
@@ -47,17 +52,119 @@ def is_refused(store: Store, sha256: str) -> bool:
         )
 
 
-def record_refusal(store: Store, sha256: str, path: str, source: str, reason: str) -> None:
-    """Keep a refusal (a second one of the same content, by another process, is dropped)."""
+def record_refusal(
+    store: Store,
+    sha256: str,
+    path: str,
+    source: str,
+    reason: str,
+    *,
+    cause: str = "recording",
+    conveyor: str | None = None,
+) -> None:
+    """Keep a refusal (a second one of the same content, by another process, is dropped).
+
+    ``cause`` is ``profile`` when the file's conveyor had no profile, or the
+    store monitors it with another (it is read again once a profile is
+    added or changed), else ``recording``; ``conveyor`` is the conveyor the
+    file names, when known.
+    """
     try:
         with Session(store.engine) as s, s.begin():
             s.add(
                 RefusedFileRow(
-                    sha256=sha256, path=path, source=source, reason=reason, refused_at=_now()
+                    sha256=sha256,
+                    path=path,
+                    source=source,
+                    reason=reason,
+                    refused_at=_now(),
+                    cause=cause,
+                    conveyor=conveyor,
                 )
             )
     except IntegrityError:
         pass  # refused already, by this content
+
+
+def known_paths(store: Store, paths: Collection[str], chunk: int = 500) -> set[str]:
+    """Which of these files the store has stored or refused, by path (as given).
+
+    A watched folder remembers the files it handed over for a while only
+    (:data:`~.watch.MAX_REMEMBERED`); its rescans ask the store about the
+    others, instead of reading and hashing every old file again.
+    """
+    out: set[str] = set()
+    todo = list(paths)
+    with Session(store.engine) as s:
+        for k in range(0, len(todo), chunk):
+            part = todo[k : k + chunk]
+            out.update(s.scalars(select(RecordingRow.file).where(RecordingRow.file.in_(part))))
+            out.update(s.scalars(select(RefusedFileRow.path).where(RefusedFileRow.path.in_(part))))
+    return out
+
+
+@dataclass(frozen=True, slots=True)
+class Refusal:
+    """A refused file as the store keeps it."""
+
+    sha256: str
+    path: str
+    source: str
+    reason: str
+    refused_at: str
+    cause: str
+    conveyor: str | None
+
+    def to_dict(self) -> dict[str, Any]:
+        """``chaintwin refused list --json``'s object."""
+        return {
+            "path": self.path,
+            "source": self.source,
+            "conveyor": self.conveyor,
+            "cause": self.cause,
+            "reason": self.reason,
+            "refused_at": self.refused_at,
+            "sha256": self.sha256,
+        }
+
+
+def refusals(
+    store: Store, *, cause: str | None = None, conveyors: Collection[str] | None = None
+) -> list[Refusal]:
+    """The refused files, oldest first.
+
+    Parameters
+    ----------
+    store : Store
+        The results store.
+    cause : str, optional
+        Only those of this cause (``profile``, ``recording``).
+    conveyors : collection of str, optional
+        Only those of these conveyors, and those whose conveyor is not known.
+    """
+    q = select(RefusedFileRow).order_by(RefusedFileRow.refused_at, RefusedFileRow.id)
+    if cause is not None:
+        q = q.where(RefusedFileRow.cause == cause)
+    if conveyors is not None:
+        q = q.where(
+            RefusedFileRow.conveyor.in_(list(conveyors)) | RefusedFileRow.conveyor.is_(None)
+        )
+    with Session(store.engine) as s:
+        return [
+            Refusal(r.sha256, r.path, r.source, r.reason, r.refused_at, r.cause, r.conveyor)
+            for r in s.scalars(q)
+        ]
+
+
+def forget_refusal(store: Store, sha256: str) -> bool:
+    """Drop a refusal so that its file is read again; whether this call dropped it.
+
+    Of several processes retrying the same refusal at once, one drops it
+    (and reads the file again); the others get False.
+    """
+    with Session(store.engine) as s, s.begin():
+        done = s.execute(delete(RefusedFileRow).where(RefusedFileRow.sha256 == sha256))
+        return bool(done.rowcount == 1)  # type: ignore[attr-defined]
 
 
 # ------------------------------------------------------------------ sources

@@ -42,17 +42,93 @@ from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.store.store import Store
 
-from .ledger import acquire_lease, release_lease, source_records, update_source
+from .ledger import (
+    acquire_lease,
+    forget_refusal,
+    refusals,
+    release_lease,
+    source_records,
+    update_source,
+)
 from .metrics import Metrics
 from .sources import DriveStatusLike, Ingestor, Job, Outcome, Submit
 from .watch import FolderSource
 
 if TYPE_CHECKING:
+    from .notify import MailSettings
     from .opcua import OpcuaConfig
 
-__all__ = ["LiveOptions", "LiveService", "Source"]
+__all__ = ["PROFILES_POLL_S", "LiveOptions", "LiveService", "Source", "read_profile_folder"]
 
 log = logging.getLogger("chaintwin.live")
+
+PROFILES_POLL_S = 2.0
+"""How often the ``--profiles`` folder is looked at for changed files, s."""
+
+
+def _folder_state(folder: Path) -> tuple[tuple[str, int, int], ...]:
+    """The profile files of a folder: (name, size, modification time ns), sorted."""
+    out: list[tuple[str, int, int]] = []
+    for path in [*folder.glob("*.yaml"), *folder.glob("*.yml")]:
+        try:
+            st = path.stat()
+        except OSError:
+            continue
+        out.append((path.name, st.st_size, st.st_mtime_ns))
+    return tuple(sorted(out))
+
+
+def read_profile_folder(
+    folder: Path, previous: dict[Path, ConveyorProfile]
+) -> dict[Path, ConveyorProfile]:
+    """The profiles of a folder by file, read again; a file that became invalid keeps
+    its previous profile (logged with the loader's one-line reason).
+
+    Parameters
+    ----------
+    folder : Path
+        The ``--profiles`` folder.
+    previous : dict
+        The profiles read last time, by file.
+
+    Returns
+    -------
+    dict
+        Each file's profile; a file whose id another file (earlier by name)
+        has already is left out, logged.
+    """
+    from chaintwin.errors import ProfileError
+    from chaintwin.read.profile import load_profile
+
+    out: dict[Path, ConveyorProfile] = {}
+    ids: dict[str, Path] = {}
+    for path in sorted([*folder.glob("*.yaml"), *folder.glob("*.yml")]):
+        try:
+            profile = load_profile(path)
+        except ProfileError as exc:
+            kept = previous.get(path)
+            log.warning(
+                "profiles: %s; %s",
+                str(exc).splitlines()[0],
+                "its previous version stays in use" if kept else "it is not used until fixed",
+                extra={"file": str(path)},
+            )
+            if kept is None:
+                continue
+            profile = kept
+        if profile.id in ids:
+            log.warning(
+                "profiles: %s: id '%s' is also the id of %s; give each conveyor its own id",
+                path,
+                profile.id,
+                ids[profile.id],
+                extra={"file": str(path)},
+            )
+            continue
+        ids[profile.id] = path
+        out[path] = profile
+    return out
+
 
 Follow = Callable[[asyncio.Event], Awaitable[None]]
 """A source's body: follows the source until the event is set."""
@@ -66,12 +142,17 @@ class LiveOptions:
     poll: bool = False
     notify_urls: list[str] = field(default_factory=list)
     notify_secret: bytes | None = None
+    mail: MailSettings | None = None
+    """The e-mail channel of the notifications (``--notify-smtp``), if any."""
     public_url: str = "http://127.0.0.1:8000"
     keep_samples_days: float | None = None
     lease_s: float = 15.0
     """How long a lease lasts unless renewed (renewed every third of it), s."""
     holder: str = ""
     """This process's name in the leases (default: host, process id and a random part)."""
+    profiles_dir: Path | None = None
+    """``--profiles``: read again when its files change; the files refused for want of
+    a profile are then read again (:meth:`LiveService.retry_refused`)."""
 
 
 @dataclass
@@ -125,6 +206,8 @@ class LiveService:
     ) -> None:
         self.store = store
         self.options = options
+        self.profiles = profiles
+        """The ``--profiles`` in use by id (updated in place when the folder changes)."""
         self.holder = (
             options.holder or f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:6]}"
         )
@@ -141,8 +224,14 @@ class LiveService:
     # ---------------------------------------------------------------- sources
     def add_folder(self, root: Path) -> None:
         """Follow a folder (recursively) under the lease ``folder:<absolute path>``."""
+        from .ledger import known_paths
+
         folder = FolderSource(
-            root.resolve(), self.options.settle_s, self.options.poll, self._enqueue_file(root)
+            root.resolve(),
+            self.options.settle_s,
+            self.options.poll,
+            self._enqueue_file(root),
+            lambda paths: known_paths(self.store, paths),
         )
         self.folders[folder.key] = folder
         self.sources.append(Source(folder.key, "folder", folder.run))
@@ -387,6 +476,86 @@ class LiveService:
             "drives": drives,
         }
 
+    # ---------------------------------------------------------------- profiles
+    async def retry_refused(self, conveyors: set[str]) -> list[str]:
+        """Read again the files refused for want of a profile of these conveyors.
+
+        Each refusal of cause ``profile`` (:func:`~.ledger.record_refusal`)
+        of one of ``conveyors`` whose file is still there is dropped and the
+        file queued; of several processes on one store, the one that drops a
+        refusal reads the file. A drive's scope refused so cannot be read
+        again (it was not kept): it stays refused.
+
+        Returns
+        -------
+        list of str
+            The files queued again.
+        """
+        if not conveyors:
+            return []
+        rows = await asyncio.to_thread(refusals, self.store, cause="profile", conveyors=conveyors)
+        queued: list[str] = []
+        for row in rows:
+            if not await asyncio.to_thread(os.path.isfile, row.path):
+                continue  # gone, or a drive's scope
+            if not await asyncio.to_thread(forget_refusal, self.store, row.sha256):
+                continue  # another process took it
+            log.info(
+                "reading %s again: a profile of '%s' was added or changed",
+                row.path,
+                row.conveyor,
+                extra={"source": row.source, "file": row.path},
+            )
+            await self.ingestor.put_file(row.path, row.source)
+            queued.append(row.path)
+        return queued
+
+    async def _follow_profiles(self, folder: Path) -> None:
+        """Read ``--profiles`` again when its files change; retry what a new profile fixes.
+
+        At start, the files refused for want of a profile that is there now
+        (given, or in the store) are read again: the profile may have been
+        added while the service was down.
+        """
+        by_file: dict[Path, ConveyorProfile] = {}
+        try:
+            state = await asyncio.to_thread(_folder_state, folder)
+            by_file = await asyncio.to_thread(read_profile_folder, folder, by_file)
+            known = set(await asyncio.to_thread(self.ingestor.profiles_for))
+            await self.retry_refused(known)
+        except Exception as exc:
+            log.error("profiles: %s", str(exc).splitlines()[0] if str(exc) else exc)
+        while not self.stop.is_set():
+            await self._sleep(PROFILES_POLL_S)
+            if self.stop.is_set():
+                break
+            try:
+                now = await asyncio.to_thread(_folder_state, folder)
+                if now == state:
+                    continue
+                state = now
+                by_file = await asyncio.to_thread(read_profile_folder, folder, by_file)
+                fresh = {p.id: p for p in by_file.values()}
+                changed = {
+                    cid
+                    for cid, p in fresh.items()
+                    if cid not in self.profiles
+                    or self.profiles[cid].content_hash() != p.content_hash()
+                }
+                if not changed and set(fresh) == set(self.profiles):
+                    continue
+                self.profiles.clear()
+                self.profiles.update(fresh)
+                self.ingestor.set_profiles(fresh)
+                log.info(
+                    "profiles read again from %s: %s",
+                    folder,
+                    ", ".join(sorted(changed)) + " added or changed" if changed else "one removed",
+                )
+                await self.retry_refused(changed)
+            except Exception as exc:
+                log.error("profiles: %s", str(exc).splitlines()[0] if str(exc) else exc)
+
     # ---------------------------------------------------------------- running
     async def _retention(self) -> None:
         from .retention import drop_samples
@@ -402,6 +571,57 @@ class LiveService:
                 log.error("retention: %s", exc)
             await self._sleep(3600.0)
 
+    async def _memory(self) -> None:
+        """Every :data:`~.memory.TRIM_EVERY_S`: glibc's free memory handed back to the
+        system (:func:`~.memory.trim`); with ``CHAINTWIN_MEMORY_LOG=1`` the memory
+        logged before and after (``memory`` in the JSON log)."""
+        from .memory import TRIM_EVERY_S, trim, usage
+
+        logging_on = os.environ.get("CHAINTWIN_MEMORY_LOG", "") not in ("", "0")
+        while not self.stop.is_set():
+            await self._sleep(TRIM_EVERY_S)
+            if self.stop.is_set():
+                break
+            before = usage() if logging_on else {}
+            await asyncio.to_thread(trim)
+            if logging_on:
+                after = usage()
+                log.info(
+                    "memory: %s MB; after trimming: %s MB",
+                    " ".join(f"{k} {v:.1f}" for k, v in before.items()),
+                    " ".join(f"{k} {v:.1f}" for k, v in after.items()),
+                    extra={"memory": {"before": before, "after": after}},
+                )
+
+    def _memory_snapshots(self, loop: asyncio.AbstractEventLoop) -> bool:
+        """With ``CHAINTWIN_TRACEMALLOC_DIR`` set, trace allocations and dump a snapshot
+        there on each SIGUSR1 (``snapshot-<n>.tracemalloc``, after a garbage collection).
+
+        A maintainers' tool (``benchmarks/bench_live.py --tracemalloc``): tracing
+        slows the service and costs memory of its own. ``CHAINTWIN_TRACEMALLOC_FRAMES``
+        (8) is the depth of the tracebacks kept. Returns whether it is on.
+        """
+        folder = os.environ.get("CHAINTWIN_TRACEMALLOC_DIR")
+        if not folder:
+            return False
+        import gc
+        import tracemalloc
+
+        tracemalloc.start(int(os.environ.get("CHAINTWIN_TRACEMALLOC_FRAMES", "8")))
+        count = 0
+
+        def dump() -> None:
+            nonlocal count
+            gc.collect()
+            path = Path(folder) / f"snapshot-{count}.tracemalloc"
+            count += 1
+            tracemalloc.take_snapshot().dump(str(path))
+            log.info("tracemalloc snapshot written to %s", path)
+
+        with contextlib.suppress(NotImplementedError, RuntimeError, AttributeError):
+            loop.add_signal_handler(signal.SIGUSR1, dump)
+        return True
+
     def request_stop(self) -> None:
         """Stop: the sources first, then the recording in hand, then the web server."""
         if not self.stop.is_set():
@@ -414,24 +634,29 @@ class LiveService:
         for sig in (signal.SIGTERM, signal.SIGINT):
             with contextlib.suppress(NotImplementedError, RuntimeError):
                 loop.add_signal_handler(sig, self.request_stop)
+        self._memory_snapshots(loop)
         tasks: list[asyncio.Task[Any]] = [asyncio.create_task(self.ingestor.run(self.stop))]
         tasks += [asyncio.create_task(self._hold(s)) for s in self.sources]
-        if self.options.notify_urls:
+        if self.options.notify_urls or self.options.mail is not None:
             from .notify import Notifier
 
-            assert self.options.notify_secret is not None
+            assert self.options.notify_secret is not None or not self.options.notify_urls
             self.notifier = Notifier(
                 self.store,
                 self.options.notify_urls,
                 self.options.notify_secret,
                 self.options.public_url,
                 self.metrics,
+                self.options.mail,
             )
             notifier = self.notifier
             self.sources.append(Source("notify", "notify", notifier.run))
             tasks.append(asyncio.create_task(self._hold(self.sources[-1])))
         if self.options.keep_samples_days is not None:
             tasks.append(asyncio.create_task(self._retention()))
+        if self.options.profiles_dir is not None:
+            tasks.append(asyncio.create_task(self._follow_profiles(self.options.profiles_dir)))
+        tasks.append(asyncio.create_task(self._memory()))
         server = None
         if web_config is not None:
             server = _Server(web_config).server

@@ -42,6 +42,7 @@ __all__ = [
     "Job",
     "Outcome",
     "Submit",
+    "stored_name",
 ]
 
 log = logging.getLogger("chaintwin.live")
@@ -74,6 +75,22 @@ class DriveStatusLike(Protocol):
         ...
 
 
+def stored_name(source_key: str) -> str:
+    """The stable name a live source's recording is stored and shown under.
+
+    A drive's scope (``opcua:<conveyor>:<counter>``) becomes
+    ``opcua://<conveyor>/<counter>``: the store's ``file`` column, the
+    results, the refusals and the log name the drive and the scope, not the
+    spool file it passed through. Other keys are kept as they are.
+    """
+    kind, sep, rest = source_key.partition(":")
+    if kind == "opcua" and sep:
+        conveyor, sep2, counter = rest.rpartition(":")
+        if sep2 and conveyor:
+            return f"opcua://{conveyor}/{counter}"
+    return source_key
+
+
 Status = Literal["stored", "waiting", "already_stored", "refused", "gone", "failed"]
 
 
@@ -94,6 +111,8 @@ class Outcome:
     reason: str | None = None
     seconds: float = 0.0
     """Time from the recording being complete to its result stored, s."""
+    cause: str | None = None
+    """A refusal's cause: ``profile`` or ``recording`` (see :func:`~.ledger.record_refusal`)."""
 
 
 @dataclass
@@ -107,6 +126,12 @@ class Job:
     done: asyncio.Future[Outcome] | None = None
     spooled: bool = False
     """A file this service wrote (a drive's recording): removed once ingested."""
+
+    @property
+    def name(self) -> str:
+        """What the recording is stored and shown as: the file's path, or for a
+        spooled recording its source's stable name (:func:`stored_name`)."""
+        return stored_name(self.source) if self.spooled else self.path
 
 
 _SAFE = re.compile(r"[^A-Za-z0-9._-]+")
@@ -179,7 +204,7 @@ class Ingestor:
             )
             digest = hashlib.sha256(f"{source_key}\n{reason}".encode()).hexdigest()
             await asyncio.to_thread(
-                record_refusal, self.store, digest, source_key, source_key, reason
+                record_refusal, self.store, digest, stored_name(source_key), source_key, reason
             )
             if self.on_outcome is not None:
                 self.on_outcome(
@@ -223,6 +248,31 @@ class Ingestor:
             if job.done is not None and not job.done.done():
                 job.done.cancel()
 
+    def set_profiles(self, profiles: Mapping[str, ConveyorProfile]) -> None:
+        """Ingest with these profiles from now on (``--profiles`` read again)."""
+        self.profiles = dict(profiles)
+        self._profiles_at = -1e9  # the store's again too
+
+    def _cause(self, job: Job, profile_refused: bool) -> tuple[str, str | None]:
+        """Why a file was refused: ``(cause, conveyor)`` (see :func:`~.ledger.record_refusal`).
+
+        ``profile`` when the conveyor the file names has no profile (adding
+        one fixes it), or the store monitors it with another profile;
+        ``recording`` otherwise.
+        """
+        from chaintwin.read.reader import parse_metadata
+
+        try:
+            conveyor = parse_metadata(Path(job.path).read_bytes(), job.name).conveyor
+        except (ChaintwinError, OSError):
+            return "recording", None
+        profiles = self.profiles_for()
+        if conveyor is None and len(profiles) == 1:
+            conveyor = next(iter(profiles))  # as ingest takes it
+        if conveyor is not None and (profile_refused or conveyor not in profiles):
+            return "profile", conveyor
+        return "recording", conveyor
+
     def profiles_for(self) -> dict[str, ConveyorProfile]:
         """The profiles to ingest with: the store's, and ``--profiles`` over them."""
         if time.monotonic() - self._profiles_at > self.PROFILES_REFRESH_S:
@@ -250,34 +300,40 @@ class Ingestor:
             if is_refused(self.store, sha):
                 return Outcome("refused", sha, "refused before (unchanged since)")
             summary = ingest(
-                [job.path], self.profiles_for(), self.store, settings=self.settings, workers=1
+                [job.path],
+                self.profiles_for(),
+                self.store,
+                settings=self.settings,
+                workers=1,
+                names={job.path: job.name} if job.spooled else None,
             )
             seconds = time.monotonic() - job.ready_at
             if summary.refusals:
                 reason = summary.refusals[0]["error"]
                 if job.spooled:
-                    reason = reason.replace(job.path, job.source)
+                    reason = reason.replace(job.path, job.name)
                 log.warning(
                     "refused %s: %s",
-                    job.source if job.spooled else job.path,
+                    job.name,
                     reason,
-                    extra={"source": job.source, "file": job.path, "reason": reason},
+                    extra={"source": job.source, "file": job.name, "reason": reason},
                 )
+                cause, conveyor = self._cause(job, job.name in summary.profile_refused)
                 record_refusal(
-                    self.store, sha, job.source if job.spooled else job.path, job.source, reason
+                    self.store, sha, job.name, job.source, reason, cause=cause, conveyor=conveyor
                 )
-                return Outcome("refused", sha, reason, seconds)
+                return Outcome("refused", sha, reason, seconds, cause)
             if summary.duplicates:
                 return Outcome("already_stored", sha, None, seconds)
             status: Status = "waiting" if summary.waiting else "stored"
             log.info(
                 "%s %s in %.3f s",
                 status,
-                job.source if job.spooled else job.path,
+                job.name,
                 seconds,
                 extra={
                     "source": job.source,
-                    "file": job.path,
+                    "file": job.name,
                     "status": status,
                     "seconds": seconds,
                 },

@@ -20,10 +20,18 @@ import logging
 import math
 import os
 import time
+from collections import OrderedDict
 from collections.abc import Awaitable, Callable
 from pathlib import Path
 
-__all__ = ["IGNORED_SUFFIXES", "MAX_TICK_S", "RESCAN_S", "FolderSource", "is_candidate"]
+__all__ = [
+    "IGNORED_SUFFIXES",
+    "MAX_REMEMBERED",
+    "MAX_TICK_S",
+    "RESCAN_S",
+    "FolderSource",
+    "is_candidate",
+]
 
 log = logging.getLogger("chaintwin.live")
 
@@ -32,6 +40,10 @@ IGNORED_SUFFIXES = (".part", ".tmp")
 
 RESCAN_S = 300.0
 """A full rescan of a followed folder this often, s (events lost on a network share)."""
+
+MAX_REMEMBERED = 2_000
+"""The files handed over that a folder remembers (the latest; about 250 bytes each,
+0.5 MB): older ones found again by a rescan are looked up in the store by path."""
 
 MAX_TICK_S = 1.0
 """The candidates are looked at again at the latest after this long, s (else when the
@@ -59,6 +71,12 @@ class FolderSource:
     enqueue : callable
         ``await enqueue(path, ready_at)`` hands a complete file to the ingest
         queue (``ready_at``: monotonic time it was found complete).
+    known : callable, optional
+        ``known(paths)``: which of these files the store has stored or
+        refused (:func:`~.ledger.known_paths`; called in a worker thread).
+        A rescan does not hand those again that the folder no longer
+        remembers; without it, a rescan hands every file it does not
+        remember (the ingest then finds them stored by their content).
     """
 
     def __init__(
@@ -67,21 +85,49 @@ class FolderSource:
         settle_s: float,
         poll: bool,
         enqueue: Callable[[str, float], Awaitable[None]],
+        known: Callable[[list[str]], set[str]] | None = None,
     ) -> None:
         self.root = root
         self.settle_s = settle_s
         self.poll = poll
         self.enqueue = enqueue
+        self.known = known
         self.key = f"folder:{root}"
         # path -> (size, mtime_ns, since): candidates watched until they settle
         self.pending: dict[str, tuple[int, int, float]] = {}
-        # path -> (size, mtime_ns) handed over; not handed again unless changed
-        self.handed: dict[str, tuple[int, int]] = {}
+        # path -> (size, mtime_ns) handed over, the latest MAX_REMEMBERED; not handed
+        # again unless changed
+        self.handed: OrderedDict[str, tuple[int, int]] = OrderedDict()
         self.changed = asyncio.Event()  # a file was added to the candidates
 
     def forget(self, path: str) -> None:
         """Let a file be handed again at the next scan (its ingest failed)."""
         self.handed.pop(path, None)
+
+    def _remember(self, path: str, key: tuple[int, int]) -> None:
+        """Note a file handed over; forget the oldest beyond :data:`MAX_REMEMBERED`."""
+        self.handed.pop(path, None)
+        self.handed[path] = key
+        while len(self.handed) > MAX_REMEMBERED:
+            self.handed.popitem(last=False)
+
+    def _rescan(self) -> list[str]:
+        """A full rescan's candidates (in a worker thread): every file, less those the
+        folder no longer remembers that the store has (asked by path)."""
+        found = self._scan()
+        present = set(found)
+        # forget files that are gone: memory follows what the folder holds
+        for gone in [p for p in self.handed if p not in present]:
+            del self.handed[gone]
+        unknown = [p for p in found if p not in self.handed and p not in self.pending]
+        if not unknown or self.known is None:
+            return found
+        try:
+            stored = self.known(unknown)
+        except Exception as exc:  # the store is away: the ingest sorts them out
+            log.error("rescan of %s: cannot ask the store (%s)", self.root, exc)
+            return found
+        return [p for p in found if p not in stored or p in self.handed]
 
     def _scan(self) -> list[str]:
         out: list[str] = []
@@ -126,7 +172,7 @@ class FolderSource:
             if now - since >= self.settle_s:
                 del self.pending[path]
                 if self.handed.get(path) != key:
-                    self.handed[path] = key
+                    self._remember(path, key)
                     ready.append(path)
             else:
                 due = min(due if due is not None else math.inf, since + self.settle_s)
@@ -172,11 +218,7 @@ class FolderSource:
                     watcher.result()  # the watcher failed: say why
                     break
                 if time.monotonic() - last_scan > RESCAN_S:
-                    found = await asyncio.to_thread(self._scan)
-                    # forget files that are gone: memory follows what the folder holds
-                    present = set(found)
-                    self.handed = {p: k for p, k in self.handed.items() if p in present}
-                    self._add(found)
+                    self._add(await asyncio.to_thread(self._rescan))
                     last_scan = time.monotonic()
                 # until the next file settles, a new one is seen, or a second at most
                 wait = MAX_TICK_S if due is None else due - time.monotonic()

@@ -27,9 +27,9 @@ from __future__ import annotations
 import os
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from typing import Any
 
@@ -72,6 +72,9 @@ class IngestSummary:
     """Stored without a result: held back until the conveyor's calibration is learned."""
     refusals: list[dict[str, str]] = field(default_factory=list)
     seconds: float = 0.0
+    profile_refused: set[str] = field(default_factory=set)
+    """Files (as named in ``refusals``) refused because the store monitors their
+    conveyor with another profile: a matter of the profile, not of the file."""
 
     def to_dict(self) -> dict[str, Any]:
         """The ``ingest --json`` object."""
@@ -339,8 +342,10 @@ class _Batch:
         column_map: ColumnMap | None,
         summary: IngestSummary,
         tick: Callable[[], None],
+        names: Mapping[str, str] | None = None,
     ) -> None:
         self.ex = ex
+        self.names = dict(names or {})
         self.profiles = profiles
         self.store = store
         self.window = window
@@ -431,15 +436,20 @@ class _Batch:
                 self.seen.add(item.sha256)
                 self.sha[item.path] = item.sha256
                 if cid in self.why:
-                    self._refuse(item.path, self.why[cid])
+                    self._refuse(item.path, self.why[cid], profile=True)
                     continue
                 self.found.setdefault(cid, []).append(item)
                 self.unsent.append((cid, item.path))
 
-    def _refuse(self, f: str, error: str) -> None:
+    def _refuse(self, f: str, error: str, *, profile: bool = False) -> None:
         self.tick()
         self.summary.refused += 1
-        self.summary.refusals.append({"file": f, "error": error})
+        name = self.names.get(f)
+        if name is not None:
+            error = error.replace(f, name)
+        self.summary.refusals.append({"file": name or f, "error": error})
+        if profile:
+            self.summary.profile_refused.add(name or f)
 
     def _plan(self) -> None:
         """All is scanned: each conveyor's recorded order; the rest is sent in it."""
@@ -464,7 +474,7 @@ class _Batch:
             self.why[cid] = str(exc)
         # nothing of it was sent yet: all its files are refused
         for _, f in (x for x in self.unsent if x[0] == cid):
-            self._refuse(f, self.why[cid])
+            self._refuse(f, self.why[cid], profile=True)
         self.unsent = deque(x for x in self.unsent if x[0] != cid)
         if self.untaken:  # planned: what is left to send is known
             self.window.left = len(self.unsent)
@@ -511,8 +521,13 @@ class _Batch:
                 self._refuse(f, prepared.error or "refused")
                 continue
             self.tick()
+            rec = prepared.recording
             if f in self.undated:
-                prepared = prepared._replace(recording=undated(prepared.recording))
+                rec = undated(rec)
+            if f in self.names:  # stored and reported under its name, not its path
+                rec = replace(rec, source=self.names[f])
+            if rec is not prepared.recording:
+                prepared = prepared._replace(recording=rec)
             conv.take(prepared, self.sha[f], cal)
         if not order:
             del self.untaken[cid]
@@ -539,6 +554,7 @@ def ingest(
     column_map: ColumnMap | None = None,
     progress: Callable[[int, int], None] | None = None,
     commit_group: int = COMMIT_GROUP,
+    names: Mapping[str, str] | None = None,
 ) -> IngestSummary:
     """Run the whole pipeline over recordings into the store.
 
@@ -562,6 +578,11 @@ def ingest(
         Called with (done, total).
     commit_group : int
         Most recordings stored in one transaction (1: each on its own).
+    names : mapping, optional
+        The name a file is stored and reported under, by its path as given
+        (the store's ``file`` column, the results' ``file``, the refusals);
+        default the path itself. The live service names a drive's recording,
+        spooled to a temporary file, ``opcua://<conveyor>/<counter>``.
 
     Returns
     -------
@@ -606,6 +627,7 @@ def ingest(
                 column_map,
                 summary,
                 tick,
+                names,
             ).run()
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM through the command line
         exc.add_note(

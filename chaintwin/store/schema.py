@@ -26,7 +26,9 @@ table              what a row holds
                    shared by every process on the store (token-hash key,
                    session-cookie key)
 ``refused_files``  files the live service refused (content SHA-256, path, the
-                   one-line reason): not read again until their content changes
+                   one-line reason, its cause and conveyor): not read again until
+                   their content changes, or (cause ``profile``) until a profile
+                   is added or changed, or ``chaintwin refused retry``
 ``outbox``         alarm notifications to send (one row per alarm opened or
                    closed, written in the transaction that changed the alarm)
 ``outbox_deliveries`` each notification's delivery to each receiver: attempts,
@@ -125,7 +127,7 @@ class RecordingRow(Base):
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     sha256: Mapped[str] = mapped_column(String(64), unique=True)
     conveyor_id: Mapped[str] = mapped_column(ForeignKey("conveyors.id"), index=True)
-    file: Mapped[str] = mapped_column(Text)
+    file: Mapped[str] = mapped_column(Text, index=True)
     recorded_at: Mapped[str | None] = mapped_column(String(40), index=True)
     meta: Mapped[dict[str, Any]] = mapped_column(JSON)
     warnings: Mapped[list[Any]] = mapped_column(JSON)
@@ -227,10 +229,15 @@ class RefusedFileRow(Base):
     __tablename__ = "refused_files"
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     sha256: Mapped[str] = mapped_column(String(64), unique=True)
-    path: Mapped[str] = mapped_column(Text)
+    path: Mapped[str] = mapped_column(Text, index=True)
     source: Mapped[str] = mapped_column(String(300))
     reason: Mapped[str] = mapped_column(Text)
     refused_at: Mapped[str] = mapped_column(String(40), index=True)
+    cause: Mapped[str] = mapped_column(String(20), server_default="recording")
+    """``profile`` (no profile for its conveyor, or the store's is another one: read
+    again when a profile is added or changed) or ``recording`` (the file itself)."""
+    conveyor: Mapped[str | None] = mapped_column(String(200), nullable=True, index=True)
+    """The conveyor the file names (None: not known)."""
 
 
 class OutboxRow(Base):

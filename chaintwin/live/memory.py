@@ -1,0 +1,106 @@
+"""The service's native memory: glibc's heap handed back to the system, and a log of it.
+
+A long-running service that reads a recording every tenth of a second
+allocates and frees many large blocks (the samples, the spectra, the
+store's rows) from several threads. glibc's allocator keeps freed memory
+in its arenas for reuse, and returns the top of a heap only; holes in the
+middle stay resident, so the resident size creeps up although the Python
+objects (``tracemalloc``) do not grow. :func:`trim` asks glibc to hand
+the free pages of every arena back (``malloc_trim(0)``); the service calls
+it every :data:`TRIM_EVERY_S`. Elsewhere than glibc it does nothing.
+
+:func:`usage` is what the service logs with ``CHAINTWIN_MEMORY_LOG=1``
+(``benchmarks/bench_live.py --memory`` sets it): resident size, the heap
+in use and free-but-held by glibc, and SQLite's own memory.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import os
+import sys
+from functools import cache
+from typing import Any
+
+__all__ = ["TRIM_EVERY_S", "trim", "usage"]
+
+TRIM_EVERY_S = 60.0
+"""How often the service hands glibc's free memory back to the system, s."""
+
+
+class _MallInfo2(ctypes.Structure):
+    _fields_ = [
+        (name, ctypes.c_size_t)
+        for name in (
+            "arena",
+            "ordblks",
+            "smblks",
+            "hblks",
+            "hblkhd",
+            "usmblks",
+            "fsmblks",
+            "uordblks",
+            "fordblks",
+            "keepcost",
+        )
+    ]
+
+
+@cache
+def _libc() -> Any:
+    try:
+        lib = ctypes.CDLL(None)
+    except OSError:  # pragma: no cover - no dynamic loader
+        return None
+    return lib if hasattr(lib, "malloc_trim") else None
+
+
+@cache
+def _sqlite() -> Any:
+    name = ctypes.util.find_library("sqlite3")
+    if name is None:
+        return None
+    try:
+        lib = ctypes.CDLL(name)
+    except OSError:  # pragma: no cover
+        return None
+    lib.sqlite3_memory_used.restype = ctypes.c_int64
+    return lib
+
+
+def trim() -> bool:
+    """Hand glibc's free heap memory back to the system; whether it could (glibc)."""
+    lib = _libc()
+    if lib is None:
+        return False
+    lib.malloc_trim(0)
+    return True
+
+
+def usage() -> dict[str, float]:
+    """The process's memory, MB: ``rss`` (of which ``anon``: not backed by a file),
+    and where known ``heap_used``, ``heap_free`` (held by glibc, not in use),
+    ``sqlite`` (SQLite's own) and ``py_blocks`` (the Python allocator's blocks in use,
+    millions)."""
+    out: dict[str, float] = {}
+    try:
+        with open(f"/proc/{os.getpid()}/statm") as f:
+            out["rss"] = int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+        with open(f"/proc/{os.getpid()}/status") as f:
+            for line in f:
+                if line.startswith("RssAnon:"):
+                    out["anon"] = int(line.split()[1]) / 2**10
+    except OSError:  # pragma: no cover - not Linux
+        pass
+    out["py_blocks"] = sys.getallocatedblocks() / 1e6
+    lib = _libc()
+    if lib is not None and hasattr(lib, "mallinfo2"):
+        lib.mallinfo2.restype = _MallInfo2
+        info = lib.mallinfo2()
+        out["heap_used"] = (info.uordblks + info.hblkhd) / 2**20
+        out["heap_free"] = info.fordblks / 2**20
+    sq = _sqlite()
+    if sq is not None:
+        out["sqlite"] = sq.sqlite3_memory_used() / 2**20
+    return out

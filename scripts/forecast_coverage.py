@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from chaintwin.diagnose.baseline import regressor_of
 from chaintwin.diagnose.features import feature_spec
 from chaintwin.diagnose.forecasting import forecast_feature, forecast_path, resample_even
 from chaintwin.diagnose.monitor import ConveyorMonitor
@@ -80,7 +81,7 @@ def degradation_run(seed: int, root: Path) -> tuple[list[datetime], list[float],
     times = [datetime.fromisoformat(r.recorded_at or "") for r in rows]
     values = [
         as_number(r.features.get(FEATURE))
-        - fb.slope * (as_number(r.features.get(spec.regressor)) - fb.mean_payload_kg)
+        - fb.slope * (as_number(r.features.get(regressor_of(FEATURE, fb))) - fb.mean_payload_kg)
         for r in rows
     ]
     alarm = next(

@@ -16,7 +16,7 @@ from chaintwin.cli.app import EXIT_ALARM, main
 from chaintwin.cli.monitor_cmd import order_recordings
 from chaintwin.diagnose.causes import resolve_causes
 from chaintwin.diagnose.features import recording_features
-from chaintwin.diagnose.health import fit_baseline, forecast_crossing, x_of_y
+from chaintwin.diagnose.health import FeatureBaseline, fit_baseline, forecast_crossing, x_of_y
 from chaintwin.diagnose.monitor import ConveyorMonitor
 from chaintwin.diagnose.monitor_state import LEARNED, MonitorState
 from chaintwin.diagnose.records import Alarm, Event, MonitorSettings, RecordingResult
@@ -72,6 +72,15 @@ def test_baseline_regresses_on_payload_and_leaves_out_outliers() -> None:
     assert not fb.check(1.05 * fb.expected(40.0), 40.0, 5.0, 0.10).exceeded
     # a fall is never an exceedance
     assert not fb.check(0.5 * fb.expected(40.0), 40.0, 5.0, 0.10).exceeded
+    # the line holds over the baseline's payloads and half their spread beyond: a payload
+    # estimate far outside (a drifted weighing) takes the value at the nearer end
+    assert fb.payload_range_kg is not None
+    lo, hi = fb.payload_range_kg
+    spread = float(np.ptp(np.delete(payload, 7)))
+    assert hi - lo == pytest.approx(2.0 * spread)
+    assert fb.expected(lo - 100.0) == fb.expected(lo) < fb.expected(0.5 * (lo + hi))
+    assert fb.expected(hi + 100.0) == fb.expected(hi)
+    assert FeatureBaseline.from_dict(json.loads(json.dumps(fb.to_dict()))) == fb
     flat = fit_baseline([1.0, 1.1, 0.9, 1.0, 1.05], [10, 20, 30, 40, 25], payload_dependent=False)
     assert flat is not None and flat.slope == 0.0 and flat.intercept == 1.0
     assert fit_baseline([1.0, np.nan, 2.0], [1, 2, 3], payload_dependent=False) is None

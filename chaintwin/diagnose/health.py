@@ -43,6 +43,7 @@ import numpy as np
 from chaintwin._types import FloatArray
 
 __all__ = [
+    "EXTRAPOLATION",
     "MIN_PAYLOAD_SPREAD_KG",
     "OUTLIER_Z",
     "Exceedance",
@@ -104,11 +105,16 @@ class FeatureBaseline:
         usual one (:func:`chaintwin.diagnose.baseline.fit_features` picks
         the payload estimate that explains the baseline better); None: the
         usual one.
-    top_residual : float
+    top_residual : float or None
         The baseline's second-largest value above its line (feature units;
         outliers included): what healthy recordings themselves reached, which
-        no exceedance lies below (:meth:`check`); -inf for baselines stored
+        no exceedance lies below (:meth:`check`); None for baselines stored
         before it was kept.
+    payload_range_kg : (float, float)
+        Payloads the line holds for, kg: the baseline's, widened by half
+        their spread each way (:data:`EXTRAPOLATION`); :meth:`expected`
+        holds the line's value at the nearer end beyond them. None: unbounded
+        (a flat line, or a baseline stored before it was kept).
     """
 
     intercept: float
@@ -118,17 +124,22 @@ class FeatureBaseline:
     outliers: int
     mean_payload_kg: float
     regressor: str | None = None
-    top_residual: float = -math.inf
+    top_residual: float | None = None
+    payload_range_kg: tuple[float, float] | None = None
 
     def expected(self, payload_kg: float) -> float:
         """The healthy value at a payload."""
         p = payload_kg if math.isfinite(payload_kg) else self.mean_payload_kg
+        if self.payload_range_kg is not None:
+            lo, hi = self.payload_range_kg
+            p = min(max(p, lo), hi)
         return self.intercept + self.slope * p
 
     def limit(self, z_limit: float, min_rel: float, payload_kg: float | None = None) -> float:
         """The value above which a recording exceeds (at the mean payload by default)."""
         e = self.expected(self.mean_payload_kg if payload_kg is None else payload_kg)
-        return e + max(z_limit * self.scale, min_rel * abs(e), self.top_residual)
+        top = -math.inf if self.top_residual is None else self.top_residual
+        return e + max(z_limit * self.scale, min_rel * abs(e), top)
 
     def check(self, value: float, payload_kg: float, z_limit: float, min_rel: float) -> Exceedance:
         """Compare a value with the baseline (one-sided: rises only)."""
@@ -140,18 +151,39 @@ class FeatureBaseline:
             math.isfinite(value)
             and z > z_limit
             and dev > min_rel * abs(e)
-            and dev > self.top_residual
+            and (self.top_residual is None or dev > self.top_residual)
         )
         return Exceedance(e, dev, z, change, exceeded)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready."""
-        return asdict(self)
+        """JSON-ready (the payload range as a list, as JSON reads it back)."""
+        out = asdict(self)
+        if self.payload_range_kg is not None:
+            out["payload_range_kg"] = list(self.payload_range_kg)
+        return out
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> FeatureBaseline:
         """Inverse of :meth:`to_dict`."""
-        return cls(**data)
+        rng = data.get("payload_range_kg")
+        return cls(**(data | {"payload_range_kg": None if rng is None else tuple(rng)}))
+
+
+EXTRAPOLATION = 0.5
+"""How far beyond the baseline's payloads a line is extended, as a share of their spread."""
+
+
+def _held_range(payloads: FloatArray) -> tuple[float, float]:
+    """The payloads a baseline's line holds for (see :class:`FeatureBaseline`).
+
+    Beyond them the line is not extended: a weighed payload that a loss
+    drift moved 10 kg below every baseline payload took the tooth-pass
+    line's expected value down with it, and a healthy conveyor's tooth-pass
+    lines exceeded on 19 recordings.
+    """
+    lo, hi = float(np.min(payloads)), float(np.max(payloads))
+    margin = EXTRAPOLATION * (hi - lo)
+    return (lo - margin, hi + margin)
 
 
 def robust_scale(r: FloatArray) -> float:
@@ -241,6 +273,7 @@ def fit_baseline(
         count=int(keep.sum()),
         outliers=int((~keep).sum()),
         mean_payload_kg=float(np.mean(p[keep])),
+        payload_range_kg=_held_range(p[keep]) if b != 0.0 else None,
         top_residual=float(every[-2]),
     )
 

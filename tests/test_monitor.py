@@ -105,6 +105,19 @@ def test_a_two_valued_baseline_keeps_both_values_and_neither_exceeds() -> None:
     assert fb4.top_residual == pytest.approx(0.0085 - fb4.intercept)
     assert not fb4.check(0.0084, 20.0, 5.0, 0.5).exceeded
     assert fb4.check(0.0100, 20.0, 5.0, 0.5).exceeded
+    # a two-sided feature (a line the fault can first cancel): a fall counts as a rise does
+    level = fit_baseline(rng.normal(0.20, 0.002, 20), np.full(20, 20.0), payload_dependent=False)
+    assert level is not None
+    assert not level.check(0.16, 20.0, 5.0, 0.08).exceeded  # one-sided: only rises
+    fell = level.check(0.16, 20.0, 5.0, 0.08, two_sided=True)
+    assert fell.exceeded and fell.change == pytest.approx(-0.2, abs=0.02)
+    assert level.lower_limit(5.0, 0.08) < 0.19 < level.expected(20.0)
+    assert not level.check(0.195, 20.0, 5.0, 0.08, two_sided=True).exceeded
+    # on a sloped line a fall is not judged: the payload estimate it follows drifts both ways
+    loads = rng.uniform(5.0, 25.0, 20)
+    sloped = fit_baseline(0.004 + 0.0004 * loads, loads, payload_dependent=True)
+    assert sloped is not None and sloped.slope > 0.0
+    assert not sloped.check(0.5 * sloped.expected(15.0), 15.0, 5.0, 0.08, two_sided=True).exceeded
     # a normal spread: both estimates are its sigma, the scale is not inflated
     normal = fit_baseline(rng.normal(1.0, 0.01, 200), np.full(200, 20.0), payload_dependent=False)
     assert normal is not None and normal.scale == pytest.approx(0.01, rel=0.15)

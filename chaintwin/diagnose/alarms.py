@@ -114,7 +114,7 @@ def judge(
             continue
         value = values.get(name, float("nan"))
         load = values.get(regressor_of(name, fb), float("nan"))
-        ex = fb.check(value, load, settings.z_limit, spec.min_rel)
+        ex = fb.check(value, load, settings.z_limit, spec.min_rel, spec.two_sided)
         win = windows.setdefault(name, [])
         times = window_times.setdefault(name, [])
         win.append(ex.exceeded)

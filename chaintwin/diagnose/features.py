@@ -165,6 +165,10 @@ class FeatureSpec:
         0.39 with the inertia payload, and the baseline's line through the
         latter raised alarms on a healthy drive; used alone, the weighed
         payload's drift with the losses raised alarms on 12 ms conveyors).
+    two_sided : bool
+        A fall counts as much as a rise: a line the fault adds to one the
+        healthy conveyor already has (the chain's polygon ripple at the
+        tooth pass) can cancel part of it before it grows.
     alternative : str or None
         A second payload estimate the baseline may regress on instead, when
         the usual one's line explains little of the baseline
@@ -178,6 +182,7 @@ class FeatureSpec:
     min_scale: float = 0.0
     regressor: str = "payload_inertia_kg"
     alternative: str | None = None
+    two_sided: bool = False
 
 
 AMPLITUDE = "payload_kg"
@@ -209,7 +214,7 @@ FEATURES: dict[str, FeatureSpec] = {
     "residual_kurtosis": FeatureSpec(IMPULSIVE, 0.5, "-", min_scale=0.1),
     "crest_factor": FeatureSpec(IMPULSIVE, 0.3, "-", min_scale=0.1),
     "tooth_pass": FeatureSpec(
-        "elongation", 0.08, "Nm", payload_dependent=True, alternative=AMPLITUDE
+        "elongation", 0.08, "Nm", payload_dependent=True, alternative=AMPLITUDE, two_sided=True
     ),
     "sprocket_comb": FeatureSpec(
         "sprocket", 0.5, "Nm", payload_dependent=True, alternative=AMPLITUDE

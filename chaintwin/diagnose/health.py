@@ -19,8 +19,11 @@ estimation error) **and** by more than the baseline's own second-largest
 rise above its line (a value the healthy conveyor itself showed in two of its
 baseline recordings is no change: a line sum that sits at one of two levels
 from scope to scope, the higher in a fifth of them, alarmed on healthy
-conveyors otherwise). Only rises count: every tracked feature grows with its
-fault.
+conveyors otherwise). Only rises count, except for a two-sided feature
+(:class:`~chaintwin.diagnose.features.FeatureSpec` ``two_sided``: a line the
+fault adds to one the healthy conveyor has may first cancel part of it),
+whose falls are judged the same way against the second-largest fall when its
+baseline is flat.
 
 An *alarm* needs X exceedances of one feature in the last Y recordings
 (default 3 of 10, :func:`x_of_y`), so one odd scope pages no one.
@@ -110,6 +113,9 @@ class FeatureBaseline:
         outliers included): what healthy recordings themselves reached, which
         no exceedance lies below (:meth:`check`); None for baselines stored
         before it was kept.
+    bottom_residual : float or None
+        The baseline's second-largest value below its line (negative, feature
+        units): the same guard for the falls of a two-sided feature.
     payload_range_kg : (float, float)
         Payloads the line holds for, kg: the baseline's, widened by half
         their spread each way (:data:`EXTRAPOLATION`); :meth:`expected`
@@ -125,6 +131,7 @@ class FeatureBaseline:
     mean_payload_kg: float
     regressor: str | None = None
     top_residual: float | None = None
+    bottom_residual: float | None = None
     payload_range_kg: tuple[float, float] | None = None
 
     def expected(self, payload_kg: float) -> float:
@@ -141,19 +148,44 @@ class FeatureBaseline:
         top = -math.inf if self.top_residual is None else self.top_residual
         return e + max(z_limit * self.scale, min_rel * abs(e), top)
 
-    def check(self, value: float, payload_kg: float, z_limit: float, min_rel: float) -> Exceedance:
-        """Compare a value with the baseline (one-sided: rises only)."""
+    def lower_limit(self, z_limit: float, min_rel: float, payload_kg: float | None = None) -> float:
+        """The value below which a two-sided feature exceeds (at the mean payload by default)."""
+        e = self.expected(self.mean_payload_kg if payload_kg is None else payload_kg)
+        bottom = -math.inf if self.bottom_residual is None else -self.bottom_residual
+        return e - max(z_limit * self.scale, min_rel * abs(e), bottom)
+
+    def check(
+        self,
+        value: float,
+        payload_kg: float,
+        z_limit: float,
+        min_rel: float,
+        two_sided: bool = False,
+    ) -> Exceedance:
+        """Compare a value with the baseline: rises only, or falls too when ``two_sided``.
+
+        Falls count only on a flat baseline (no payload slope): a sloped line's
+        expected value follows a payload estimate that a loss drift moves both
+        ways, and a healthy conveyor's tooth-pass lines, regressed on a
+        weighed payload drifting upwards, fell below it on 95 recordings.
+        """
         e = self.expected(payload_kg)
         dev = value - e
         z = dev / self.scale
         change = dev / abs(e) if e != 0.0 else math.copysign(math.inf, dev)
-        exceeded = bool(
-            math.isfinite(value)
-            and z > z_limit
+        rose = (
+            z > z_limit
             and dev > min_rel * abs(e)
             and (self.top_residual is None or dev > self.top_residual)
         )
-        return Exceedance(e, dev, z, change, exceeded)
+        fell = (
+            two_sided
+            and self.slope == 0.0
+            and -z > z_limit
+            and -dev > min_rel * abs(e)
+            and (self.bottom_residual is None or dev < self.bottom_residual)
+        )
+        return Exceedance(e, dev, z, change, bool(math.isfinite(value) and (rose or fell)))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (the payload range as a list, as JSON reads it back)."""
@@ -275,6 +307,7 @@ def fit_baseline(
         mean_payload_kg=float(np.mean(p[keep])),
         payload_range_kg=_held_range(p[keep]) if b != 0.0 else None,
         top_residual=float(every[-2]),
+        bottom_residual=float(every[1]),
     )
 
 

@@ -77,6 +77,8 @@ class FeatureTrend:
         Whether the recording exceeded on this feature (against the baseline of its time).
     expected, limit : float or None
         Baseline level and alarm limit at the mean payload (None before a baseline).
+    lower : float or None
+        The lower alarm limit of a two-sided feature (a fall counts too), else None.
     """
 
     name: str
@@ -88,6 +90,7 @@ class FeatureTrend:
     expected: float | None
     limit: float | None
     before: list[bool] = field(default_factory=list)
+    lower: float | None = None
     """Whether the recording was not judged against the current baseline: it came
     before it (judged against an earlier one) or formed it."""
 
@@ -262,6 +265,11 @@ def _trends(
                 exceeded=exc,
                 expected=None if fb is None else fb.expected(fb.mean_payload_kg),
                 limit=None if fb is None else fb.limit(z_limit, spec.min_rel),
+                lower=(
+                    fb.lower_limit(z_limit, spec.min_rel)
+                    if fb is not None and spec.two_sided and fb.slope == 0.0
+                    else None
+                ),
                 before=before,
             )
         )
@@ -280,9 +288,15 @@ def _at_mean_payload(
     """
     p = payload_kg if math.isfinite(payload_kg) else fb.mean_payload_kg
     e_p = fb.expected(p)
-    span_p = fb.limit(z_limit, spec.min_rel, payload_kg=p) - e_p
     e_m = fb.expected(fb.mean_payload_kg)
-    span_m = fb.limit(z_limit, spec.min_rel) - e_m
+    if (
+        spec.two_sided and fb.slope == 0.0 and value < e_p
+    ):  # a fall: in proportion to the lower limit's margin
+        span_p = e_p - fb.lower_limit(z_limit, spec.min_rel, payload_kg=p)
+        span_m = e_m - fb.lower_limit(z_limit, spec.min_rel)
+    else:
+        span_p = fb.limit(z_limit, spec.min_rel, payload_kg=p) - e_p
+        span_m = fb.limit(z_limit, spec.min_rel) - e_m
     if span_p <= 0.0:
         return value - e_p + e_m
     return e_m + (value - e_p) * span_m / span_p

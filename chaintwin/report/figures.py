@@ -144,10 +144,15 @@ def trend_figure(data: ConveyorData, trend: FeatureTrend) -> str | None:
         start = x[int(current[0])] if current.size else x[0]
         ax.hlines(trend.expected, start, x[-1], color="tab:green", label="baseline level")
         ax.hlines(trend.limit, start, x[-1], color="tab:red", linestyle="--", label="alarm limit")
+        if trend.lower is not None:
+            ax.hlines(
+                trend.lower, start, x[-1], color="tab:red", linestyle=":", label="lower limit"
+            )
     _marks(ax, data, trend.name)
     unit = "" if trend.unit == "-" else f" [{trend.unit}]"
     ax.set_ylabel(f"{trend.name}{unit}")
-    ax.set_title(f"{trend.name} (rises with: {trend.cause})", fontsize=10)
+    moves = "rises" if trend.lower is None else "rises or falls"
+    ax.set_title(f"{trend.name} ({moves} with: {trend.cause})", fontsize=10)
     ax.margins(y=0.12)
     ax.legend(fontsize=7, loc="best", ncols=3)
     _time_axis(ax, label)

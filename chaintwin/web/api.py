@@ -332,6 +332,7 @@ def trends(request: Request, conveyor_id: str, feature: str) -> dict[str, Any]:
         "unit": trend.unit,
         "expected": trend.expected,
         "limit": trend.limit,
+        "lower_limit": trend.lower,
         "points": points,
         "alarms": marks,
         "health_index": _finite(float(trend.health_index())),

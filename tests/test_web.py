@@ -715,6 +715,20 @@ def test_in_a_browser_log_in_see_charts_acknowledge_and_a_viewer_refused(
             answer = viewer.goto(served.base + "/upload")
             assert answer is not None and answer.status == 403
             assert "needs the role maintainer" in viewer.content()
+            # the alarm list follows a maintenance recorded elsewhere, without a reload
+            viewer.goto(served.base + "/alarms")
+            assert "acknowledged by maintainer-1" in viewer.inner_text("table.alarms tbody")
+            viewer.evaluate("window.notReloaded = true")
+            body = {"kind": "cleaning", "why": "rails cleaned"}
+            done = served.client("maintainer").post(
+                f"/api/v1/conveyors/{PROFILE.id}/maintenance", json=body
+            )
+            assert done.is_success
+            viewer.wait_for_function(
+                "document.querySelector('table.alarms tbody').innerText.includes('closed')",
+                timeout=15000,
+            )
+            assert viewer.evaluate("window.notReloaded === true")
             browser.close()
     finally:
         served.close()

@@ -261,9 +261,8 @@ def conveyors(
     headers = {"ETag": etag, "Cache-Control": "no-cache"}
     if _matches(if_none_match, etag):
         return Response(status_code=304, headers=headers)
-    out = fast_json(fleet_health(_web(request)).rows(store))
-    out.headers.update(headers)
-    return out
+    _rows, body = fleet_health(_web(request)).snapshot(store, etag)
+    return Response(body, media_type="application/json", headers=headers)
 
 
 def fleet_health(web: Any) -> Any:

@@ -14,6 +14,7 @@ import math
 import threading
 from typing import Any
 
+import orjson
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
@@ -41,6 +42,25 @@ class FleetHealth:
     def __init__(self) -> None:
         self._known: dict[str, tuple[int, float | None, str | None]] = {}
         self._lock = threading.Lock()
+        self._snapshot: tuple[str, list[dict[str, Any]], bytes] | None = None
+
+    def snapshot(self, store: Store, key: str) -> tuple[list[dict[str, Any]], bytes]:
+        """The fleet's rows and their JSON for the store's signature ``key``.
+
+        Read again only when ``key`` changes (:func:`~chaintwin.store.queries.store_signature`:
+        results are only ever added, and every change of alarms or health models
+        raises a model's version), so the 50 dashboards polling a fleet that
+        did not change cost one signature read each. Treat the rows as read-only.
+        """
+        with self._lock:
+            known = self._snapshot
+        if known is not None and known[0] == key:
+            return known[1], known[2]
+        rows = self.rows(store)
+        body = orjson.dumps(rows)
+        with self._lock:
+            self._snapshot = (key, rows, body)
+        return rows, body
 
     def deviations(self, store: Store) -> dict[str, tuple[float | None, str | None]]:
         """Per conveyor: its largest normalised deviation and that feature (None: none yet)."""

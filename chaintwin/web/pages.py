@@ -111,11 +111,11 @@ def logout(request: Request, csrf: Annotated[str, Form()] = "") -> Response:
 @router.get("/", response_class=HTMLResponse)
 def fleet(request: Request) -> HTMLResponse:
     """The fleet: health, open alarms, TLF ranking; refreshes itself."""
-    from chaintwin.web.api import fleet_health
+    from chaintwin.web.api import fleet_etag, fleet_health
 
     p = _viewer(request)
     web = _web(request)
-    rows = fleet_health(web).rows(web.store)
+    rows, _body = fleet_health(web).snapshot(web.store, fleet_etag(web.store))
     return _render(request, "fleet.html.j2", p, rows=rows)
 
 

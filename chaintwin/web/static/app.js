@@ -229,5 +229,21 @@ window.chaintwin = (function () {
     }
   }
 
-  return { fleetPage, conveyorPage, updates: 0 };
+  // The alarm list: its rows again from the server (rendered and escaped there) on each
+  // update, unless a maintainer is typing a reason into one of them.
+  function alarmsPage() {
+    const body = document.querySelector("table.alarms tbody");
+    live(async () => {
+      const typing = Array.from(body.querySelectorAll("input[name=why]")).some((i) => i.value);
+      if (typing) return;
+      const r = await fetch("/alarms", { credentials: "same-origin" });
+      if (r.status === 401 || r.redirected) { window.location = "/login"; return; }
+      if (!r.ok) return;
+      const page = new DOMParser().parseFromString(await r.text(), "text/html");
+      const fresh = page.querySelector("table.alarms tbody");
+      if (fresh) body.replaceChildren(...Array.from(fresh.childNodes).map((n) => document.adoptNode(n)));
+    });
+  }
+
+  return { fleetPage, conveyorPage, alarmsPage, updates: 0 };
 })();

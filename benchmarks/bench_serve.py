@@ -29,12 +29,9 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-import functools
 import json
 import math
 import os
-import shutil
-import socket
 import statistics
 import subprocess
 import sys
@@ -53,6 +50,7 @@ from chaintwin.read.profile import load_profile
 from chaintwin.store.access import create_token
 from chaintwin.store.schema import ConveyorRow
 from chaintwin.store.store import Store
+from chaintwin.store.throwaway import free_port, postgres_binaries, throwaway_postgres
 
 PROFILE = Path(__file__).resolve().parents[1] / "chaintwin/examples/profiles/white-belt-01.yaml"
 
@@ -138,37 +136,11 @@ def build(url: str, conveyors: int, results: int) -> str:
 @contextlib.contextmanager
 def private_postgres() -> Iterator[str]:
     """A PostgreSQL server of our own on a free port (as the tests start one); its URL."""
-    bins = sorted(Path("/usr/lib/postgresql").glob("*/bin/initdb"), reverse=True)
-    if not bins:
+    bindir = postgres_binaries()
+    if bindir is None:
         raise SystemExit("bench_serve: no PostgreSQL binaries (apt-get install postgresql)")
-    bindir = bins[0].parent
-    root = Path(tempfile.mkdtemp(prefix="chaintwin-bench-pg-"))
-    data, port = root / "data", _port()
-    as_user: list[str] = []
-    if os.geteuid() == 0:  # the server refuses to run as root
-        root.chmod(0o777)
-        as_user = ["runuser", "-u", "postgres", "--"]
-    run = functools.partial(subprocess.run, check=True, capture_output=True)
-    run([*as_user, str(bindir / "initdb"), "-D", str(data), "-U", "postgres", "-A", "trust"])
-    options = f"-p {port} -k {root} -c listen_addresses=127.0.0.1"
-    log = str(root / "log")  # not the pipe: the server would hold it open
-    run(
-        [*as_user, str(bindir / "pg_ctl"), "-D", str(data), "-o", options, "-l", log, "-w", "start"]
-    )
-    try:
-        yield f"postgresql://postgres@127.0.0.1:{port}/postgres"
-    finally:
-        subprocess.run(
-            [*as_user, str(bindir / "pg_ctl"), "-D", str(data), "-m", "fast", "stop"],
-            capture_output=True,
-        )
-        shutil.rmtree(root, ignore_errors=True)
-
-
-def _port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+    with throwaway_postgres(bindir, prefix="chaintwin-bench-pg-") as url:
+        yield url
 
 
 def median_ms(
@@ -246,7 +218,7 @@ def measure(url: str, args: argparse.Namespace) -> dict[str, Any]:
     t0 = time.perf_counter()
     token = build(url, args.conveyors, args.results)
     built = time.perf_counter() - t0
-    port = _port()
+    port = free_port()
     env = os.environ | {"OPENBLAS_NUM_THREADS": "1"}
     server = subprocess.Popen(
         [sys.executable, "-m", "chaintwin", "serve", "--db", url, "--port", str(port)],

@@ -55,7 +55,6 @@ import math  # noqa: E402
 import re  # noqa: E402
 import resource  # noqa: E402
 import shutil  # noqa: E402
-import socket  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -74,6 +73,7 @@ from chaintwin.simulate.faults import Fault  # noqa: E402
 from chaintwin.simulate.fleet import generate  # noqa: E402
 from chaintwin.store.ingest import ingest  # noqa: E402
 from chaintwin.store.store import Store  # noqa: E402
+from chaintwin.store.throwaway import free_port, postgres_binaries, throwaway_postgres  # noqa: E402
 from chaintwin.validate.checks import load_recording  # noqa: E402
 
 PROFILE = (
@@ -130,62 +130,15 @@ def compare_stores(a: Store, b: Store) -> tuple[float, bool]:
     return worst, same
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 @contextmanager
 def postgres_server() -> Iterator[str | None]:
     """A throwaway PostgreSQL server on a free port (None without its binaries)."""
-    found = shutil.which("initdb")
-    bindir = Path(found).resolve().parent if found else None
-    if bindir is None:
-        for cand in sorted(Path("/usr/lib/postgresql").glob("*/bin"), reverse=True):
-            if (cand / "initdb").exists():
-                bindir = cand
+    bindir = postgres_binaries()
     if bindir is None:
         yield None
         return
-    # a folder of its own: the server may run as another user, who must reach it
-    root = Path(tempfile.mkdtemp(prefix="bench_throughput_pg_"))
-    data, port = root / "data", _free_port()
-    as_user: list[str] = []
-    if os.geteuid() == 0:  # the server refuses to run as root
-        root.chmod(0o777)
-        as_user = ["runuser", "-u", "postgres", "--"]
-    subprocess.run(
-        [*as_user, str(bindir / "initdb"), "-D", str(data), "-U", "postgres", "-A", "trust"],
-        check=True,
-        capture_output=True,
-    )
-    opts = f"-p {port} -k {root} -c listen_addresses=127.0.0.1"
-    subprocess.run(
-        [
-            *as_user,
-            str(bindir / "pg_ctl"),
-            "-D",
-            str(data),
-            "-o",
-            opts,
-            "-l",
-            str(root / "log"),
-            "-w",
-            "start",
-        ],
-        check=True,
-        capture_output=True,
-    )
-    try:
-        yield f"postgresql://postgres@127.0.0.1:{port}/postgres"
-    finally:
-        subprocess.run(
-            [*as_user, str(bindir / "pg_ctl"), "-D", str(data), "-m", "fast", "stop"],
-            capture_output=True,
-            check=False,
-        )
-        shutil.rmtree(root, ignore_errors=True)
+    with throwaway_postgres(bindir, prefix="chaintwin-bench-pg-") as url:
+        yield url
 
 
 def _new_pg_database(base: str, name: str) -> str:
@@ -200,7 +153,7 @@ class DaskCluster:
     """``dask scheduler`` and ``dask worker`` processes started as commands."""
 
     def __init__(self, log: Path) -> None:
-        self.port = _free_port()
+        self.port = free_port()
         self.address = f"tcp://127.0.0.1:{self.port}"
         self.log = log
         self.procs: list[subprocess.Popen[bytes]] = []

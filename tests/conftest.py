@@ -4,10 +4,6 @@ server with an empty store on it (or on SQLite)."""
 from __future__ import annotations
 
 import os
-import shutil
-import socket
-import subprocess
-import tempfile
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -16,6 +12,7 @@ import numpy as np
 import pytest
 
 from chaintwin.read.profile import ConveyorProfile, load_profile
+from chaintwin.store.throwaway import free_port, postgres_binaries, throwaway_postgres
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "chaintwin" / "examples"
 REFERENCE_PROFILE = EXAMPLES / "profiles" / "white-belt-01.yaml"
@@ -122,69 +119,21 @@ def write(tmp_path: Path):  # type: ignore[no-untyped-def]
 
 
 # ---------------------------------------------------------------- servers
-def _pg_bin() -> Path | None:
-    found = shutil.which("initdb")
-    if found:
-        return Path(found).resolve().parent
-    for cand in sorted(Path("/usr/lib/postgresql").glob("*/bin"), reverse=True):
-        if (cand / "initdb").exists():
-            return cand
-    return None
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+_free_port = free_port  # the name the tests import
 
 
 @pytest.fixture(scope="session")
 def postgres() -> Iterator[str]:
     """A PostgreSQL server of our own on a free port, one per test session (CI installs
     the binaries)."""
-    bindir = _pg_bin()
+    bindir = postgres_binaries()
     if bindir is None:
         pytest.fail(
             "PostgreSQL server binaries (initdb, pg_ctl) not found: `.ci/run` installs them "
             "(apt-get install postgresql)"
         )
-    # not under pytest's folder: the server runs as another user, who must reach it
-    root = Path(tempfile.mkdtemp(prefix="chaintwin-pg-"))
-    data = root / "data"
-    port = _free_port()
-    as_user: list[str] = []
-    if os.geteuid() == 0:  # the server refuses to run as root
-        root.chmod(0o777)
-        as_user = ["runuser", "-u", "postgres", "--"]
-    subprocess.run(
-        [*as_user, str(bindir / "initdb"), "-D", str(data), "-U", "postgres", "-A", "trust"],
-        check=True,
-        capture_output=True,
-    )
-    subprocess.run(
-        [
-            *as_user,
-            str(bindir / "pg_ctl"),
-            "-D",
-            str(data),
-            "-o",
-            f"-p {port} -k {root} -c listen_addresses=127.0.0.1",
-            "-l",
-            str(root / "log"),
-            "-w",
-            "start",
-        ],
-        check=True,
-        capture_output=True,
-    )
-    try:
-        yield f"postgresql://postgres@127.0.0.1:{port}/postgres"
-    finally:
-        subprocess.run(
-            [*as_user, str(bindir / "pg_ctl"), "-D", str(data), "-m", "immediate", "stop"],
-            capture_output=True,
-        )
-        shutil.rmtree(root, ignore_errors=True)
+    with throwaway_postgres(bindir) as url:
+        yield url
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])

@@ -7,7 +7,9 @@ in its arenas for reuse, and returns the top of a heap only; holes in the
 middle stay resident, so the resident size creeps up although the Python
 objects (``tracemalloc``) do not grow. :func:`trim` asks glibc to hand
 the free pages of every arena back (``malloc_trim(0)``); the service calls
-it every :data:`TRIM_EVERY_S`. Elsewhere than glibc it does nothing.
+it every :data:`TRIM_EVERY_S`, and :func:`configure` (at start) gives
+large blocks pages of their own and caps the number of heaps. Elsewhere
+than glibc it does nothing.
 
 :func:`usage` is what the service logs with ``CHAINTWIN_MEMORY_LOG=1``
 (``benchmarks/bench_live.py --memory`` sets it): resident size, the heap
@@ -23,10 +25,23 @@ import sys
 from functools import cache
 from typing import Any
 
-__all__ = ["TRIM_EVERY_S", "trim", "usage"]
+__all__ = ["ARENA_MAX", "MMAP_THRESHOLD", "TRIM_EVERY_S", "configure", "trim", "usage"]
 
 TRIM_EVERY_S = 60.0
 """How often the service hands glibc's free memory back to the system, s."""
+
+MMAP_THRESHOLD = 128 * 1024
+"""Blocks from this size up (bytes) get pages of their own, handed back when freed.
+
+glibc raises its threshold after the first large block is freed (up to
+32 MB), after which a recording's arrays are carved from the heaps and the
+holes they leave stay resident; :func:`configure` fixes it here."""
+
+ARENA_MAX = 2
+"""glibc's heaps (arenas) at most: one per thread by default, each with holes of its own."""
+
+_M_MMAP_THRESHOLD = -3
+_M_ARENA_MAX = -8
 
 
 class _MallInfo2(ctypes.Structure):
@@ -67,6 +82,20 @@ def _sqlite() -> Any:
         return None
     lib.sqlite3_memory_used.restype = ctypes.c_int64
     return lib
+
+
+def configure() -> bool:
+    """Set glibc's allocator for a long-running service (:data:`MMAP_THRESHOLD`,
+    :data:`ARENA_MAX`), unless ``MALLOC_MMAP_THRESHOLD_`` or ``MALLOC_ARENA_MAX``
+    say otherwise; whether it could (glibc)."""
+    lib = _libc()
+    if lib is None or not hasattr(lib, "mallopt"):
+        return False
+    if "MALLOC_MMAP_THRESHOLD_" not in os.environ:
+        lib.mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD)
+    if "MALLOC_ARENA_MAX" not in os.environ:
+        lib.mallopt(_M_ARENA_MAX, ARENA_MAX)
+    return True
 
 
 def trim() -> bool:

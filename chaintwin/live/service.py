@@ -635,6 +635,9 @@ class LiveService:
             with contextlib.suppress(NotImplementedError, RuntimeError):
                 loop.add_signal_handler(sig, self.request_stop)
         self._memory_snapshots(loop)
+        from .memory import configure
+
+        configure()  # glibc: large blocks handed back when freed, two heaps at most
         tasks: list[asyncio.Task[Any]] = [asyncio.create_task(self.ingestor.run(self.stop))]
         tasks += [asyncio.create_task(self._hold(s)) for s in self.sources]
         if self.options.notify_urls or self.options.mail is not None:

@@ -35,7 +35,6 @@ Run: ``.venv/bin/python benchmarks/bench_live.py [--seconds 3600] [--postgres UR
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import re
 import shutil
@@ -47,12 +46,11 @@ import tempfile
 import threading
 import time
 from datetime import UTC, datetime
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
-from typing import Any
 
 import psutil
 from sqlalchemy import select
+from webhook_receiver import start_receiver
 
 from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.calibration import Calibration
@@ -172,21 +170,7 @@ def run(args: argparse.Namespace, work: Path) -> None:
     drop = work / "drop"
     for cid in ids:
         (drop / cid).mkdir(parents=True)
-    # a webhook receiver: when each notification arrived
-    received: dict[str, float] = {}
-
-    class Hook(BaseHTTPRequestHandler):
-        def do_POST(self) -> None:
-            body = self.rfile.read(int(self.headers["Content-Length"]))
-            received.setdefault(json.loads(body)["id"], time.time())
-            self.send_response(204)
-            self.end_headers()
-
-        def log_message(self, *a: Any) -> None:
-            pass
-
-    hook = ThreadingHTTPServer(("127.0.0.1", 0), Hook)
-    threading.Thread(target=hook.serve_forever, daemon=True).start()
+    hook, received = start_receiver()  # when each notification arrived
     (work / "notify.key").write_text("bench-secret\n")
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PYTHONPATH=str(ROOT))
     traces = work / "tracemalloc"

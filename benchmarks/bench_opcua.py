@@ -215,13 +215,11 @@ def start_drives(ports: list[int], interval: float, onset: int | None) -> subpro
 
 def chain(args: argparse.Namespace) -> None:
     """The whole chain: drives -> ``chaintwin serve --opcua`` -> store -> webhook."""
-    import json
     import shutil
-    import threading
-    from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
     import psutil
     from sqlalchemy import select
+    from webhook_receiver import start_receiver
 
     from chaintwin.store import Store
     from chaintwin.store.schema import OutboxRow, RecordingRow, ResultRow
@@ -238,20 +236,7 @@ def chain(args: argparse.Namespace) -> None:
             store.put_calibration(conveyor_calibration(ref.calibration, cid))
         store.close()
 
-        received: dict[str, float] = {}
-
-        class Hook(BaseHTTPRequestHandler):
-            def do_POST(self) -> None:
-                body = self.rfile.read(int(self.headers["Content-Length"]))
-                received.setdefault(json.loads(body)["id"], time.time())
-                self.send_response(204)
-                self.end_headers()
-
-            def log_message(self, *a: object) -> None:
-                pass
-
-        hook = ThreadingHTTPServer(("127.0.0.1", 0), Hook)
-        threading.Thread(target=hook.serve_forever, daemon=True).start()
+        hook, received = start_receiver()  # when each notification arrived
         (work / "notify.key").write_text("bench-secret\n")
 
         print(f"starting {args.drives} drives ...", file=sys.stderr)

@@ -65,6 +65,7 @@ from datetime import datetime, timedelta  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
+from chaintwin.cli.demo_cmd import examples_dir  # noqa: E402
 from chaintwin.diagnose.records import MonitorSettings  # noqa: E402
 from chaintwin.identify.calibrating import calibrate  # noqa: E402
 from chaintwin.identify.calibration import Calibration  # noqa: E402
@@ -76,13 +77,7 @@ from chaintwin.store.store import Store  # noqa: E402
 from chaintwin.store.throwaway import free_port, postgres_binaries, throwaway_postgres  # noqa: E402
 from chaintwin.validate.checks import load_recording  # noqa: E402
 
-PROFILE = (
-    Path(__file__).resolve().parents[1]
-    / "chaintwin"
-    / "examples"
-    / "profiles"
-    / "white-belt-01.yaml"
-)
+PROFILE = examples_dir() / "profiles" / "white-belt-01.yaml"
 PER_DAY = 16
 ONSET_DAY = 4
 SEED = 3

@@ -33,11 +33,11 @@ from pathlib import Path
 
 import numpy as np
 
-from chaintwin.diagnose.baseline import regressor_of
+from chaintwin.diagnose.baseline import at_mean_payload
 from chaintwin.diagnose.features import feature_spec
 from chaintwin.diagnose.forecasting import forecast_feature, forecast_path, resample_even
 from chaintwin.diagnose.monitor import ConveyorMonitor
-from chaintwin.diagnose.records import MonitorSettings, as_number
+from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.identify.calibrating import calibrate
 from chaintwin.read.profile import load_profile
 from chaintwin.simulate.faults import Fault
@@ -79,11 +79,7 @@ def degradation_run(seed: int, root: Path) -> tuple[list[datetime], list[float],
     spec = feature_spec(FEATURE)
     rows = [r for r in results if r.status == "monitored" and r.recorded_at]
     times = [datetime.fromisoformat(r.recorded_at or "") for r in rows]
-    values = [
-        as_number(r.features.get(FEATURE))
-        - fb.slope * (as_number(r.features.get(regressor_of(FEATURE, fb))) - fb.mean_payload_kg)
-        for r in rows
-    ]
+    values = [at_mean_payload(FEATURE, fb, r.features) for r in rows]
     alarm = next(
         (k for k, r in enumerate(rows) if any(c["feature"] == FEATURE for c in r.causes)), None
     )

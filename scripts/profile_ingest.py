@@ -31,6 +31,7 @@ import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+from chaintwin.cli.demo_cmd import examples_dir  # noqa: E402
 from chaintwin.diagnose.records import MonitorSettings  # noqa: E402
 from chaintwin.identify.calibrating import calibrate  # noqa: E402
 from chaintwin.read.profile import load_profile  # noqa: E402
@@ -40,13 +41,7 @@ from chaintwin.store.ingest import ingest  # noqa: E402
 from chaintwin.store.store import Store  # noqa: E402
 from chaintwin.validate.checks import load_recording  # noqa: E402
 
-PROFILE = (
-    Path(__file__).resolve().parents[1]
-    / "chaintwin"
-    / "examples"
-    / "profiles"
-    / "white-belt-01.yaml"
-)
+PROFILE = examples_dir() / "profiles" / "white-belt-01.yaml"
 
 
 def main() -> None:

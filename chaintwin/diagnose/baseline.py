@@ -4,7 +4,7 @@ forecasts against their limits."""
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from datetime import datetime
 from typing import Any
 
@@ -15,7 +15,14 @@ from .forecasting import forecast_feature
 from .health import FeatureBaseline, fit_baseline, robust_scale
 from .records import as_number
 
-__all__ = ["ALTERNATIVE_SHARE", "NO_FORECAST", "fit_features", "forecasts", "regressor_of"]
+__all__ = [
+    "ALTERNATIVE_SHARE",
+    "NO_FORECAST",
+    "at_mean_payload",
+    "fit_features",
+    "forecasts",
+    "regressor_of",
+]
 
 ALTERNATIVE_SHARE = 0.5
 """A feature's baseline regresses on its alternative payload estimate when the
@@ -94,6 +101,15 @@ def regressor_of(name: str, fb: FeatureBaseline) -> str:
     return fb.regressor or feature_spec(name).regressor
 
 
+def at_mean_payload(name: str, fb: FeatureBaseline, features: Mapping[str, Any]) -> float:
+    """A feature's value with the load's part taken out: as at the baseline's mean payload.
+
+    What the forecasts and the wear rates fit over time (NaN when unknown).
+    """
+    load = as_number(features.get(regressor_of(name, fb)))
+    return as_number(features.get(name)) - fb.slope * (load - fb.mean_payload_kg)
+
+
 def forecasts(
     baselines: dict[str, FeatureBaseline],
     history: Sequence[dict[str, Any]],
@@ -131,12 +147,7 @@ def forecasts(
         spec = feature_spec(name)
         if spec.cause is None or name in NO_FORECAST:
             continue
-        # at the baseline's mean payload: the load's part of the value taken out
-        vals = [
-            as_number(h["features"].get(name))
-            - fb.slope * (as_number(h["features"].get(regressor_of(name, fb))) - fb.mean_payload_kg)
-            for h in rows
-        ]
+        vals = [at_mean_payload(name, fb, h["features"]) for h in rows]
         fc = forecast_feature(name, times, vals, fb.limit(z_limit, spec.min_rel))
         if fc is not None:
             extra: dict[str, Any] = {"cause": spec.cause}

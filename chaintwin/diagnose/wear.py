@@ -24,12 +24,12 @@ from typing import Any
 
 import numpy as np
 
-from .baseline import regressor_of
+from .baseline import at_mean_payload
 from .features import feature_spec
 from .health import FeatureBaseline
 from .records import as_number
 
-__all__ = ["KG_M_PER_T_KM", "MIN_ROWS", "usage_of", "usage_summary", "wear_rates"]
+__all__ = ["KG_M_PER_T_KM", "MIN_ROWS", "known_usage", "usage_of", "usage_summary", "wear_rates"]
 
 KG_M_PER_T_KM = 1.0e6
 """kg·m in one tonne-kilometre."""
@@ -38,10 +38,14 @@ MIN_ROWS = 8
 """Fewest monitored results with a usage a wear rate is fitted to."""
 
 
+def known_usage(value: float) -> float:
+    """A recording's usage as it counts, kg·m: 0 when unknown (NaN) or not positive."""
+    return value if math.isfinite(value) and value > 0.0 else 0.0
+
+
 def usage_of(row: Mapping[str, Any]) -> float:
     """A stored result's usage, kg·m (0 when unknown)."""
-    value = as_number((row.get("features") or {}).get("usage_kg_m"))
-    return value if math.isfinite(value) and value > 0.0 else 0.0
+    return known_usage(as_number((row.get("features") or {}).get("usage_kg_m")))
 
 
 def usage_summary(history: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
@@ -96,17 +100,7 @@ def wear_rates(
         spec = feature_spec(name)
         if spec.cause is None:
             continue
-        vals = np.array(
-            [
-                as_number((h.get("features") or {}).get(name))
-                - fb.slope
-                * (
-                    as_number((h.get("features") or {}).get(regressor_of(name, fb)))
-                    - fb.mean_payload_kg
-                )
-                for h in rows
-            ]
-        )
+        vals = np.array([at_mean_payload(name, fb, h.get("features") or {}) for h in rows])
         ok = np.isfinite(vals)
         if ok.sum() < MIN_ROWS or float(np.ptp(used[ok])) <= 0.0:
             continue

@@ -110,6 +110,11 @@ def test_wear_that_usage_explains_is_expected_not_alarmed(tmp_path: Path) -> Non
     used = np.cumsum([r.features["usage_kg_m"] or 0.0 for r in monitored]) / 1e6
     got = [r.features["usage_since_baseline_t_km"] for r in monitored]
     assert got == pytest.approx(list(used))
+    # a monitor that kept only its latest results (as the store keeps them) carries on
+    # from the latest one's usage, not from the sum of what it kept
+    mon.history = mon.history[-3:]
+    mon._usage_kg_m = None
+    assert mon._usage_so_far() == pytest.approx(used[-1] * 1e6)
     assert mon.baselines is not None
     fb = mon.baselines["friction"]
     weighed = [(r, u) for r, u in zip(monitored, used, strict=True) if r.payload_kg is not None]

@@ -65,12 +65,13 @@ from .records import (
     Event,
     MonitorSettings,
     RecordingResult,
+    as_number,
     finite_or_none,
     iso_utc,
 )
 from .spectra import Spectrum
 from .state import apply_events, close_alarms, new_event
-from .wear import KG_M_PER_T_KM, usage_of
+from .wear import KG_M_PER_T_KM, known_usage, usage_of
 
 __all__ = ["FRICTION_CAUSES", "ConveyorMonitor"]
 
@@ -569,6 +570,26 @@ class ConveyorMonitor:
             self.processed[sha256] = len(self.history) - 1
         return base
 
+    def _usage_so_far(self) -> float:
+        """Usage since the baseline before this recording, kg·m, from the history.
+
+        The latest monitored result since the baseline carries it
+        (``usage_since_baseline_t_km``): the history the store keeps is its
+        latest results only, so summing it would come up short. Results
+        stored before that feature existed are summed.
+        """
+        since = self.baseline_since or ""
+        mine = [
+            h
+            for h in self.history
+            if h.get("status") == "monitored" and (h.get("recorded_at") or "") >= since
+        ]
+        if mine:
+            last = as_number((mine[-1].get("features") or {}).get("usage_since_baseline_t_km"))
+            if math.isfinite(last):
+                return last * KG_M_PER_T_KM
+        return sum(usage_of(h) for h in mine)
+
     def _after_expected_wear(self, values: dict[str, float]) -> dict[str, float]:
         """The values the baselines judge: the profile's expected wear taken off.
 
@@ -578,14 +599,8 @@ class ConveyorMonitor:
         explains does not alarm.
         """
         if self._usage_kg_m is None:
-            since = self.baseline_since or ""
-            self._usage_kg_m = sum(
-                usage_of(h)
-                for h in self.history
-                if h.get("status") == "monitored" and (h.get("recorded_at") or "") >= since
-            )
-        here = values.get("usage_kg_m", float("nan"))
-        self._usage_kg_m += here if math.isfinite(here) and here > 0.0 else 0.0
+            self._usage_kg_m = self._usage_so_far()
+        self._usage_kg_m += known_usage(values.get("usage_kg_m", float("nan")))
         used = self._usage_kg_m / KG_M_PER_T_KM
         values["usage_since_baseline_t_km"] = used
         judged = dict(values)

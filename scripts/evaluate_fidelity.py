@@ -334,6 +334,7 @@ def evaluate_conveyor(conv: Conveyor, seed: int) -> list[dict[str, Any]]:
                 "loss_scale": scale,
                 "payload_true_kg": payload,
                 "mu_rel_error": mu_err,
+                "friction_unchecked": any(w.code == "friction_unchecked" for w in cal.warnings),
             }
             unknown = weigh(ins, cal)  # the default: ±10 % loss drift allowed for
             results = {"trusted": reweigh(unknown, LossDrift()), "unknown": unknown}
@@ -351,6 +352,7 @@ def evaluate_conveyor(conv: Conveyor, seed: int) -> list[dict[str, Any]]:
                         "consistent": res.consistent,
                         "warnings": [w.code for w in res.warnings],
                         "reason": res.unweighable,
+                        "friction_checked_rel": res.friction_checked_rel,
                     }
                 )
     return rows
@@ -457,6 +459,18 @@ def per_conveyor(rows: list[dict[str, Any]], convs: list[Conveyor]) -> list[dict
                 ]
                 errs = [abs(r["payload_kg"] - r["payload_true_kg"]) for r in mine]
                 entry[f"{protocol}/{drift}/{mode}/max_kg"] = max(errs) if errs else None
+        checked = [
+            math.inf if r.get("friction_checked_rel") is None else r["friction_checked_rel"]
+            for r in rows
+            if r["conveyor"] == p.id
+            and r["protocol"] == "one_load_several_speeds"
+            and r.get("mode") == "unknown"
+            and "friction_unchecked" in r
+        ]
+        entry["friction_checked_rel"] = float(np.median(checked)) if checked else None
+        entry["friction_unchecked"] = any(
+            r.get("friction_unchecked") for r in rows if r["conveyor"] == p.id
+        )
         out.append(entry)
     return out
 
@@ -533,7 +547,17 @@ def _print(summary: list[dict[str, Any]], convs: list[dict[str, Any]], seconds: 
             f"{_fmt(c['several_loads/none/unknown/max_kg'])} / "
             f"{_fmt(c['several_loads/drift10/unknown/max_kg'])}"
             + (f"  [limit: {c['limit']}]" if c["limit"] else "")
+            + (
+                f"  [friction checked to {_fmt(c['friction_checked_rel'])}"
+                + (", friction_unchecked]" if c["friction_unchecked"] else "]")
+            )
         )
+    unchecked = [c for c in convs if c["friction_unchecked"]]
+    print(
+        f"calibrations warning friction_unchecked (the ramps cannot catch a 50 % rail friction "
+        f"change; the weights rest on the calibration's friction): {len(unchecked)} of "
+        f"{len(convs)} conveyors"
+    )
     print("targets (largest error per conveyor; conveyors in a limit class judged apart):")
     for t in judge_targets(convs):
         print(

@@ -535,3 +535,81 @@ def test_a_direction_the_calibration_never_ran_is_unweighable(
     (tmp_path / "case.json").write_text(json.dumps(data))
     with pytest.raises(CalibrationError, match="case 'guessed'"):
         load_calibration(tmp_path / "case.json")
+
+
+def test_friction_sensitivity_reads_a_friction_rise_by_hand(cal_p2: Calibration) -> None:
+    """Known answer: a 10 % rail friction rise moves the friction payload by 0.1·k_μ.
+
+    k_μ (``friction_rel_kg``) is the hand formula μ·cosβ·m/(μ·cosβ + sinβ)
+    for a one-direction recording (m: belt, tray and payload on the rails);
+    the recording with the rise measures the same shift, and since the
+    rise lies above the smallest change its inertia signature can catch
+    (``friction_checked_rel``), the trusted-loss weighing refuses it.
+    """
+    from chaintwin.model.rigid import incline_terms
+    from chaintwin.weigh import LossDrift
+
+    clean = weigh(inspected(20.0, 511, known=False), cal_p2, loss_drift=LossDrift())
+    risen = weigh(
+        inspected(20.0, 511, known=False, faults=[Fault("friction", 0.1)]),
+        cal_p2,
+        loss_drift=LossDrift(),
+    )
+    assert clean.signatures is not None and risen.signatures is not None
+    g_cos, g_sin = incline_terms(PROFILE)
+    mu = float(cal_p2.parameters["mu"])
+    m = PROFILE.belt_mass_kg + PROFILE.tray_mass_kg + clean.signatures.friction_kg
+    by_hand = mu * g_cos * m / (mu * g_cos + g_sin)
+    assert clean.signatures.friction_rel_kg == pytest.approx(by_hand, rel=0.02)
+    shift = risen.signatures.friction_kg - clean.signatures.friction_kg
+    assert shift == pytest.approx(0.1 * clean.signatures.friction_rel_kg, rel=0.15)
+    assert clean.friction_10pct_kg == pytest.approx(0.1 * clean.signatures.friction_rel_kg)
+    checked = clean.friction_checked_rel
+    assert checked is not None and checked < 0.1 and risen.unweighable is not None
+    assert clean.to_dict()["friction_checked_rel"] == checked
+    assert not any(w.code == "friction_unchecked" for w in cal_p2.warnings)
+
+
+def test_a_heavy_drive_warns_friction_unchecked_and_the_allowance_covers_a_rise() -> None:
+    """Where the ramps cannot check the friction, the calibration says so.
+
+    A drive 60 times as heavy hides the payload's inertia: a doubled rail friction
+    rise passes the consistency check and reads as payload, several reported
+    uncertainties off. The calibration warns ``friction_unchecked`` (with
+    what to record); a 30 % friction allowance (``friction_drift``, 1 sigma)
+    carries the rise into the uncertainty.
+    """
+    from chaintwin.weigh import LossDrift
+
+    heavy = PROFILE.model_copy(
+        update={
+            "motor": PROFILE.motor.model_copy(
+                update={"inertia_kgm2": 60.0 * PROFILE.motor.inertia_kgm2}
+            )
+        }
+    )
+
+    def rec(payload: float, seed: int, share: float = 1.0, **kw: object) -> Inspection:
+        run = run_virtual(
+            heavy,
+            payload_kg=payload,
+            seed=seed,
+            speed_rpm=1415 * share,
+            calibration=bool(kw.pop("known", True)),
+            **kw,  # type: ignore[arg-type]
+        )
+        return inspect_recording(run.recording, heavy)
+
+    runs = [rec(0.0, 600 + k, share).recording for k, share in enumerate([0.3, 0.6, 1.0])]
+    cal = calibrate(runs, heavy)
+    notes = [w for w in cal.warnings if w.code == "friction_unchecked"]
+    assert len(notes) == 1 and "--friction-drift" in notes[0].message
+    risen = rec(20.0, 610, known=False, faults=[Fault("friction", 1.0)])
+    plain = weigh(risen, cal, loss_drift=LossDrift())
+    checked = plain.friction_checked_rel
+    assert checked is None or checked > 1.0
+    assert plain.payload_kg is not None and plain.uncertainty_kg is not None
+    assert abs(plain.payload_kg - 20.0) > 3 * plain.uncertainty_kg  # the rise reads as payload
+    allowed = weigh(risen, cal, loss_drift=LossDrift(), friction_drift=0.3)
+    assert allowed.payload_kg is not None and allowed.uncertainty_kg is not None
+    assert abs(allowed.payload_kg - 20.0) <= 2.0 * allowed.uncertainty_kg

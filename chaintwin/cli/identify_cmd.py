@@ -334,6 +334,17 @@ def register(app: typer.Typer) -> None:
                 "(0.06: a drift within ±10 %, the default; 0 trusts the calibration's losses).",
             ),
         ] = LOSS_DRIFT_REL,
+        friction_drift: Annotated[
+            float,
+            typer.Option(
+                "--friction-drift",
+                min=0.0,
+                max=1.0,
+                help="Standard uncertainty of the rail friction relative to the calibration's, "
+                "carried into the uncertainty (default 0: trusted). Use it where the "
+                "calibration warns `friction_unchecked` (e.g. 0.1).",
+            ),
+        ] = 0.0,
     ) -> None:
         """Weigh the payload of each recording from torque alone, with an uncertainty.
 
@@ -348,7 +359,11 @@ def register(app: typer.Typer) -> None:
         for f in expand_recordings(files):
             try:
                 ins = _inspect(f, cal.profile, cmap)
-                results.append(weigh(ins, cal, source=f, loss_drift=drift).to_dict())
+                results.append(
+                    weigh(
+                        ins, cal, source=f, loss_drift=drift, friction_drift=friction_drift
+                    ).to_dict()
+                )
             except EstimationError as exc:
                 message = error_message(exc)
                 if not message.startswith(f):

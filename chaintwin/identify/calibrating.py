@@ -136,6 +136,57 @@ def _calibrate_inertia_signature(
     )
 
 
+FRICTION_CHECK_MAX = 0.5
+"""Above this smallest detectable rail friction change (relative, on the
+calibration's best-placed recording) the calibration warns ``friction_unchecked``."""
+
+
+def _friction_check(cal: Calibration, recordings: Sequence[Recording]) -> RecordingWarning | None:
+    """Warn when this conveyor's recordings cannot check the rail friction.
+
+    Each calibration recording is weighed with the new calibration; its
+    :attr:`~chaintwin.weigh.weigh.WeighResult.friction_checked_rel` is the
+    smallest relative friction change its inertia signature would catch.
+    The best of them stands for the conveyor's operation (the slow empty
+    runs ramp more gently than production does). When even that exceeds
+    :data:`FRICTION_CHECK_MAX` (a heavy drive
+    against a light belt, slow ramps, a coarse scope), a rise of the rail
+    friction reads as payload, unseen: the weights then rest on the rail
+    friction staying as calibrated.
+    """
+    from chaintwin.validate.checks import inspect_recording
+    from chaintwin.weigh.drift import LossDrift
+    from chaintwin.weigh.weigh import weigh
+
+    checked: list[float] = []
+    per_10pct: list[float] = []
+    for rec in recordings:
+        try:
+            res = weigh(inspect_recording(rec, cal.profile), cal, loss_drift=LossDrift.unknown())
+        except ChaintwinError:
+            continue
+        rel = res.friction_checked_rel
+        checked.append(math.inf if rel is None else rel)
+        if res.friction_10pct_kg is not None:
+            per_10pct.append(abs(res.friction_10pct_kg))
+    if not checked:
+        return None
+    best = min(checked)
+    if best <= FRICTION_CHECK_MAX:
+        return None
+    unseen = "any change" if not math.isfinite(best) else f"a change up to {best:.0%}"
+    kg = f" ({float(np.median(per_10pct)):.1f} kg per 10 %)" if per_10pct else ""
+    return RecordingWarning(
+        "friction_unchecked",
+        f"the ramps cannot check the rail friction: {unseen} of it would read as "
+        f"payload{kg} without a warning; the weights rest on the "
+        "rail friction of this calibration. Record steeper or longer ramps (the inertia "
+        "signature grows with the acceleration and the scope's length), check the weights "
+        "with a reference load now and then, or weigh with `--friction-drift 0.1` to "
+        "carry a 10 % friction drift into the uncertainty",
+    )
+
+
 def _ramp_check(
     settings: RigidModelRegression,
     recordings: Sequence[Recording],
@@ -402,6 +453,9 @@ def calibrate(
         chaintwin_version=version,
     )
     cal = _calibrate_inertia_signature(cal, recordings, est.loads_kg_, est.trays_kg_)
+    unchecked = _friction_check(cal, recordings)
+    if unchecked is not None:
+        cal = replace(cal, warnings=(*cal.warnings, unchecked))
     note = cal.recommendation()
     if note is not None:
         cal = replace(cal, warnings=(*cal.warnings, RecordingWarning("calibration_weak", note)))

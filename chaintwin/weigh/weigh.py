@@ -39,6 +39,7 @@ last segment's (what the belt carries at the end of the movement).
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -48,8 +49,9 @@ from chaintwin._stats import median
 from chaintwin.errors import EstimationError
 from chaintwin.identify.calibration import INERTIA_MODEL_REL, Calibration
 from chaintwin.identify.signatures import SignatureFit, fit_signatures
-from chaintwin.model.rigid import motoring_mask
+from chaintwin.model.rigid import incline_terms, motoring_mask
 from chaintwin.model.windows import WindowIntegrals
+from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import RecordingWarning
 from chaintwin.units import RPM_TO_RAD_S
 from chaintwin.validate.checks import Inspection
@@ -104,6 +106,15 @@ class Signatures:
         The belt's and the tray's own mass, kg: a payload whose standard
         uncertainty exceeds it cannot be told from the belt (unweighable;
         infinite: no such limit).
+    friction_rel_kg : float
+        How far the friction payload moves when the rail friction μ is
+        (1 + ε) times the calibration's: d payload / dε, kg (NaN: not known).
+        A heavier load and stickier rails give the same torque at constant
+        speed; only the inertia signature tells them apart.
+    friction_sigma : float
+        Standard uncertainty ε of the rail friction relative to the
+        calibration's that the friction signature's variance carries, 1
+        (0: the calibration's rail friction is trusted, the default).
     """
 
     friction_kg: float
@@ -115,6 +126,29 @@ class Signatures:
     drift_inertia_kg: float = 0.0
     widen: float = 1.0
     moving_mass_kg: float = float("inf")
+    friction_rel_kg: float = float("nan")
+    friction_sigma: float = 0.0
+
+    def friction_checked_rel(self, drift: LossDrift) -> float | None:
+        """The smallest rail friction change this recording would catch, relative, or None.
+
+        A change ε of μ moves the friction payload by ε·:attr:`friction_rel_kg`
+        and leaves the inertia payload; the two then disagree beyond
+        :data:`CONSISTENCY_SIGMA` combined sigmas (unweighable) when
+        ``|ε|`` exceeds this. None without an inertia signature or a known
+        sensitivity: nothing in the recording checks the friction.
+        """
+        k = self.friction_rel_kg
+        if self.inertia_var is None or not math.isfinite(k) or k == 0.0:
+            return None
+        k_f, k_i = self.drift_friction_kg, self.drift_inertia_kg
+        diff_var = (
+            self.friction_var
+            + self.inertia_var
+            - 2.0 * self.covariance
+            + drift.sigma**2 * (k_f - k_i) ** 2
+        )
+        return CONSISTENCY_SIGMA * math.sqrt(max(diff_var, 0.0)) * self.widen / abs(k)
 
 
 @dataclass(frozen=True, slots=True)
@@ -167,6 +201,9 @@ def _combine_signatures(sig: Signatures, drift: LossDrift, friction: bool = True
     k_f, k_i = sig.drift_friction_kg, sig.drift_inertia_kg
     p_f = sig.friction_kg - drift.mean * k_f
     var_f = sig.friction_var + (drift.sigma * k_f) ** 2
+    if sig.friction_sigma > 0.0 and math.isfinite(sig.friction_rel_kg):
+        # the rail friction allowed to differ from the calibration's
+        var_f += (sig.friction_sigma * sig.friction_rel_kg) ** 2
     w = sig.widen
     if not friction:
         if sig.inertia_kg is None or sig.inertia_var is None:
@@ -279,6 +316,25 @@ class WeighResult:
     loss_drift: LossDrift = field(default_factory=LossDrift.unknown)
 
     @property
+    def friction_checked_rel(self) -> float | None:
+        """Smallest relative rail friction change the recording would catch, or None.
+
+        :meth:`Signatures.friction_checked_rel` with this result's loss drift:
+        a smaller change passes the signatures' consistency check and reads
+        as payload (:attr:`friction_10pct_kg` per 10 %).
+        """
+        sig = self.signatures
+        return None if sig is None else sig.friction_checked_rel(self.loss_drift)
+
+    @property
+    def friction_10pct_kg(self) -> float | None:
+        """How many kg a 10 % rise of the rail friction reads as in the friction payload."""
+        sig = self.signatures
+        if sig is None or not math.isfinite(sig.friction_rel_kg):
+            return None
+        return 0.1 * sig.friction_rel_kg
+
+    @property
     def unweighable(self) -> str | None:
         """Why there is no payload, or None when there is one."""
         for w in self.warnings:
@@ -301,6 +357,8 @@ class WeighResult:
             "warnings": [w.to_dict() for w in self.warnings],
             "friction_uncertainty_kg": self.friction_uncertainty_kg,
             "inertia_uncertainty_kg": self.inertia_uncertainty_kg,
+            "friction_checked_rel": self.friction_checked_rel,
+            "friction_10pct_kg": self.friction_10pct_kg,
         }
 
 
@@ -334,6 +392,26 @@ def _step(fit: SignatureFit) -> tuple[float, float, float] | None:
     if best_z < STEP_SIGMA or abs(after - before) < STEP_MIN_KG:
         return None
     return float(wi.t0[sel[best_j]]), before, after
+
+
+def _friction_rel_kg(
+    wi: WindowIntegrals, prof: ConveyorProfile, mu: float, rails_kg: float
+) -> float:
+    """d friction payload / d(relative μ change), kg, as the fit would read it.
+
+    A change ε of μ adds ``ε·g·cosβ·μ·m·gf_sign`` to every window's torque
+    integral (``m`` the mass on the rails: belt, tray and payload); the
+    friction regressor ``g·(μ·cosβ·gf_sign + sinβ·gf)`` takes it up by least
+    squares over the constant-speed windows (all windows when there are
+    none), weighted as the fit's first pass.
+    """
+    g_cos, g_sin = incline_terms(prof)
+    sel = wi.constant if wi.constant.any() else np.ones(wi.count, dtype=bool)
+    xf = g_cos * mu * wi.gf_sign[sel] + g_sin * wi.gf[sel]
+    dz = g_cos * mu * wi.gf_sign[sel]
+    w = 1.0 / wi.duration[sel]
+    den = float(np.sum(w * xf * xf))
+    return rails_kg * float(np.sum(w * xf * dz)) / den if den > 0.0 else float("nan")
 
 
 def _no_payload(name: str, warnings: tuple[RecordingWarning, ...], drift: LossDrift) -> WeighResult:
@@ -385,6 +463,7 @@ def weigh(
     motoring: np.ndarray | None = None,
     windows: WindowIntegrals | None = None,
     loss_drift: LossDrift | None = None,
+    friction_drift: float = 0.0,
 ) -> WeighResult:
     """Weigh the payload of one recording.
 
@@ -411,6 +490,12 @@ def weigh(
         by it and its uncertainty carried. Default :meth:`LossDrift.unknown`:
         a drift of ±10 % allowed for, as nothing is known of it;
         ``LossDrift()`` trusts the calibration's losses.
+    friction_drift : float
+        Standard uncertainty of the rail friction μ relative to the
+        calibration's, carried into the friction signature's variance
+        (default 0: the calibration's rail friction is trusted). Matters
+        where the recording's inertia signature cannot check the friction
+        (:attr:`WeighResult.friction_checked_rel` large or None).
 
     Returns
     -------
@@ -545,6 +630,13 @@ def weigh(
         drift_inertia_kg=float(grad[1]) / calibration.inertia_gain if fit.has_inertia else 0.0,
         widen=widen,
         moving_mass_kg=prof.belt_mass_kg + tray,
+        friction_rel_kg=_friction_rel_kg(
+            fit.windows,
+            prof,
+            float(params["mu"]),
+            prof.belt_mass_kg + tray + max(float(fit.estimate[0]), 0.0),
+        ),
+        friction_sigma=friction_drift,
     )
     cal_speeds = calibration.plateau_speeds_rpm
     wi = fit.windows

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import pickle
 from datetime import UTC, datetime, timedelta, timezone
 from pathlib import Path
@@ -84,6 +85,28 @@ def test_baseline_regresses_on_payload_and_leaves_out_outliers() -> None:
     flat = fit_baseline([1.0, 1.1, 0.9, 1.0, 1.05], [10, 20, 30, 40, 25], payload_dependent=False)
     assert flat is not None and flat.slope == 0.0 and flat.intercept == 1.0
     assert fit_baseline([1.0, np.nan, 2.0], [1, 2, 3], payload_dependent=False) is None
+
+
+def test_a_drifting_payload_estimate_widens_a_sloped_baseline_by_hand() -> None:
+    """Errors in the regressor: the z-score is taken against hypot(scale, slope·sigma).
+
+    A baseline 0.05 + 0.001·p ± 0.002 (by construction); at 20 kg a value
+    0.012 above the line is 6 scales out. With a payload estimate that a
+    loss drift may have moved by 10 kg (1 sigma), the expected value is
+    uncertain by 0.010 too: z = 0.012 / hypot(0.002, 0.010) = 1.18, no
+    exceedance; a rise three times as large still is one. A flat baseline
+    does not depend on the payload, so the drift changes nothing there.
+    """
+    fb = FeatureBaseline(0.05, 0.001, 0.002, count=20, outliers=0, mean_payload_kg=20.0)
+    value = fb.expected(20.0) + 0.012
+    assert fb.check(value, 20.0, 5.0, 0.10).exceeded
+    drifting = fb.check(value, 20.0, 5.0, 0.10, payload_sigma_kg=10.0)
+    assert drifting.z == pytest.approx(0.012 / math.hypot(0.002, 0.010))
+    assert not drifting.exceeded
+    assert fb.check(fb.expected(20.0) + 0.06, 20.0, 5.0, 0.10, payload_sigma_kg=10.0).exceeded
+    flat = FeatureBaseline(0.07, 0.0, 0.002, count=20, outliers=0, mean_payload_kg=20.0)
+    assert flat.check(0.082, 20.0, 5.0, 0.10, payload_sigma_kg=10.0).exceeded
+    assert flat.check(0.082, 20.0, 5.0, 0.10, payload_sigma_kg=10.0).z == pytest.approx(6.0)
 
 
 def test_a_two_valued_baseline_keeps_both_values_and_neither_exceeds() -> None:

@@ -10,7 +10,7 @@ import uuid
 from datetime import datetime
 
 from .baseline import regressor_of
-from .features import feature_spec
+from .features import DRIFT_OF, feature_spec
 from .health import FeatureBaseline, x_of_y
 from .records import Alarm, MonitorSettings, iso_utc
 
@@ -113,8 +113,10 @@ def judge(
         if spec.cause is None:
             continue
         value = values.get(name, float("nan"))
-        load = values.get(regressor_of(name, fb), float("nan"))
-        ex = fb.check(value, load, settings.z_limit, spec.min_rel, spec.two_sided)
+        regressor = regressor_of(name, fb)
+        load = values.get(regressor, float("nan"))
+        drift = values.get(DRIFT_OF.get(regressor, ""), 0.0)
+        ex = fb.check(value, load, settings.z_limit, spec.min_rel, spec.two_sided, drift)
         win = windows.setdefault(name, [])
         times = window_times.setdefault(name, [])
         win.append(ex.exceeded)

@@ -101,6 +101,7 @@ from .spectra import Spectrum, welch_spectrum
 
 __all__ = [
     "COMB_HARMONICS",
+    "DRIFT_OF",
     "FEATURES",
     "IMPULSIVE",
     "FeatureSpec",
@@ -223,6 +224,7 @@ FEATURES: dict[str, FeatureSpec] = {
     "belt_bump": FeatureSpec("obstruction", 1.5, "-", min_scale=0.5),  # retired: always NaN
     "payload_kg": FeatureSpec(None, 0.0, "kg"),
     "load_kg": FeatureSpec(None, 0.0, "kg"),
+    "payload_drift_kg": FeatureSpec(None, 0.0, "kg"),
     "payload_inertia_kg": FeatureSpec(None, 0.0, "kg"),
     "tlf": FeatureSpec(None, 0.0, "-"),
     "impact_count": FeatureSpec(IMPULSIVE, 0.0, "-", min_scale=0.15),
@@ -323,18 +325,36 @@ def _model_load(w: WeighResult) -> float:
     return w.signatures.friction_kg
 
 
-def _load_kg(w: WeighResult) -> float:
+def _load_kg(w: WeighResult, trusted: WeighResult) -> float:
     """The load regressor of the baselines: the signatures combined trusting the losses.
 
     The reported payload allows for a loss drift (honest, but leaning on the
     noisier inertia signature); a baseline regression wants the precise
     reading. Where that is unweighable, the payload; else NaN.
+    ``trusted`` is ``reweigh(w, LossDrift())``.
     """
-    trusted = reweigh(w, LossDrift())
     for p in (trusted.payload_kg, w.payload_kg):
         if p is not None:
             return p
     return float("nan")
+
+
+DRIFT_OF = {"payload_kg": "payload_drift_kg"}
+"""The feature that says how far a loss drift may have moved a regressor (1 sigma)."""
+
+
+def _payload_drift_kg(w: WeighResult, trusted: WeighResult) -> float:
+    """How far the gear-loss drift allowance may have moved the weighed payload, 1 sigma, kg.
+
+    The part of the reported uncertainty that trusting the calibration's
+    losses takes away: ``sqrt(u² - u_trusted²)``. A baseline's line through
+    the weighed payload sees this as an error of its regressor, which the
+    baseline's own scatter (learned over a few days) need not hold.
+    """
+    u, u_t = w.uncertainty_kg, trusted.uncertainty_kg
+    if u is None or u_t is None:
+        return float("nan")
+    return math.sqrt(max(u * u - u_t * u_t, 0.0))
 
 
 @dataclass(frozen=True)
@@ -525,10 +545,12 @@ def recording_features(
     load_kg = _model_load(w)
     m0 = prof.belt_mass_kg + tray
     nan = float("nan")
+    trusted = reweigh(w, LossDrift())
     values: dict[str, float] = {
         "payload_kg": nan if w.payload_kg is None else w.payload_kg,
         # what the baselines regress on: precise rather than drift-proof
-        "load_kg": _load_kg(w),
+        "load_kg": _load_kg(w, trusted),
+        "payload_drift_kg": _payload_drift_kg(w, trusted),
         "payload_inertia_kg": nan if w.payload_inertia_kg is None else w.payload_inertia_kg,
         "tlf": nan if w.tlf is None else w.tlf,
     }

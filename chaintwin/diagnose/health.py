@@ -161,8 +161,18 @@ class FeatureBaseline:
         z_limit: float,
         min_rel: float,
         two_sided: bool = False,
+        payload_sigma_kg: float = 0.0,
     ) -> Exceedance:
         """Compare a value with the baseline: rises only, or falls too when ``two_sided``.
+
+        ``payload_sigma_kg`` is how far the payload estimate may be off for a
+        reason the baseline's scatter does not hold (a gear-loss drift since
+        the baseline moves the weighed payload): the expected value is then
+        uncertain by ``slope·payload_sigma_kg`` too, and the z-score is taken
+        against both (errors in the regressor). On one drawn conveyor the
+        weighed payload drifted 12 kg below the baseline's with the losses
+        while the load stayed, and a tooth-pass line with a real payload
+        slope alarmed on 19 healthy recordings.
 
         Falls count only on a flat baseline (no payload slope): a sloped line's
         expected value follows a payload estimate that a loss drift moves both
@@ -171,7 +181,10 @@ class FeatureBaseline:
         """
         e = self.expected(payload_kg)
         dev = value - e
-        z = dev / self.scale
+        scale = self.scale
+        if self.slope != 0.0 and math.isfinite(payload_sigma_kg) and payload_sigma_kg > 0.0:
+            scale = math.hypot(scale, self.slope * payload_sigma_kg)
+        z = dev / scale
         change = dev / abs(e) if e != 0.0 else math.copysign(math.inf, dev)
         rose = (
             z > z_limit

@@ -468,9 +468,13 @@ def per_conveyor(rows: list[dict[str, Any]], convs: list[Conveyor]) -> list[dict
             and "friction_unchecked" in r
         ]
         entry["friction_checked_rel"] = float(np.median(checked)) if checked else None
-        entry["friction_unchecked"] = any(
-            r.get("friction_unchecked") for r in rows if r["conveyor"] == p.id
-        )
+        for protocol in PROTOCOLS:
+            entry[f"{protocol}/friction_unchecked"] = any(
+                r.get("friction_unchecked")
+                for r in rows
+                if r["conveyor"] == p.id and r["protocol"] == protocol
+            )
+        entry["friction_unchecked"] = entry["one_load_several_speeds/friction_unchecked"]
         out.append(entry)
     return out
 
@@ -552,11 +556,14 @@ def _print(summary: list[dict[str, Any]], convs: list[dict[str, Any]], seconds: 
                 + (", friction_unchecked]" if c["friction_unchecked"] else "]")
             )
         )
-    unchecked = [c for c in convs if c["friction_unchecked"]]
+    counts = ", ".join(
+        f"{protocol} {sum(bool(c[f'{protocol}/friction_unchecked']) for c in convs)}"
+        for protocol in PROTOCOLS
+    )
     print(
-        f"calibrations warning friction_unchecked (the ramps cannot catch a 50 % rail friction "
-        f"change; the weights rest on the calibration's friction): {len(unchecked)} of "
-        f"{len(convs)} conveyors"
+        "calibrations warning friction_unchecked (the ramps cannot catch a 50 % rail friction "
+        f"change; the weights rest on the calibration's friction), of {len(convs)}: {counts} "
+        "(the per-conveyor lines: one_load_several_speeds)"
     )
     print("targets (largest error per conveyor; conveyors in a limit class judged apart):")
     for t in judge_targets(convs):

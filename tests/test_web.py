@@ -153,6 +153,8 @@ def test_reading_the_api_needs_a_token_and_pages_through_results(served: Served)
     assert row["last_recorded_at"] and row["payload_kg"] is not None
     detail = viewer.get(f"/api/v1/conveyors/{PROFILE.id}").json()
     assert detail["calibration"]["case"] == "several_loads"
+    notes = detail["calibration"]["warnings"]
+    assert isinstance(notes, list) and all(set(w) == {"code", "message"} for w in notes)
     assert "friction" in detail["features"] and detail["recordings"] == 30
     # the health index: the largest feature deviation, at least 1 with the alarm open
     assert row["worst_feature"] == "friction" and row["deviation"] > 1.0

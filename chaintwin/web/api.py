@@ -379,6 +379,8 @@ def conveyor(request: Request, conveyor_id: str) -> dict[str, Any]:
             "payload_sensitivity_rel_uncertainty": cal.sensitivity_rel_uncertainty,
             "recommendation": cal.recommendation(),
             "directions": sorted(cal.directions),
+            # what the calibration found weak (friction_unchecked, stick_slip, ...)
+            "warnings": [w.to_dict() for w in cal.warnings],
         }
     return {
         "id": conveyor_id,

@@ -785,6 +785,30 @@ def test_files_refused_for_want_of_a_profile_are_read_again_when_it_is_added(
     assert count(url, RecordingRow) == 2
 
 
+def test_web_uploads_take_the_profiles_the_live_service_reads_again(
+    fleet: Path, tmp_path: Path
+) -> None:
+    """An upload is weighed with the --profiles the service follows, not those it started with."""
+    from chaintwin.live.service import LiveOptions, LiveService
+    from chaintwin.web.api import ingest_uploads
+    from chaintwin.web.app import create_app
+
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    store = Store(url)  # no profile in the store
+    try:
+        service = LiveService(store, {}, LiveOptions())
+        web = create_app(store, {}, live=service).state.web
+        f = recordings(fleet)[0]
+        (first,) = ingest_uploads(web, [(f.name, f.read_bytes())], "tester")
+        assert first.status == "refused" and "profile" in (first.reason or "")
+        service.use_profiles({PROFILE.id: PROFILE})  # as the folder's follower does
+        assert service.profiles == {PROFILE.id: PROFILE} == service.profiles_now
+        (again,) = ingest_uploads(web, [(f.name, f.read_bytes())], "tester")
+        assert again.status == "stored" and again.recording_id == sha(f)
+    finally:
+        store.close()
+
+
 def test_a_profile_added_while_the_service_was_down_reads_the_refused_files_at_start(
     fleet: Path, tmp_path: Path
 ) -> None:

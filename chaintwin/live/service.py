@@ -208,6 +208,9 @@ class LiveService:
         self.options = options
         self.profiles = profiles
         """The ``--profiles`` in use by id (updated in place when the folder changes)."""
+        self.profiles_now: dict[str, ConveyorProfile] = dict(profiles)
+        """A copy of :attr:`profiles` replaced whole at each change: what another
+        thread (the web's uploads) reads without seeing a change half made."""
         self.holder = (
             options.holder or f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:6]}"
         )
@@ -220,6 +223,13 @@ class LiveService:
         self.notifier: Any = None
         self.started_at = time.time()
         self._counts: dict[str, tuple[int, int]] = {}
+
+    def use_profiles(self, fresh: dict[str, ConveyorProfile]) -> None:
+        """Take these profiles from now on: the sources', the ingestor's and the web's uploads'."""
+        self.profiles.clear()
+        self.profiles.update(fresh)
+        self.ingestor.set_profiles(fresh)
+        self.profiles_now = dict(fresh)
 
     # ---------------------------------------------------------------- sources
     def add_folder(self, root: Path) -> None:
@@ -544,9 +554,7 @@ class LiveService:
                 }
                 if not changed and set(fresh) == set(self.profiles):
                     continue
-                self.profiles.clear()
-                self.profiles.update(fresh)
-                self.ingestor.set_profiles(fresh)
+                self.use_profiles(fresh)
                 log.info(
                     "profiles read again from %s: %s",
                     folder,

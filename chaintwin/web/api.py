@@ -495,7 +495,9 @@ def ingest_uploads(web: Any, named: list[tuple[str, bytes]], who_name: str) -> l
     from chaintwin.store.ingest import ingest
 
     profiles = {cid: p for cid in web.store.conveyors() if (p := web.store.profile(cid))}
-    profiles |= web.profiles
+    live = web.extra.get("live")
+    # the live service follows --profiles and reads a changed folder again
+    profiles |= live.profiles_now if live is not None else web.profiles
     out: list[UploadedFile] = []
     with tempfile.TemporaryDirectory(prefix="chaintwin-upload-") as folder, _upload_lock:
         paths: dict[str, tuple[str, str]] = {}

@@ -132,6 +132,9 @@ class Recording:
     headers: Mapping[str, str]
     metadata: Metadata
     warnings: tuple[RecordingWarning, ...] = ()
+    _sample_time: list[float] = field(init=False, default_factory=list, repr=False, compare=False)
+    """The sample time once computed (:attr:`sample_time_s` is asked for several
+    times per recording); not copied by ``replace``, which may change the time."""
 
     # ------------------------------------------------------------ accessors
     @property
@@ -183,7 +186,9 @@ class Recording:
     @property
     def sample_time_s(self) -> float:
         """Sample time, s: the median time step of the time column."""
-        return median(np.diff(self.time))
+        if not self._sample_time:
+            self._sample_time.append(median(np.diff(self.time)))
+        return self._sample_time[0]
 
     @property
     def duration_s(self) -> float:

@@ -507,8 +507,9 @@ def recording_features(
     tray = prof.tray_mass_kg if tray is None else tray
     # impacts (an obstacle hit, a caught item) are no load and no friction: the
     # windows they touch are left out of the weighing and the condition fit
+    first_load = _model_load(w)
     first = model_torque(
-        recording, prof, params, _model_load(w), tray_kg=tray, motoring=mot, alpha=alpha
+        recording, prof, params, first_load, tray_kg=tray, motoring=mot, alpha=alpha
     )
     # what repeats with the sprocket's teeth or a shaft is no impact
     orders = characteristic_orders(prof)
@@ -566,7 +567,12 @@ def recording_features(
             1.0 + float(cond.estimate[2]) * omega / loss if loss > 0 and omega > 0 else nan
         )
 
-    model = model_torque(recording, prof, params, load_kg, tray_kg=tray, motoring=mot, alpha=alpha)
+    if load_kg == first_load:
+        model = first  # the same load: the same torque (nothing has changed it)
+    else:
+        model = model_torque(
+            recording, prof, params, load_kg, tray_kg=tray, motoring=mot, alpha=alpha
+        )
     if residual == "closed-loop":
         try:
             model = closed_loop_torque(recording, prof, twin_parameters(prof, calibration), load_kg)

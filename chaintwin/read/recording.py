@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from datetime import datetime
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -132,9 +132,10 @@ class Recording:
     headers: Mapping[str, str]
     metadata: Metadata
     warnings: tuple[RecordingWarning, ...] = ()
-    _sample_time: list[float] = field(init=False, default_factory=list, repr=False, compare=False)
-    """The sample time once computed (:attr:`sample_time_s` is asked for several
-    times per recording); not copied by ``replace``, which may change the time."""
+    memo: dict[str, Any] = field(init=False, default_factory=dict, repr=False, compare=False)
+    """Quantities derived from the channels, once computed (the sample time, the
+    acceleration: several steps of the pipeline ask for them); not copied by
+    ``replace``, which may change the channels."""
 
     # ------------------------------------------------------------ accessors
     @property
@@ -186,9 +187,10 @@ class Recording:
     @property
     def sample_time_s(self) -> float:
         """Sample time, s: the median time step of the time column."""
-        if not self._sample_time:
-            self._sample_time.append(median(np.diff(self.time)))
-        return self._sample_time[0]
+        ts = self.memo.get("sample_time_s")
+        if ts is None:
+            ts = self.memo["sample_time_s"] = median(np.diff(self.time))
+        return float(ts)
 
     @property
     def duration_s(self) -> float:

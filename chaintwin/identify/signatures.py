@@ -80,6 +80,7 @@ def _fit(
     tray_kg: float,
     ramp_rate: float | None = None,
     loss_term: bool = False,
+    columns: tuple[FloatArray, FloatArray, FloatArray] | None = None,
 ) -> SignatureFit:
     """Weighted least squares of the residual on the signatures and ripple terms.
 
@@ -92,8 +93,10 @@ def _fit(
     the ramp windows' from the calibration (``ramp_rate``; a recording holds
     too few of them to tell), since a whole ramp averages out ripple and
     ringing that a short window does not.
+
+    ``columns`` are :func:`_columns` of these windows, when already computed.
     """
-    z, xf, xi = _columns(wi, profile, values, tray_kg)
+    z, xf, xi = _columns(wi, profile, values, tray_kg) if columns is None else columns
     has_inertia = bool(np.any(wi.kind == 1))
     cols = [xf, xi] if has_inertia else [xf]
     if loss_term:
@@ -204,8 +207,7 @@ def _estimates(
     z, xf, xi = _columns(wi, profile, values, tray_kg)
     count, n = z.shape
     has_inertia = bool(np.any(wi.kind == 1))
-    mus, group = np.unique(values[:, 1], return_inverse=True)
-    first = np.array([int(np.argmax(group == g)) for g in range(mus.shape[0])])
+    _mus, first, group = np.unique(values[:, 1], return_index=True, return_inverse=True)
     cols = [xf[first], np.broadcast_to(xi, (first.shape[0], n))] if has_inertia else [xf[first]]
     ripple = np.broadcast_to(wi.ripple, (first.shape[0], *wi.ripple.shape))
     x0 = np.concatenate([np.stack(cols, axis=-1), ripple], axis=-1)  # per μ: n × p
@@ -227,7 +229,7 @@ def _estimates(
     zw = z * wt
     # first pass: weights 1/sqrt(duration)
     normal = at[group] @ a[group]
-    good = _well_conditioned(normal)
+    good = _well_conditioned(at @ a)[group]  # per μ: the same matrices
     sol = np.linalg.solve(normal, at[group] @ zw[..., None])
     resid = zw - (a[group] @ sol)[..., 0]
     if short.sum() >= 3:
@@ -314,11 +316,18 @@ def fit_signatures(
     # inertia signature of a lightly damped belt
     keep = (every.kind == 1) | every.constant
     wi = every.select(keep) if keep.any() else every
-    base = _fit(wi, prof, params.values, tray, ramp_rate)
+    # the columns per window (elementwise): those of every window, selected
+    cols_every = _columns(every, prof, params.values, tray)
+    cols = cols_every
+    if keep.any():
+        z_all, xf_all, xi_all = cols_every
+        cols = (z_all[..., keep], xf_all[..., keep], xi_all[keep])
+    base = _fit(wi, prof, params.values, tray, ramp_rate, columns=cols)
     alternative: float | None = None
     if base.has_inertia and not keep.all():
         try:
-            alternative = float(_fit(every, prof, params.values, tray, ramp_rate).estimate[1])
+            fit_every = _fit(every, prof, params.values, tray, ramp_rate, columns=cols_every)
+            alternative = float(fit_every.estimate[1])
         except EstimationError:
             alternative = None
     base = replace(base, inertia_alternative=alternative)

@@ -18,7 +18,7 @@ from numba import njit
 
 from chaintwin._types import FloatArray
 
-__all__ = ["median", "subtract_bin_medians"]
+__all__ = ["median", "subtract_bin_medians", "subtract_binned_medians"]
 
 
 def median(x: FloatArray) -> float:
@@ -106,4 +106,46 @@ def subtract_bin_medians(out: FloatArray, members: np.ndarray, bounds: np.ndarra
     >>> x.tolist()
     [-0.5, -1.0, 0.5, 1.0]
     """
+    _subtract_bin_medians(out, members, bounds)
+
+
+@njit(cache=True, nogil=True)
+def _group_by_bin(
+    idx: np.ndarray, bins: int
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled; tested through its callers
+    bounds = np.zeros(bins + 1, dtype=np.intp)
+    for i in range(idx.shape[0]):
+        bounds[idx[i] + 1] += 1
+    for b in range(bins):
+        bounds[b + 1] += bounds[b]
+    fill = bounds[:-1].copy()
+    members = np.empty(idx.shape[0], dtype=np.intp)
+    for i in range(idx.shape[0]):
+        b = idx[i]
+        members[fill[b]] = i
+        fill[b] += 1
+    return members, bounds
+
+
+def subtract_binned_medians(out: FloatArray, idx: np.ndarray, bins: int) -> None:
+    """:func:`subtract_bin_medians` with the samples' bins given per sample, in place.
+
+    ``idx`` holds each sample's bin (``0 <= idx < bins``); the samples are
+    grouped by bin in one compiled counting pass, in the order of
+    ``np.argsort(idx, kind="stable")`` with ``np.searchsorted`` bounds.
+
+    Examples
+    --------
+    >>> x = np.array([1.0, 5.0, 2.0, 7.0])
+    >>> subtract_binned_medians(x, np.array([0, 1, 0, 1]), 2)
+    >>> x.tolist()
+    [-0.5, -1.0, 0.5, 1.0]
+    """
+    idx = np.ascontiguousarray(idx, dtype=np.intp)
+    if idx.shape[0] and not (int(idx.min()) >= 0 and int(idx.max()) < bins):
+        # out of range (a NaN angle): grouped as numpy groups them
+        members = np.argsort(idx, kind="stable")
+        bounds = np.searchsorted(idx[members], np.arange(bins + 1))
+    else:
+        members, bounds = _group_by_bin(idx, int(bins))
     _subtract_bin_medians(out, members, bounds)

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from chaintwin._stats import median, subtract_bin_medians
+from chaintwin._stats import median, subtract_bin_medians, subtract_binned_medians
 
 floats = st.floats(allow_nan=True, allow_infinity=True, width=64)
 
@@ -49,3 +49,24 @@ def test_bin_medians_are_numpys(x: np.ndarray, bins: int, rnd: object) -> None:
     got = x.copy()
     subtract_bin_medians(got, members, bounds)
     assert np.array_equal(got, want, equal_nan=True)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_binned_medians_group_as_a_stable_argsort(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    n, bins = int(rng.integers(1, 3000)), int(rng.integers(1, 64))
+    idx = rng.integers(0, bins, size=n)
+    x = rng.normal(size=n)
+    x[rng.random(n) < 0.01] = np.nan
+    want, got = x.copy(), x.copy()
+    members = np.argsort(idx, kind="stable")
+    subtract_bin_medians(want, members, np.searchsorted(idx[members], np.arange(bins + 1)))
+    subtract_binned_medians(got, idx, bins)
+    np.testing.assert_array_equal(got, want)
+    # out of range (as a NaN angle gives): numpy's grouping
+    idx[0] = -5
+    want, got = x.copy(), x.copy()
+    members = np.argsort(idx, kind="stable")
+    subtract_bin_medians(want, members, np.searchsorted(idx[members], np.arange(bins + 1)))
+    subtract_binned_medians(got, idx, bins)
+    np.testing.assert_array_equal(got, want)

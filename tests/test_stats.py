@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from chaintwin._stats import median, subtract_bin_medians, subtract_binned_medians
+from chaintwin._stats import column_medians, median, subtract_bin_medians, subtract_binned_medians
 
 floats = st.floats(allow_nan=True, allow_infinity=True, width=64)
 
@@ -70,3 +70,16 @@ def test_binned_medians_group_as_a_stable_argsort(seed: int) -> None:
     subtract_bin_medians(want, members, np.searchsorted(idx[members], np.arange(bins + 1)))
     subtract_binned_medians(got, idx, bins)
     np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_column_medians_are_numpys(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(int(rng.integers(1, 12)), int(rng.integers(1, 300))))
+    x[rng.random(x.shape) < 0.02] = np.nan
+    x[rng.random(x.shape) < 0.05] = -0.0
+    x[rng.random(x.shape) < 0.05] = 0.0
+    want = np.median(x, axis=0)
+    got = column_medians(x)
+    np.testing.assert_array_equal(got, want)
+    assert np.array_equal(np.signbit(got), np.signbit(want))

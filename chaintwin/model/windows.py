@@ -158,7 +158,7 @@ def _window_bounds(
     the median sample time, s (computed from the recording when not given).
     """
     if dt is None:
-        dt = float(np.median(np.diff(recording.time)))
+        dt = recording.sample_time_s
     corner = max(1, round(corner_s / dt))
     settle = max(1, round(settle_s / dt))
     spread = max(0, round(average_s / dt))
@@ -315,7 +315,7 @@ def window_integrals(
                 steady[ph.start : ph.stop] = True
 
     h = np.diff(t)
-    dt = float(np.median(h))
+    dt = recording.sample_time_s  # float(np.median(h)), computed once per recording
     n_win = max(4, round(window_s / dt))
 
     bounds = _window_bounds(recording, phases, moving, n_win, corner_s, settle_s, average_s, dt)

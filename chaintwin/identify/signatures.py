@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numba import njit
 
 from chaintwin._types import FloatArray
 from chaintwin.errors import EstimationError
@@ -118,8 +119,14 @@ def _fit(
             "motion to weigh; record a complete move"
         )
     wt = 1.0 / np.sqrt(wi.duration)
-    _sol, _xw, resid, _rank = solve(wt)
     short = wi.kind == 0
+    k = len(cols)
+    rate = ramp_rate if ramp_rate is not None and np.isfinite(ramp_rate) else np.nan
+    ok, coef, cov, weights = _two_pass(np.ascontiguousarray(x0), z, wt, short, float(rate))
+    if ok:
+        # well conditioned: solved by the normal equations in one compiled pass
+        return _signature_fit(wi, z, xf, xi, coef, cov, weights, has_inertia, k, loss_term)
+    _sol, _xw, resid, _rank = solve(wt)
     rate_short = float(np.mean(resid[short] ** 2)) if short.sum() >= 3 else float(np.mean(resid**2))
     rate_ramp = ramp_rate if ramp_rate is not None and np.isfinite(ramp_rate) else rate_short
     floor = 1e-12 * max(float(np.mean((z * wt) ** 2)), 1e-30)
@@ -136,7 +143,23 @@ def _fit(
         cov = s2 * np.linalg.inv(xw.T @ xw) / np.outer(scale, scale)
     except np.linalg.LinAlgError:
         raise EstimationError("the recording does not determine the payload") from None
-    k = len(cols)
+    return _signature_fit(wi, z, xf, xi, coef, cov, weights, has_inertia, k, loss_term)
+
+
+def _signature_fit(
+    wi: WindowIntegrals,
+    z: FloatArray,
+    xf: FloatArray,
+    xi: FloatArray,
+    coef: FloatArray,
+    cov: FloatArray,
+    weights: FloatArray,
+    has_inertia: bool,
+    k: int,
+    loss_term: bool,
+) -> SignatureFit:
+    """The fit of :func:`_fit` from its coefficients (``k`` signatures and loss
+    term, then the ripple terms) and their covariance."""
     # friction payload of each window, other terms removed, for step detection
     rest = z - (xi * coef[1] if has_inertia else 0.0) - wi.ripple @ coef[k:]
     if loss_term:
@@ -144,6 +167,104 @@ def _fit(
     with np.errstate(divide="ignore", invalid="ignore"):
         per_kg = np.where(np.abs(xf) > 0, rest / xf, np.nan)
     return SignatureFit(coef[:k], cov[:k, :k], has_inertia, wi, per_kg, weights)
+
+
+@njit(cache=True, nogil=True)
+def _two_pass(
+    x0: np.ndarray, z: np.ndarray, wt: np.ndarray, short: np.ndarray, ramp_rate: float
+) -> tuple[bool, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """:func:`_fit`'s two weighted least-squares passes by their normal equations.
+
+    The same arithmetic as its lstsq path (to rounding: the normal equations
+    agree with lstsq when the scaled regressors are well conditioned,
+    :data:`WELL_CONDITIONED`); ``ok`` False when a normal matrix is not, and
+    the caller solves with lstsq. ``ramp_rate`` NaN: none given.
+
+    Returns (ok, coefficients, covariance, weights).
+    """
+    n, p = x0.shape
+    scale = np.empty(p)
+    for j in range(p):
+        acc = 0.0
+        for i in range(n):
+            acc += x0[i, j] * x0[i, j]
+        scale[j] = np.sqrt(acc / n)
+        if scale[j] == 0.0:
+            scale[j] = 1.0
+    xs = np.empty((n, p))
+    for i in range(n):
+        for j in range(p):
+            xs[i, j] = x0[i, j] / scale[j]
+    nshort = 0
+    for i in range(n):
+        if short[i]:
+            nshort += 1
+    empty = np.zeros(0)
+    weights = wt.copy()
+    resid = np.empty(n)
+    normal = np.empty((p, p))
+    for stage in range(2):
+        a = np.empty((n, p))
+        zw = np.empty(n)
+        for i in range(n):
+            zw[i] = z[i] * weights[i]
+            for j in range(p):
+                a[i, j] = xs[i, j] * weights[i]
+        normal = a.T @ a
+        eig = np.linalg.eigvalsh(normal)
+        if not eig[0] > 1e-8 * eig[p - 1]:  # WELL_CONDITIONED
+            return False, empty, np.zeros((0, 0)), weights
+        sol = np.linalg.solve(normal, a.T @ zw)
+        fitted = a @ sol
+        for i in range(n):
+            resid[i] = zw[i] - fitted[i]
+        if stage == 1:
+            coef = sol / scale
+            break
+        # noise rates of the short and the ramp windows from the first pass
+        acc = 0.0
+        cnt = 0
+        for i in range(n):
+            if short[i] or nshort < 3:
+                acc += resid[i] * resid[i]
+                cnt += 1
+        rate_short = acc / cnt
+        rate_ramp = ramp_rate if np.isfinite(ramp_rate) else rate_short
+        acc = 0.0
+        for i in range(n):
+            acc += zw[i] * zw[i]
+        floor = 1e-12 * max(acc / n, 1e-30)
+        rate_short = max(rate_short, floor)
+        rate_ramp = max(rate_ramp, floor)
+        for i in range(n):
+            weights[i] = wt[i] / np.sqrt(rate_short if short[i] else rate_ramp)
+    dof = max(n - p, 1)
+    ss = 0.0
+    for i in range(n):
+        ss += resid[i] * resid[i]
+    # serial correlation of the short windows' residuals (serial_correlation_factor)
+    factor = 1.0
+    if nshort >= 3:
+        r = np.empty(nshort)
+        m = 0
+        for i in range(n):
+            if short[i]:
+                r[m] = resid[i]
+                m += 1
+        mean = r.sum() / nshort
+        r -= mean
+        den = 0.0
+        lag = 0.0
+        for i in range(nshort):
+            den += r[i] * r[i]
+            if i > 0:
+                lag += r[i] * r[i - 1]
+        if den > 0.0:
+            rho = min(max(lag / den, 0.0), 0.9)
+            factor = (1.0 + rho) / (1.0 - rho)
+    s2 = max(1.0, ss / dof) * factor
+    cov = s2 * np.linalg.inv(normal) / np.outer(scale, scale)
+    return True, coef, cov, weights
 
 
 LOSS_STEP = 0.05

@@ -326,7 +326,7 @@ def _estimates(
         As :func:`_fit`.
     """
     z, xf, xi = _columns(wi, profile, values, tray_kg)
-    count, n = z.shape
+    _count, n = z.shape
     has_inertia = bool(np.any(wi.kind == 1))
     _mus, first, group = np.unique(values[:, 1], return_index=True, return_inverse=True)
     cols = [xf[first], np.broadcast_to(xi, (first.shape[0], n))] if has_inertia else [xf[first]]
@@ -338,43 +338,110 @@ def _estimates(
             f"{n} usable windows for {p} unknowns: too little steady "
             "motion to weigh; record a complete move"
         )
-    scale = np.sqrt(np.mean(x0 * x0, axis=-2))
-    scale[scale == 0.0] = 1.0
     wt = 1.0 / np.sqrt(wi.duration)
     short = wi.kind == 0
-    a = x0 / scale[:, None, :] * wt[:, None]  # first pass's weighted regressors
-    at = np.swapaxes(a, -1, -2)
-    a_short, a_ramp = at[:, :, short], at[:, :, ~short]
-    n_short = a_short @ np.swapaxes(a_short, -1, -2)
-    n_ramp = a_ramp @ np.swapaxes(a_ramp, -1, -2)
-    zw = z * wt
-    # first pass: weights 1/sqrt(duration)
-    normal = at[group] @ a[group]
-    good = _well_conditioned(at @ a)[group]  # per μ: the same matrices
-    sol = np.linalg.solve(normal, at[group] @ zw[..., None])
-    resid = zw - (a[group] @ sol)[..., 0]
-    if short.sum() >= 3:
-        rate_short = np.mean(resid[:, short] ** 2, axis=-1)
-    else:
-        rate_short = np.mean(resid**2, axis=-1)
-    if ramp_rate is not None and np.isfinite(ramp_rate):
-        rate_ramp = np.full(count, float(ramp_rate))
-    else:
-        rate_ramp = rate_short
-    floor = 1e-12 * np.maximum(np.mean(zw**2, axis=-1), 1e-30)
-    rate_short = np.maximum(rate_short, floor)[:, None, None]
-    rate_ramp = np.maximum(rate_ramp, floor)[:, None, None]
-    # second pass: weights 1/sqrt(duration · rate)
-    normal = n_short[group] / rate_short + n_ramp[group] / rate_ramp
-    rhs = (a_short[group] @ zw[:, short, None]) / rate_short + (
-        a_ramp[group] @ zw[:, ~short, None]
-    ) / rate_ramp
-    good &= _well_conditioned(normal)
-    sol = np.linalg.solve(normal, rhs)[..., 0]
-    estimates: FloatArray = (sol / scale[group])[:, : len(cols)]
+    rate = ramp_rate if ramp_rate is not None and np.isfinite(ramp_rate) else np.nan
+    # both passes per parameter vector in one compiled kernel, the regressors
+    # and their normal matrices once per distinct μ
+    estimates, good = _stacked_two_pass(
+        np.ascontiguousarray(x0), np.ascontiguousarray(z), wt, short, float(rate), group
+    )
+    estimates = estimates[:, : len(cols)]
     for k in np.flatnonzero(~good):
         estimates[k] = _fit(wi, profile, values[k], tray_kg, ramp_rate).estimate
     return estimates
+
+
+@njit(cache=True, nogil=True)
+def _stacked_two_pass(
+    x0: np.ndarray,
+    z: np.ndarray,
+    wt: np.ndarray,
+    short: np.ndarray,
+    ramp_rate: float,
+    group: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """The coefficients of :func:`_two_pass` for a stack of residuals ``z`` (K × n),
+    the regressors ``x0[group[k]]`` (per distinct μ: n × p) shared.
+
+    The second pass's weights take one value over the short windows and one
+    over the ramp windows, so its normal matrix is ``N_short/rate_short +
+    N_ramp/rate_ramp`` of two matrices per μ. Returns (K × p coefficients,
+    whether each problem was well conditioned: where not, the caller fits
+    with :func:`_fit`).
+    """
+    groups, n, p = x0.shape
+    count = z.shape[0]
+    nshort = 0
+    for i in range(n):
+        if short[i]:
+            nshort += 1
+    scale = np.empty((groups, p))
+    a = np.empty((groups, n, p))
+    n_first = np.empty((groups, p, p))
+    n_short = np.zeros((groups, p, p))
+    n_ramp = np.zeros((groups, p, p))
+    good_first = np.empty(groups, dtype=np.bool_)
+    for g in range(groups):
+        for j in range(p):
+            acc = 0.0
+            for i in range(n):
+                acc += x0[g, i, j] * x0[g, i, j]
+            scale[g, j] = np.sqrt(acc / n)
+            if scale[g, j] == 0.0:
+                scale[g, j] = 1.0
+        for i in range(n):
+            for j in range(p):
+                a[g, i, j] = x0[g, i, j] / scale[g, j] * wt[i]
+        ag = a[g]
+        n_first[g] = ag.T @ ag
+        eig = np.linalg.eigvalsh(n_first[g])
+        good_first[g] = eig[0] > 1e-8 * eig[p - 1]  # WELL_CONDITIONED
+        for i in range(n):
+            target = n_short[g] if short[i] else n_ramp[g]
+            for j in range(p):
+                for m in range(p):
+                    target[j, m] += ag[i, j] * ag[i, m]
+    out = np.zeros((count, p))
+    good = np.zeros(count, dtype=np.bool_)
+    zw = np.empty(n)
+    for k in range(count):
+        g = group[k]
+        if not good_first[g]:
+            continue
+        ag = a[g]
+        for i in range(n):
+            zw[i] = z[k, i] * wt[i]
+        sol = np.linalg.solve(n_first[g], ag.T @ zw)
+        fitted = ag @ sol
+        acc = 0.0
+        cnt = 0
+        total = 0.0
+        for i in range(n):
+            r = zw[i] - fitted[i]
+            if short[i] or nshort < 3:
+                acc += r * r
+                cnt += 1
+            total += zw[i] * zw[i]
+        rate_short = acc / cnt
+        rate_ramp = ramp_rate if np.isfinite(ramp_rate) else rate_short
+        floor = 1e-12 * max(total / n, 1e-30)
+        rate_short = max(rate_short, floor)
+        rate_ramp = max(rate_ramp, floor)
+        normal = n_short[g] / rate_short + n_ramp[g] / rate_ramp
+        eig = np.linalg.eigvalsh(normal)
+        if not eig[0] > 1e-8 * eig[p - 1]:
+            continue
+        rhs = np.zeros(p)
+        for i in range(n):
+            w = zw[i] / (rate_short if short[i] else rate_ramp)
+            for j in range(p):
+                rhs[j] += ag[i, j] * w
+        sol = np.linalg.solve(normal, rhs)
+        for j in range(p):
+            out[k, j] = sol[j] / scale[g, j]
+        good[k] = True
+    return out, good
 
 
 def fit_signatures(

@@ -8,7 +8,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from chaintwin._stats import column_medians, median, subtract_bin_medians, subtract_binned_medians
+from chaintwin._stats import (
+    column_medians,
+    median,
+    phase_bins,
+    subtract_bin_medians,
+    subtract_binned_medians,
+)
 
 floats = st.floats(allow_nan=True, allow_infinity=True, width=64)
 
@@ -83,3 +89,23 @@ def test_column_medians_are_numpys(seed: int) -> None:
     got = column_medians(x)
     np.testing.assert_array_equal(got, want)
     assert np.array_equal(np.signbit(got), np.signbit(want))
+
+
+@pytest.mark.parametrize("seed", range(30))
+def test_phase_bins_are_numpys(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    step = rng.choice([1e-3, 1e-2, 0.1, 1.0]) * rng.choice([1.0, -1.0])
+    turned = np.cumsum(rng.normal(1.0, 0.3, size=int(rng.integers(1, 5000)))) * step
+    order = float(rng.choice([0.0322683949675943, 0.3226839496759436, 1.0, rng.random() * 5]))
+    bins = int(rng.integers(4, 65))
+    phase = np.mod(order * turned, 2.0 * np.pi)
+    want = np.minimum((phase / (2.0 * np.pi) * bins).astype(np.intp), bins - 1)
+    np.testing.assert_array_equal(phase_bins(turned, order, bins), want)
+
+
+def test_phase_bins_on_whole_turns() -> None:
+    turned = np.arange(-1000, 1000) * (2.0 * np.pi / 7.0)
+    for order in (1.0, 7.0, 0.5):
+        phase = np.mod(order * turned, 2.0 * np.pi)
+        want = np.minimum((phase / (2.0 * np.pi) * 16).astype(np.intp), 15)
+        np.testing.assert_array_equal(phase_bins(turned, order, 16), want)

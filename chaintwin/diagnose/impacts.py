@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 from scipy.ndimage import median_filter, uniform_filter1d
 
-from chaintwin._stats import median, subtract_binned_medians
+from chaintwin._stats import median, phase_bins, subtract_binned_medians
 from chaintwin._types import FloatArray
 from chaintwin.read.recording import Recording
 from chaintwin.validate.phases import Phase
@@ -174,8 +174,7 @@ def less_periodic(x: FloatArray, angle_rad: FloatArray, orders: Sequence[float])
         bins = int(min(SYNC_BINS, max(4.0, per_period)))
         if turned is None:
             turned = angle_rad - angle_rad[0]
-        phase = np.mod(order * turned, 2.0 * np.pi)
-        idx = np.minimum((phase / (2.0 * np.pi) * bins).astype(np.intp), bins - 1)
+        idx = phase_bins(turned, order, bins)
         # the samples grouped by bin and each bin's median taken away in
         # compiled passes (the same numbers as np.median per bin, at a
         # fraction of the calls)

@@ -109,3 +109,27 @@ def test_phase_bins_on_whole_turns() -> None:
         phase = np.mod(order * turned, 2.0 * np.pi)
         want = np.minimum((phase / (2.0 * np.pi) * 16).astype(np.intp), 15)
         np.testing.assert_array_equal(phase_bins(turned, order, 16), want)
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_running_integrals_are_numpys_cumsum(seed: int) -> None:
+    from chaintwin.model.windows import _running_integrals
+
+    rng = np.random.default_rng(seed)
+    n, m = int(rng.integers(1, 3000)), int(rng.integers(1, 11))
+    t = np.cumsum(rng.random(n))
+    w, gf = rng.normal(size=n), rng.normal(size=n)
+    f = rng.normal(size=(n, m))
+    f[rng.random((n, m)) < 0.05] = -0.0
+    w[rng.random(n) < 0.05] = -0.0
+    h = np.diff(t)
+    steps = np.empty((h.shape[0], m + 2))
+    np.multiply(0.5 * (f[1:] + f[:-1]), h[:, None], out=steps[:, :m])
+    steps[:, m] = 0.5 * (gf[1:] + gf[:-1]) * np.diff(w)
+    steps[:, m + 1] = np.abs(0.5 * (w[1:] + w[:-1])) * h
+    want = np.empty((n, m + 4))
+    want[:, 0], want[:, 1], want[0, 2:] = t, w, 0.0
+    np.cumsum(steps, axis=0, out=want[1:, 2:])
+    got = _running_integrals(np.ascontiguousarray(f.T), t, w, gf, h)
+    np.testing.assert_array_equal(got, want)
+    assert np.array_equal(np.signbit(got), np.signbit(want))

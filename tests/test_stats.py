@@ -133,3 +133,16 @@ def test_running_integrals_are_numpys_cumsum(seed: int) -> None:
     got = _running_integrals(np.ascontiguousarray(f.T), t, w, gf, h)
     np.testing.assert_array_equal(got, want)
     assert np.array_equal(np.signbit(got), np.signbit(want))
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_near_any_is_numpys(seed: int) -> None:
+    from chaintwin.diagnose.peaks import _near_any
+
+    rng = np.random.default_rng(seed)
+    x = np.linspace(0.0, 83.3, int(rng.integers(1, 600)))
+    centres = rng.random(int(rng.integers(0, 80))) * 90.0
+    centres[: min(3, centres.shape[0])] = x[rng.integers(0, x.shape[0], min(3, centres.shape[0]))]
+    width = float(rng.integers(1, 4)) * (x[1] - x[0] if x.shape[0] > 1 else 0.1)
+    want = (np.abs(x[:, None] - centres[None, :]) <= width).any(axis=1)
+    np.testing.assert_array_equal(_near_any(x, centres, width), want)

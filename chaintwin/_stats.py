@@ -62,6 +62,22 @@ def median(x: FloatArray) -> float:
 
 
 @njit(cache=True, nogil=True)
+def _sort_small(buf: np.ndarray, m: int) -> None:  # pragma: no cover - compiled
+    """Sort ``buf[:m]`` (no NaN: the callers check) in place: by insertion when
+    short (no allocation), else by ``np.sort``."""
+    if m > 48:
+        buf[:m] = np.sort(buf[:m])
+        return
+    for r in range(1, m):
+        v = buf[r]
+        j = r
+        while j > 0 and buf[j - 1] > v:
+            buf[j] = buf[j - 1]
+            j -= 1
+        buf[j] = v
+
+
+@njit(cache=True, nogil=True)
 def _subtract_bin_medians(
     out: np.ndarray, members: np.ndarray, bounds: np.ndarray
 ) -> None:  # pragma: no cover - compiled; tested through subtract_bin_medians
@@ -75,15 +91,18 @@ def _subtract_bin_medians(
         m = bounds[b + 1] - lo
         if m == 0:
             continue
-        for j in range(m):
-            buf[j] = out[members[lo + j]]
-        s = np.sort(buf[:m])  # NaN last, as numpy sorts
-        if np.isnan(s[m - 1]):
+        has_nan = False
+        for r in range(m):
+            v = out[members[lo + r]]
+            has_nan = has_nan or np.isnan(v)
+            buf[r] = v
+        _sort_small(buf, m)
+        if has_nan:
             med = np.nan
         elif m % 2:
-            med = s[m // 2]
+            med = buf[m // 2]
         else:
-            med = (s[m // 2 - 1] + s[m // 2]) / 2.0
+            med = (buf[m // 2 - 1] + buf[m // 2]) / 2.0
         med += 0.0  # numpy's mean sums from +0.0: a median of -0.0 is 0.0
         for j in range(m):
             out[members[lo + j]] -= med
@@ -163,15 +182,18 @@ def _column_medians(x: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
     out = np.empty(cols, dtype=np.float64)
     buf = np.empty(rows, dtype=np.float64)
     for c in range(cols):
+        has_nan = False
         for r in range(rows):
-            buf[r] = x[r, c]
-        s = np.sort(buf)  # NaN last, as numpy sorts
-        if np.isnan(s[rows - 1]):
+            v = x[r, c]
+            has_nan = has_nan or np.isnan(v)
+            buf[r] = v
+        _sort_small(buf, rows)
+        if has_nan:
             med = np.nan
         elif rows % 2:
-            med = s[rows // 2]
+            med = buf[rows // 2]
         else:
-            med = (s[rows // 2 - 1] + s[rows // 2]) / 2.0
+            med = (buf[rows // 2 - 1] + buf[rows // 2]) / 2.0
         out[c] = med + 0.0  # numpy's mean sums from +0.0: a median of -0.0 is 0.0
     return out
 

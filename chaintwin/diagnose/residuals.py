@@ -128,16 +128,6 @@ _STATS_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(ResidualStats))
 """Field names of :class:`ResidualStats` in order (``to_dict`` without ``asdict``'s deep copy)."""
 
 
-def _pearson(a: FloatArray, b: FloatArray) -> float:
-    da = a - a.mean()
-    db = b - b.mean()
-    saa = float(da @ da)
-    sbb = float(db @ db)
-    if saa <= 0.0 or sbb <= 0.0:
-        return 0.0
-    return float(np.clip(float(da @ db) / math.sqrt(saa * sbb), -1.0, 1.0))
-
-
 def residual_stats(measured: FloatArray, model: FloatArray) -> ResidualStats:
     """Statistics of the residual ``e = measured − model``.
 

@@ -278,13 +278,6 @@ rank cut-off; the weighing's are typically about 4.
 """
 
 
-def _well_conditioned(normal: FloatArray) -> np.ndarray:
-    """Per matrix of a stack of normal matrices: eigenvalues within :data:`WELL_CONDITIONED`."""
-    eig = np.linalg.eigvalsh(normal)
-    good: np.ndarray = eig[..., 0] > WELL_CONDITIONED * eig[..., -1]
-    return good
-
-
 def _estimates(
     wi: WindowIntegrals,
     profile: ConveyorProfile,

@@ -18,7 +18,13 @@ from numba import njit
 
 from chaintwin._types import FloatArray
 
-__all__ = ["median", "subtract_bin_medians"]
+__all__ = [
+    "column_medians",
+    "median",
+    "phase_bins",
+    "subtract_bin_medians",
+    "subtract_binned_medians",
+]
 
 
 def median(x: FloatArray) -> float:
@@ -56,6 +62,22 @@ def median(x: FloatArray) -> float:
 
 
 @njit(cache=True, nogil=True)
+def _sort_small(buf: np.ndarray, m: int) -> None:  # pragma: no cover - compiled
+    """Sort ``buf[:m]`` (no NaN: the callers check) in place: by insertion when
+    short (no allocation), else by ``np.sort``."""
+    if m > 48:
+        buf[:m] = np.sort(buf[:m])
+        return
+    for r in range(1, m):
+        v = buf[r]
+        j = r
+        while j > 0 and buf[j - 1] > v:
+            buf[j] = buf[j - 1]
+            j -= 1
+        buf[j] = v
+
+
+@njit(cache=True, nogil=True)
 def _subtract_bin_medians(
     out: np.ndarray, members: np.ndarray, bounds: np.ndarray
 ) -> None:  # pragma: no cover - compiled; tested through subtract_bin_medians
@@ -69,15 +91,18 @@ def _subtract_bin_medians(
         m = bounds[b + 1] - lo
         if m == 0:
             continue
-        for j in range(m):
-            buf[j] = out[members[lo + j]]
-        s = np.sort(buf[:m])  # NaN last, as numpy sorts
-        if np.isnan(s[m - 1]):
+        has_nan = False
+        for r in range(m):
+            v = out[members[lo + r]]
+            has_nan = has_nan or np.isnan(v)
+            buf[r] = v
+        _sort_small(buf, m)
+        if has_nan:
             med = np.nan
         elif m % 2:
-            med = s[m // 2]
+            med = buf[m // 2]
         else:
-            med = (s[m // 2 - 1] + s[m // 2]) / 2.0
+            med = (buf[m // 2 - 1] + buf[m // 2]) / 2.0
         med += 0.0  # numpy's mean sums from +0.0: a median of -0.0 is 0.0
         for j in range(m):
             out[members[lo + j]] -= med
@@ -107,3 +132,118 @@ def subtract_bin_medians(out: FloatArray, members: np.ndarray, bounds: np.ndarra
     [-0.5, -1.0, 0.5, 1.0]
     """
     _subtract_bin_medians(out, members, bounds)
+
+
+@njit(cache=True, nogil=True)
+def _group_by_bin(
+    idx: np.ndarray, bins: int
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled; tested through its callers
+    bounds = np.zeros(bins + 1, dtype=np.intp)
+    for i in range(idx.shape[0]):
+        bounds[idx[i] + 1] += 1
+    for b in range(bins):
+        bounds[b + 1] += bounds[b]
+    fill = bounds[:-1].copy()
+    members = np.empty(idx.shape[0], dtype=np.intp)
+    for i in range(idx.shape[0]):
+        b = idx[i]
+        members[fill[b]] = i
+        fill[b] += 1
+    return members, bounds
+
+
+def subtract_binned_medians(out: FloatArray, idx: np.ndarray, bins: int) -> None:
+    """:func:`subtract_bin_medians` with the samples' bins given per sample, in place.
+
+    ``idx`` holds each sample's bin (``0 <= idx < bins``); the samples are
+    grouped by bin in one compiled counting pass, in the order of
+    ``np.argsort(idx, kind="stable")`` with ``np.searchsorted`` bounds.
+
+    Examples
+    --------
+    >>> x = np.array([1.0, 5.0, 2.0, 7.0])
+    >>> subtract_binned_medians(x, np.array([0, 1, 0, 1]), 2)
+    >>> x.tolist()
+    [-0.5, -1.0, 0.5, 1.0]
+    """
+    idx = np.ascontiguousarray(idx, dtype=np.intp)
+    if idx.shape[0] and not (int(idx.min()) >= 0 and int(idx.max()) < bins):
+        # out of range (a NaN angle): grouped as numpy groups them
+        members = np.argsort(idx, kind="stable")
+        bounds = np.searchsorted(idx[members], np.arange(bins + 1))
+    else:
+        members, bounds = _group_by_bin(idx, int(bins))
+    _subtract_bin_medians(out, members, bounds)
+
+
+@njit(cache=True, nogil=True)
+def _column_medians(x: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled; tested
+    rows, cols = x.shape
+    out = np.empty(cols, dtype=np.float64)
+    buf = np.empty(rows, dtype=np.float64)
+    for c in range(cols):
+        has_nan = False
+        for r in range(rows):
+            v = x[r, c]
+            has_nan = has_nan or np.isnan(v)
+            buf[r] = v
+        _sort_small(buf, rows)
+        if has_nan:
+            med = np.nan
+        elif rows % 2:
+            med = buf[rows // 2]
+        else:
+            med = (buf[rows // 2 - 1] + buf[rows // 2]) / 2.0
+        out[c] = med + 0.0  # numpy's mean sums from +0.0: a median of -0.0 is 0.0
+    return out
+
+
+def column_medians(x: FloatArray) -> FloatArray:
+    """``np.median(x, axis=0)`` of a 2-D float64 array with rows, the same numbers.
+
+    Examples
+    --------
+    >>> column_medians(np.array([[1.0, 4.0], [3.0, 2.0], [2.0, 9.0]])).tolist()
+    [2.0, 4.0]
+    """
+    if x.ndim != 2 or x.shape[0] == 0 or x.dtype != np.float64:
+        out: FloatArray = np.median(x, axis=0)
+        return out
+    medians: FloatArray = _column_medians(np.ascontiguousarray(x))
+    return medians
+
+
+@njit(cache=True, nogil=True)
+def _phase_bins(
+    turned: np.ndarray, order: float, bins: int
+) -> tuple[bool, np.ndarray]:  # pragma: no cover - compiled; tested through phase_bins
+    two_pi = 2.0 * np.pi
+    n = turned.shape[0]
+    idx = np.empty(n, dtype=np.intp)
+    for i in range(n):
+        phase = np.mod(order * turned[i], two_pi)
+        if not np.isfinite(phase):
+            return False, idx
+        k = int(phase / two_pi * bins)  # truncation, as astype(np.intp)
+        idx[i] = k if k < bins - 1 else bins - 1
+    return True, idx
+
+
+def phase_bins(turned: FloatArray, order: float, bins: int) -> np.ndarray:
+    """Each sample's bin of the phase ``order x turned`` (rad) among ``bins`` per period.
+
+    The same numbers as ``np.minimum((np.mod(order * turned, 2π) / (2π) * bins)
+    .astype(np.intp), bins - 1)`` (tested), in one compiled pass; numpy's
+    own where a phase is not finite.
+
+    Examples
+    --------
+    >>> phase_bins(np.array([0.0, 1.0, 4.0, 7.0]), 1.0, 4).tolist()
+    [0, 0, 2, 0]
+    """
+    ok, idx = _phase_bins(np.ascontiguousarray(turned, dtype=np.float64), float(order), int(bins))
+    if ok:
+        return idx
+    phase = np.mod(order * turned, 2.0 * np.pi)
+    out: np.ndarray = np.minimum((phase / (2.0 * np.pi) * bins).astype(np.intp), bins - 1)
+    return out

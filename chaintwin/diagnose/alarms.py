@@ -11,7 +11,7 @@ from datetime import datetime
 
 from .baseline import regressor_of
 from .features import DRIFT_OF, feature_spec
-from .health import FeatureBaseline, x_of_y
+from .health import FeatureBaseline
 from .records import Alarm, MonitorSettings, iso_utc
 
 __all__ = ["LIMIT_PREFIX", "close_quiet_alarms", "judge", "open_alarm", "window_key"]
@@ -108,6 +108,7 @@ def judge(
     met: list[str] = []
     change: dict[str, float] = {}
     exceeded: list[str] = []
+    at = iso_utc(when)
     for name, fb in baselines.items():
         spec = feature_spec(name)
         if spec.cause is None:
@@ -120,13 +121,17 @@ def judge(
         win = windows.setdefault(name, [])
         times = window_times.setdefault(name, [])
         win.append(ex.exceeded)
-        times.append(iso_utc(when))
+        times.append(at)
         del win[: -settings.y]
         del times[: -settings.y]
         if ex.exceeded:
             exceeded.append(name)
         if math.isfinite(ex.change):
             change[name] = ex.change
-        if x_of_y(win, settings.x, settings.y)[-1]:
+        # the X-of-Y rule at this recording (x_of_y(win, x, y)[-1]): the window
+        # holds the last y exceedances
+        if not 1 <= settings.x <= settings.y:
+            raise ValueError(f"X-of-Y needs 1 <= X <= Y, got {settings.x} of {settings.y}")
+        if sum(win) >= settings.x:
             met.append(name)
     return met, change, exceeded

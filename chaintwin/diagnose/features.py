@@ -418,19 +418,35 @@ def _line_centres(
     frequency), where the residual's slow content moves with the load and
     the losses.
     """
+    return _many_line_centres(spec, [(orders, avoid)], ts)[0]
+
+
+def _many_line_centres(
+    spec: Spectrum, asked: Sequence[tuple[list[float], Sequence[float]]], ts: float
+) -> list[list[float]]:
+    """:func:`_line_centres` of several (orders, avoid) pairs, their apparent
+    places folded in one call (elementwise: the same numbers as one call each)."""
     speed_hz = spec.speed_rpm / 60.0
     guard = GUARD_BINS * spec.resolution
-    if not orders:
-        return []
-    others = (apparent_orders(list(avoid), spec.speed_rpm, ts) * speed_hz).tolist()
+    wanted = [(list(orders), list(avoid)) for orders, avoid in asked if orders]
+    flat = [x for orders, avoid in wanted for x in (*avoid, *orders)]
+    places = (apparent_orders(flat, spec.speed_rpm, ts) * speed_hz).tolist() if wanted else []
     top = float(spec.x[-1])
-    out: list[float] = []
-    for x in (apparent_orders(orders, spec.speed_rpm, ts) * speed_hz).tolist():
-        if any(abs(x - y) <= guard for y in others):
-            continue
-        if LOW_FREQUENCY_HZ < x < top:
-            out.append(x)
-    return out
+    found: list[list[float]] = []
+    at = 0
+    for orders, avoid in wanted:
+        others = places[at : at + len(avoid)]
+        at += len(avoid)
+        out: list[float] = []
+        for x in places[at : at + len(orders)]:
+            if any(abs(x - y) <= guard for y in others):
+                continue
+            if LOW_FREQUENCY_HZ < x < top:
+                out.append(x)
+        at += len(orders)
+        found.append(out)
+    it = iter(found)
+    return [next(it) if orders else [] for orders, _avoid in asked]
 
 
 def _line_sums(spec: Spectrum, centres: dict[str, list[float]]) -> dict[str, float]:
@@ -511,8 +527,9 @@ def recording_features(
     tray = prof.tray_mass_kg if tray is None else tray
     # impacts (an obstacle hit, a caught item) are no load and no friction: the
     # windows they touch are left out of the weighing and the condition fit
+    first_load = _model_load(w)
     first = model_torque(
-        recording, prof, params, _model_load(w), tray_kg=tray, motoring=mot, alpha=alpha
+        recording, prof, params, first_load, tray_kg=tray, motoring=mot, alpha=alpha
     )
     # what repeats with the sprocket's teeth or a shaft is no impact
     orders = characteristic_orders(prof)
@@ -572,7 +589,12 @@ def recording_features(
             1.0 + float(cond.estimate[2]) * omega / loss if loss > 0 and omega > 0 else nan
         )
 
-    model = model_torque(recording, prof, params, load_kg, tray_kg=tray, motoring=mot, alpha=alpha)
+    if load_kg == first_load:
+        model = first  # the same load: the same torque (nothing has changed it)
+    else:
+        model = model_torque(
+            recording, prof, params, load_kg, tray_kg=tray, motoring=mot, alpha=alpha
+        )
     if residual == "closed-loop":
         try:
             model = closed_loop_torque(recording, prof, twin_parameters(prof, calibration), load_kg)
@@ -622,18 +644,23 @@ def recording_features(
     if spectrum is not None:
         tp = orders.get("sprocket_tooth_pass")
         tp_orders = [h * tp for h in range(1, TOOTH_PASS_HARMONICS + 1)] if tp else []
-        centres: dict[str, list[float]] = {}
+        asked: dict[str, tuple[list[float], Sequence[float]]] = {}
         if tp:
-            centres["tooth_pass"] = _line_centres(spectrum, tp_orders, ts)
+            asked["tooth_pass"] = (tp_orders, ())
             # a shaft's comb would read as the sprocket's where they meet
             combs = [h * o for o in shafts.values() for h in range(1, COMB_HARMONICS + 1)]
-            centres["sprocket_comb"] = _line_centres(
-                spectrum, [h * tp for h in SPROCKET_HARMONICS], ts, [*tp_orders, *combs]
+            asked["sprocket_comb"] = (
+                [h * tp for h in SPROCKET_HARMONICS],
+                [*tp_orders, *combs],
             )
         for name, order in shafts.items():
-            centres[f"comb_{name}"] = _line_centres(
-                spectrum, [h * order for h in range(1, COMB_HARMONICS + 1)], ts, tp_orders
+            asked[f"comb_{name}"] = (
+                [h * order for h in range(1, COMB_HARMONICS + 1)],
+                tp_orders,
             )
+        centres = dict(
+            zip(asked, _many_line_centres(spectrum, list(asked.values()), ts), strict=True)
+        )
         sums = _line_sums(spectrum, centres)
         values["tooth_pass"] = sums["tooth_pass"] if tp else nan
         values["sprocket_comb"] = sums["sprocket_comb"] if tp else nan

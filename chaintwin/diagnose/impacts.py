@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 from scipy.ndimage import median_filter, uniform_filter1d
 
-from chaintwin._stats import median, subtract_bin_medians
+from chaintwin._stats import median, phase_bins, subtract_binned_medians
 from chaintwin._types import FloatArray
 from chaintwin.read.recording import Recording
 from chaintwin.validate.phases import Phase
@@ -165,19 +165,20 @@ def less_periodic(x: FloatArray, angle_rad: FloatArray, orders: Sequence[float])
     """
     out = x.copy()
     span = float(abs(angle_rad[-1] - angle_rad[0])) if angle_rad.shape[0] else 0.0
+    turned: FloatArray | None = None
     for order in orders:
         periods = span * order / (2.0 * np.pi)
         if not np.isfinite(periods) or periods < SYNC_MIN_PERIODS:
             continue
         per_period = x.shape[0] / periods
         bins = int(min(SYNC_BINS, max(4.0, per_period)))
-        phase = np.mod(order * (angle_rad - angle_rad[0]), 2.0 * np.pi)
-        idx = np.minimum((phase / (2.0 * np.pi) * bins).astype(np.intp), bins - 1)
-        order_idx = np.argsort(idx, kind="stable")
-        bounds = np.searchsorted(idx[order_idx], np.arange(bins + 1))
-        # each bin's median taken away in one compiled pass (the same numbers
-        # as np.median per bin, at a fraction of the calls)
-        subtract_bin_medians(out, order_idx, bounds)
+        if turned is None:
+            turned = angle_rad - angle_rad[0]
+        idx = phase_bins(turned, order, bins)
+        # the samples grouped by bin and each bin's median taken away in
+        # compiled passes (the same numbers as np.median per bin, at a
+        # fraction of the calls)
+        subtract_binned_medians(out, idx, bins)
     return out
 
 

@@ -640,8 +640,14 @@ class ConveyorMonitor:
         if not missing:
             return
         self.late_rows.append(values)
+        # a feature's fit reads only the rows that hold a finite value of it:
+        # one this recording has no value of would fit as before (and did not
+        # make a baseline then), so only the others are fitted again
+        changed = [k for k in missing if math.isfinite(as_number(values.get(k)))]
+        if not changed:
+            return
         need = max(5, self.settings.baseline_n // 2)
-        self.baselines.update(baseline.fit_features(self.late_rows, missing, min_rows=need))
+        self.baselines.update(baseline.fit_features(self.late_rows, changed, min_rows=need))
 
     def _open_alarm(
         self, feature: str, cause: str, change: float | None, when: datetime | None

@@ -6,6 +6,7 @@ from collections.abc import Sequence
 
 import numpy as np
 import numpy.typing as npt
+from numba import njit
 
 from chaintwin._types import FloatArray
 from chaintwin.errors import EstimationError
@@ -169,6 +170,21 @@ def spectrum_from_state(x: list[float], amplitude: list[float], speed_rpm: float
     )
 
 
+@njit(cache=True, nogil=True)
+def _near_any(
+    x: np.ndarray, centres: np.ndarray, width: float
+) -> np.ndarray:  # pragma: no cover - compiled; tested through unexplained_peak
+    """``(np.abs(x[:, None] - centres[None, :]) <= width).any(axis=1)``, without the
+    bins × lines table."""
+    out = np.zeros(x.shape[0], dtype=np.bool_)
+    for i in range(x.shape[0]):
+        for c in centres:
+            if abs(x[i] - c) <= width:
+                out[i] = True
+                break
+    return out
+
+
 def unexplained_peak(
     spectrum: Spectrum,
     baseline_x: FloatArray,
@@ -198,8 +214,9 @@ def unexplained_peak(
     ts = 1.0 / (2.0 * float(spectrum.x[-1]))
     res = spectrum.resolution
     lines = apparent_orders(line_orders, spectrum.speed_rpm, ts)
-    near = np.abs(spectrum.x[:, None] - lines[None, :] * speed_hz) <= guard_bins * res
-    guard = near.any(axis=1) | (spectrum.x < 2.0 * res)  # the trend left in the lowest bins
+    x = np.ascontiguousarray(spectrum.x, dtype=np.float64)
+    near = _near_any(x, np.ascontiguousarray(lines * speed_hz), float(guard_bins * res))
+    guard = near | (spectrum.x < 2.0 * res)  # the trend left in the lowest bins
     ratio = np.where(guard, 0.0, ratio)
     k = int(np.argmax(ratio))
     return float(ratio[k]), float(spectrum.x[k] / speed_hz)

@@ -50,6 +50,7 @@ from scipy.integrate import cumulative_trapezoid
 from scipy.signal import ShortTimeFFT, get_window
 from scipy.signal.windows import hann
 
+from chaintwin._stats import column_medians
 from chaintwin._types import FloatArray
 from chaintwin.errors import EstimationError, RecordingError
 from chaintwin.read.recording import Recording
@@ -243,7 +244,7 @@ def _welch_power(
     if average == "median":
         ii_2 = 2 * np.arange(1.0, (count - 1) // 2 + 1)
         bias = 1 + np.sum(1.0 / (ii_2 + 1) - 1.0 / ii_2)
-        out: FloatArray = np.median(power, axis=0) / bias
+        out: FloatArray = column_medians(power) / bias  # np.median(power, axis=0)
         return freq, out
     return freq, power.mean(axis=0)
 

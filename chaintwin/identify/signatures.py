@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numba import njit
 
 from chaintwin._types import FloatArray
 from chaintwin.errors import EstimationError
@@ -80,6 +81,7 @@ def _fit(
     tray_kg: float,
     ramp_rate: float | None = None,
     loss_term: bool = False,
+    columns: tuple[FloatArray, FloatArray, FloatArray] | None = None,
 ) -> SignatureFit:
     """Weighted least squares of the residual on the signatures and ripple terms.
 
@@ -92,8 +94,10 @@ def _fit(
     the ramp windows' from the calibration (``ramp_rate``; a recording holds
     too few of them to tell), since a whole ramp averages out ripple and
     ringing that a short window does not.
+
+    ``columns`` are :func:`_columns` of these windows, when already computed.
     """
-    z, xf, xi = _columns(wi, profile, values, tray_kg)
+    z, xf, xi = _columns(wi, profile, values, tray_kg) if columns is None else columns
     has_inertia = bool(np.any(wi.kind == 1))
     cols = [xf, xi] if has_inertia else [xf]
     if loss_term:
@@ -115,8 +119,14 @@ def _fit(
             "motion to weigh; record a complete move"
         )
     wt = 1.0 / np.sqrt(wi.duration)
-    _sol, _xw, resid, _rank = solve(wt)
     short = wi.kind == 0
+    k = len(cols)
+    rate = ramp_rate if ramp_rate is not None and np.isfinite(ramp_rate) else np.nan
+    ok, coef, cov, weights = _two_pass(np.ascontiguousarray(x0), z, wt, short, float(rate))
+    if ok:
+        # well conditioned: solved by the normal equations in one compiled pass
+        return _signature_fit(wi, z, xf, xi, coef, cov, weights, has_inertia, k, loss_term)
+    _sol, _xw, resid, _rank = solve(wt)
     rate_short = float(np.mean(resid[short] ** 2)) if short.sum() >= 3 else float(np.mean(resid**2))
     rate_ramp = ramp_rate if ramp_rate is not None and np.isfinite(ramp_rate) else rate_short
     floor = 1e-12 * max(float(np.mean((z * wt) ** 2)), 1e-30)
@@ -133,7 +143,23 @@ def _fit(
         cov = s2 * np.linalg.inv(xw.T @ xw) / np.outer(scale, scale)
     except np.linalg.LinAlgError:
         raise EstimationError("the recording does not determine the payload") from None
-    k = len(cols)
+    return _signature_fit(wi, z, xf, xi, coef, cov, weights, has_inertia, k, loss_term)
+
+
+def _signature_fit(
+    wi: WindowIntegrals,
+    z: FloatArray,
+    xf: FloatArray,
+    xi: FloatArray,
+    coef: FloatArray,
+    cov: FloatArray,
+    weights: FloatArray,
+    has_inertia: bool,
+    k: int,
+    loss_term: bool,
+) -> SignatureFit:
+    """The fit of :func:`_fit` from its coefficients (``k`` signatures and loss
+    term, then the ripple terms) and their covariance."""
     # friction payload of each window, other terms removed, for step detection
     rest = z - (xi * coef[1] if has_inertia else 0.0) - wi.ripple @ coef[k:]
     if loss_term:
@@ -141,6 +167,104 @@ def _fit(
     with np.errstate(divide="ignore", invalid="ignore"):
         per_kg = np.where(np.abs(xf) > 0, rest / xf, np.nan)
     return SignatureFit(coef[:k], cov[:k, :k], has_inertia, wi, per_kg, weights)
+
+
+@njit(cache=True, nogil=True)
+def _two_pass(
+    x0: np.ndarray, z: np.ndarray, wt: np.ndarray, short: np.ndarray, ramp_rate: float
+) -> tuple[bool, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """:func:`_fit`'s two weighted least-squares passes by their normal equations.
+
+    The same arithmetic as its lstsq path (to rounding: the normal equations
+    agree with lstsq when the scaled regressors are well conditioned,
+    :data:`WELL_CONDITIONED`); ``ok`` False when a normal matrix is not, and
+    the caller solves with lstsq. ``ramp_rate`` NaN: none given.
+
+    Returns (ok, coefficients, covariance, weights).
+    """
+    n, p = x0.shape
+    scale = np.empty(p)
+    for j in range(p):
+        acc = 0.0
+        for i in range(n):
+            acc += x0[i, j] * x0[i, j]
+        scale[j] = np.sqrt(acc / n)
+        if scale[j] == 0.0:
+            scale[j] = 1.0
+    xs = np.empty((n, p))
+    for i in range(n):
+        for j in range(p):
+            xs[i, j] = x0[i, j] / scale[j]
+    nshort = 0
+    for i in range(n):
+        if short[i]:
+            nshort += 1
+    empty = np.zeros(0)
+    weights = wt.copy()
+    resid = np.empty(n)
+    normal = np.empty((p, p))
+    for stage in range(2):
+        a = np.empty((n, p))
+        zw = np.empty(n)
+        for i in range(n):
+            zw[i] = z[i] * weights[i]
+            for j in range(p):
+                a[i, j] = xs[i, j] * weights[i]
+        normal = a.T @ a
+        eig = np.linalg.eigvalsh(normal)
+        if not eig[0] > 1e-8 * eig[p - 1]:  # WELL_CONDITIONED
+            return False, empty, np.zeros((0, 0)), weights
+        sol = np.linalg.solve(normal, a.T @ zw)
+        fitted = a @ sol
+        for i in range(n):
+            resid[i] = zw[i] - fitted[i]
+        if stage == 1:
+            coef = sol / scale
+            break
+        # noise rates of the short and the ramp windows from the first pass
+        acc = 0.0
+        cnt = 0
+        for i in range(n):
+            if short[i] or nshort < 3:
+                acc += resid[i] * resid[i]
+                cnt += 1
+        rate_short = acc / cnt
+        rate_ramp = ramp_rate if np.isfinite(ramp_rate) else rate_short
+        acc = 0.0
+        for i in range(n):
+            acc += zw[i] * zw[i]
+        floor = 1e-12 * max(acc / n, 1e-30)
+        rate_short = max(rate_short, floor)
+        rate_ramp = max(rate_ramp, floor)
+        for i in range(n):
+            weights[i] = wt[i] / np.sqrt(rate_short if short[i] else rate_ramp)
+    dof = max(n - p, 1)
+    ss = 0.0
+    for i in range(n):
+        ss += resid[i] * resid[i]
+    # serial correlation of the short windows' residuals (serial_correlation_factor)
+    factor = 1.0
+    if nshort >= 3:
+        r = np.empty(nshort)
+        m = 0
+        for i in range(n):
+            if short[i]:
+                r[m] = resid[i]
+                m += 1
+        mean = r.sum() / nshort
+        r -= mean
+        den = 0.0
+        lag = 0.0
+        for i in range(nshort):
+            den += r[i] * r[i]
+            if i > 0:
+                lag += r[i] * r[i - 1]
+        if den > 0.0:
+            rho = min(max(lag / den, 0.0), 0.9)
+            factor = (1.0 + rho) / (1.0 - rho)
+    s2 = max(1.0, ss / dof) * factor
+    cov = s2 * np.linalg.inv(normal) / np.outer(scale, scale)
+    return True, coef, cov, weights
 
 
 LOSS_STEP = 0.05
@@ -152,13 +276,6 @@ WELL_CONDITIONED = 1e-8
 A condition number of the scaled regressors below 1e4, far from lstsq's
 rank cut-off; the weighing's are typically about 4.
 """
-
-
-def _well_conditioned(normal: FloatArray) -> np.ndarray:
-    """Per matrix of a stack of normal matrices: eigenvalues within :data:`WELL_CONDITIONED`."""
-    eig = np.linalg.eigvalsh(normal)
-    good: np.ndarray = eig[..., 0] > WELL_CONDITIONED * eig[..., -1]
-    return good
 
 
 def _estimates(
@@ -202,10 +319,9 @@ def _estimates(
         As :func:`_fit`.
     """
     z, xf, xi = _columns(wi, profile, values, tray_kg)
-    count, n = z.shape
+    _count, n = z.shape
     has_inertia = bool(np.any(wi.kind == 1))
-    mus, group = np.unique(values[:, 1], return_inverse=True)
-    first = np.array([int(np.argmax(group == g)) for g in range(mus.shape[0])])
+    _mus, first, group = np.unique(values[:, 1], return_index=True, return_inverse=True)
     cols = [xf[first], np.broadcast_to(xi, (first.shape[0], n))] if has_inertia else [xf[first]]
     ripple = np.broadcast_to(wi.ripple, (first.shape[0], *wi.ripple.shape))
     x0 = np.concatenate([np.stack(cols, axis=-1), ripple], axis=-1)  # per μ: n × p
@@ -215,43 +331,110 @@ def _estimates(
             f"{n} usable windows for {p} unknowns: too little steady "
             "motion to weigh; record a complete move"
         )
-    scale = np.sqrt(np.mean(x0 * x0, axis=-2))
-    scale[scale == 0.0] = 1.0
     wt = 1.0 / np.sqrt(wi.duration)
     short = wi.kind == 0
-    a = x0 / scale[:, None, :] * wt[:, None]  # first pass's weighted regressors
-    at = np.swapaxes(a, -1, -2)
-    a_short, a_ramp = at[:, :, short], at[:, :, ~short]
-    n_short = a_short @ np.swapaxes(a_short, -1, -2)
-    n_ramp = a_ramp @ np.swapaxes(a_ramp, -1, -2)
-    zw = z * wt
-    # first pass: weights 1/sqrt(duration)
-    normal = at[group] @ a[group]
-    good = _well_conditioned(normal)
-    sol = np.linalg.solve(normal, at[group] @ zw[..., None])
-    resid = zw - (a[group] @ sol)[..., 0]
-    if short.sum() >= 3:
-        rate_short = np.mean(resid[:, short] ** 2, axis=-1)
-    else:
-        rate_short = np.mean(resid**2, axis=-1)
-    if ramp_rate is not None and np.isfinite(ramp_rate):
-        rate_ramp = np.full(count, float(ramp_rate))
-    else:
-        rate_ramp = rate_short
-    floor = 1e-12 * np.maximum(np.mean(zw**2, axis=-1), 1e-30)
-    rate_short = np.maximum(rate_short, floor)[:, None, None]
-    rate_ramp = np.maximum(rate_ramp, floor)[:, None, None]
-    # second pass: weights 1/sqrt(duration · rate)
-    normal = n_short[group] / rate_short + n_ramp[group] / rate_ramp
-    rhs = (a_short[group] @ zw[:, short, None]) / rate_short + (
-        a_ramp[group] @ zw[:, ~short, None]
-    ) / rate_ramp
-    good &= _well_conditioned(normal)
-    sol = np.linalg.solve(normal, rhs)[..., 0]
-    estimates: FloatArray = (sol / scale[group])[:, : len(cols)]
+    rate = ramp_rate if ramp_rate is not None and np.isfinite(ramp_rate) else np.nan
+    # both passes per parameter vector in one compiled kernel, the regressors
+    # and their normal matrices once per distinct μ
+    estimates, good = _stacked_two_pass(
+        np.ascontiguousarray(x0), np.ascontiguousarray(z), wt, short, float(rate), group
+    )
+    estimates = estimates[:, : len(cols)]
     for k in np.flatnonzero(~good):
         estimates[k] = _fit(wi, profile, values[k], tray_kg, ramp_rate).estimate
     return estimates
+
+
+@njit(cache=True, nogil=True)
+def _stacked_two_pass(
+    x0: np.ndarray,
+    z: np.ndarray,
+    wt: np.ndarray,
+    short: np.ndarray,
+    ramp_rate: float,
+    group: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """The coefficients of :func:`_two_pass` for a stack of residuals ``z`` (K × n),
+    the regressors ``x0[group[k]]`` (per distinct μ: n × p) shared.
+
+    The second pass's weights take one value over the short windows and one
+    over the ramp windows, so its normal matrix is ``N_short/rate_short +
+    N_ramp/rate_ramp`` of two matrices per μ. Returns (K × p coefficients,
+    whether each problem was well conditioned: where not, the caller fits
+    with :func:`_fit`).
+    """
+    groups, n, p = x0.shape
+    count = z.shape[0]
+    nshort = 0
+    for i in range(n):
+        if short[i]:
+            nshort += 1
+    scale = np.empty((groups, p))
+    a = np.empty((groups, n, p))
+    n_first = np.empty((groups, p, p))
+    n_short = np.zeros((groups, p, p))
+    n_ramp = np.zeros((groups, p, p))
+    good_first = np.empty(groups, dtype=np.bool_)
+    for g in range(groups):
+        for j in range(p):
+            acc = 0.0
+            for i in range(n):
+                acc += x0[g, i, j] * x0[g, i, j]
+            scale[g, j] = np.sqrt(acc / n)
+            if scale[g, j] == 0.0:
+                scale[g, j] = 1.0
+        for i in range(n):
+            for j in range(p):
+                a[g, i, j] = x0[g, i, j] / scale[g, j] * wt[i]
+        ag = a[g]
+        n_first[g] = ag.T @ ag
+        eig = np.linalg.eigvalsh(n_first[g])
+        good_first[g] = eig[0] > 1e-8 * eig[p - 1]  # WELL_CONDITIONED
+        for i in range(n):
+            target = n_short[g] if short[i] else n_ramp[g]
+            for j in range(p):
+                for m in range(p):
+                    target[j, m] += ag[i, j] * ag[i, m]
+    out = np.zeros((count, p))
+    good = np.zeros(count, dtype=np.bool_)
+    zw = np.empty(n)
+    for k in range(count):
+        g = group[k]
+        if not good_first[g]:
+            continue
+        ag = a[g]
+        for i in range(n):
+            zw[i] = z[k, i] * wt[i]
+        sol = np.linalg.solve(n_first[g], ag.T @ zw)
+        fitted = ag @ sol
+        acc = 0.0
+        cnt = 0
+        total = 0.0
+        for i in range(n):
+            r = zw[i] - fitted[i]
+            if short[i] or nshort < 3:
+                acc += r * r
+                cnt += 1
+            total += zw[i] * zw[i]
+        rate_short = acc / cnt
+        rate_ramp = ramp_rate if np.isfinite(ramp_rate) else rate_short
+        floor = 1e-12 * max(total / n, 1e-30)
+        rate_short = max(rate_short, floor)
+        rate_ramp = max(rate_ramp, floor)
+        normal = n_short[g] / rate_short + n_ramp[g] / rate_ramp
+        eig = np.linalg.eigvalsh(normal)
+        if not eig[0] > 1e-8 * eig[p - 1]:
+            continue
+        rhs = np.zeros(p)
+        for i in range(n):
+            w = zw[i] / (rate_short if short[i] else rate_ramp)
+            for j in range(p):
+                rhs[j] += ag[i, j] * w
+        sol = np.linalg.solve(normal, rhs)
+        for j in range(p):
+            out[k, j] = sol[j] / scale[g, j]
+        good[k] = True
+    return out, good
 
 
 def fit_signatures(
@@ -314,11 +497,18 @@ def fit_signatures(
     # inertia signature of a lightly damped belt
     keep = (every.kind == 1) | every.constant
     wi = every.select(keep) if keep.any() else every
-    base = _fit(wi, prof, params.values, tray, ramp_rate)
+    # the columns per window (elementwise): those of every window, selected
+    cols_every = _columns(every, prof, params.values, tray)
+    cols = cols_every
+    if keep.any():
+        z_all, xf_all, xi_all = cols_every
+        cols = (z_all[..., keep], xf_all[..., keep], xi_all[keep])
+    base = _fit(wi, prof, params.values, tray, ramp_rate, columns=cols)
     alternative: float | None = None
     if base.has_inertia and not keep.all():
         try:
-            alternative = float(_fit(every, prof, params.values, tray, ramp_rate).estimate[1])
+            fit_every = _fit(every, prof, params.values, tray, ramp_rate, columns=cols_every)
+            alternative = float(fit_every.estimate[1])
         except EstimationError:
             alternative = None
     base = replace(base, inertia_alternative=alternative)

@@ -175,6 +175,9 @@ def acceleration(recording: Recording) -> FloatArray:
     EstimationError
         With fewer than 3 samples.
     """
+    cached: FloatArray | None = recording.memo.get("acceleration")
+    if cached is not None:
+        return cached
     n = recording.samples
     if n < 3:
         raise EstimationError(
@@ -185,6 +188,10 @@ def acceleration(recording: Recording) -> FloatArray:
     win += 1 - win % 2  # odd
     win = min(win, n if n % 2 else n - 1)
     out: FloatArray = savgol(recording.speed, win, 2, deriv=1, delta=dt)
+    # computed once per recording (the power-flow mask, both model torques and
+    # the TLF ask for it); read-only, as every caller shares it
+    out.setflags(write=False)
+    recording.memo["acceleration"] = out
     return out
 
 

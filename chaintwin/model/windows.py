@@ -31,6 +31,7 @@ from functools import lru_cache
 
 import numpy as np
 import numpy.typing as npt
+from numba import njit
 
 from chaintwin._types import FloatArray
 from chaintwin.errors import EstimationError
@@ -158,7 +159,7 @@ def _window_bounds(
     the median sample time, s (computed from the recording when not given).
     """
     if dt is None:
-        dt = float(np.median(np.diff(recording.time)))
+        dt = recording.sample_time_s
     corner = max(1, round(corner_s / dt))
     settle = max(1, round(settle_s / dt))
     spread = max(0, round(average_s / dt))
@@ -211,6 +212,34 @@ def _hann_weights(length: int) -> tuple[FloatArray, float]:
     weights = np.hanning(length + 2)[1:-1]
     weights.setflags(write=False)
     return weights, float(weights.sum())
+
+
+@njit(cache=True, nogil=True)
+def _running_integrals(
+    f: np.ndarray, t: np.ndarray, w: np.ndarray, gf: np.ndarray, h: np.ndarray
+) -> np.ndarray:  # pragma: no cover - compiled; tested through window_integrals
+    """The table of :func:`window_integrals`: t, ω, then the running trapezoid
+    integrals (from 0) of each row of ``f``, of Σ g_f·Δω and of ∫|ω| dt.
+
+    The arithmetic of ``np.cumsum`` over the per-step trapezoids
+    ``0.5 · (f[i + 1] + f[i]) · h[i]`` (the same numbers), in one pass.
+    """
+    m, n = f.shape
+    table = np.empty((n, m + 4))
+    for i in range(n):
+        table[i, 0] = t[i]
+        table[i, 1] = w[i]
+    for c in range(m + 2):
+        table[0, 2 + c] = 0.0
+    for i in range(n - 1):
+        for c in range(m):
+            step = 0.5 * (f[c, i + 1] + f[c, i]) * h[i]
+            table[i + 1, 2 + c] = step if i == 0 else table[i, 2 + c] + step
+        step = 0.5 * (gf[i + 1] + gf[i]) * (w[i + 1] - w[i])  # Σ g_f·Δω
+        table[i + 1, 2 + m] = step if i == 0 else table[i, 2 + m] + step
+        step = abs(0.5 * (w[i + 1] + w[i])) * h[i]  # ∫|ω| dt
+        table[i + 1, 3 + m] = step if i == 0 else table[i, 3 + m] + step
+    return table
 
 
 def window_integrals(
@@ -315,7 +344,7 @@ def window_integrals(
                 steady[ph.start : ph.stop] = True
 
     h = np.diff(t)
-    dt = float(np.median(h))
+    dt = recording.sample_time_s  # float(np.median(h)), computed once per recording
     n_win = max(4, round(window_s / dt))
 
     bounds = _window_bounds(recording, phases, moving, n_win, corner_s, settle_s, average_s, dt)
@@ -339,17 +368,14 @@ def window_integrals(
         w2 = w * w
         for harmonic in (1.0, 2.0):
             samples += [w2 * np.cos(harmonic * psi), w2 * np.sin(harmonic * psi)]
-    f = np.column_stack(samples)
-    m = f.shape[1]
-    steps = np.empty((h.shape[0], m + 2))
-    np.multiply(0.5 * (f[1:] + f[:-1]), h[:, None], out=steps[:, :m])
-    steps[:, m] = 0.5 * (gf[1:] + gf[:-1]) * np.diff(w)  # Σ g_f·Δω
-    steps[:, m + 1] = np.abs(0.5 * (w[1:] + w[:-1])) * h  # ∫|ω| dt
-    table = np.empty((t.shape[0], m + 4))
-    table[:, 0] = t
-    table[:, 1] = w
-    table[0, 2:] = 0.0
-    np.cumsum(steps, axis=0, out=table[1:, 2:])
+    m = len(samples)
+    table = _running_integrals(
+        np.array(samples, dtype=np.float64),
+        np.ascontiguousarray(t, dtype=np.float64),
+        np.ascontiguousarray(w, dtype=np.float64),
+        np.ascontiguousarray(gf, dtype=np.float64),
+        np.ascontiguousarray(h, dtype=np.float64),
+    )
 
     def avg(lo: np.ndarray, hi: np.ndarray) -> FloatArray:
         """Hann-weighted mean of the table's rows over [lo, hi], per window.

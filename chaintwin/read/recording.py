@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from datetime import datetime
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -132,6 +132,10 @@ class Recording:
     headers: Mapping[str, str]
     metadata: Metadata
     warnings: tuple[RecordingWarning, ...] = ()
+    memo: dict[str, Any] = field(init=False, default_factory=dict, repr=False, compare=False)
+    """Quantities derived from the channels, once computed (the sample time, the
+    acceleration: several steps of the pipeline ask for them); not copied by
+    ``replace``, which may change the channels."""
 
     # ------------------------------------------------------------ accessors
     @property
@@ -183,7 +187,10 @@ class Recording:
     @property
     def sample_time_s(self) -> float:
         """Sample time, s: the median time step of the time column."""
-        return median(np.diff(self.time))
+        ts = self.memo.get("sample_time_s")
+        if ts is None:
+            ts = self.memo["sample_time_s"] = median(np.diff(self.time))
+        return float(ts)
 
     @property
     def duration_s(self) -> float:

@@ -22,6 +22,7 @@ from __future__ import annotations
 import io
 import json
 import struct
+import threading
 import zlib
 from collections.abc import Iterator, Mapping
 from datetime import datetime
@@ -90,8 +91,20 @@ def pack_channels(channels: Mapping[str, npt.ArrayLike]) -> bytes:
     for _name, a in arrays:
         out[at : at + a.nbytes] = a.view(np.uint8)
         at += a.nbytes
-    compressed: bytes = zstandard.ZstdCompressor(level=SAMPLES_ZSTD_LEVEL).compress(out.data)
+    compressed: bytes = _compressor().compress(out.data)
     return compressed
+
+
+_LOCAL = threading.local()
+
+
+def _compressor() -> zstandard.ZstdCompressor:
+    """This thread's compressor at :data:`SAMPLES_ZSTD_LEVEL` (the same frames as a new
+    one each time, without its set-up; a compressor is not shared between threads)."""
+    c: zstandard.ZstdCompressor | None = getattr(_LOCAL, "compressor", None)
+    if c is None:
+        c = _LOCAL.compressor = zstandard.ZstdCompressor(level=SAMPLES_ZSTD_LEVEL)
+    return c
 
 
 def unpack_channels(blob: bytes) -> dict[str, Array]:

@@ -734,3 +734,58 @@ def test_in_a_browser_log_in_see_charts_acknowledge_and_a_viewer_refused(
         served.close()
     assert outside == [], "nothing may load from the network"
     assert broken == []
+
+
+def test_a_trend_reads_a_bounded_number_of_results_and_keeps_its_alarms(served: Served) -> None:
+    viewer = served.client("viewer")
+    base = f"/api/v1/conveyors/{PROFILE.id}/trends"
+    full = viewer.get(base, params={"feature": "friction", "max_points": 100_000}).json()
+    bounded = viewer.get(base, params={"feature": "friction", "max_points": 20}).json()
+    stored = len(served.store.results(PROFILE.id))
+    assert len(full["points"]) == full["recordings"] > 20  # more results than the bound
+    assert all(p["represents"] == 1 for p in full["points"])
+    points = bounded["points"]
+    assert len(points) <= 20 and bounded["max_points"] == 20
+    assert bounded["recordings"] == full["recordings"]  # counts every result still
+    # the newest 10 in full, exactly as without a bound; the older ones thinned
+    assert points[-10:] == full["points"][-10:]
+    assert points[0] == full["points"][0] | {"represents": points[0]["represents"]}
+    assert all(p["represents"] > 1 for p in points[:-10])
+    assert sum(p["represents"] for p in points) <= stored
+    older = {p["recorded_at"] for p in full["points"][:-10]}
+    assert {p["recorded_at"] for p in points[:-10]} <= older
+    # what is drawn beside the points is that of every result
+    for key in ("alarms", "expected", "limit", "lower_limit", "health_index", "forecast"):
+        assert bounded[key] == full[key], key
+    assert bounded["alarms"]  # the friction alarm's marker
+    assert full["max_points"] == 100_000
+    # the default reads at most 1000; a bound below 20 is refused
+    assert viewer.get(base, params={"feature": "friction"}).json()["max_points"] == 1000
+    _error(viewer.get(base, params={"feature": "friction", "max_points": 5}), 422, "invalid")
+
+
+def test_a_conveyors_page_with_more_results_than_its_bound_shows_the_same(
+    served: Served, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from chaintwin.report.data import conveyor_data
+    from chaintwin.web import api
+
+    browser = served.client()
+    login = browser.post("/login", data={"token": served.tokens["viewer"]})
+    assert login.status_code == 303, login.text
+    whole = browser.get(f"/conveyors/{PROFILE.id}").text
+    detail = browser.get(f"/api/v1/conveyors/{PROFILE.id}").json()
+    data = conveyor_data(served.store, PROFILE.id, waterfall=0)  # every result
+    assert len(data.results) > 20
+    monkeypatch.setattr(api, "PAGE_POINTS", 20)  # the newest 10 and 10 older ones
+    bounded = browser.get(f"/conveyors/{PROFILE.id}").text
+    assert bounded == whole
+    assert f"{len(data.results)} recordings" in bounded
+    assert f"<strong>{data.status}</strong>" in bounded
+    assert all(f"since {a.since}" in bounded for a in data.open_alarms())
+    found = re.search(r"data-features='([^']*)'", bounded)
+    assert found is not None
+    features = json.loads(found.group(1).replace("&#34;", '"'))
+    assert features == [t.name for t in data.trends]
+    assert browser.get(f"/api/v1/conveyors/{PROFILE.id}").json() == detail
+    assert detail["recordings"] == len(data.results)

@@ -29,10 +29,12 @@ from chaintwin.store.store import Store
 __all__ = [
     "Page",
     "Signature",
+    "TrendRows",
     "fleet_rows",
     "recording_by_hash",
     "results_page",
     "store_signature",
+    "trend_rows",
 ]
 
 _NULL_TIME = ""
@@ -247,3 +249,87 @@ def store_signature(store: Store) -> Signature:
     with store.engine.connect() as c:
         results, states, conveyors, open_alarms = c.execute(query).one()
     return Signature(int(results or 0), int(states or 0), int(conveyors), int(open_alarms))
+
+
+@dataclass(frozen=True, slots=True)
+class TrendRows:
+    """A conveyor's results for its trends, bounded (:func:`trend_rows`).
+
+    ``results`` are in the order monitored, as :meth:`Store.results` gives
+    them, refused ones left out; ``represents[k]`` is how many stored results
+    ``results[k]`` stands for (1 for each of the newest, which are all there;
+    more for an older one standing for its stretch of the history, refused
+    results counted too: telling them apart would read every row);
+    ``total`` counts the conveyor's results that were not refused.
+    """
+
+    results: list[dict[str, Any]]
+    represents: list[int]
+    total: int
+
+
+def trend_rows(store: Store, conveyor: str, max_points: int) -> TrendRows:
+    """At most ``max_points`` of a conveyor's results: the newest half in full, the
+    older history thinned to one result per stretch.
+
+    The older results (those before the newest ``max_points // 2``) are cut
+    into at most ``max_points - max_points // 2`` stretches of equal id range
+    (ids grow in the order monitored) and each stretch is shown by its first
+    result. Only that many results' contents are read: the stretches come
+    from the ``(conveyor_id, id)`` index alone (``ix_results_conveyor_id_id``),
+    so the cost hardly grows with the history. What was thinned is the
+    values between the kept ones; alarms are in their own table and stay
+    whole.
+    """
+    if max_points < 2:
+        raise StoreError(f"max_points {max_points} must be at least 2", field="max_points")
+    recent = max_points // 2
+    buckets = max_points - recent
+    mine = ResultRow.conveyor_id == conveyor
+    with Session(store.engine) as s:
+        newest = s.execute(
+            select(ResultRow.id, ResultRow.content)
+            .where(mine)
+            .order_by(ResultRow.id.desc())
+            .limit(recent)
+        ).all()
+        older: list[Any] = []
+        counts: dict[int, int] = {}
+        if len(newest) == recent:
+            lo = int(newest[-1][0])
+            first = s.scalar(select(func.min(ResultRow.id)).where(mine))
+            if first is not None and int(first) < lo:
+                span = lo - int(first)
+                stretch = ((ResultRow.id - int(first)) * buckets) // span
+                counts = {
+                    int(i): int(n)
+                    for i, n in s.execute(
+                        select(func.min(ResultRow.id), func.count())
+                        .where(mine, ResultRow.id < lo)
+                        .group_by(stretch)
+                    )
+                }
+                older = list(
+                    s.execute(
+                        select(ResultRow.id, ResultRow.content)
+                        .where(ResultRow.id.in_(list(counts)))
+                        .order_by(ResultRow.id)
+                    )
+                )
+            total = int(
+                s.scalar(
+                    select(func.count())
+                    .select_from(ResultRow)
+                    .where(mine, ResultRow.status != "refused")
+                )
+                or 0
+            )
+        else:
+            total = sum("error" not in content for _i, content in newest)
+    results, represents = [], []
+    for row_id, content in [*older, *reversed(newest)]:
+        if "error" in content:
+            continue
+        results.append(dict(content))
+        represents.append(counts.get(int(row_id), 1))
+    return TrendRows(results, represents, total)

@@ -214,9 +214,18 @@ def polling(
     return out
 
 
-def measure(url: str, args: argparse.Namespace) -> dict[str, Any]:
+def reuse(url: str) -> str:
+    """A new admin token in a store built by an earlier run (``--sqlite-file``)."""
+    store = Store(url)
+    try:
+        return create_token(store, f"bench-{time.time_ns()}", "admin")
+    finally:
+        store.close()
+
+
+def measure(url: str, args: argparse.Namespace, *, built_before: bool = False) -> dict[str, Any]:
     t0 = time.perf_counter()
-    token = build(url, args.conveyors, args.results)
+    token = reuse(url) if built_before else build(url, args.conveyors, args.results)
     built = time.perf_counter() - t0
     port = free_port()
     env = os.environ | {"OPENBLAS_NUM_THREADS": "1"}
@@ -278,9 +287,19 @@ def main() -> int:
     parser.add_argument(
         "--postgres", help="an empty PostgreSQL database's URL, or 'auto': a private server"
     )
+    parser.add_argument(
+        "--sqlite-file",
+        type=Path,
+        help="the SQLite store's file: built there when missing, reused (not rebuilt) when "
+        "present, so that repeated runs skip the build (its --conveyors/--results are the "
+        "first run's)",
+    )
     args = parser.parse_args()
     stores = {}
-    if not args.no_sqlite:
+    if not args.no_sqlite and args.sqlite_file is not None:
+        path = args.sqlite_file.resolve()
+        stores["SQLite"] = measure(f"sqlite:///{path}", args, built_before=path.exists())
+    elif not args.no_sqlite:
         with tempfile.TemporaryDirectory() as folder:
             stores["SQLite"] = measure(f"sqlite:///{folder}/bench.db", args)
     if args.postgres == "auto":

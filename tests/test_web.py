@@ -7,6 +7,7 @@ acknowledge.
 
 from __future__ import annotations
 
+import itertools
 import json
 import re
 import socket
@@ -789,3 +790,57 @@ def test_a_conveyors_page_with_more_results_than_its_bound_shows_the_same(
     assert features == [t.name for t in data.trends]
     assert browser.get(f"/api/v1/conveyors/{PROFILE.id}").json() == detail
     assert detail["recordings"] == len(data.results)
+
+
+def test_trend_rows_keep_the_newest_whole_and_thin_the_rest(tmp_path: Path) -> None:
+    from sqlalchemy import insert
+
+    from chaintwin.store.queries import trend_rows
+    from chaintwin.store.schema import ConveyorRow, RecordingRow, ResultRow
+
+    store = Store(f"sqlite:///{tmp_path / 'long.db'}")
+    try:
+        with store.engine.begin() as c:
+            for cid in ("a", "b"):
+                c.execute(
+                    insert(ConveyorRow),
+                    [{"id": cid, "profile": {}, "profile_sha256": "0" * 64}],
+                )
+            recs, res = [], []
+            for k in range(1, 2001):  # two conveyors' results interleaved, as ingest stores them
+                cid = "a" if k % 2 else "b"
+                at = f"2026-01-01T00:00:00Z#{k:05d}"
+                content: dict[str, Any] = {"file": f"{k}.csv", "recorded_at": at, "n": k}
+                status = "monitored"
+                if k == 1999:  # a refused result among the newest: left out, not counted
+                    content["error"] = "refused"
+                    status = "refused"
+                recs.append(
+                    {"id": k, "sha256": f"{k:064x}", "conveyor_id": cid, "file": f"{k}.csv",
+                     "recorded_at": at, "meta": {}, "warnings": [], "samples": b""}
+                )  # fmt: skip
+                res.append(
+                    {"id": k, "recording_id": k, "conveyor_id": cid, "recorded_at": at,
+                     "status": status, "alarm": False, "payload_kg": None, "tlf": None,
+                     "content": content, "stored_at": at}
+                )  # fmt: skip
+            c.execute(insert(RecordingRow), recs)
+            c.execute(insert(ResultRow), res)
+        got = trend_rows(store, "a", 100)
+        ns = [r["n"] for r in got.results]
+        assert got.total == 999  # 1000 of conveyor a, one refused
+        assert len(ns) <= 100 and ns == sorted(ns)
+        assert all(n % 2 == 1 for n in ns)  # conveyor a's only
+        # the newest 50 (one of them refused) in full, standing for themselves
+        assert ns[-49:] == [n for n in range(1901, 2001, 2) if n != 1999]
+        assert got.represents[-49:] == [1] * 49
+        # the older 950 thinned to at most 50, the first one kept; each stands for its stretch
+        assert ns[0] == 1 and len(ns) - 49 <= 50
+        assert sum(got.represents[:-49]) == 950
+        assert max(b - a for a, b in itertools.pairwise(ns[:-48])) <= 2 * 950 / 50 + 2
+        # a short history: every result, as Store.results gives them
+        few = trend_rows(store, "b", 5000)
+        assert [r["n"] for r in few.results] == [r["n"] for r in store.results("b")]
+        assert few.total == 1000 and few.represents == [1] * 1000
+    finally:
+        store.close()

@@ -844,3 +844,28 @@ def test_trend_rows_keep_the_newest_whole_and_thin_the_rest(tmp_path: Path) -> N
         assert few.total == 1000 and few.represents == [1] * 1000
     finally:
         store.close()
+
+
+def test_the_served_app_freezes_its_start_up_heap(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    # in a process of its own: freezing is for good
+    url = f"sqlite:///{tmp_path / 's.db'}"
+    code = (
+        "import gc, sys\n"
+        "from chaintwin.store.store import Store\n"
+        "from chaintwin.web.app import create_app, freeze_heap\n"
+        f"app = create_app(Store({url!r}))\n"
+        "assert 'chaintwin.report.data' not in sys.modules\n"
+        "frozen = freeze_heap(app)\n"
+        "assert 'chaintwin.report.data' in sys.modules\n"
+        "assert frozen == gc.get_freeze_count() > 10000, frozen\n"
+        "assert len(gc.get_objects(generation=2)) < frozen / 10\n"
+        "print(frozen)\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False
+    )
+    assert done.returncode == 0, done.stderr
+    assert int(done.stdout) > 10000

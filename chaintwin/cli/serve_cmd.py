@@ -143,6 +143,9 @@ def serve(
                     secure_cookies=ssl_certfile is not None,
                     live=service,
                 )
+                from chaintwin.web.app import freeze_heap
+
+                freeze_heap(app)  # no full garbage collection walks the start-up heap
                 config = uvicorn.Config(
                     app,
                     host=host,

@@ -12,7 +12,7 @@ import json
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import and_, func, or_, select
+from sqlalchemy import and_, func, or_, select, text
 from sqlalchemy.orm import Session
 
 from chaintwin.errors import StoreError
@@ -268,6 +268,24 @@ class TrendRows:
     total: int
 
 
+_STRETCHES = text(
+    """
+    WITH RECURSIVE k(n) AS (SELECT 0 UNION ALL SELECT n + 1 FROM k WHERE n + 1 < :stretches)
+    SELECT
+      (SELECT min(r.id) FROM results r WHERE r.conveyor_id = :conveyor
+        AND r.id >= :first + k.n * :width AND r.id < :first + (k.n + 1) * :width
+        AND r.id < :lo),
+      (SELECT count(*) FROM results r WHERE r.conveyor_id = :conveyor
+        AND r.id >= :first + k.n * :width AND r.id < :first + (k.n + 1) * :width
+        AND r.id < :lo)
+    FROM k
+    """
+)
+"""Per stretch of ids (``width`` each from ``first``, before ``lo``): its first
+result's id (NULL when it has none) and how many results it holds (SQLite and
+PostgreSQL alike: a recursive CTE of the stretch numbers)."""
+
+
 def trend_rows(store: Store, conveyor: str, max_points: int) -> TrendRows:
     """At most ``max_points`` of a conveyor's results: the newest half in full, the
     older history thinned to one result per stretch.
@@ -275,9 +293,11 @@ def trend_rows(store: Store, conveyor: str, max_points: int) -> TrendRows:
     The older results (those before the newest ``max_points // 2``) are cut
     into at most ``max_points - max_points // 2`` stretches of equal id range
     (ids grow in the order monitored) and each stretch is shown by its first
-    result. Only that many results' contents are read: the stretches come
-    from the ``(conveyor_id, id)`` index alone (``ix_results_conveyor_id_id``),
-    so the cost hardly grows with the history. What was thinned is the
+    result. Only that many results' contents are read: each stretch's first
+    result is an index seek on ``(conveyor_id, id)`` (``ix_results_conveyor_id_id``)
+    and its count a range count of that index, so the cost hardly grows with
+    the history (the count of all results is a scan of the index: about 2 ms
+    per 10 000 on SQLite). What was thinned is the
     values between the kept ones; alarms are in their own table and stay
     whole.
     """
@@ -299,16 +319,17 @@ def trend_rows(store: Store, conveyor: str, max_points: int) -> TrendRows:
             lo = int(newest[-1][0])
             first = s.scalar(select(func.min(ResultRow.id)).where(mine))
             if first is not None and int(first) < lo:
-                span = lo - int(first)
-                stretch = ((ResultRow.id - int(first)) * buckets) // span
-                counts = {
-                    int(i): int(n)
-                    for i, n in s.execute(
-                        select(func.min(ResultRow.id), func.count())
-                        .where(mine, ResultRow.id < lo)
-                        .group_by(stretch)
-                    )
+                # stretches of ``width`` ids: each one's first result and count by
+                # seeks and range counts on the (conveyor_id, id) index, no sort
+                width = -(-(lo - int(first)) // buckets)
+                params = {
+                    "conveyor": conveyor,
+                    "first": int(first),
+                    "width": width,
+                    "lo": lo,
+                    "stretches": -(-(lo - int(first)) // width),
                 }
+                counts = {int(i): int(n) for i, n in s.execute(_STRETCHES, params) if i is not None}
                 older = list(
                     s.execute(
                         select(ResultRow.id, ResultRow.content)

@@ -838,6 +838,26 @@ def test_trend_rows_keep_the_newest_whole_and_thin_the_rest(tmp_path: Path) -> N
         assert ns[0] == 1 and len(ns) - 49 <= 50
         assert sum(got.represents[:-49]) == 950
         assert max(b - a for a, b in itertools.pairwise(ns[:-48])) <= 2 * 950 / 50 + 2
+        # the count (kept between calls) follows results added later, refused or not
+        with store.engine.begin() as c:
+            for k, status in ((2001, "refused"), (2003, "monitored")):
+                at = f"2026-01-02T00:00:00Z#{k:05d}"
+                content = {"file": f"{k}.csv", "recorded_at": at, "n": k}
+                if status == "refused":
+                    content["error"] = "refused"
+                c.execute(
+                    insert(RecordingRow),
+                    [{"id": k, "sha256": f"{k:064x}", "conveyor_id": "a", "file": f"{k}.csv",
+                      "recorded_at": at, "meta": {}, "warnings": [], "samples": b""}],
+                )  # fmt: skip
+                c.execute(
+                    insert(ResultRow),
+                    [{"id": k, "recording_id": k, "conveyor_id": "a", "recorded_at": at,
+                      "status": status, "alarm": False, "payload_kg": None, "tlf": None,
+                      "content": content, "stored_at": at}],
+                )  # fmt: skip
+        later = trend_rows(store, "a", 100)
+        assert later.total == 1000 and later.results[-1]["n"] == 2003
         # a short history: every result, as Store.results gives them
         few = trend_rows(store, "b", 5000)
         assert [r["n"] for r in few.results] == [r["n"] for r in store.results("b")]

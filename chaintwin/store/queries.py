@@ -268,6 +268,39 @@ class TrendRows:
     total: int
 
 
+_TOTALS: dict[tuple[str, str], tuple[int, int, int]] = {}
+"""Per (store URL, conveyor): (its results, highest result id, those not refused)."""
+
+_TOTALS_KEPT = 1000
+
+
+def _not_refused(s: Session, store: Store, conveyor: str, newest_id: int) -> int:
+    """How many of a conveyor's results were not refused.
+
+    Telling refused ones apart reads every row (``status`` is in no index):
+    2 ms per 10 000 on SQLite. Results are only ever added, so the count is
+    kept per process and read again only when the conveyor's number of
+    results (a count of the ``(conveyor_id, id)`` index alone, 5 times
+    cheaper) or its newest id changes.
+    """
+    mine = ResultRow.conveyor_id == conveyor
+    every = int(s.scalar(select(func.count()).select_from(ResultRow).where(mine)) or 0)
+    key = (store.url, conveyor)
+    known = _TOTALS.get(key)
+    if known is not None and known[:2] == (every, newest_id):
+        return known[2]
+    total = int(
+        s.scalar(
+            select(func.count()).select_from(ResultRow).where(mine, ResultRow.status != "refused")
+        )
+        or 0
+    )
+    if len(_TOTALS) >= _TOTALS_KEPT:
+        _TOTALS.clear()
+    _TOTALS[key] = (every, newest_id, total)
+    return total
+
+
 _STRETCHES = text(
     """
     WITH RECURSIVE k(n) AS (SELECT 0 UNION ALL SELECT n + 1 FROM k WHERE n + 1 < :stretches)
@@ -296,8 +329,8 @@ def trend_rows(store: Store, conveyor: str, max_points: int) -> TrendRows:
     result. Only that many results' contents are read: each stretch's first
     result is an index seek on ``(conveyor_id, id)`` (``ix_results_conveyor_id_id``)
     and its count a range count of that index, so the cost hardly grows with
-    the history (the count of all results is a scan of the index: about 2 ms
-    per 10 000 on SQLite). What was thinned is the
+    the history (the count of all results is a scan of the index: about
+    0.4 ms per 10 000 on SQLite). What was thinned is the
     values between the kept ones; alarms are in their own table and stay
     whole.
     """
@@ -337,14 +370,7 @@ def trend_rows(store: Store, conveyor: str, max_points: int) -> TrendRows:
                         .order_by(ResultRow.id)
                     )
                 )
-            total = int(
-                s.scalar(
-                    select(func.count())
-                    .select_from(ResultRow)
-                    .where(mine, ResultRow.status != "refused")
-                )
-                or 0
-            )
+            total = _not_refused(s, store, conveyor, int(newest[0][0]))
         else:
             total = sum("error" not in content for _i, content in newest)
     results, represents = [], []

@@ -889,3 +889,34 @@ def test_the_served_app_freezes_its_start_up_heap(tmp_path: Path) -> None:
     )
     assert done.returncode == 0, done.stderr
     assert int(done.stdout) > 10000
+
+
+def test_slow_requests_and_collections_are_traced_when_asked(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import gc
+
+    from chaintwin.web.trace import slow_ms
+
+    for off in ("", "0", "soon"):  # off unless a positive number of ms is given
+        monkeypatch.setenv("CHAINTWIN_TRACE_SLOW_MS", off)
+        assert slow_ms() is None
+    callbacks = list(gc.callbacks)
+    monkeypatch.setenv("CHAINTWIN_TRACE_SLOW_MS", "0.001")  # every request is slow
+    store = Store(f"sqlite:///{tmp_path / 'traced.db'}")
+    base, server, thread = start_server(create_app(store))
+    try:
+        assert httpx.get(base + "/api/v1/health", timeout=30).status_code == 200
+        assert httpx.get(base + "/api/v1/conveyors", timeout=30).status_code == 401
+        gc.collect()  # a full collection: always written
+    finally:
+        server.should_exit = True
+        thread.join(10)
+        store.close()
+        gc.callbacks[:] = callbacks
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("trace ")]
+    slow = [line for line in lines if " slow GET " in line]
+    assert any("/api/v1/health status=200 ms=" in line for line in slow), lines
+    assert any("/api/v1/conveyors status=401" in line for line in slow), lines
+    assert all("gc_ms=" in line and "loop_late_ms=" in line for line in slow)
+    assert any(" gc generation=2 ms=" in line for line in lines), lines

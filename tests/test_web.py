@@ -905,6 +905,7 @@ def test_slow_requests_and_collections_are_traced_when_asked(
     monkeypatch.setenv("CHAINTWIN_TRACE_SLOW_MS", "0.001")  # every request is slow
     store = Store(f"sqlite:///{tmp_path / 'traced.db'}")
     base, server, thread = start_server(create_app(store))
+    store.engine.dispose()  # the next request opens a new connection
     try:
         assert httpx.get(base + "/api/v1/health", timeout=30).status_code == 200
         assert httpx.get(base + "/api/v1/conveyors", timeout=30).status_code == 401
@@ -920,3 +921,5 @@ def test_slow_requests_and_collections_are_traced_when_asked(
     assert any("/api/v1/conveyors status=401" in line for line in slow), lines
     assert all("gc_ms=" in line and "loop_late_ms=" in line for line in slow)
     assert any(" gc generation=2 ms=" in line for line in lines), lines
+    # the pool's new connections too
+    assert any(" db connect ms=" in line for line in lines), lines

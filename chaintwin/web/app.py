@@ -177,11 +177,12 @@ def create_app(
     # a pure ASGI middleware, not @app.middleware: that one's wrapper cancels a
     # streaming response (the event stream) as soon as its first chunk is sent
     app.add_middleware(UploadLimit, limit=lambda: state.max_upload_bytes, refuse=too_large)
-    from chaintwin.web.trace import SlowTrace, slow_ms
+    from chaintwin.web.trace import SlowTrace, slow_ms, watch_connections
 
     threshold = slow_ms()
     if threshold is not None:  # CHAINTWIN_TRACE_SLOW_MS: what pauses the server
         app.add_middleware(SlowTrace, threshold_ms=threshold)
+        watch_connections(store.engine)
 
     for name, folder in _static_dirs().items():
         app.mount(f"/static/{name}", StaticFiles(directory=str(folder)), name=f"static-{name}")

@@ -10,7 +10,10 @@ writes one line to stderr (``trace ...``) for
   taking N/4 ms or more: generation, objects tracked, milliseconds;
 * every stall of the event loop of N/4 ms or more (a task that should wake
   every 10 ms woke late: something held the loop or the GIL);
-* every ``malloc_trim`` of the live service (its duration).
+* every ``malloc_trim`` of the live service (its duration);
+* every new connection to the database (the pool opens one beyond those it
+  keeps when more requests than that use the store at once, and closes it
+  after: on PostgreSQL each one starts a server process).
 
 ``benchmarks/bench_serve.py --trace-ms N --server-log FILE`` turns it on
 and keeps the server's stderr. It costs a little (a callback per
@@ -29,7 +32,7 @@ from typing import Any
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-__all__ = ["SlowTrace", "slow_ms"]
+__all__ = ["SlowTrace", "slow_ms", "watch_connections"]
 
 _LAG_PERIOD_S = 0.010
 
@@ -133,3 +136,21 @@ def trace_trim(seconds: float) -> None:
     """Report a ``malloc_trim`` of ``seconds`` (when tracing)."""
     if slow_ms() is not None:
         _line(f"malloc_trim ms={1e3 * seconds:.1f}")
+
+
+def watch_connections(engine: Any) -> None:
+    """Write a ``trace`` line for each new connection of ``engine``'s pool, and its time."""
+    from sqlalchemy import event
+
+    started: dict[int, float] = {}
+
+    @event.listens_for(engine, "do_connect")
+    def _before(_dialect: Any, record: Any, _args: Any, _kwargs: Any) -> None:
+        started[id(record)] = time.perf_counter()
+
+    @event.listens_for(engine, "connect")
+    def _after(_connection: Any, record: Any) -> None:
+        t0 = started.pop(id(record), None)
+        ms = -1.0 if t0 is None else 1e3 * (time.perf_counter() - t0)
+        status = engine.pool.status() if hasattr(engine.pool, "status") else ""
+        _line(f"db connect ms={ms:.1f} pool: {status}")

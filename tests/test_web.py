@@ -923,3 +923,21 @@ def test_slow_requests_and_collections_are_traced_when_asked(
     assert any(" gc generation=2 ms=" in line for line in lines), lines
     # the pool's new connections too
     assert any(" db connect ms=" in line for line in lines), lines
+
+
+def test_serve_keeps_more_database_connections_than_the_default(tmp_path: Path) -> None:
+    from chaintwin.cli.serve_cmd import SERVE_POOL_SIZE
+
+    url = f"sqlite:///{tmp_path / 'pool.db'}"
+    default, served_store = Store(url), Store(url, pool_size=SERVE_POOL_SIZE)
+    try:
+        assert default.engine.pool.size() == 5  # type: ignore[attr-defined]
+        assert served_store.engine.pool.size() == SERVE_POOL_SIZE > 5  # type: ignore[attr-defined]
+        # kept: connections used at once are not closed when they are given back
+        held = [served_store.engine.connect() for _ in range(SERVE_POOL_SIZE)]
+        for c in held:
+            c.close()
+        assert served_store.engine.pool.checkedin() == SERVE_POOL_SIZE  # type: ignore[attr-defined]
+    finally:
+        default.close()
+        served_store.close()

@@ -12,9 +12,10 @@ process; this script is the clients. It prints, per store, the median time of
    with its ETag (``If-None-Match``: 304);
 3. ``GET /`` (the fleet page);
 4. ``GET /api/v1/conveyors/{id}/recordings?limit=100`` (one conveyor's page of 100);
-5. ``GET /conveyors/{id}`` (a conveyor's HTML page: it reads all its results);
+5. ``GET /conveyors/{id}`` (a conveyor's HTML page: a bounded read of its results)
+   and ``GET .../trends?feature=friction`` (a trend, at most 1000 results read);
 
-each with its ratio to the reference (targets: 2, 3 and 4 within 5x), and
+each with its ratio to the reference (targets: 2 to 5 within 5x), and
 then 50 clients each polling every 5 s for ``--seconds``: the fleet as a
 browser does (sending back the ETag), the fleet without the ETag, and the
 page of 100 recordings; the p99 of those requests and its ratio to the
@@ -214,16 +215,28 @@ def polling(
     return out
 
 
-def measure(url: str, args: argparse.Namespace) -> dict[str, Any]:
+def reuse(url: str) -> str:
+    """A new admin token in a store built by an earlier run (``--sqlite-file``)."""
+    store = Store(url)
+    try:
+        return create_token(store, f"bench-{time.time_ns()}", "admin")
+    finally:
+        store.close()
+
+
+def measure(url: str, args: argparse.Namespace, *, built_before: bool = False) -> dict[str, Any]:
     t0 = time.perf_counter()
-    token = build(url, args.conveyors, args.results)
+    token = reuse(url) if built_before else build(url, args.conveyors, args.results)
     built = time.perf_counter() - t0
     port = free_port()
     env = os.environ | {"OPENBLAS_NUM_THREADS": "1"}
+    if args.trace_ms:
+        env["CHAINTWIN_TRACE_SLOW_MS"] = str(args.trace_ms)
+    log = open(args.server_log, "ab") if args.server_log else None  # noqa: SIM115
     server = subprocess.Popen(
         [sys.executable, "-m", "chaintwin", "serve", "--db", url, "--port", str(port)],
         env=env,
-        stderr=subprocess.DEVNULL,
+        stderr=log or subprocess.DEVNULL,
     )
     base = f"http://127.0.0.1:{port}"
     try:
@@ -252,7 +265,12 @@ def measure(url: str, args: argparse.Namespace) -> dict[str, Any]:
                 ),
                 "GET / (fleet page)": median_ms(c, "/", n),
                 "GET .../recordings?limit=100": median_ms(c, page, n),
-                "GET /conveyors/{id} (HTML, all results)": median_ms(c, f"/conveyors/{one}", 5),
+                "GET /conveyors/{id} (the conveyor's HTML page)": median_ms(
+                    c, f"/conveyors/{one}", n
+                ),
+                "GET .../trends?feature=friction (max_points 1000)": median_ms(
+                    c, f"/api/v1/conveyors/{one}/trends?feature=friction", n
+                ),
             }
         polls = {}
         for name, path, etag in (
@@ -265,6 +283,8 @@ def measure(url: str, args: argparse.Namespace) -> dict[str, Any]:
     finally:
         server.terminate()
         server.wait(30)
+        if log is not None:
+            log.close()
     return {"built_s": built, "health_ms": health, "rows": rows, "polls": polls}
 
 
@@ -278,9 +298,26 @@ def main() -> int:
     parser.add_argument(
         "--postgres", help="an empty PostgreSQL database's URL, or 'auto': a private server"
     )
+    parser.add_argument(
+        "--sqlite-file",
+        type=Path,
+        help="the SQLite store's file: built there when missing, reused (not rebuilt) when "
+        "present, so that repeated runs skip the build (its --conveyors/--results are the "
+        "first run's)",
+    )
+    parser.add_argument(
+        "--trace-ms",
+        type=float,
+        help="run the server with CHAINTWIN_TRACE_SLOW_MS (chaintwin.web.trace): a line per "
+        "request slower than this, per full garbage collection, per stall of its event loop",
+    )
+    parser.add_argument("--server-log", type=Path, help="append the server's stderr to this file")
     args = parser.parse_args()
     stores = {}
-    if not args.no_sqlite:
+    if not args.no_sqlite and args.sqlite_file is not None:
+        path = args.sqlite_file.resolve()
+        stores["SQLite"] = measure(f"sqlite:///{path}", args, built_before=path.exists())
+    elif not args.no_sqlite:
         with tempfile.TemporaryDirectory() as folder:
             stores["SQLite"] = measure(f"sqlite:///{folder}/bench.db", args)
     if args.postgres == "auto":

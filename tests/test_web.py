@@ -7,6 +7,7 @@ acknowledge.
 
 from __future__ import annotations
 
+import itertools
 import json
 import re
 import socket
@@ -736,3 +737,209 @@ def test_in_a_browser_log_in_see_charts_acknowledge_and_a_viewer_refused(
         served.close()
     assert outside == [], "nothing may load from the network"
     assert broken == []
+
+
+def test_a_trend_reads_a_bounded_number_of_results_and_keeps_its_alarms(served: Served) -> None:
+    viewer = served.client("viewer")
+    base = f"/api/v1/conveyors/{PROFILE.id}/trends"
+    full = viewer.get(base, params={"feature": "friction", "max_points": 100_000}).json()
+    bounded = viewer.get(base, params={"feature": "friction", "max_points": 20}).json()
+    stored = len(served.store.results(PROFILE.id))
+    assert len(full["points"]) == full["recordings"] > 20  # more results than the bound
+    assert all(p["represents"] == 1 for p in full["points"])
+    points = bounded["points"]
+    assert len(points) <= 20 and bounded["max_points"] == 20
+    assert bounded["recordings"] == full["recordings"]  # counts every result still
+    # the newest 10 in full, exactly as without a bound; the older ones thinned
+    assert points[-10:] == full["points"][-10:]
+    assert points[0] == full["points"][0] | {"represents": points[0]["represents"]}
+    assert all(p["represents"] > 1 for p in points[:-10])
+    assert sum(p["represents"] for p in points) <= stored
+    older = {p["recorded_at"] for p in full["points"][:-10]}
+    assert {p["recorded_at"] for p in points[:-10]} <= older
+    # what is drawn beside the points is that of every result
+    for key in ("alarms", "expected", "limit", "lower_limit", "health_index", "forecast"):
+        assert bounded[key] == full[key], key
+    assert bounded["alarms"]  # the friction alarm's marker
+    assert full["max_points"] == 100_000
+    # the default reads at most 1000; a bound below 20 is refused
+    assert viewer.get(base, params={"feature": "friction"}).json()["max_points"] == 1000
+    _error(viewer.get(base, params={"feature": "friction", "max_points": 5}), 422, "invalid")
+
+
+def test_a_conveyors_page_with_more_results_than_its_bound_shows_the_same(
+    served: Served, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from chaintwin.report.data import conveyor_data
+    from chaintwin.web import api
+
+    browser = served.client()
+    login = browser.post("/login", data={"token": served.tokens["viewer"]})
+    assert login.status_code == 303, login.text
+    whole = browser.get(f"/conveyors/{PROFILE.id}").text
+    detail = browser.get(f"/api/v1/conveyors/{PROFILE.id}").json()
+    data = conveyor_data(served.store, PROFILE.id, waterfall=0)  # every result
+    assert len(data.results) > 20
+    monkeypatch.setattr(api, "PAGE_POINTS", 20)  # the newest 10 and 10 older ones
+    bounded = browser.get(f"/conveyors/{PROFILE.id}").text
+    assert bounded == whole
+    assert f"{len(data.results)} recordings" in bounded
+    assert f"<strong>{data.status}</strong>" in bounded
+    assert all(f"since {a.since}" in bounded for a in data.open_alarms())
+    found = re.search(r"data-features='([^']*)'", bounded)
+    assert found is not None
+    features = json.loads(found.group(1).replace("&#34;", '"'))
+    assert features == [t.name for t in data.trends]
+    assert browser.get(f"/api/v1/conveyors/{PROFILE.id}").json() == detail
+    assert detail["recordings"] == len(data.results)
+
+
+def test_trend_rows_keep_the_newest_whole_and_thin_the_rest(tmp_path: Path) -> None:
+    from sqlalchemy import insert
+
+    from chaintwin.store.queries import trend_rows
+    from chaintwin.store.schema import ConveyorRow, RecordingRow, ResultRow
+
+    store = Store(f"sqlite:///{tmp_path / 'long.db'}")
+    try:
+        with store.engine.begin() as c:
+            for cid in ("a", "b"):
+                c.execute(
+                    insert(ConveyorRow),
+                    [{"id": cid, "profile": {}, "profile_sha256": "0" * 64}],
+                )
+            recs, res = [], []
+            for k in range(1, 2001):  # two conveyors' results interleaved, as ingest stores them
+                cid = "a" if k % 2 else "b"
+                at = f"2026-01-01T00:00:00Z#{k:05d}"
+                content: dict[str, Any] = {"file": f"{k}.csv", "recorded_at": at, "n": k}
+                status = "monitored"
+                if k == 1999:  # a refused result among the newest: left out, not counted
+                    content["error"] = "refused"
+                    status = "refused"
+                recs.append(
+                    {"id": k, "sha256": f"{k:064x}", "conveyor_id": cid, "file": f"{k}.csv",
+                     "recorded_at": at, "meta": {}, "warnings": [], "samples": b""}
+                )  # fmt: skip
+                res.append(
+                    {"id": k, "recording_id": k, "conveyor_id": cid, "recorded_at": at,
+                     "status": status, "alarm": False, "payload_kg": None, "tlf": None,
+                     "content": content, "stored_at": at}
+                )  # fmt: skip
+            c.execute(insert(RecordingRow), recs)
+            c.execute(insert(ResultRow), res)
+        got = trend_rows(store, "a", 100)
+        ns = [r["n"] for r in got.results]
+        assert got.total == 999  # 1000 of conveyor a, one refused
+        assert len(ns) <= 100 and ns == sorted(ns)
+        assert all(n % 2 == 1 for n in ns)  # conveyor a's only
+        # the newest 50 (one of them refused) in full, standing for themselves
+        assert ns[-49:] == [n for n in range(1901, 2001, 2) if n != 1999]
+        assert got.represents[-49:] == [1] * 49
+        # the older 950 thinned to at most 50, the first one kept; each stands for its stretch
+        assert ns[0] == 1 and len(ns) - 49 <= 50
+        assert sum(got.represents[:-49]) == 950
+        assert max(b - a for a, b in itertools.pairwise(ns[:-48])) <= 2 * 950 / 50 + 2
+        # the count (kept between calls) follows results added later, refused or not
+        with store.engine.begin() as c:
+            for k, status in ((2001, "refused"), (2003, "monitored")):
+                at = f"2026-01-02T00:00:00Z#{k:05d}"
+                content = {"file": f"{k}.csv", "recorded_at": at, "n": k}
+                if status == "refused":
+                    content["error"] = "refused"
+                c.execute(
+                    insert(RecordingRow),
+                    [{"id": k, "sha256": f"{k:064x}", "conveyor_id": "a", "file": f"{k}.csv",
+                      "recorded_at": at, "meta": {}, "warnings": [], "samples": b""}],
+                )  # fmt: skip
+                c.execute(
+                    insert(ResultRow),
+                    [{"id": k, "recording_id": k, "conveyor_id": "a", "recorded_at": at,
+                      "status": status, "alarm": False, "payload_kg": None, "tlf": None,
+                      "content": content, "stored_at": at}],
+                )  # fmt: skip
+        later = trend_rows(store, "a", 100)
+        assert later.total == 1000 and later.results[-1]["n"] == 2003
+        # a short history: every result, as Store.results gives them
+        few = trend_rows(store, "b", 5000)
+        assert [r["n"] for r in few.results] == [r["n"] for r in store.results("b")]
+        assert few.total == 1000 and few.represents == [1] * 1000
+    finally:
+        store.close()
+
+
+def test_the_served_app_freezes_its_start_up_heap(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    # in a process of its own: freezing is for good
+    url = f"sqlite:///{tmp_path / 's.db'}"
+    code = (
+        "import gc, sys\n"
+        "from chaintwin.store.store import Store\n"
+        "from chaintwin.web.app import create_app, freeze_heap\n"
+        f"app = create_app(Store({url!r}))\n"
+        "assert 'chaintwin.report.data' not in sys.modules\n"
+        "frozen = freeze_heap(app)\n"
+        "assert 'chaintwin.report.data' in sys.modules\n"
+        "assert frozen == gc.get_freeze_count() > 10000, frozen\n"
+        "assert len(gc.get_objects(generation=2)) < frozen / 10\n"
+        "print(frozen)\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False
+    )
+    assert done.returncode == 0, done.stderr
+    assert int(done.stdout) > 10000
+
+
+def test_slow_requests_and_collections_are_traced_when_asked(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import gc
+
+    from chaintwin.web.trace import slow_ms
+
+    for off in ("", "0", "soon"):  # off unless a positive number of ms is given
+        monkeypatch.setenv("CHAINTWIN_TRACE_SLOW_MS", off)
+        assert slow_ms() is None
+    callbacks = list(gc.callbacks)
+    monkeypatch.setenv("CHAINTWIN_TRACE_SLOW_MS", "0.001")  # every request is slow
+    store = Store(f"sqlite:///{tmp_path / 'traced.db'}")
+    base, server, thread = start_server(create_app(store))
+    store.engine.dispose()  # the next request opens a new connection
+    try:
+        assert httpx.get(base + "/api/v1/health", timeout=30).status_code == 200
+        assert httpx.get(base + "/api/v1/conveyors", timeout=30).status_code == 401
+        gc.collect()  # a full collection: always written
+    finally:
+        server.should_exit = True
+        thread.join(10)
+        store.close()
+        gc.callbacks[:] = callbacks
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("trace ")]
+    slow = [line for line in lines if " slow GET " in line]
+    assert any("/api/v1/health status=200 ms=" in line for line in slow), lines
+    assert any("/api/v1/conveyors status=401" in line for line in slow), lines
+    assert all("gc_ms=" in line and "loop_late_ms=" in line for line in slow)
+    assert any(" gc generation=2 ms=" in line for line in lines), lines
+    # the pool's new connections too
+    assert any(" db connect ms=" in line for line in lines), lines
+
+
+def test_serve_keeps_more_database_connections_than_the_default(tmp_path: Path) -> None:
+    from chaintwin.cli.serve_cmd import SERVE_POOL_SIZE
+
+    url = f"sqlite:///{tmp_path / 'pool.db'}"
+    default, served_store = Store(url), Store(url, pool_size=SERVE_POOL_SIZE)
+    try:
+        assert default.engine.pool.size() == 5  # type: ignore[attr-defined]
+        assert served_store.engine.pool.size() == SERVE_POOL_SIZE > 5  # type: ignore[attr-defined]
+        # kept: connections used at once are not closed when they are given back
+        held = [served_store.engine.connect() for _ in range(SERVE_POOL_SIZE)]
+        for c in held:
+            c.close()
+        assert served_store.engine.pool.checkedin() == SERVE_POOL_SIZE  # type: ignore[attr-defined]
+    finally:
+        default.close()
+        served_store.close()

@@ -583,6 +583,8 @@ class LiveService:
         """Every :data:`~.memory.TRIM_EVERY_S`: glibc's free memory handed back to the
         system (:func:`~.memory.trim`); with ``CHAINTWIN_MEMORY_LOG=1`` the memory
         logged before and after (``memory`` in the JSON log)."""
+        from chaintwin.web.trace import trace_trim
+
         from .memory import TRIM_EVERY_S, trim, usage
 
         logging_on = os.environ.get("CHAINTWIN_MEMORY_LOG", "") not in ("", "0")
@@ -591,7 +593,9 @@ class LiveService:
             if self.stop.is_set():
                 break
             before = usage() if logging_on else {}
+            t0 = time.perf_counter()
             await asyncio.to_thread(trim)
+            trace_trim(time.perf_counter() - t0)
             if logging_on:
                 after = usage()
                 log.info(

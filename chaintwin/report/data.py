@@ -126,6 +126,15 @@ class ConveyorData:
     latest_result: dict[str, Any] | None = None
     waterfall: list[tuple[str, Recording]] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    total: int | None = None
+    """How many results the store holds for the conveyor (None: ``results`` are all of them)."""
+    represents: list[int] | None = None
+    """With ``max_points``: how many stored results each of ``results`` stands for."""
+
+    @property
+    def recordings(self) -> int:
+        """How many (not refused) results the store holds for the conveyor."""
+        return len(self.results) if self.total is None else self.total
 
     @cached_property
     def latest_model(self) -> FloatArray | None:
@@ -315,6 +324,8 @@ def conveyor_data(
     *,
     waterfall: int = WATERFALL_RECORDINGS,
     forecast_bands: bool = False,
+    max_points: int | None = None,
+    latest: bool = True,
 ) -> ConveyorData:
     """Gather a conveyor's page from the store.
 
@@ -328,6 +339,16 @@ def conveyor_data(
         Most recordings rebuilt for the spectrum waterfall.
     forecast_bands : bool
         The forecasts carry their ``band`` (path and 90 % interval ahead).
+    max_points : int, optional
+        Read at most this many results (:func:`~chaintwin.store.queries.trend_rows`:
+        the newest half in full, the older history thinned), so that the
+        cost hardly grows with the history (the web pages); ``total`` then
+        counts them all. At least ``2 * RECENT``, so that the newest
+        :data:`RECENT` are read and the health index and status are those of
+        every result. None: every result (the reports).
+    latest : bool
+        Rebuild the latest recording from its samples (``latest``,
+        ``latest_result``); the web pages do not show it.
 
     Raises
     ------
@@ -340,7 +361,16 @@ def conveyor_data(
             f"the store holds no conveyor '{conveyor}' "
             f"(it holds: {', '.join(store.conveyors()) or 'none'})"
         )
-    results = [r for r in store.results(conveyor) if "error" not in r]
+    total: int | None = None
+    represents: list[int] | None = None
+    if max_points is None:
+        results = [r for r in store.results(conveyor) if "error" not in r]
+    else:
+        from chaintwin.store.queries import trend_rows
+
+        # the newest RECENT at least in full: the health index and status are exact
+        bounded = trend_rows(store, conveyor, max(max_points, 2 * RECENT))
+        results, represents, total = bounded.results, bounded.represents, bounded.total
     notes: list[str] = []
     try:
         state = store.state(conveyor)
@@ -381,7 +411,11 @@ def conveyor_data(
         calibration=calibration,
         baseline_since=baseline_since,
         notes=notes,
+        total=total,
+        represents=represents,
     )
+    if not latest and waterfall <= 0:
+        return data
     index = store.recording_index(conveyor)
     by_file = {r["file"]: r for r in results}
     if index:

@@ -85,12 +85,27 @@ def role_at_least(role: str, needed: str) -> bool:
     return role in ROLES and ROLES.index(role) >= ROLES.index(needed)
 
 
+_SECRETS: dict[tuple[str, str], bytes] = {}
+"""The keys read, per (store URL, name): a key never changes once created."""
+
+
 def secret(store: Store, name: str) -> bytes:
     """The store's random key ``name`` (32 bytes), created on first use.
 
     Two processes creating it at once agree: the second insert fails on the
-    primary key and reads the first one's.
+    primary key and reads the first one's. Kept in the process once read
+    (every token check needs the token key: a read of the store less per
+    request).
     """
+    known = _SECRETS.get((store.url, name))
+    if known is not None:
+        return known
+    key = _read_or_create_secret(store, name)
+    _SECRETS[(store.url, name)] = key
+    return key
+
+
+def _read_or_create_secret(store: Store, name: str) -> bytes:
     with Session(store.engine) as s:
         row = s.get(SecretRow, name)
         if row is not None:

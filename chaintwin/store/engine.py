@@ -82,12 +82,14 @@ def _without_password(url: str) -> str:
     return f"{scheme}://{user}:***@{tail}"
 
 
-def engine_for(url: str, *, read_only: bool = False) -> Engine:
+def engine_for(url: str, *, read_only: bool = False, pool_size: int | None = None) -> Engine:
     """The SQLAlchemy engine of a store URL (psycopg 3 for PostgreSQL; SQLite's pragmas).
 
     With ``read_only`` a SQLite file is opened read-only (``mode=ro``): a
     command that only reads cannot change it, even by accident; PostgreSQL
-    sessions are set read-only.
+    sessions are set read-only. ``pool_size``: the connections the pool
+    keeps open (SQLAlchemy's default 5), and as many more it may open for a
+    while; a file or server store only.
 
     Raises
     ------
@@ -100,6 +102,9 @@ def engine_for(url: str, *, read_only: bool = False) -> Engine:
     path = sqlite_path(url)
     if read_only and path is not None:
         target = f"sqlite:///file:{quote(path)}?mode=ro&uri=true"
+    pooling: dict[str, int] = {}
+    if pool_size is not None and (path is not None or url.startswith("postgresql")):
+        pooling = {"pool_size": pool_size, "max_overflow": pool_size}
     try:
         engine = create_engine(
             target,
@@ -107,6 +112,7 @@ def engine_for(url: str, *, read_only: bool = False) -> Engine:
             pool_pre_ping=True,
             json_serializer=_to_json,
             json_deserializer=_from_json,
+            **pooling,
         )
     except (SQLAlchemyError, ImportError, ValueError) as exc:
         raise StoreError(

@@ -102,6 +102,9 @@ class Store:
     read_only : bool
         Open it for reading only (commands that only read: ``export``,
         ``report``): the database cannot be changed through this object.
+    pool_size : int, optional
+        Connections kept open (and as many more opened for a while);
+        SQLAlchemy's default 5. ``serve`` keeps more: its requests come in bursts.
 
     A SQLite file is checked when it is opened (``PRAGMA quick_check`` up
     to :data:`~.engine.QUICK_CHECK_MAX_MB`, the schema always): a damaged file or
@@ -114,7 +117,14 @@ class Store:
         not this chaintwin's (older: ``chaintwin db upgrade``; newer).
     """
 
-    def __init__(self, url: str, *, create: bool = True, read_only: bool = False) -> None:
+    def __init__(
+        self,
+        url: str,
+        *,
+        create: bool = True,
+        read_only: bool = False,
+        pool_size: int | None = None,
+    ) -> None:
         self.url = url
         path = sqlite_path(url)
         if (not create or read_only) and path is not None and not os.path.exists(path):
@@ -123,7 +133,7 @@ class Store:
                 "CHAINTWIN_DB), or ingest recordings into it first",
                 field="url",
             )
-        self.engine: Engine = engine_for(url, read_only=read_only)
+        self.engine: Engine = engine_for(url, read_only=read_only, pool_size=pool_size)
         where = safe_url(self.url)
         try:
             if path is not None:

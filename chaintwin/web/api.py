@@ -73,6 +73,14 @@ router = APIRouter(prefix="/api/v1", tags=["api"], responses=_ERRORS)
 PLOT_POINTS = 1000
 """Most samples of a channel returned for plotting (evenly thinned)."""
 
+TREND_POINTS = 1000
+"""Default ``max_points`` of a trend: the newest 500 results in full, the older history
+thinned to 500 (:func:`~chaintwin.store.queries.trend_rows`)."""
+
+PAGE_POINTS = 200
+"""Results a conveyor's page and ``GET /api/v1/conveyors/{id}`` read (status, health
+index, features): the newest 100 and 100 of the older history."""
+
 _upload_lock = threading.Lock()
 
 
@@ -272,13 +280,22 @@ def fleet_health(web: Any) -> Any:
     return web.extra.setdefault("fleet_health", FleetHealth())
 
 
-def _conveyor(request: Request, conveyor_id: str, *, bands: bool = False) -> Any:
+def _conveyor(
+    request: Request, conveyor_id: str, *, bands: bool = False, max_points: int | None = None
+) -> Any:
     from chaintwin.report.data import conveyor_data
 
     store = _web(request).store
     if store.profile(conveyor_id) is None:
         raise ApiError(404, "not_found", f"no conveyor '{conveyor_id}' in the store")
-    return conveyor_data(store, conveyor_id, waterfall=0, forecast_bands=bands)
+    return conveyor_data(
+        store,
+        conveyor_id,
+        waterfall=0,
+        forecast_bands=bands,
+        max_points=PAGE_POINTS if max_points is None else max_points,
+        latest=False,
+    )
 
 
 @router.get("/conveyors/{conveyor_id:path}/recordings", response_model=dict[str, Any])
@@ -300,15 +317,31 @@ def recordings(
 
 
 @router.get("/conveyors/{conveyor_id:path}/trends")
-def trends(request: Request, conveyor_id: str, feature: str) -> dict[str, Any]:
-    """A feature's series with its baseline band and alarm markers."""
+def trends(
+    request: Request,
+    conveyor_id: str,
+    feature: str,
+    max_points: Annotated[int, Query(ge=20, le=100_000)] = TREND_POINTS,
+) -> dict[str, Any]:
+    """A feature's series with its baseline band and alarm markers.
+
+    At most ``max_points`` (20 to 100 000) results are read: the newest half in full, the
+    older history thinned to one result per stretch of equal length (each
+    point's ``represents`` says how many results it stands for: 1 for the
+    newest), so the cost hardly grows with the history; ``recordings``
+    counts them all (``represents`` counts refused results too). The alarm
+    markers come from the alarms, whole; ``health_index`` is that of the
+    newest results, as without a bound. Raise ``max_points`` to get every
+    result of a long history.
+    """
     who(request, "viewer")
-    data = _conveyor(request, conveyor_id, bands=True)
+    data = _conveyor(request, conveyor_id, bands=True, max_points=max_points)
     trend = next((t for t in data.trends if t.name == feature), None)
     if trend is None:
         names = ", ".join(t.name for t in data.trends) or "none yet"
         raise ApiError(404, "not_found", f"no feature '{feature}' (tracked: {names})")
     points = []
+    represents = data.represents or [1] * len(data.results)
     for k, v, ex in zip(trend.index, trend.values, trend.exceeded, strict=False):
         t = data.times[k]
         points.append(
@@ -316,6 +349,7 @@ def trends(request: Request, conveyor_id: str, feature: str) -> dict[str, Any]:
                 "recorded_at": None if t is None else t.isoformat(),
                 "value": _finite(float(v)),
                 "exceeded": bool(ex),
+                "represents": represents[k],
             }
         )
     marks = [
@@ -336,6 +370,8 @@ def trends(request: Request, conveyor_id: str, feature: str) -> dict[str, Any]:
         "alarms": marks,
         "health_index": _finite(float(trend.health_index())),
         "forecast": forecast,
+        "recordings": data.recordings,
+        "max_points": max_points,
     }
 
 
@@ -394,7 +430,7 @@ def conveyor(request: Request, conveyor_id: str) -> dict[str, Any]:
         "status": data.status,
         "features": [t.name for t in data.trends],
         "open_alarms": [a.to_dict() for a in data.open_alarms()],
-        "recordings": len(data.results),
+        "recordings": data.recordings,
         "notes": data.notes,
     }
 

@@ -123,12 +123,15 @@ def fleet(request: Request) -> HTMLResponse:
 def conveyor_page(request: Request, conveyor_id: str) -> HTMLResponse:
     """One conveyor: trends with baseline bands and alarms, payloads, latest recording."""
     from chaintwin.report.data import conveyor_data
+    from chaintwin.web.api import PAGE_POINTS
 
     p = _viewer(request)
     store = _web(request).store
     if store.profile(conveyor_id) is None:
         return error_page(request, 404, f"no conveyor '{conveyor_id}' in the store")
-    data = conveyor_data(store, conveyor_id, waterfall=0)
+    # bounded: its status, health index and features need the newest results, and
+    # the trends' charts fetch their own (bounded) series from the API
+    data = conveyor_data(store, conveyor_id, waterfall=0, max_points=PAGE_POINTS, latest=False)
     return _render(request, "conveyor.html.j2", p, conveyor_id=conveyor_id, data=data)
 
 

@@ -16,6 +16,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
+from urllib.parse import quote
 
 import httpx
 import pytest
@@ -352,6 +353,21 @@ def test_ids_and_comments_are_shown_escaped(served: Served) -> None:
         assert "&lt;img src=x onerror=&#34;alert(1)&#34;&gt;&amp;" in fleet_page
         audit_page = browser.get("/audit")
         assert audit_page.status_code == 200 and "<script>" not in audit_page.text
+    # the calibration's warnings are shown on the conveyor's page, escaped
+    import dataclasses
+
+    from chaintwin.read.recording import RecordingWarning
+
+    cal = served.store.calibration(PROFILE.id)
+    assert cal is not None
+    note = RecordingWarning("friction_unchecked", "<script>alert(2)</script> 28.0 kg per 10 %")
+    served.store.put_calibration(dataclasses.replace(cal, profile=evil, warnings=(note,)))
+    with httpx.Client(base_url=served.base, timeout=30) as browser:
+        browser.post("/login", data={"token": served.tokens["viewer"]})
+        page = browser.get("/conveyors/" + quote(evil.id, safe=""))
+        assert page.status_code == 200
+        assert "calibration: friction_unchecked: &lt;script&gt;alert(2)" in page.text
+        assert "<script>alert(2)" not in page.text
 
 
 def test_results_without_a_time_come_last_and_page_through(served: Served) -> None:

@@ -608,6 +608,102 @@ def test_recording_from_scope_converts_units_and_checks_like_the_reader() -> Non
         assert str(info.value).startswith("opcua:x:1")
 
 
+def _scope_text(values: dict[str, Any], conveyor: str) -> str:
+    """The scope as the client used to build it: a file of it, every number printed exactly."""
+    from datetime import UTC
+
+    lines = [f"# conveyor: {conveyor}"]
+    if "trigger_time" in values:
+        lines.append(f"# recorded_at: {values['trigger_time'].astimezone(UTC).isoformat()}")
+    lines.append(f"# sample_time_s: {float(values['sample_time'])!r}")
+    for key, meta in (
+        ("nominal_torque", "nominal_torque_nm"),
+        ("increments_per_rev", "increments_per_rev"),
+    ):
+        if values.get(key):
+            lines.append(f"# {meta}: {float(values[key])!r}")
+    header, columns = ["time [s]"], []
+    for key in (
+        "speed_setpoint",
+        "speed",
+        "position_setpoint",
+        "position",
+        "torque_setpoint",
+        "torque",
+        "digital_inputs",
+    ):
+        if values.get(key):
+            header.append(f"{key} [{values[f'{key}_unit']}]")
+            columns.append(np.asarray(values[key], dtype=np.float64))
+    n = len(columns[0])
+    table = np.column_stack([np.arange(n) * float(values["sample_time"]), *columns])
+    rows = "\n".join(",".join(f"{v:.17g}" for v in row) for row in table.tolist())
+    return "\n".join(lines) + "\n" + ",".join(header) + "\n" + rows + "\n"
+
+
+def _published_values(scope: Published) -> dict[str, Any]:
+    """What the client reads from a drive that published ``scope`` (its own units)."""
+    from chaintwin.units import UnitContext, from_si_factor
+
+    rec, meta = scope.recording, scope.recording.metadata
+    context = UnitContext(
+        increments_per_rev=meta.increments_per_rev, nominal_torque_nm=meta.nominal_torque_nm
+    )
+    values: dict[str, Any] = {
+        "counter": scope.counter,
+        "conveyor_id": meta.conveyor,
+        "trigger_time": meta.recorded_at,
+        "sample_time": meta.sample_time_s or rec.sample_time_s,
+        "nominal_torque": meta.nominal_torque_nm or 0.0,
+        "increments_per_rev": meta.increments_per_rev or 0.0,
+    }
+    for key, unit in rec.units.items():
+        if key != "time":
+            values[key] = (rec.channels[key] * from_si_factor(key, unit, context)).tolist()
+            values[f"{key}_unit"] = unit
+    return values
+
+
+def test_recording_from_scope_equals_the_file_of_it_and_refuses_alike(sim: DriveSim) -> None:
+    """The arrays read from a drive become the recording the file reader makes of the
+    same scope printed exactly: same samples, units, headers, metadata; and a bad scope
+    is refused with the same one line (one code path for the checks)."""
+    from datetime import UTC, datetime
+
+    from chaintwin.read.reader import parse_recording
+
+    values = _published_values(sim.simulate())
+    key = "opcua:x:1"
+    direct = recording_from_scope(values, conveyor=CONVEYOR, source=key)
+    via_file = parse_recording(_scope_text(values, CONVEYOR), key)
+    assert direct.metadata == via_file.metadata and direct.metadata.recorded_at is not None
+    assert direct.units == via_file.units and direct.headers == via_file.headers
+    assert list(direct.channels) == list(via_file.channels)
+    for name, column in via_file.channels.items():
+        np.testing.assert_array_equal(direct.channels[name], column)  # bit for bit
+    assert len(direct.channels) == 8 and direct.channels["speed"].shape == (2048,)
+
+    speed = np.asarray(values["speed"])
+    bad_rows = speed.copy()
+    bad_rows[40] = np.inf
+    bad = [
+        {"speed": bad_rows.tolist()},  # a sample that is not finite: its line is named
+        {"speed_unit": "furlongs"},  # no unit of speed
+        {"sample_time": 0.5},  # no drive scope samples that slowly
+        {"torque": (np.asarray(values["torque"]) * 1e3).tolist()},  # torque beyond 10x nominal
+        {"trigger_time": datetime(2300, 1, 1, tzinfo=UTC)},  # the drive's clock is off
+        {k: values[k][:20] for k in values if isinstance(values[k], list)},  # too short
+    ]
+    for change in bad:
+        scope = {**values, **change}
+        with pytest.raises(RecordingError) as from_file:
+            parse_recording(_scope_text(scope, CONVEYOR), key)
+        with pytest.raises(RecordingError) as from_arrays:
+            recording_from_scope(scope, conveyor=CONVEYOR, source=key)
+        assert str(from_arrays.value) == str(from_file.value)
+        assert "\n" not in str(from_arrays.value) and str(from_arrays.value).startswith(key)
+
+
 # ---------------------------------------------------------------- the command
 def test_drive_sim_command_serves_the_minimal_config_and_stops_on_sigterm(
     ua_loop: Loop, tmp_path: Path

@@ -9,8 +9,8 @@ The configuration file (docs/opcua.md) lists the drives::
 :func:`follow_drives` runs one task per drive: connect, subscribe to data
 changes of the scope counter, and on each change read the channels and the
 metadata in one Read request, build a :class:`~chaintwin.read.Recording`
-through the file reader's own parsing and checks
-(:func:`chaintwin.read.reader.parse_recording`), and hand it to ``submit``
+with the file reader's own checks
+(:func:`chaintwin.read.reader.recording_from_samples`), and hand it to ``submit``
 with the source key ``opcua:<conveyor>:<counter>``. Counter gaps (scopes the
 drive overwrote before they were read) are counted as ``missed``. A drive
 that goes away is reconnected with exponential backoff; one drive down never
@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import io
 import logging
 import math
 import re
@@ -46,7 +45,7 @@ from chaintwin.errors import ChaintwinError, ConnectorError, RecordingError
 from chaintwin.live.scope_layout import CHANNEL_KEYS, DEFAULT_NODES, unit_key
 from chaintwin.read.files import read_limited, yaml_load
 from chaintwin.read.profile import _format_validation_error
-from chaintwin.read.reader import parse_recording
+from chaintwin.read.reader import recording_from_samples
 from chaintwin.read.recording import Recording
 from chaintwin.units import accepted_units
 
@@ -348,10 +347,12 @@ def recording_from_scope(
 ) -> Recording:
     """Build a recording from the values read from a drive's scope buffer.
 
-    The scope is written out in the data-contract format and parsed by the
-    file reader (:func:`~chaintwin.read.reader.parse_recording`), so a
-    recording read over OPC UA passes the same checks and carries the same
-    metadata and units as a file of it.
+    The scope's metadata and header are written as a file's head and the
+    samples taken as numbers (:func:`~chaintwin.read.reader.recording_from_samples`:
+    the file reader's own checks, without printing and parsing every
+    sample), so a recording read over OPC UA passes the same checks, with
+    the same refusals, and carries the same metadata, units and values as a
+    file of it printed exactly.
 
     Parameters
     ----------
@@ -430,10 +431,9 @@ def recording_from_scope(
         raise RecordingError(source, "the scope holds no samples; is the drive recording?")
     n = columns[0].shape[0]
     table = np.column_stack([np.arange(n, dtype=np.float64) * dt, *columns])
-    buf = io.StringIO()
-    np.savetxt(buf, table, fmt="%.17g", delimiter=",")
-    text = "\n".join(lines) + "\n" + ",".join(header) + "\n" + buf.getvalue()
-    return parse_recording(text, source)
+    # the head goes through the file reader's parsing, the numbers as they are
+    head = "\n".join(lines) + "\n" + ",".join(header) + "\n"
+    return recording_from_samples(head, table, source)
 
 
 def _number(value: Any) -> float | None:

@@ -515,6 +515,13 @@ class _Follower:
     SESSION_TIMEOUT_MS = 600_000
     """How long a drive keeps a session whose client has gone, ms (asyncua's server maximum)."""
 
+    PUBLISHING_INTERVAL_MS = 0.0
+    """The subscription's requested publishing interval, ms: 0 asks for the fastest the
+    drive supports (OPC UA Part 4, 5.13.2: the server revises it to its own minimum;
+    asyncua's server then sends each counter change as it happens, without a timer).
+    The counter changes once a scope, so this costs no more messages; 100 ms cost a
+    scope 50 ms on average before the client heard of it."""
+
     def __init__(
         self, drive: DriveConfig, reconnect: ReconnectConfig, submit: Submit, state: DriveState
     ) -> None:
@@ -620,7 +627,7 @@ class _Follower:
         try:
             await client.connect()
             nodes = await self._resolve(client)
-            sub = await client.create_subscription(100, _Handler(events))
+            sub = await client.create_subscription(self.PUBLISHING_INTERVAL_MS, _Handler(events))
             await sub.subscribe_data_change(nodes["counter"])
             self._up = True
             self.state.connected = True

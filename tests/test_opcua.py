@@ -463,6 +463,37 @@ def test_faults_grow_from_the_onset_counted_in_scopes() -> None:
     assert [step.severities(k)[0].severity for k in range(4)] == [0.0, 0.0, 0.8, 0.8]
 
 
+def test_a_running_drive_simulates_each_scope_before_its_trigger(ua_loop: Loop) -> None:
+    """run() simulates the next scope during the interval: a scope triggers when it is
+    published, so a slow simulation is not in the time from trigger to counter change."""
+    from datetime import UTC, datetime
+
+    drive = DriveSim(PROFILE, port=_free_port(), host="127.0.0.1", interval_s=0.5, seed=3)
+    slow = drive.simulate
+    simulated: list[int] = []
+
+    def simulate(when: datetime | None = None) -> Published:
+        time.sleep(0.3)  # a loaded machine
+        simulated.append(drive.counter)
+        return slow(when)
+
+    drive.simulate = simulate  # type: ignore[method-assign]
+    published: list[tuple[Published, datetime]] = []
+    ua_loop.run(
+        drive.run(
+            asyncio.Event(),
+            count=3,
+            on_publish=lambda scope: published.append((scope, datetime.now(UTC))),
+        ),
+        timeout=60,
+    )
+    assert [scope.counter for scope, _ in published] == [1, 2, 3]
+    assert simulated[:3] == [0, 1, 2]  # each simulated after the one before it was published
+    for scope, at in published[1:]:  # the first was simulated when asked for
+        trigger = scope.recording.metadata.recorded_at
+        assert trigger is not None and (at - trigger).total_seconds() < 0.2
+
+
 def test_user_login(ua_loop: Loop, sim: DriveSim) -> None:
     login = {"conveyor": CONVEYOR, "endpoint": sim.endpoint, "username": "operator"}
     f = Follower(ua_loop, config_for({**login, "password": "s3cret"}))

@@ -515,12 +515,21 @@ class _Follower:
     SESSION_TIMEOUT_MS = 600_000
     """How long a drive keeps a session whose client has gone, ms (asyncua's server maximum)."""
 
-    PUBLISHING_INTERVAL_MS = 0.0
-    """The subscription's requested publishing interval, ms: 0 asks for the fastest the
-    drive supports (OPC UA Part 4, 5.13.2: the server revises it to its own minimum;
-    asyncua's server then sends each counter change as it happens, without a timer).
-    The counter changes once a scope, so this costs no more messages; 100 ms cost a
-    scope 50 ms on average before the client heard of it."""
+    PUBLISHING_INTERVAL_MS = 10.0
+    """The subscription's publishing interval, ms. The counter changes once a scope, so
+    a short interval costs no more notifications, only the drive's timer; 100 ms cost
+    a scope 50 ms on average before the client heard of its counter. (0, the drive's
+    fastest, makes asyncua's server send no keep-alives, and asyncua's client then
+    recreates the subscription as stale every second between scopes.)"""
+
+    KEEPALIVE_COUNT = 1000
+    """Publishing intervals without a change before the drive sends a keep-alive (10 s):
+    asyncua's client takes a subscription that heard nothing for 1.5 times that as
+    stale and recreates it."""
+
+    LIFETIME_COUNT = 10_000
+    """Publishing intervals without a Publish request before the drive drops the
+    subscription (at least three keep-alives, OPC UA Part 4, 5.13.2)."""
 
     def __init__(
         self, drive: DriveConfig, reconnect: ReconnectConfig, submit: Submit, state: DriveState
@@ -615,6 +624,8 @@ class _Follower:
 
     async def _session(self, stop: asyncio.Event) -> None:
         """One session: connect, subscribe, take scopes; returns when stop is set."""
+        from asyncua import ua
+
         self._up = False
         client = await self._client()
         events: asyncio.Queue[tuple[str, Any]] = asyncio.Queue()
@@ -627,7 +638,15 @@ class _Follower:
         try:
             await client.connect()
             nodes = await self._resolve(client)
-            sub = await client.create_subscription(self.PUBLISHING_INTERVAL_MS, _Handler(events))
+            params = ua.CreateSubscriptionParameters(
+                RequestedPublishingInterval=self.PUBLISHING_INTERVAL_MS,
+                RequestedLifetimeCount=self.LIFETIME_COUNT,
+                RequestedMaxKeepAliveCount=self.KEEPALIVE_COUNT,
+                MaxNotificationsPerPublish=10_000,
+                PublishingEnabled=True,
+                Priority=0,
+            )
+            sub = await client.create_subscription(params, _Handler(events))
             await sub.subscribe_data_change(nodes["counter"])
             self._up = True
             self.state.connected = True

@@ -123,17 +123,32 @@ def format_recording(
             places = (decimals or {}).get(name, -1)
             fmts.append(f"%.{places}f" if places >= 0 else "%.9g")
         header.append(f"{name} [{unit}]")
-        columns.append(values)
+        columns.append(_no_negative_zero(np.asarray(values, dtype=np.float64), fmts[-1]))
     table = np.column_stack(columns)
     # as numpy's savetxt prints it (one %-format a row), on Python floats: twice as fast
     row = ",".join(fmts)
     body = "".join([row % tuple(values) + "\n" for values in table.tolist()])
-    body = _fix_negative_zero(body)
     if dialect == ";":
         body = body.replace(",", ";").replace(".", ",")
     lines = _metadata_lines(meta)
     lines.append(dialect.join(header))
     return "\n".join(lines) + "\n" + body
+
+
+def _no_negative_zero(values: np.ndarray, fmt: str) -> np.ndarray:
+    """The values with those that would print as a negative zero ('-0', '-0.000') made
+    +0.0: the same samples, printed '0.000' (what :func:`_fix_negative_zero` does to
+    the text, without scanning it)."""
+    values = values + 0.0  # -0.0 + 0.0 is +0.0
+    if fmt.endswith("f"):  # '%.3f': small negatives may round to '-0.000'
+        places = int(fmt[2:-1])
+        small = np.flatnonzero((values < 0.0) & (values > -(10.0**-places)))
+        if small.size:
+            zero = fmt % 0.0
+            for k in small.tolist():
+                if fmt % -values[k] == zero:
+                    values[k] = 0.0
+    return values
 
 
 def _fix_negative_zero(body: str) -> str:

@@ -316,20 +316,24 @@ def chain(args: argparse.Namespace) -> None:
         store.close()
         warm_from = begun.timestamp() + 5.0  # the scopes taken on connecting are older
         latency = []
-        for _f, at, stored_at in rows:
+        timed = []
+        for f, at, stored_at in rows:
             if at is None or stored_at is None:
                 continue
             trig = datetime.fromisoformat(at).timestamp()
             if trig >= warm_from:
                 latency.append(datetime.fromisoformat(stored_at).timestamp() - trig)
+                timed.append(str(f))
         if not latency:
             raise SystemExit(f"nothing was stored: {log_path.read_text()[-2000:]}")
         latency.sort()
         p50, p95 = statistics.median(latency), latency[int(0.95 * (len(latency) - 1))]
-        # the service's own part: from the recording handed to submit to its result stored
-        handed = sorted(
-            float(m[1]) for m in re.finditer(r"stored opcua://\S+ in ([0-9.]+) s", log_text)
-        )[len(cids) :]  # the scopes taken on connecting are not timed
+        # the service's own part: from the recording handed to submit to its result stored,
+        # of the scopes timed above
+        logged = {
+            m[1]: float(m[2]) for m in re.finditer(r"stored (opcua://\S+) in ([0-9.]+) s", log_text)
+        }
+        handed = sorted(logged[f] for f in timed if f in logged)
         named = sum(1 for f, _a, _s in rows if str(f).startswith("opcua://"))
         print(
             f"bench_opcua, the whole chain: {args.drives} drives, a scope every "

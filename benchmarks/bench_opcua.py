@@ -22,6 +22,11 @@ the machine's 2 cores. Prints
    stored (its outbox row) to received;
 4. scopes published, stored, the service's resident memory.
 
+Beside 2., the service's own part (from the recording handed to ``submit``
+to its result stored: spool file, queue, ingest; from the service's log),
+the CPU the service and the drives used while followed, and the load
+average.
+
 ``--leg-only`` times the OPC UA leg alone, as below.
 
 **The OPC UA leg** (``--leg-only``): ``--drives`` (20) simulated drives
@@ -32,7 +37,7 @@ unsynchronised drives are, for ``--seconds`` (60). This process follows them
 with :func:`chaintwin.live.opcua.follow_drives` (one client task per drive)
 and a ``submit`` that takes the recording and returns at once, so that what
 is timed is the OPC UA leg alone: notification, one Read of the scope,
-building the recording through the file reader. Both processes share the
+building the recording with the file reader's checks. Both processes share the
 machine's 2 cores, as ``chaintwin demo --live`` does.
 
 Prints:
@@ -63,6 +68,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import os
+import re
 import signal
 import socket
 import statistics
@@ -272,13 +278,20 @@ def chain(args: argparse.Namespace) -> None:
                 raise SystemExit(f"the service did not connect: {log_path.read_text()[-2000:]}")
             time.sleep(0.2)
         ps = psutil.Process(service.pid)
+        sims = psutil.Process(drives.pid)
         rss_start = ps.memory_info().rss / 2**20
         begun = datetime.now(UTC)
+        load_start = os.getloadavg()[0]
+        cpu_start = (sum(ps.cpu_times()[:2]), sum(sims.cpu_times()[:2]), time.monotonic())
         print(f"following for {args.seconds:g} s ...", file=sys.stderr)
         rss = []
         for _ in range(10):
             time.sleep(args.seconds / 10)
             rss.append(ps.memory_info().rss / 2**20)
+        followed = time.monotonic() - cpu_start[2]
+        cpu_service = (sum(ps.cpu_times()[:2]) - cpu_start[0]) / followed
+        cpu_drives = (sum(sims.cpu_times()[:2]) - cpu_start[1]) / followed
+        load_end = os.getloadavg()[0]
         drives.send_signal(signal.SIGTERM)
         tail = drives.stdout.read() if drives.stdout else ""
         drives.wait(30)
@@ -287,6 +300,7 @@ def chain(args: argparse.Namespace) -> None:
         rss_end = ps.memory_info().rss / 2**20
         service.send_signal(signal.SIGTERM)
         code = service.wait(60)
+        log_text = log_path.read_text()
         hook.shutdown()
         ref_end = ref.time(warm_up=False)
         ref.store.close()
@@ -302,16 +316,24 @@ def chain(args: argparse.Namespace) -> None:
         store.close()
         warm_from = begun.timestamp() + 5.0  # the scopes taken on connecting are older
         latency = []
-        for _f, at, stored_at in rows:
+        timed = []
+        for f, at, stored_at in rows:
             if at is None or stored_at is None:
                 continue
             trig = datetime.fromisoformat(at).timestamp()
             if trig >= warm_from:
                 latency.append(datetime.fromisoformat(stored_at).timestamp() - trig)
+                timed.append(str(f))
         if not latency:
             raise SystemExit(f"nothing was stored: {log_path.read_text()[-2000:]}")
         latency.sort()
         p50, p95 = statistics.median(latency), latency[int(0.95 * (len(latency) - 1))]
+        # the service's own part: from the recording handed to submit to its result stored,
+        # of the scopes timed above
+        logged = {
+            m[1]: float(m[2]) for m in re.finditer(r"stored (opcua://\S+) in ([0-9.]+) s", log_text)
+        }
+        handed = sorted(logged[f] for f in timed if f in logged)
         named = sum(1 for f, _a, _s in rows if str(f).startswith("opcua://"))
         print(
             f"bench_opcua, the whole chain: {args.drives} drives, a scope every "
@@ -326,6 +348,16 @@ def chain(args: argparse.Namespace) -> None:
             f"{p95 * 1e3:.0f} ms, max {latency[-1] * 1e3:.0f} ms over {len(latency)} scopes; "
             f"p95 / reference {p95 / ref_start:.2f}x (start), {p95 / ref_end:.2f}x (end) "
             "(target <= 5x)"
+        )
+        if handed:
+            print(
+                f"     of which submit -> result stored (spool file, queue, ingest): median "
+                f"{statistics.median(handed) * 1e3:.0f} ms, p95 "
+                f"{handed[int(0.95 * (len(handed) - 1))] * 1e3:.0f} ms"
+            )
+        print(
+            f"     CPU while followed: service {cpu_service:.2f} cores, drives {cpu_drives:.2f} "
+            f"cores; load average (1 min) {load_start:.2f} at the start, {load_end:.2f} at the end"
         )
         lines = []
         for oid, at, created in outbox:
@@ -484,7 +516,9 @@ def main() -> None:
         raise SystemExit(f"the drives did not start: {line!r}")
     started = time.perf_counter() - t0
     rss_start = rss_mb()
+    load_start = os.getloadavg()[0]
     latencies, status = asyncio.run(follow(ports, args.seconds))
+    load_end = os.getloadavg()[0]
     rss_end = rss_mb()
     child.send_signal(signal.SIGTERM)
     tail = child.stdout.read()
@@ -497,7 +531,8 @@ def main() -> None:
     states = status.drives.values()
     print(
         f"OPC UA leg: {args.drives} drives, a scope every {args.interval:g} s each, "
-        f"{args.seconds:g} s (drives started in {started:.0f} s)"
+        f"{args.seconds:g} s (drives started in {started:.0f} s; load average "
+        f"{load_start:.2f} at the start, {load_end:.2f} at the end)"
     )
     print(f"{'':44s}{'ms':>10s}{'ratio':>8s}")
     rows = [

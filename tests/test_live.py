@@ -1144,3 +1144,43 @@ def test_memory_usage_and_trim_on_glibc() -> None:
     del blocks
     assert trim() is True
     assert usage()["heap_used"] < before["heap_used"] + 5
+
+
+def test_a_drive_with_a_lease_of_its_own_has_its_row_written_by_its_own_source_only(
+    fleet: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``--opcua`` follows each drive under its own lease: each source writes its own
+    drive's row, not every drive's (20 drives wrote 420 rows every few seconds, each a
+    write transaction beside the recordings'). A source following several drives under
+    one lease still writes a row for each of them."""
+    from chaintwin.live import service as service_module
+    from chaintwin.live.opcua import DriveState, DriveStatus
+    from chaintwin.live.service import LiveOptions, LiveService
+
+    written: list[str] = []
+    monkeypatch.setattr(
+        service_module, "update_source", lambda _store, key, *a, **k: written.append(key)
+    )
+    store = Store(f"sqlite:///{tmp_path / 'plant.db'}")
+
+    async def idle(submit: Any, stop: asyncio.Event) -> None:
+        await stop.wait()
+
+    def publish(service: LiveService, key: str) -> list[str]:
+        written.clear()
+        source = next(s for s in service.sources if s.key == key)
+        asyncio.run(service._publish(source))
+        return sorted(written)
+
+    drives = {c: DriveState(f"opc.tcp://127.0.0.1:{4840 + i}") for i, c in enumerate("abc")}
+    status = DriveStatus(drives=dict(drives))
+    each = LiveService(store, {}, LiveOptions())
+    for conveyor in drives:
+        each.add_drives(f"opcua:{conveyor}", idle, status)
+    assert publish(each, "opcua:b") == ["opcua:b"]
+
+    status_line = DriveStatus(drives=dict(drives))
+    line = LiveService(store, {}, LiveOptions())
+    line.add_drives("opcua:line-1", idle, status_line)
+    assert publish(line, "opcua:line-1") == ["opcua:a", "opcua:b", "opcua:c", "opcua:line-1"]
+    store.close()

@@ -264,6 +264,25 @@ def test_counter_gaps_are_counted_as_missed(
     assert state.missed == before + 2
 
 
+def test_a_quiet_drive_keeps_its_subscription_and_a_new_scope_arrives_at_once(
+    ua_loop: Loop, sim: DriveSim, follower: Follower, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Seconds without a scope are the normal case: the subscription (10 ms publishing,
+    keep-alives every 10 s) is not taken for stale and recreated, and the next counter
+    change is heard within a few publishing intervals."""
+    import logging
+
+    caplog.set_level(logging.WARNING, logger="asyncua")
+    time.sleep(2.5)  # longer than asyncua's stale check (1 s) and than a scope's interval
+    assert not [r for r in caplog.records if "stale" in r.getMessage()]
+    state = follower.status.drives[CONVEYOR]
+    t0 = time.monotonic()
+    scope = ua_loop.run(sim.publish_next())
+    wait_until("the scope", lambda: key_of(scope) in follower.received())
+    assert time.monotonic() - t0 < 1.0
+    assert state.connects == 1 and state.connected
+
+
 def test_a_restarted_service_given_its_last_counter_counts_the_gap(
     ua_loop: Loop, sim: DriveSim
 ) -> None:
@@ -463,6 +482,37 @@ def test_faults_grow_from_the_onset_counted_in_scopes() -> None:
     assert [step.severities(k)[0].severity for k in range(4)] == [0.0, 0.0, 0.8, 0.8]
 
 
+def test_a_running_drive_simulates_each_scope_before_its_trigger(ua_loop: Loop) -> None:
+    """run() simulates the next scope during the interval: a scope triggers when it is
+    published, so a slow simulation is not in the time from trigger to counter change."""
+    from datetime import UTC, datetime
+
+    drive = DriveSim(PROFILE, port=_free_port(), host="127.0.0.1", interval_s=0.5, seed=3)
+    slow = drive.simulate
+    simulated: list[int] = []
+
+    def simulate(when: datetime | None = None) -> Published:
+        time.sleep(0.3)  # a loaded machine
+        simulated.append(drive.counter)
+        return slow(when)
+
+    drive.simulate = simulate  # type: ignore[method-assign]
+    published: list[tuple[Published, datetime]] = []
+    ua_loop.run(
+        drive.run(
+            asyncio.Event(),
+            count=3,
+            on_publish=lambda scope: published.append((scope, datetime.now(UTC))),
+        ),
+        timeout=60,
+    )
+    assert [scope.counter for scope, _ in published] == [1, 2, 3]
+    assert simulated[:3] == [0, 1, 2]  # each simulated after the one before it was published
+    for scope, at in published[1:]:  # the first was simulated when asked for
+        trigger = scope.recording.metadata.recorded_at
+        assert trigger is not None and (at - trigger).total_seconds() < 0.2
+
+
 def test_user_login(ua_loop: Loop, sim: DriveSim) -> None:
     login = {"conveyor": CONVEYOR, "endpoint": sim.endpoint, "username": "operator"}
     f = Follower(ua_loop, config_for({**login, "password": "s3cret"}))
@@ -606,6 +656,102 @@ def test_recording_from_scope_converts_units_and_checks_like_the_reader() -> Non
         with pytest.raises(RecordingError, match=needle) as info:
             recording_from_scope({**_values(), **change}, conveyor=CONVEYOR, source="opcua:x:1")
         assert str(info.value).startswith("opcua:x:1")
+
+
+def _scope_text(values: dict[str, Any], conveyor: str) -> str:
+    """The scope as the client used to build it: a file of it, every number printed exactly."""
+    from datetime import UTC
+
+    lines = [f"# conveyor: {conveyor}"]
+    if "trigger_time" in values:
+        lines.append(f"# recorded_at: {values['trigger_time'].astimezone(UTC).isoformat()}")
+    lines.append(f"# sample_time_s: {float(values['sample_time'])!r}")
+    for key, meta in (
+        ("nominal_torque", "nominal_torque_nm"),
+        ("increments_per_rev", "increments_per_rev"),
+    ):
+        if values.get(key):
+            lines.append(f"# {meta}: {float(values[key])!r}")
+    header, columns = ["time [s]"], []
+    for key in (
+        "speed_setpoint",
+        "speed",
+        "position_setpoint",
+        "position",
+        "torque_setpoint",
+        "torque",
+        "digital_inputs",
+    ):
+        if values.get(key):
+            header.append(f"{key} [{values[f'{key}_unit']}]")
+            columns.append(np.asarray(values[key], dtype=np.float64))
+    n = len(columns[0])
+    table = np.column_stack([np.arange(n) * float(values["sample_time"]), *columns])
+    rows = "\n".join(",".join(f"{v:.17g}" for v in row) for row in table.tolist())
+    return "\n".join(lines) + "\n" + ",".join(header) + "\n" + rows + "\n"
+
+
+def _published_values(scope: Published) -> dict[str, Any]:
+    """What the client reads from a drive that published ``scope`` (its own units)."""
+    from chaintwin.units import UnitContext, from_si_factor
+
+    rec, meta = scope.recording, scope.recording.metadata
+    context = UnitContext(
+        increments_per_rev=meta.increments_per_rev, nominal_torque_nm=meta.nominal_torque_nm
+    )
+    values: dict[str, Any] = {
+        "counter": scope.counter,
+        "conveyor_id": meta.conveyor,
+        "trigger_time": meta.recorded_at,
+        "sample_time": meta.sample_time_s or rec.sample_time_s,
+        "nominal_torque": meta.nominal_torque_nm or 0.0,
+        "increments_per_rev": meta.increments_per_rev or 0.0,
+    }
+    for key, unit in rec.units.items():
+        if key != "time":
+            values[key] = (rec.channels[key] * from_si_factor(key, unit, context)).tolist()
+            values[f"{key}_unit"] = unit
+    return values
+
+
+def test_recording_from_scope_equals_the_file_of_it_and_refuses_alike(sim: DriveSim) -> None:
+    """The arrays read from a drive become the recording the file reader makes of the
+    same scope printed exactly: same samples, units, headers, metadata; and a bad scope
+    is refused with the same one line (one code path for the checks)."""
+    from datetime import UTC, datetime
+
+    from chaintwin.read.reader import parse_recording
+
+    values = _published_values(sim.simulate())
+    key = "opcua:x:1"
+    direct = recording_from_scope(values, conveyor=CONVEYOR, source=key)
+    via_file = parse_recording(_scope_text(values, CONVEYOR), key)
+    assert direct.metadata == via_file.metadata and direct.metadata.recorded_at is not None
+    assert direct.units == via_file.units and direct.headers == via_file.headers
+    assert list(direct.channels) == list(via_file.channels)
+    for name, column in via_file.channels.items():
+        np.testing.assert_array_equal(direct.channels[name], column)  # bit for bit
+    assert len(direct.channels) == 8 and direct.channels["speed"].shape == (2048,)
+
+    speed = np.asarray(values["speed"])
+    bad_rows = speed.copy()
+    bad_rows[40] = np.inf
+    bad = [
+        {"speed": bad_rows.tolist()},  # a sample that is not finite: its line is named
+        {"speed_unit": "furlongs"},  # no unit of speed
+        {"sample_time": 0.5},  # no drive scope samples that slowly
+        {"torque": (np.asarray(values["torque"]) * 1e3).tolist()},  # torque beyond 10x nominal
+        {"trigger_time": datetime(2300, 1, 1, tzinfo=UTC)},  # the drive's clock is off
+        {k: values[k][:20] for k in values if isinstance(values[k], list)},  # too short
+    ]
+    for change in bad:
+        scope = {**values, **change}
+        with pytest.raises(RecordingError) as from_file:
+            parse_recording(_scope_text(scope, CONVEYOR), key)
+        with pytest.raises(RecordingError) as from_arrays:
+            recording_from_scope(scope, conveyor=CONVEYOR, source=key)
+        assert str(from_arrays.value) == str(from_file.value)
+        assert "\n" not in str(from_arrays.value) and str(from_arrays.value).startswith(key)
 
 
 # ---------------------------------------------------------------- the command

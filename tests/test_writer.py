@@ -72,3 +72,60 @@ def test_negative_zero_is_printed_unsigned() -> None:
     for line in text.split("\n")[6:]:
         for cell in line.split(","):
             assert not (cell.startswith("-") and float(cell) == 0.0), line
+
+
+def _savetxt_body(table: np.ndarray, fmts: list[str]) -> str:
+    """The body as the writer printed it before: numpy's savetxt, then '-0.0' as '0.0' cell
+    by cell."""
+    import io
+
+    buf = io.StringIO()
+    np.savetxt(buf, table, fmt=fmts, delimiter=",")
+    lines = []
+    for line in buf.getvalue().split("\n"):
+        cells = line.split(",")
+        cells = [c[1:] if c.startswith("-0") and float(c) == 0.0 else c for c in cells]
+        lines.append(",".join(cells))
+    return "\n".join(lines)
+
+
+@pytest.mark.parametrize("units", [None, {"speed": "rad/s", "torque": "Nm", "time": "ms"}])
+def test_body_is_printed_as_savetxt_prints_it_with_negative_zeros_dropped(
+    units: dict[str, str] | None,
+) -> None:
+    from chaintwin.units import UnitContext, from_si_factor
+
+    rec = parse_recording(make_text(), "a.csv")
+    rng = np.random.default_rng(5)
+    n = rec.time.shape[0]
+    channels = dict(rec.channels)
+    # zeros of both signs, values that print as -0.000 and as -0.001, large ones
+    mixed = rng.choice([0.0, -0.0, -1e-9, -4e-4, -6e-4, 1e-9, -0.5, 12345.678901, -98765.4321], n)
+    channels["speed"] = mixed
+    channels["torque"] = -np.abs(mixed)
+    rec = rec.__class__(
+        source=rec.source, channels=channels, units=rec.units, headers=rec.headers,
+        metadata=rec.metadata,
+    )  # fmt: skip
+    text = format_recording(rec, units=units)
+    chosen = {**rec.units, **(units or {})}
+    meta = rec.metadata
+    ctx = UnitContext(
+        increments_per_rev=meta.increments_per_rev, nominal_torque_nm=meta.nominal_torque_nm
+    )
+    table = np.column_stack(
+        [rec.channels[k] * from_si_factor(k, chosen[k], ctx) for k in rec.channels]
+    )
+    fmts = [f"%.{DEFAULT_DECIMALS[chosen[k]]}f" for k in rec.channels]
+    header_at = text.index("\ntime [") + 1
+    body = text[text.index("\n", header_at) + 1 :]
+    assert body == _savetxt_body(table, fmts)
+    # the case arose: numpy printed negative zeros, and negative numbers that stay
+    import io
+    import re
+
+    raw = io.StringIO()
+    np.savetxt(raw, table, fmt=fmts, delimiter=",")
+    negative_zero = re.compile(r"(?m)(^|,)-0(\.0+)?(,|$)")
+    assert negative_zero.search(raw.getvalue()) and not negative_zero.search(body)
+    assert re.search(r"(?m)(^|,)-0\.0*[1-9]", body)

@@ -432,6 +432,10 @@ class DriveSim:
     ) -> None:
         """Listen and publish a scope every interval until ``stop`` is set, then stop.
 
+        Each scope is simulated during the interval before it (:meth:`prepare`)
+        and triggers when it is published, as a drive's counter changes when its
+        scope is complete: the simulation's time is not a client's latency.
+
         Parameters
         ----------
         stop : asyncio.Event
@@ -446,10 +450,21 @@ class DriveSim:
         loop = asyncio.get_running_loop()
         due = loop.time()
         published = 0
+        ahead: asyncio.Future[None] | None = None
+
+        async def simulate_ahead(delay: float) -> None:
+            # half an interval after a scope, once its clients have read it: the next
+            # scope is simulated then, and triggers when it is published
+            await asyncio.sleep(delay)
+            await asyncio.to_thread(self.prepare)
+
         try:
             while not stop.is_set():
                 if count is not None and published >= count:
                     break
+                if ahead is not None:
+                    await ahead
+                    ahead = None
                 scope = await self.publish_next()
                 published += 1
                 if on_publish is not None:
@@ -464,9 +479,15 @@ class DriveSim:
                 now = loop.time()
                 if due < now:  # simulating took longer than the interval: skip ahead
                     due = now
+                if count is None or published < count:
+                    ahead = asyncio.ensure_future(simulate_ahead((due - now) / 2))
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(stop.wait(), timeout=due - now)
         finally:
+            if ahead is not None:
+                ahead.cancel()
+                with contextlib.suppress(asyncio.CancelledError, Exception):
+                    await ahead  # a scope not published: its failure is nobody's
             await self.stop()
 
 

@@ -408,13 +408,17 @@ class LiveService:
 
         A source following drives also writes one row per drive,
         ``opcua:<conveyor>``: connected or not, scopes missed, the last error,
-        the recordings it gave.
+        the recordings it gave; a drive that is a source of its own (each
+        drive of ``--opcua``) writes its own row only.
         """
         rows: list[dict[str, Any]] = []
         if source.kind == "opcua" and self.drive_status is not None:
+            # a drive followed under a lease of its own (``--opcua``: each drive) has
+            # its row written by its own source: not once more by every other one
+            sources = {s.key for s in self.sources}
             for conveyor, drive in sorted(self.drive_status.drives.items()):
                 key = f"opcua:{conveyor}"
-                if key == source.key:
+                if key in sources:
                     continue
                 rows.append(
                     {

@@ -53,6 +53,7 @@ __all__ = [
     "read_bytes",
     "read_metadata",
     "read_recording",
+    "recording_from_samples",
 ]
 
 MIN_SAMPLES = 32
@@ -386,6 +387,77 @@ def parse_recording(
         linenos: list[int] | None = None
     else:
         table, linenos = _slow_body(source, body_stripped, sep, cells, first_line)
+
+    return _recording(source, metadata, cells, names, units, table, first_line, linenos, profile)
+
+
+def recording_from_samples(
+    head: str,
+    table: FloatArray,
+    source: str = "<samples>",
+    *,
+    profile: ConveyorProfile | None = None,
+) -> Recording:
+    """A recording from the text of its head and its samples as numbers.
+
+    What :func:`parse_recording` makes of ``head`` followed by ``table``
+    printed exactly (``%.17g``), without printing and parsing the numbers:
+    the same metadata, header and unit checks, the same refusals (with the
+    line numbers the rows would have in that text), the same values. A
+    drive's scope read over OPC UA comes this way
+    (:func:`chaintwin.live.opcua.recording_from_scope`).
+
+    Parameters
+    ----------
+    head : str
+        The ``# key: value`` metadata lines and the header row, ``,``
+        separated (``time [s],speed [rpm],...``).
+    table : ndarray
+        The samples, one row per sample and one column per header cell.
+    source : str
+        Name used in messages and kept as ``Recording.source``.
+    profile : ConveyorProfile, optional
+        As for :func:`read_recording`.
+
+    Raises
+    ------
+    RecordingError
+        As :func:`parse_recording` would for the same text.
+    """
+    if "\r" in head:
+        head = head.replace("\r\n", "\n").replace("\r", "\n")
+    if "\x00" in head:
+        raise RecordingError(source, "is a binary file, not a text recording")
+    items, header_line, header, rest = _split_head(source, head)
+    if rest.strip():
+        raise RecordingError(source, "the head holds more than metadata and one header row")
+    metadata = _parse_metadata(source, items)
+    sep = ";" if ";" in header else ","
+    cells, names, units = _parse_header(source, header, sep, header_line, None)
+    table = np.asarray(table, dtype=np.float64)
+    if table.ndim != 2 or table.shape[1] != len(cells):
+        raise RecordingError(
+            source,
+            f"has {table.shape[-1] if table.ndim else 0} columns of samples, the header has "
+            f"{len(cells)}; every row needs one value per column (separator '{sep}')",
+            line=header_line + 1,
+        )
+    return _recording(source, metadata, cells, names, units, table, header_line + 1, None, profile)
+
+
+def _recording(
+    source: str,
+    metadata: Metadata,
+    cells: list[str],
+    names: list[str],
+    units: list[str],
+    table: FloatArray,
+    first_line: int,
+    linenos: list[int] | None,
+    profile: ConveyorProfile | None,
+) -> Recording:
+    """The checks and unit conversions of a parsed recording's samples (one code path
+    for files and for samples read otherwise, :func:`recording_from_samples`)."""
 
     def line_of(row: int) -> int:
         return linenos[row] if linenos is not None else first_line + row

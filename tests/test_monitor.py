@@ -179,6 +179,18 @@ def test_causes_name_the_specific_fault() -> None:
         "speed_loss": "lubrication",
         "friction": "friction",
     }
+    # the impacts' cause explains what it explains: a rail obstacle's knocks raise a peak
+    knocks = resolve_causes(["unexplained_peak", "crest_factor"], "obstruction")
+    assert knocks == {"unexplained_peak": "obstruction", "crest_factor": "obstruction"}
+    events = resolve_causes(["unexplained_peak", "crest_factor"], "payload_event")
+    assert events["unexplained_peak"] == "bearing"  # an event of operation explains nothing
+    # so does an alarm still open: the obstacle found days ago still knocks
+    assert resolve_causes(["unexplained_peak"], None, {"obstruction"}) == {
+        "unexplained_peak": "obstruction"
+    }
+    assert resolve_causes(["unexplained_peak"], None, {"friction"}) == {
+        "unexplained_peak": "bearing"
+    }
 
 
 def test_settings_are_checked() -> None:

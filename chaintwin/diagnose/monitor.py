@@ -505,7 +505,7 @@ class ConveyorMonitor:
             base.exceeded.extend(exceeded)
             self._late_baselines(values)
             context = impact_context(values, exceeded)
-            resolved = resolve_causes(met, context)
+            resolved = resolve_causes(met, context, {a.cause for a in self.open_alarms()})
             if resolved.get("unexplained_peak") == "bearing" and self._output_harmonic(
                 feats.spectrum, peak_order
             ):

@@ -78,6 +78,16 @@ def _sort_small(buf: np.ndarray, m: int) -> None:  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
+def _buffer_median(buf: np.ndarray, m: int, has_nan: bool) -> float:  # pragma: no cover
+    """np.median of ``buf[:m]`` (sorted here in place): NaN if it holds one, as numpy."""
+    _sort_small(buf, m)
+    if has_nan:
+        return np.nan
+    med: float = buf[m // 2] if m % 2 else (buf[m // 2 - 1] + buf[m // 2]) / 2.0
+    return med + 0.0  # numpy's mean sums from +0.0: a median of -0.0 is 0.0
+
+
+@njit(cache=True, nogil=True)
 def _subtract_bin_medians(
     out: np.ndarray, members: np.ndarray, bounds: np.ndarray
 ) -> None:  # pragma: no cover - compiled; tested through subtract_bin_medians
@@ -96,14 +106,7 @@ def _subtract_bin_medians(
             v = out[members[lo + r]]
             has_nan = has_nan or np.isnan(v)
             buf[r] = v
-        _sort_small(buf, m)
-        if has_nan:
-            med = np.nan
-        elif m % 2:
-            med = buf[m // 2]
-        else:
-            med = (buf[m // 2 - 1] + buf[m // 2]) / 2.0
-        med += 0.0  # numpy's mean sums from +0.0: a median of -0.0 is 0.0
+        med = _buffer_median(buf, m, has_nan)
         for j in range(m):
             out[members[lo + j]] -= med
 
@@ -187,14 +190,7 @@ def _column_medians(x: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
             v = x[r, c]
             has_nan = has_nan or np.isnan(v)
             buf[r] = v
-        _sort_small(buf, rows)
-        if has_nan:
-            med = np.nan
-        elif rows % 2:
-            med = buf[rows // 2]
-        else:
-            med = (buf[rows // 2 - 1] + buf[rows // 2]) / 2.0
-        out[c] = med + 0.0  # numpy's mean sums from +0.0: a median of -0.0 is 0.0
+        out[c] = _buffer_median(buf, rows, has_nan)
     return out
 
 

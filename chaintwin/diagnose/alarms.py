@@ -109,6 +109,8 @@ def judge(
     change: dict[str, float] = {}
     exceeded: list[str] = []
     at = iso_utc(when)
+    if not 1 <= settings.x <= settings.y:
+        raise ValueError(f"X-of-Y needs 1 <= X <= Y, got {settings.x} of {settings.y}")
     for name, fb in baselines.items():
         spec = feature_spec(name)
         if spec.cause is None:
@@ -130,8 +132,6 @@ def judge(
             change[name] = ex.change
         # the X-of-Y rule at this recording (x_of_y(win, x, y)[-1]): the window
         # holds the last y exceedances
-        if not 1 <= settings.x <= settings.y:
-            raise ValueError(f"X-of-Y needs 1 <= X <= Y, got {settings.x} of {settings.y}")
         if sum(win) >= settings.x:
             met.append(name)
     return met, change, exceeded

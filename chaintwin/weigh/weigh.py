@@ -129,6 +129,18 @@ class Signatures:
     friction_rel_kg: float = float("nan")
     friction_sigma: float = 0.0
 
+    def drifted_variances(self, drift: LossDrift) -> tuple[float, float | None, float]:
+        """Variances of the friction and inertia payloads and their covariance with the
+        loss drift carried (``drift.sigma²`` times the gradients' outer product), kg².
+
+        The friction allowance (:attr:`friction_sigma`) is not in them; the
+        inertia variance is None without an inertia signature.
+        """
+        k_f, k_i = self.drift_friction_kg, self.drift_inertia_kg
+        var_f = self.friction_var + (drift.sigma * k_f) ** 2
+        var_i = None if self.inertia_var is None else self.inertia_var + (drift.sigma * k_i) ** 2
+        return var_f, var_i, self.covariance + drift.sigma**2 * k_f * k_i
+
     def friction_checked_rel(self, drift: LossDrift) -> float | None:
         """The smallest rail friction change this recording would catch, relative, or None.
 
@@ -139,15 +151,10 @@ class Signatures:
         sensitivity: nothing in the recording checks the friction.
         """
         k = self.friction_rel_kg
-        if self.inertia_var is None or not math.isfinite(k) or k == 0.0:
+        var_f, var_i, cov = self.drifted_variances(drift)
+        if var_i is None or not math.isfinite(k) or k == 0.0:
             return None
-        k_f, k_i = self.drift_friction_kg, self.drift_inertia_kg
-        diff_var = (
-            self.friction_var
-            + self.inertia_var
-            - 2.0 * self.covariance
-            + drift.sigma**2 * (k_f - k_i) ** 2
-        )
+        diff_var = var_f + var_i - 2.0 * cov
         return CONSISTENCY_SIGMA * math.sqrt(max(diff_var, 0.0)) * self.widen / abs(k)
 
 
@@ -200,29 +207,27 @@ def _combine_signatures(sig: Signatures, drift: LossDrift, friction: bool = True
     """
     k_f, k_i = sig.drift_friction_kg, sig.drift_inertia_kg
     p_f = sig.friction_kg - drift.mean * k_f
-    var_f = sig.friction_var + (drift.sigma * k_f) ** 2
+    var_f, var_i, cov = sig.drifted_variances(drift)
     if sig.friction_sigma > 0.0 and math.isfinite(sig.friction_rel_kg):
         # the rail friction allowed to differ from the calibration's
         var_f += (sig.friction_sigma * sig.friction_rel_kg) ** 2
     w = sig.widen
     if not friction:
-        if sig.inertia_kg is None or sig.inertia_var is None:
+        if sig.inertia_kg is None or var_i is None:
             reason = "the rail friction is suspect and there is no ramp to weigh by inertia"
             return _Combined(None, None, None, None, None, False, (_unweighable(reason),))
         p_i_only = sig.inertia_kg - drift.mean * k_i
-        s_i = float(np.sqrt(sig.inertia_var + (drift.sigma * k_i) ** 2)) * w
+        s_i = float(np.sqrt(var_i)) * w
         note = RecordingWarning(
             "weighed_by_inertia",
             "a friction, lubrication or obstruction alarm is open or developing: the "
             "payload is the inertia signature's, which friction cannot move",
         )
         return _Combined(p_i_only, s_i, p_f, float(np.sqrt(var_f)) * w, s_i, True, (note,))
-    if sig.inertia_kg is None or sig.inertia_var is None:
+    if sig.inertia_kg is None or var_i is None:
         s_f = float(np.sqrt(var_f))
         return _Combined(p_f, s_f * w, p_f, s_f * w, None, True, ())
     p_i = sig.inertia_kg - drift.mean * k_i
-    var_i = sig.inertia_var + (drift.sigma * k_i) ** 2
-    cov = sig.covariance + drift.sigma**2 * k_f * k_i
     diff_var = var_f + var_i - 2.0 * cov
     warnings: tuple[RecordingWarning, ...] = ()
     consistent = abs(p_f - p_i) <= CONSISTENCY_SIGMA * float(np.sqrt(diff_var))

@@ -324,6 +324,39 @@ def test_state_round_trip_continues_where_it_stopped(
         ConveyorMonitor.from_state(state, other)
 
 
+def test_late_baseline_rows_are_only_those_that_can_feed_a_fit(
+    series: dict[str, Path], cal: Calibration
+) -> None:
+    # issue 22: the health model kept every recording after its baseline as a
+    # late-baseline row (the retired belt_bump is never finite, so a baseline
+    # was always "missing"): about 2 kB more per recording for ever, in memory
+    # and in the state stored with each recording
+    files = _files(series["friction"])
+    mon = ConveyorMonitor(PROFILE, MonitorSettings(baseline_n=BASELINE), cal)
+    _run(mon, files[:20])
+    assert mon.baselines is not None
+    assert len(mon.late_rows) < 20 - BASELINE
+    for row in mon.late_rows:
+        missing = [k for k in row if k not in mon.baselines]
+        assert any(math.isfinite(float(row[k] or math.nan)) for k in missing)
+    # a state stored before that rule, with rows that can feed no fit: pruned on
+    # loading, and the results are those of a model that keeps them
+    state = json.loads(json.dumps(mon.to_state().to_dict()))
+    junk = [
+        {**h["features"], **{k: None for k in h["features"] if k not in mon.baselines}}
+        for h in state["history"][BASELINE:]
+    ]
+    assert junk
+    bloated = state | {"late_rows": state["late_rows"] + junk}
+    pruned = ConveyorMonitor.from_state(bloated, PROFILE)
+    assert len(pruned.late_rows) == len(state["late_rows"])
+    kept = ConveyorMonitor.from_state(bloated, PROFILE)
+    kept.late_rows = [dict(r) for r in bloated["late_rows"]]
+    a, b = _run(pruned, files[20:]), _run(kept, files[20:])
+    assert [r.to_dict() for r in a] == [r.to_dict() for r in b]
+    assert pruned.baselines == kept.baselines
+
+
 def test_maintenance_restarts_the_baseline_and_closes_alarms(
     series: dict[str, Path], cal: Calibration
 ) -> None:

@@ -627,27 +627,57 @@ class ConveyorMonitor:
         self.baseline_spectra = []  # the median is kept; the rows' spectra are not needed
         self.baselines = baseline.fit_features(rows)
 
+    def _missing_baselines(self, values: Mapping[str, Any]) -> list[str]:
+        """Tracked features of ``values`` with a cause and no baseline yet."""
+        assert self.baselines is not None
+        return [
+            k
+            for k in values
+            if k not in self.baselines and is_tracked(k) and feature_spec(k).cause is not None
+        ]
+
     def _late_baselines(self, values: dict[str, float]) -> None:
         """Baselines of features the first recordings could not tell (no value
         yet, e.g. no belt travel at constant speed), learned from the recordings
         that follow."""
         assert self.baselines is not None
-        missing = [
-            k
-            for k in values
-            if k not in self.baselines and is_tracked(k) and feature_spec(k).cause is not None
+        # a feature's fit reads only the rows that hold a finite value of it
+        # (:func:`.health.fit_baseline`): a recording without a finite value of
+        # any missing feature changes no fit now or later, so it is not kept.
+        # Keeping every recording grew the health model by about 2 kB per
+        # recording for ever (the retired belt_bump is never finite), in memory
+        # and in the stored state read and written with each recording.
+        changed = [
+            k for k in self._missing_baselines(values) if math.isfinite(as_number(values.get(k)))
         ]
-        if not missing:
-            return
-        self.late_rows.append(values)
-        # a feature's fit reads only the rows that hold a finite value of it:
-        # one this recording has no value of would fit as before (and did not
-        # make a baseline then), so only the others are fitted again
-        changed = [k for k in missing if math.isfinite(as_number(values.get(k)))]
         if not changed:
             return
+        self.late_rows.append(values)
         need = max(5, self.settings.baseline_n // 2)
         self.baselines.update(baseline.fit_features(self.late_rows, changed, min_rows=need))
+
+    def prune_late_rows(self) -> int:
+        """Drop the late-baseline rows that can feed no fit (see :meth:`_late_baselines`).
+
+        States stored before that rule kept every recording after the
+        baseline; a row without a finite value of any feature still missing a
+        baseline changes no fit, so dropping it changes no result.
+
+        Returns
+        -------
+        int
+            Rows dropped.
+        """
+        if self.baselines is None or not self.late_rows:
+            return 0
+        keep = [
+            row
+            for row in self.late_rows
+            if any(math.isfinite(as_number(row.get(k))) for k in self._missing_baselines(row))
+        ]
+        dropped = len(self.late_rows) - len(keep)
+        self.late_rows = keep
+        return dropped
 
     def _open_alarm(
         self, feature: str, cause: str, change: float | None, when: datetime | None
@@ -766,4 +796,5 @@ class ConveyorMonitor:
             )
         mon = cls(profile, state.settings, loader=loader)
         monitor_state.restore(mon, state, loader=loader)
+        mon.prune_late_rows()
         return mon

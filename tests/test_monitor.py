@@ -87,6 +87,58 @@ def test_baseline_regresses_on_payload_and_leaves_out_outliers() -> None:
     assert fit_baseline([1.0, np.nan, 2.0], [1, 2, 3], payload_dependent=False) is None
 
 
+def test_a_spectral_line_s_hump_over_the_payload_is_followed_by_a_curve() -> None:
+    """A belt mode the payload tunes through a line: its amplitude peaks over a band
+    of payloads (the demo's short-fast-03: 0.12 Nm at 23-26 kg, 0.05 Nm at 14 and
+    40 kg). A line cannot follow it: the hump's own healthy values exceeded it
+    and opened a wrong ``sprocket`` alarm. The curve through the running medians
+    follows it, and a real rise still stands out."""
+    rng = np.random.default_rng(3)
+    payload = rng.uniform(12.0, 41.0, 20)
+
+    def hump(p: np.ndarray | float) -> np.ndarray:
+        return 0.05 + 0.07 * np.exp(-(((np.asarray(p) - 24.0) / 4.0) ** 2))
+
+    values = hump(payload) * (1.0 + rng.normal(0.0, 0.02, 20))
+    line = fit_baseline(values, payload, payload_dependent=True)
+    curved = fit_baseline(values, payload, payload_dependent=True, curve=True)
+    assert line is not None and line.curve is None
+    assert curved is not None and curved.curve is not None
+    assert curved.scale < 0.5 * line.scale
+    top = float(hump(24.0))
+    # the line's expected value is half the hump's top, and its scale is the hump's
+    # spread, so a worn sprocket's +60 % on the flank goes unseen; the curve expects
+    # the top there, does not exceed on it, and sees the rise on the hump and its flank
+    assert line.expected(24.0) < 0.6 * top
+    flank = 1.6 * float(hump(38.0))
+    assert not line.check(flank, 38.0, 3.0, 0.5).exceeded
+    assert curved.check(flank, 38.0, 3.0, 0.5).exceeded
+    assert curved.expected(24.0) == pytest.approx(top, rel=0.1)
+    assert not curved.check(top, 24.0, 3.0, 0.5).exceeded
+    assert curved.check(1.6 * top, 24.0, 3.0, 0.5).exceeded
+    # beyond the baseline's payloads the curve holds its end values
+    assert curved.expected(100.0) == curved.expected(float(payload.max()))
+    # a drifting payload estimate widens the scale by half the curve's spread over
+    # its band (on the flank, where the curve is steep)
+    at = curved.expected(30.0) + 0.02
+    plain, drifting = (
+        curved.check(at, 30.0, 3.0, 0.5),
+        curved.check(at, 30.0, 3.0, 0.5, payload_sigma_kg=4.0),
+    )
+    band = [curved.expected(q) for q in np.linspace(26.0, 34.0, 9)]
+    assert drifting.z == pytest.approx(
+        0.02 / math.hypot(curved.scale, 0.5 * (max(band) - min(band)))
+    )
+    assert drifting.z < plain.z
+    # stored and read back; a baseline stored before curves existed reads as a line
+    assert FeatureBaseline.from_dict(json.loads(json.dumps(curved.to_dict()))) == curved
+    assert "curve" not in line.to_dict()
+    # a feature that does follow a line keeps the line
+    straight = 0.05 + 0.001 * payload + rng.normal(0.0, 0.002, 20)
+    kept = fit_baseline(straight, payload, payload_dependent=True, curve=True)
+    assert kept is not None and kept.curve is None
+
+
 def test_a_drifting_payload_estimate_widens_a_sloped_baseline_by_hand() -> None:
     """Errors in the regressor: the z-score is taken against hypot(scale, slope·sigma).
 

@@ -4,6 +4,7 @@ forecasts against their limits."""
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Iterable, Mapping, Sequence
 from datetime import datetime
 from typing import Any
@@ -79,6 +80,7 @@ def fit_features(
             [as_number(r.get(spec.regressor)) for r in rows],
             payload_dependent=spec.payload_dependent,
             min_scale=spec.min_scale,
+            curve=spec.payload_curve,
         )
         if fb is not None and spec.alternative is not None:
             alt = fit_baseline(
@@ -86,8 +88,9 @@ def fit_features(
                 [as_number(r.get(spec.alternative)) for r in rows],
                 payload_dependent=spec.payload_dependent,
                 min_scale=spec.min_scale,
+                curve=spec.payload_curve,
             )
-            if alt is not None and alt.slope != 0.0:
+            if alt is not None and (alt.slope != 0.0 or alt.curve is not None):
                 spread = robust_scale(np.asarray([v for v in column if np.isfinite(v)]))
                 if _explained(fb, spread) < ALTERNATIVE_SHARE * _explained(alt, spread):
                     fb = dataclasses.replace(alt, regressor=spec.alternative)
@@ -107,6 +110,10 @@ def at_mean_payload(name: str, fb: FeatureBaseline, features: Mapping[str, Any])
     What the forecasts and the wear rates fit over time (NaN when unknown).
     """
     load = as_number(features.get(regressor_of(name, fb)))
+    if fb.curve is not None:
+        if not math.isfinite(load):
+            return math.nan
+        return as_number(features.get(name)) - (fb.expected(load) - fb.expected(fb.mean_payload_kg))
     return as_number(features.get(name)) - fb.slope * (load - fb.mean_payload_kg)
 
 

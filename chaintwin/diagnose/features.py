@@ -174,6 +174,12 @@ class FeatureSpec:
         A second payload estimate the baseline may regress on instead, when
         the usual one's line explains little of the baseline
         (:data:`~chaintwin.diagnose.baseline.ALTERNATIVE_SHARE`).
+    payload_curve : bool
+        The baseline may follow the payload along a curve where a line does
+        not hold (:func:`~chaintwin.diagnose.health.fit_baseline`): a
+        spectral line's amplitude, which a belt mode tuned by the payload
+        through the line raises over a band of payloads. Not for a two-sided
+        feature (falls are judged on a flat baseline only).
     """
 
     cause: str | None
@@ -184,6 +190,7 @@ class FeatureSpec:
     regressor: str = "payload_inertia_kg"
     alternative: str | None = None
     two_sided: bool = False
+    payload_curve: bool = False
 
 
 AMPLITUDE = "payload_kg"
@@ -218,7 +225,7 @@ FEATURES: dict[str, FeatureSpec] = {
         "elongation", 0.08, "Nm", payload_dependent=True, alternative=AMPLITUDE, two_sided=True
     ),
     "sprocket_comb": FeatureSpec(
-        "sprocket", 0.5, "Nm", payload_dependent=True, alternative=AMPLITUDE
+        "sprocket", 0.5, "Nm", payload_dependent=True, alternative=AMPLITUDE, payload_curve=True
     ),
     "unexplained_peak": FeatureSpec("bearing", 1.0, "-"),
     "belt_bump": FeatureSpec("obstruction", 1.5, "-", min_scale=0.5),  # retired: always NaN
@@ -241,11 +248,15 @@ FEATURES: dict[str, FeatureSpec] = {
 }
 """Every tracked feature (``comb_<shaft>`` features are added per profile, cause gear)."""
 
-COMB_SPEC = FeatureSpec("gear", 0.5, "Nm", payload_dependent=True, alternative=AMPLITUDE)
+COMB_SPEC = FeatureSpec(
+    "gear", 0.5, "Nm", payload_dependent=True, alternative=AMPLITUDE, payload_curve=True
+)
 """Spec of the ``comb_<shaft>`` features."""
 
 
-MODE_SPEC = FeatureSpec("structure", 1.0, "Nm", payload_dependent=True, alternative=AMPLITUDE)
+MODE_SPEC = FeatureSpec(
+    "structure", 1.0, "Nm", payload_dependent=True, alternative=AMPLITUDE, payload_curve=True
+)
 """Spec of the ``mode_<line>`` features (a structural mode's amplitude doubled)."""
 
 PER_PROFILE = ("comb_", "mode_")

@@ -11,6 +11,16 @@ the larger of ``1.4826·MAD`` and ``IQR/1.349``, equal for a normal spread).
 The baseline is checked for outliers: values more than :data:`OUTLIER_Z`
 scales off are left out and the line fitted again.
 
+A spectral line's amplitude need not follow a line: a belt mode that the
+payload tunes through the line makes a hump (on the demo's short-fast-03 the
+sprocket comb is 0.12 Nm at 23-26 kg and 0.05 Nm at 14 and at 40 kg). Where
+the features allow it (``curve=True`` in :func:`fit_baseline`) and a curve
+through the baseline's running medians over the payload predicts each
+baseline value from the others at least twice as well as the line
+(:data:`CURVE_GAIN`, leave-one-out), the baseline is that curve instead
+(:attr:`FeatureBaseline.curve`), with the scale of its leave-one-out
+residuals.
+
 A recording *exceeds* on a feature when its value is above the baseline
 line at its payload by more than ``z_limit·s`` **and** by more than the
 feature's smallest relative change (:class:`~chaintwin.diagnose.features.FeatureSpec`
@@ -72,6 +82,13 @@ MIN_BASELINE = 5
 MIN_SLOPE_T = 3.0
 """A baseline's payload slope is kept when it is this many standard errors from zero."""
 
+CURVE_MIN_ROWS = 10
+"""Fewest baseline values a payload curve (:attr:`FeatureBaseline.curve`) is fitted from."""
+
+CURVE_GAIN = 0.5
+"""A payload curve replaces the line when the robust scale of its leave-one-out
+residuals is at most this share of the line's."""
+
 
 @dataclass(frozen=True, slots=True)
 class Exceedance:
@@ -121,6 +138,12 @@ class FeatureBaseline:
         their spread each way (:data:`EXTRAPOLATION`); :meth:`expected`
         holds the line's value at the nearer end beyond them. None: unbounded
         (a flat line, or a baseline stored before it was kept).
+    curve : ((float, ...), (float, ...)) or None
+        Payloads (kg, increasing) and the healthy values there (feature
+        units), when the feature follows the payload in a way a line does
+        not (see the module notes): :meth:`expected` interpolates between
+        them, holding the end values beyond. ``intercept`` and ``slope`` are
+        then the line's, for the trend forecasts. None: the line.
     """
 
     intercept: float
@@ -133,10 +156,13 @@ class FeatureBaseline:
     top_residual: float | None = None
     bottom_residual: float | None = None
     payload_range_kg: tuple[float, float] | None = None
+    curve: tuple[tuple[float, ...], tuple[float, ...]] | None = None
 
     def expected(self, payload_kg: float) -> float:
         """The healthy value at a payload."""
         p = payload_kg if math.isfinite(payload_kg) else self.mean_payload_kg
+        if self.curve is not None:
+            return float(np.interp(p, self.curve[0], self.curve[1]))
         if self.payload_range_kg is not None:
             lo, hi = self.payload_range_kg
             p = min(max(p, lo), hi)
@@ -182,7 +208,15 @@ class FeatureBaseline:
         e = self.expected(payload_kg)
         dev = value - e
         scale = self.scale
-        if self.slope != 0.0 and math.isfinite(payload_sigma_kg) and payload_sigma_kg > 0.0:
+        uncertain = math.isfinite(payload_sigma_kg) and payload_sigma_kg > 0.0
+        if self.curve is not None and uncertain:
+            # half the curve's spread over the payload's band
+            p = payload_kg if math.isfinite(payload_kg) else self.mean_payload_kg
+            band = [
+                self.expected(q) for q in np.linspace(p - payload_sigma_kg, p + payload_sigma_kg, 9)
+            ]
+            scale = math.hypot(scale, 0.5 * (max(band) - min(band)))
+        elif self.slope != 0.0 and uncertain:
             scale = math.hypot(scale, self.slope * payload_sigma_kg)
         z = dev / scale
         change = dev / abs(e) if e != 0.0 else math.copysign(math.inf, dev)
@@ -194,6 +228,7 @@ class FeatureBaseline:
         fell = (
             two_sided
             and self.slope == 0.0
+            and self.curve is None
             and -z > z_limit
             and -dev > min_rel * abs(e)
             and (self.bottom_residual is None or dev < self.bottom_residual)
@@ -205,13 +240,28 @@ class FeatureBaseline:
         out = asdict(self)
         if self.payload_range_kg is not None:
             out["payload_range_kg"] = list(self.payload_range_kg)
+        if self.curve is None:
+            del out["curve"]  # as stored before curves existed
+        else:
+            out["curve"] = [list(self.curve[0]), list(self.curve[1])]
         return out
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> FeatureBaseline:
         """Inverse of :meth:`to_dict`."""
         rng = data.get("payload_range_kg")
-        return cls(**(data | {"payload_range_kg": None if rng is None else tuple(rng)}))
+        knots = data.get("curve")
+        return cls(
+            **(
+                data
+                | {
+                    "payload_range_kg": None if rng is None else tuple(rng),
+                    "curve": None
+                    if knots is None
+                    else (tuple(float(x) for x in knots[0]), tuple(float(y) for y in knots[1])),
+                }
+            )
+        )
 
 
 EXTRAPOLATION = 0.5
@@ -266,12 +316,46 @@ def _line(values: FloatArray, payloads: FloatArray, with_slope: bool) -> tuple[f
     return float(np.median(values)), 0.0
 
 
+def _curve_knots(p: FloatArray, v: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Knots of a payload curve: the values' running medians of three over the
+    payload order (the ends: the two nearest), one knot per distinct payload."""
+    order = np.argsort(p, kind="stable")
+    ps, vs = p[order], v[order]
+    n = ps.shape[0]
+    smooth = np.array([float(np.median(vs[max(0, i - 1) : min(n, i + 2)])) for i in range(n)])
+    knots, at = np.unique(ps, return_inverse=True)
+    sums = np.bincount(at, weights=smooth)
+    return knots, sums / np.bincount(at)
+
+
+def _curve(
+    v: FloatArray, p: FloatArray, line_scale: float, min_scale: float
+) -> tuple[tuple[tuple[float, ...], tuple[float, ...]], float, FloatArray] | None:
+    """A payload curve (knots, scale, leave-one-out residuals) when it predicts the
+    baseline better than the line by :data:`CURVE_GAIN`, else None."""
+    n = v.shape[0]
+    if n < CURVE_MIN_ROWS:
+        return None
+    loo = np.empty(n)
+    for i in range(n):
+        rest = np.arange(n) != i
+        kp, kv = _curve_knots(p[rest], v[rest])
+        loo[i] = v[i] - float(np.interp(p[i], kp, kv))
+    scale = robust_scale(loo)
+    if not scale <= CURVE_GAIN * line_scale:
+        return None
+    kp, kv = _curve_knots(p, v)
+    knots = (tuple(float(x) for x in kp), tuple(float(y) for y in kv))
+    return knots, max(scale, min_scale, 1e-9 * max(float(np.max(np.abs(kv))), 1e-12)), loo
+
+
 def fit_baseline(
     values: Sequence[float],
     payloads_kg: Sequence[float],
     *,
     payload_dependent: bool,
     min_scale: float = 0.0,
+    curve: bool = False,
 ) -> FeatureBaseline | None:
     """Learn a feature's baseline from healthy recordings.
 
@@ -285,6 +369,9 @@ def fit_baseline(
         Regress the value on the payload (when the payloads spread enough).
     min_scale : float
         Floor of the robust scale (feature units).
+    curve : bool
+        A payload curve may replace the line (see the module notes; only
+        with ``payload_dependent``).
 
     Returns
     -------
@@ -311,6 +398,26 @@ def fit_baseline(
     r = v[keep] - (a + b * p[keep])
     scale = max(robust_scale(r), min_scale, 1e-9 * max(abs(a), 1e-12))
     every = np.sort(v - (a + b * p))
+    bent = (
+        _curve(v, p, robust_scale(v - (a + b * p)), min_scale)
+        if curve and payload_dependent and float(np.ptp(p)) >= MIN_PAYLOAD_SPREAD_KG
+        else None
+    )
+    if bent is not None:
+        knots, bent_scale, loo = bent
+        ordered = np.sort(loo)
+        return FeatureBaseline(
+            intercept=a,
+            slope=b,
+            scale=bent_scale,
+            count=int(v.shape[0]),
+            outliers=0,
+            mean_payload_kg=float(np.mean(p)),
+            payload_range_kg=_held_range(p) if b != 0.0 else None,
+            top_residual=float(ordered[-2]),
+            bottom_residual=float(ordered[1]),
+            curve=knots,
+        )
     return FeatureBaseline(
         intercept=a,
         slope=b,

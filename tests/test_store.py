@@ -744,6 +744,41 @@ def test_no_process_outlives_a_killed_ingest_and_sigterm_says_what_was_stored(
             assert f"{stored} recording(s) stored with their results" in err, err
 
 
+class _Stop(Exception):
+    pass
+
+
+def _stop(_signum: int, _frame: object) -> None:
+    raise _Stop
+
+
+def _commit_during(how: str, done: list[str]) -> None:
+    from chaintwin.store.executors import signals_deferred
+
+    with signals_deferred():
+        if how == "delivered":  # blocked until the block ends
+            os.kill(os.getpid(), signal.SIGTERM)
+        else:  # as the interpreter would run the handler of a signal already in
+            handler = signal.getsignal(signal.SIGTERM)
+            assert callable(handler) and handler is not _stop
+            handler(signal.SIGTERM, None)
+        done.append(how)  # the bookkeeping after the commit
+
+
+def test_a_signal_handled_inside_a_commit_lands_after_it() -> None:
+    """A SIGTERM that arrived just before the block has its handler run inside it: held too."""
+    before = signal.signal(signal.SIGTERM, _stop)
+    done: list[str] = []
+    try:
+        for how in ("delivered", "handled"):
+            with pytest.raises(_Stop):
+                _commit_during(how, done)
+            assert signal.getsignal(signal.SIGTERM) is _stop
+    finally:
+        signal.signal(signal.SIGTERM, before)
+    assert done == ["delivered", "handled"]
+
+
 def test_a_damaged_stored_health_model_leaves_the_page_with_a_note(tmp_path: Path) -> None:
     from sqlalchemy.orm import Session
 

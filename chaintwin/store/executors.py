@@ -226,14 +226,31 @@ def signals_deferred() -> Iterator[None]:
 
     The stop message counts what is stored; a signal handled between the
     commit and the count would make it say less than the store holds. In
-    the main thread (where Python handles signals) they are blocked and
-    delivered right after; elsewhere nothing changes.
+    the main thread (where Python handles signals) they are blocked, and
+    their Python handlers replaced by one that notes them: a signal that
+    arrived just before the block has its handler run by the interpreter
+    later, at any point inside it. Noted signals are raised again right
+    after, with the handlers back. Elsewhere nothing changes.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM, signal.SIGINT})
+    noted: list[int] = []
+
+    def note(signum: int, _frame: object) -> None:
+        noted.append(signum)
+
+    held = (signal.SIGTERM, signal.SIGINT)
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, set(held))
+    # a handler not set from Python (None) cannot be put back: left as it is
+    handlers = {s: h for s in held if (h := signal.getsignal(s)) is not None}
+    for sig in handlers:
+        signal.signal(sig, note)
     try:
         yield
     finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
         signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        for signum in dict.fromkeys(noted):
+            signal.raise_signal(signum)

@@ -10,7 +10,12 @@ from conftest import EXAMPLES, REFERENCE_PROFILE
 
 from chaintwin.errors import StoreError
 from chaintwin.read.profile import load_profile
-from chaintwin.store.samples import PackedChannels, pack_channels, unpack_channels
+from chaintwin.store.samples import (
+    SENT_UNPACKED,
+    PackedChannels,
+    pack_channels,
+    unpack_channels,
+)
 from chaintwin.store.worker import prepare
 from chaintwin.validate.checks import load_recording
 
@@ -54,14 +59,20 @@ def test_packed_channels_travel_at_a_third_and_unpack_exactly_on_first_read() ->
     rec = load_recording(REC).recording
     packed = PackedChannels.of(rec.channels)
     raw = sum(np.asarray(v).nbytes for v in rec.channels.values())
+    loose = sum(np.asarray(rec.channels[k]).nbytes for k in SENT_UNPACKED)
     wire = pickle.dumps(packed)
-    assert len(wire) < 0.4 * raw
+    assert len(wire) < 0.4 * raw + loose  # a third, and the channels sent unpacked
     back = pickle.loads(wire)
     assert isinstance(back, PackedChannels) and not back.unpacked
-    # names, membership and length need no unpacking
+    # names, membership and length need no unpacking, nor the channels sent unpacked
     assert list(back) == list(rec.channels) and len(back) == len(rec.channels)
     assert "position" in back and "nope" not in back and back.get("nope") is None
+    for name in SENT_UNPACKED:
+        np.testing.assert_array_equal(back[name], rec.channels[name])
     assert not back.unpacked
+    again = pickle.loads(pickle.dumps(back))  # passed on before it is unpacked
+    np.testing.assert_array_equal(again["speed"], rec.channels["speed"])
+    assert not again.unpacked
     for name, a in rec.channels.items():
         np.testing.assert_array_equal(back[name], a)
     assert back.unpacked
@@ -75,7 +86,8 @@ def test_prepare_sends_the_recording_packed_with_the_bytes_the_store_keeps() -> 
     back = pickle.loads(pickle.dumps(item))
     assert back.recording is not None and back.samples is not None
     assert back.recording.channels.blob == back.samples  # sent once (pickle's memo)
-    assert len(pickle.dumps(item)) < 1.1 * len(item.samples) + 20_000
+    loose = sum(channels[k].nbytes for k in SENT_UNPACKED)
+    assert len(pickle.dumps(item)) < 1.1 * len(item.samples) + loose + 20_000
     plain = load_recording(REC, profile=load_profile(REFERENCE_PROFILE)).recording
     for name in plain.channels:
         np.testing.assert_array_equal(back.recording.channels[name], plain.channels[name])

@@ -453,6 +453,58 @@ def test_guided_tasks_shrink_towards_the_end() -> None:
     assert sizes == sorted(sizes, reverse=True)
 
 
+class _FakeClient:
+    """What :class:`ClusterExecutor` asks of a Dask client, without a cluster."""
+
+    def __init__(self, threads: int) -> None:
+        self.threads = threads
+        self.scattered: list[object] = []
+
+    def get_executor(self, **kwargs: object) -> Any:
+        from chaintwin.store.executors import InlineExecutor
+
+        assert kwargs == {"pure": False}  # tasks read files: never merged by their arguments
+        return InlineExecutor()
+
+    def scheduler_info(self) -> dict[str, Any]:
+        return {"workers": {f"w{k}": {"nthreads": 1} for k in range(self.threads)}}
+
+    def scatter(self, data: list[object], *, broadcast: bool, hash: bool) -> list[object]:
+        assert broadcast and not hash
+        self.scattered.append(data[0])
+        return [("future", data[0])]
+
+
+def test_tasks_for_a_dask_cluster_follow_its_worker_threads() -> None:
+    """Full tasks on a known cluster (not a few recordings each, as for 21 unknown lanes)."""
+    from chaintwin.store.executors import ClusterExecutor
+    from chaintwin.store.ingest import CHUNK, DASK_IN_FLIGHT, IN_FLIGHT_PER_WORKER, _window
+
+    w = _window(ClusterExecutor(_FakeClient(2)), None, 400)
+    assert (w.lanes, w.tasks, w.biggest) == (2, 2 * IN_FLIGHT_PER_WORKER, CHUNK)
+    assert w.size() == CHUNK
+    w = _window(ClusterExecutor(_FakeClient(0)), None, 400)  # no worker yet
+    assert w.tasks == DASK_IN_FLIGHT // IN_FLIGHT_PER_WORKER * IN_FLIGHT_PER_WORKER
+
+
+def test_what_tasks_share_goes_to_a_dask_cluster_once() -> None:
+    import copy
+
+    from chaintwin.store.executors import ClusterExecutor, InlineExecutor, shared
+
+    client = _FakeClient(2)
+    ex = ClusterExecutor(client)
+    assert shared(ex, PROFILE) == ("future", PROFILE)
+    assert shared(ex, PROFILE) == ("future", PROFILE)
+    other = copy.deepcopy(PROFILE)  # a new object (a calibration learned anew): sent anew
+    assert shared(ex, other)[1] is other
+    assert shared(ex, None) is None
+    assert client.scattered == [PROFILE, other]
+    assert shared(InlineExecutor(), PROFILE) is PROFILE  # a local pool pickles it with the task
+    assert ex.submit(len, [1, 2]).result() == 2
+    ex.shutdown()
+
+
 def test_a_fleet_ingest_on_workers_equals_each_conveyor_ingested_alone(tmp_path: Path) -> None:
     """Three conveyors in one shuffled batch on two workers (tasks across conveyors, small
     commit groups, one conveyor learning its calibration) against one conveyor at a time here."""
@@ -690,6 +742,41 @@ def test_no_process_outlives_a_killed_ingest_and_sigterm_says_what_was_stored(
             assert proc.returncode == 128 + signal.SIGTERM
             assert "stopped by SIGTERM" in err
             assert f"{stored} recording(s) stored with their results" in err, err
+
+
+class _Stop(Exception):
+    pass
+
+
+def _stop(_signum: int, _frame: object) -> None:
+    raise _Stop
+
+
+def _commit_during(how: str, done: list[str]) -> None:
+    from chaintwin.store.executors import signals_deferred
+
+    with signals_deferred():
+        if how == "delivered":  # blocked until the block ends
+            os.kill(os.getpid(), signal.SIGTERM)
+        else:  # as the interpreter would run the handler of a signal already in
+            handler = signal.getsignal(signal.SIGTERM)
+            assert callable(handler) and handler is not _stop
+            handler(signal.SIGTERM, None)
+        done.append(how)  # the bookkeeping after the commit
+
+
+def test_a_signal_handled_inside_a_commit_lands_after_it() -> None:
+    """A SIGTERM that arrived just before the block has its handler run inside it: held too."""
+    before = signal.signal(signal.SIGTERM, _stop)
+    done: list[str] = []
+    try:
+        for how in ("delivered", "handled"):
+            with pytest.raises(_Stop):
+                _commit_during(how, done)
+            assert signal.getsignal(signal.SIGTERM) is _stop
+    finally:
+        signal.signal(signal.SIGTERM, before)
+    assert done == ["delivered", "handled"]
 
 
 def test_a_damaged_stored_health_model_leaves_the_page_with_a_note(tmp_path: Path) -> None:

@@ -21,9 +21,12 @@ from . import forkserver
 
 __all__ = [
     "SWITCH_INTERVAL_S",
+    "ClusterExecutor",
     "InlineExecutor",
     "executor",
+    "lanes",
     "runs_inline",
+    "shared",
     "signals_deferred",
 ]
 
@@ -44,6 +47,89 @@ class InlineExecutor(Executor):
         except Exception as exc:  # handed to the caller through the future
             fut.set_exception(exc)
         return fut
+
+
+class ClusterExecutor(Executor):
+    """A Dask cluster as a ``concurrent.futures`` executor that sends shared inputs once.
+
+    Tasks are submitted as not pure (``pure=False``): a task reads files,
+    which may change, so two equal submissions are two tasks, and nothing
+    is hashed (``dask.base.tokenize``) per task. What many tasks share (a
+    conveyor's profile and calibration) goes to every worker once
+    (:meth:`share`, ``Client.scatter(..., broadcast=True)``) and the tasks
+    carry a reference to it, not a copy through the scheduler.
+
+    Parameters
+    ----------
+    client : distributed.Client
+        A connected client; closed by whoever opened it.
+    """
+
+    def __init__(self, client: Any) -> None:
+        self.client = client
+        self._ex = client.get_executor(pure=False)
+        self._shared: dict[int, tuple[object, Any]] = {}
+
+    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future[Any]:
+        """Run ``fn(*args, **kwargs)`` on the cluster; a future of its result."""
+        fut: Future[Any] = self._ex.submit(fn, *args, **kwargs)
+        return fut
+
+    def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
+        """Stop taking tasks (``wait``: until those submitted are done)."""
+        self._ex.shutdown(wait=wait)
+
+    def share(self, value: object) -> Any:
+        """``value`` on every worker: a Dask future to pass to tasks in its place.
+
+        Scattered once per object (kept by identity for the executor's life,
+        so that a changed calibration, a new object, is sent anew).
+        """
+        hit = self._shared.get(id(value))
+        if hit is None or hit[0] is not value:
+            (fut,) = self.client.scatter([value], broadcast=True, hash=False)
+            hit = self._shared[id(value)] = (value, fut)
+        return hit[1]
+
+    def threads(self) -> int:
+        """Threads of the cluster's workers now (0 while it has none)."""
+        workers = self.client.scheduler_info()["workers"].values()
+        return int(sum(w.get("nthreads", 1) for w in workers))
+
+
+def shared(ex: Executor, value: object) -> Any:
+    """What to pass to the executor's tasks for ``value``, which many of them share.
+
+    A Dask cluster's reference to it on every worker (:meth:`ClusterExecutor.share`);
+    the value itself for a local pool (pickled with each task: a few kB) and
+    in this process. None stays None.
+    """
+    if value is None or not isinstance(ex, ClusterExecutor):
+        return value
+    return ex.share(value)
+
+
+def lanes(ex: Executor, workers: int | None) -> int:
+    """How many tasks the executor runs at once.
+
+    Parameters
+    ----------
+    ex : Executor
+        From :func:`executor`.
+    workers : int, optional
+        The local worker processes asked for (default: the machine's cores).
+
+    Returns
+    -------
+    int
+        A Dask cluster's worker threads (asked of its scheduler; 0 while it
+        has none), else the local workers.
+    """
+    if isinstance(ex, ClusterExecutor):
+        return ex.threads()
+    if isinstance(ex, InlineExecutor):
+        return 1
+    return workers or os.cpu_count() or 1
 
 
 def runs_inline(workers: int | None, scheduler: str | None) -> bool:
@@ -129,7 +215,7 @@ def executor(workers: int | None, scheduler: str | None) -> Iterator[Executor]:
                 field="scheduler",
             ) from None
         try:
-            yield client.get_executor()  # type: ignore[no-untyped-call]
+            yield ClusterExecutor(client)
         finally:
             client.close()  # type: ignore[no-untyped-call]
 
@@ -140,14 +226,31 @@ def signals_deferred() -> Iterator[None]:
 
     The stop message counts what is stored; a signal handled between the
     commit and the count would make it say less than the store holds. In
-    the main thread (where Python handles signals) they are blocked and
-    delivered right after; elsewhere nothing changes.
+    the main thread (where Python handles signals) they are blocked, and
+    their Python handlers replaced by one that notes them: a signal that
+    arrived just before the block has its handler run by the interpreter
+    later, at any point inside it. Noted signals are raised again right
+    after, with the handlers back. Elsewhere nothing changes.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM, signal.SIGINT})
+    noted: list[int] = []
+
+    def note(signum: int, _frame: object) -> None:
+        noted.append(signum)
+
+    held = (signal.SIGTERM, signal.SIGINT)
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, set(held))
+    # a handler not set from Python (None) cannot be put back: left as it is
+    handlers = {s: h for s in held if (h := signal.getsignal(s)) is not None}
+    for sig in handlers:
+        signal.signal(sig, note)
     try:
         yield
     finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
         signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        for signum in dict.fromkeys(noted):
+            signal.raise_signal(signum)

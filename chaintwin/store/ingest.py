@@ -4,8 +4,10 @@ The expensive part of a recording (reading, validation, weighing, features)
 does not depend on the other recordings once the conveyor is calibrated, so
 it runs in parallel: on a local process pool by default, on a Dask cluster
 when given its scheduler address. Both are used through the same
-``concurrent.futures`` interface (``distributed.Client.get_executor()``), so
-the code path is the same. The health model of a conveyor then takes the
+``concurrent.futures`` interface (:class:`~.executors.ClusterExecutor` wraps
+``distributed.Client.get_executor()``), so the code path is the same; what
+the tasks share (profile, calibration) goes to a cluster's workers once
+(:func:`~.executors.shared`). The health model of a conveyor then takes the
 recordings one by one in recorded order, in this process. Recordings are
 stored in groups (up to :data:`COMMIT_GROUP`, or what :data:`COMMIT_EVERY_S`
 gathered), each group in one transaction with the health model that produced
@@ -24,7 +26,6 @@ kill finishes the job.
 
 from __future__ import annotations
 
-import os
 import time
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
@@ -43,7 +44,7 @@ from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
 
 from .engine import safe_url
-from .executors import InlineExecutor, executor, runs_inline, signals_deferred
+from .executors import InlineExecutor, executor, lanes, shared, signals_deferred
 from .store import HISTORY_IN_STATE, Finished, StateConflict, Store, Waiting
 from .worker import Prepared, prepare, prepare_many
 
@@ -97,7 +98,7 @@ IN_FLIGHT_PER_WORKER = 3
 """Tasks submitted ahead per local worker process."""
 
 DASK_IN_FLIGHT = 64
-"""Tasks submitted ahead to a Dask cluster (its size is not known here)."""
+"""Tasks submitted ahead to a Dask cluster that has no worker yet when the ingest starts."""
 
 COMMIT_GROUP = 64
 """Most recordings stored in one transaction."""
@@ -498,7 +499,8 @@ class _Batch:
             # bounded, and once a calibration is learned the files submitted
             # after it are weighed in the workers with it
             cal = conv.monitor.calibration
-            fut = self.ex.submit(prepare_many, chunk, conv.profile, self.column_map, cal)
+            prof, with_cal = shared(self.ex, conv.profile), shared(self.ex, cal)
+            fut = self.ex.submit(prepare_many, chunk, prof, self.column_map, with_cal)
             self.pending.append((cid, chunk, cal, fut))
 
     def _receive(self) -> str:
@@ -541,6 +543,23 @@ class _Batch:
             self.window.biggest, sum(len(c) for _, c, _, _ in self.pending)
         ):
             conv.flush()  # while the workers read the last recordings
+
+
+def _window(ex: Executor, workers: int | None, total: int) -> _Window:
+    """The window of tasks for an executor and ``total`` recordings.
+
+    In this process, one recording at a time: nothing to save on messages,
+    and a learned calibration is taken up by the very next recording.
+    Otherwise :data:`IN_FLIGHT_PER_WORKER` tasks of up to :data:`CHUNK`
+    recordings per worker (a Dask cluster's worker threads, asked of its
+    scheduler); a cluster without workers yet gets :data:`DASK_IN_FLIGHT`.
+    """
+    if isinstance(ex, InlineExecutor):
+        return _Window(tasks=1, biggest=1, lanes=1, left=total)
+    n = lanes(ex, workers)
+    if n < 1:
+        n = DASK_IN_FLIGHT // IN_FLIGHT_PER_WORKER
+    return _Window(tasks=IN_FLIGHT_PER_WORKER * n, biggest=CHUNK, lanes=n, left=total)
 
 
 def ingest(
@@ -599,17 +618,6 @@ def ingest(
         if progress is not None:
             progress(done, total)
 
-    if runs_inline(workers, scheduler):
-        # one recording at a time in this process: nothing to save on messages,
-        # and a learned calibration is taken up by the very next recording
-        window = _Window(tasks=1, biggest=1, lanes=1, left=total)
-    else:
-        lanes = workers or os.cpu_count() or 1
-        tasks = IN_FLIGHT_PER_WORKER * lanes
-        if scheduler is not None:
-            tasks = max(tasks, DASK_IN_FLIGHT)
-            lanes = max(lanes, tasks // IN_FLIGHT_PER_WORKER)
-        window = _Window(tasks=tasks, biggest=CHUNK, lanes=lanes, left=total)
     # a file given twice is read once (its content could change in between)
     unique = list(dict.fromkeys(files))
     for _ in range(len(files) - len(unique)):
@@ -622,7 +630,7 @@ def ingest(
                 unique,
                 profiles,
                 store,
-                window,
+                _window(ex, workers, total),
                 lambda prof: _Conveyor(store, prof, settings, summary, max(1, commit_group)),
                 column_map,
                 summary,

@@ -9,6 +9,7 @@ import pytest
 
 from chaintwin.diagnose.impacts import (
     MIN_SHARE,
+    background_hits_per_m,
     detect_impacts,
     hits_per_revolution,
     impact_features,
@@ -89,6 +90,14 @@ def test_regular_knocks_are_periodic_and_isolated_ones_pool_per_revolution(
     assert np.isnan(hits_per_revolution([{}], 8.6))
     # one knock says nothing of a rate: no obstacle read from it
     assert hits_per_revolution(rows[:2], 8.6) == 0.0
+    # beyond the healthy conveyor's own random knocks (its baseline: one in 34.4 m):
+    # 2 hits less 17.2 m x 1/34.4 m = 1.5 over 17.2 m on an 8.6 m loop, by hand 0.75
+    baseline = [{"impact_rail_hits": 1.0, "belt_travel_m": 17.2}, {"belt_travel_m": 17.2}]
+    assert background_hits_per_m(baseline) == pytest.approx(1.0 / 34.4)
+    assert background_hits_per_m([{}]) == 0.0
+    assert hits_per_revolution(rows, 8.6, 1.0 / 34.4) == pytest.approx(0.75)
+    # never below none
+    assert hits_per_revolution(rows, 8.6, 1.0) == 0.0
 
 
 def test_knocks_one_obstacle_cannot_have_made_are_not_pooled_as_its_hits(

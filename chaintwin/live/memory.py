@@ -113,9 +113,10 @@ def trim() -> bool:
 def usage(pool: Pool | None = None) -> dict[str, float]:
     """The process's memory, MB: ``rss`` (of which ``anon``: not backed by a file),
     and where known ``heap_used``, ``heap_free`` (held by glibc, not in use),
-    ``sqlite`` (SQLite's own) and ``py_blocks`` (the Python allocator's blocks in use,
-    millions); with a connection ``pool``, ``db_conns``: its connections open (a count;
-    each SQLite one holds a page cache and prepared statements of its own)."""
+    ``sqlite`` (SQLite's own) and ``py_kblocks`` (the Python allocator's blocks in
+    use, thousands: 100 000 small objects are several MB); with a connection
+    ``pool``, ``db_conns``: its connections open (a count; each SQLite one holds a
+    page cache and prepared statements of its own)."""
     out: dict[str, float] = {}
     try:
         with open(f"/proc/{os.getpid()}/statm") as f:
@@ -126,7 +127,7 @@ def usage(pool: Pool | None = None) -> dict[str, float]:
                     out["anon"] = int(line.split()[1]) / 2**10
     except OSError:  # pragma: no cover - not Linux
         pass
-    out["py_blocks"] = sys.getallocatedblocks() / 1e6
+    out["py_kblocks"] = sys.getallocatedblocks() / 1e3
     lib = _libc()
     if lib is not None and hasattr(lib, "mallinfo2"):
         lib.mallinfo2.restype = _MallInfo2

@@ -38,7 +38,7 @@ at once) are opened for a burst and closed when given back.
 
 A SQLite connection costs about 0.5 ms to open but holds memory of its own
 as long as it is open (its page cache, up to :data:`SERVE_SQLITE_CACHE_KIB`,
-and about 0.6 MB of prepared statements). Connections kept are opened one by
+and its prepared statements: 0.6 MB or more). Connections kept are opened one by
 one as the service's work happens to overlap, and kept for its life: with 16
 kept, the live service's memory grew over hours as more were opened (issue 21)."""
 
@@ -56,10 +56,10 @@ def serve_store(url: str) -> Store:
     each time, 10-40 ms each, traced). On SQLite it keeps
     :data:`SERVE_SQLITE_POOL_SIZE`, each with a page cache of at most
     :data:`SERVE_SQLITE_CACHE_KIB` KiB, so that SQLite's memory has a small
-    bound: about 1.6 MB a connection kept with its prepared statements, 6.4 MB
-    for the pool (the live benchmark: 6.1 MB after 10 minutes, against 7.9 MB
-    and still rising with 16 kept and SQLite's default cache). Up to twice
-    :data:`SERVE_POOL_SIZE` are open at once on both.
+    bound: 4 connections, each with its cache and at most 128 prepared
+    statements (the live benchmark's hour: 6.1 MB for the 3 it needed, against
+    14-17 MB and still rising with 16 kept and SQLite's default cache). Up to
+    twice :data:`SERVE_POOL_SIZE` are open at once on both.
 
     Raises
     ------

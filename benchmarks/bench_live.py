@@ -22,7 +22,8 @@ into its own sub-folder of one watched folder every ``--interval`` seconds
 seconds (10) and prints it every minute, with the growth per minute after
 the warm-up (``--warmup-s``, a least-squares line through the samples),
 and the service's own account of its memory every minute
-(``CHAINTWIN_MEMORY_LOG``: glibc's heap in use and free, SQLite's).
+(``CHAINTWIN_MEMORY_LOG``: glibc's heap in use and free, SQLite's, Python's
+blocks, the store's open connections).
 ``--tracemalloc`` traces the service's allocations
 (``CHAINTWIN_TRACEMALLOC_DIR``: slower, larger), takes a snapshot after the
 warm-up and another at the end, and prints the 15 lines whose allocations

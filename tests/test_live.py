@@ -1146,6 +1146,54 @@ def test_memory_usage_and_trim_on_glibc() -> None:
     assert usage()["heap_used"] < before["heap_used"] + 5
 
 
+def test_serve_bounds_its_sqlite_connections_and_their_page_caches(tmp_path: Path) -> None:
+    """Issue 21: the live service's memory grew for hours as its pool opened SQLite
+    connections one by one (16 kept), each with SQLite's default 2 MB page cache.
+    ``serve`` keeps few on SQLite, each with a small cache set on every new connection;
+    a burst opens more, closed when given back."""
+    from sqlalchemy import text
+
+    from chaintwin.cli.serve_cmd import (
+        SERVE_POOL_SIZE,
+        SERVE_SQLITE_CACHE_KIB,
+        SERVE_SQLITE_POOL_SIZE,
+        serve_store,
+    )
+    from chaintwin.live.memory import usage
+
+    url = f"sqlite:///{tmp_path / 'serve.db'}"
+    default, store = Store(url), serve_store(url)
+    try:
+        with default.engine.connect() as c:  # SQLite's own default: 2 000 KiB
+            assert c.execute(text("PRAGMA cache_size")).scalar() == -2000
+        pool = store.engine.pool
+        assert pool.size() == SERVE_SQLITE_POOL_SIZE < SERVE_POOL_SIZE  # type: ignore[attr-defined]
+        held = [store.engine.connect() for _ in range(2 * SERVE_POOL_SIZE)]  # a burst
+        assert usage(pool)["db_conns"] == 2 * SERVE_POOL_SIZE
+        for c in held:  # each new connection has the small cache
+            assert c.execute(text("PRAGMA cache_size")).scalar() == -SERVE_SQLITE_CACHE_KIB
+            c.close()
+        # the burst's extra connections are closed: their caches' memory goes with them
+        assert usage(pool)["db_conns"] == SERVE_SQLITE_POOL_SIZE
+        assert "db_conns" not in usage()
+    finally:
+        default.close()
+        store.close()
+
+
+def test_the_page_cache_pragma_applies_to_a_read_only_store_too(tmp_path: Path) -> None:
+    from sqlalchemy import text
+
+    url = f"sqlite:///{tmp_path / 'ro.db'}"
+    Store(url).close()
+    store = Store(url, read_only=True, sqlite_cache_kib=256)
+    try:
+        with store.engine.connect() as c:
+            assert c.execute(text("PRAGMA cache_size")).scalar() == -256
+    finally:
+        store.close()
+
+
 def test_a_drive_with_a_lease_of_its_own_has_its_row_written_by_its_own_source_only(
     fleet: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -944,6 +944,8 @@ def test_slow_requests_and_collections_are_traced_when_asked(
 
 
 def test_serve_keeps_more_database_connections_than_the_default(tmp_path: Path) -> None:
+    """As ``serve`` keeps them on PostgreSQL (a new connection costs 10-40 ms there);
+    on SQLite it keeps fewer (``tests/test_live.py``: its memory)."""
     from chaintwin.cli.serve_cmd import SERVE_POOL_SIZE
 
     url = f"sqlite:///{tmp_path / 'pool.db'}"

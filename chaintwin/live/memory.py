@@ -13,7 +13,8 @@ than glibc it does nothing.
 
 :func:`usage` is what the service logs with ``CHAINTWIN_MEMORY_LOG=1``
 (``benchmarks/bench_live.py --memory`` sets it): resident size, the heap
-in use and free-but-held by glibc, and SQLite's own memory.
+in use and free-but-held by glibc, SQLite's own memory, and the store's
+connections open.
 """
 
 from __future__ import annotations
@@ -24,6 +25,8 @@ import os
 import sys
 from functools import cache
 from typing import Any
+
+from sqlalchemy.pool import Pool, QueuePool
 
 __all__ = ["ARENA_MAX", "MMAP_THRESHOLD", "TRIM_EVERY_S", "configure", "trim", "usage"]
 
@@ -107,11 +110,13 @@ def trim() -> bool:
     return True
 
 
-def usage() -> dict[str, float]:
+def usage(pool: Pool | None = None) -> dict[str, float]:
     """The process's memory, MB: ``rss`` (of which ``anon``: not backed by a file),
     and where known ``heap_used``, ``heap_free`` (held by glibc, not in use),
-    ``sqlite`` (SQLite's own) and ``py_blocks`` (the Python allocator's blocks in use,
-    millions)."""
+    ``sqlite`` (SQLite's own) and ``py_kblocks`` (the Python allocator's blocks in
+    use, thousands: 100 000 small objects are several MB); with a connection
+    ``pool``, ``db_conns``: its connections open (a count; each SQLite one holds a
+    page cache and prepared statements of its own)."""
     out: dict[str, float] = {}
     try:
         with open(f"/proc/{os.getpid()}/statm") as f:
@@ -122,7 +127,7 @@ def usage() -> dict[str, float]:
                     out["anon"] = int(line.split()[1]) / 2**10
     except OSError:  # pragma: no cover - not Linux
         pass
-    out["py_blocks"] = sys.getallocatedblocks() / 1e6
+    out["py_kblocks"] = sys.getallocatedblocks() / 1e3
     lib = _libc()
     if lib is not None and hasattr(lib, "mallinfo2"):
         lib.mallinfo2.restype = _MallInfo2
@@ -132,4 +137,6 @@ def usage() -> dict[str, float]:
     sq = _sqlite()
     if sq is not None:
         out["sqlite"] = sq.sqlite3_memory_used() / 2**20
+    if isinstance(pool, QueuePool):
+        out["db_conns"] = float(pool.checkedin() + pool.checkedout())
     return out

@@ -596,12 +596,13 @@ class LiveService:
             await self._sleep(TRIM_EVERY_S)
             if self.stop.is_set():
                 break
-            before = usage() if logging_on else {}
+            pool = self.store.engine.pool
+            before = usage(pool) if logging_on else {}
             t0 = time.perf_counter()
             await asyncio.to_thread(trim)
             trace_trim(time.perf_counter() - t0)
             if logging_on:
-                after = usage()
+                after = usage(pool)
                 log.info(
                     "memory: %s MB; after trimming: %s MB",
                     " ".join(f"{k} {v:.1f}" for k, v in before.items()),

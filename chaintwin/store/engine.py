@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+from functools import partial
 from typing import Any
 from urllib.parse import quote
 
@@ -82,14 +83,25 @@ def _without_password(url: str) -> str:
     return f"{scheme}://{user}:***@{tail}"
 
 
-def engine_for(url: str, *, read_only: bool = False, pool_size: int | None = None) -> Engine:
+def engine_for(
+    url: str,
+    *,
+    read_only: bool = False,
+    pool_size: int | None = None,
+    max_overflow: int | None = None,
+    sqlite_cache_kib: int | None = None,
+) -> Engine:
     """The SQLAlchemy engine of a store URL (psycopg 3 for PostgreSQL; SQLite's pragmas).
 
     With ``read_only`` a SQLite file is opened read-only (``mode=ro``): a
     command that only reads cannot change it, even by accident; PostgreSQL
     sessions are set read-only. ``pool_size``: the connections the pool
-    keeps open (SQLAlchemy's default 5), and as many more it may open for a
-    while; a file or server store only.
+    keeps open (SQLAlchemy's default 5), and ``max_overflow`` more it may
+    open for a while, each closed when given back (default: as many as
+    ``pool_size``); a file or server store only. ``sqlite_cache_kib``: each
+    SQLite connection's page cache at most, KiB (``PRAGMA cache_size``;
+    SQLite's default is 2 000 KiB), so that a long-running process's caches
+    have a known, small bound; the results are the same at any size.
 
     Raises
     ------
@@ -104,7 +116,8 @@ def engine_for(url: str, *, read_only: bool = False, pool_size: int | None = Non
         target = f"sqlite:///file:{quote(path)}?mode=ro&uri=true"
     pooling: dict[str, int] = {}
     if pool_size is not None and (path is not None or url.startswith("postgresql")):
-        pooling = {"pool_size": pool_size, "max_overflow": pool_size}
+        overflow = pool_size if max_overflow is None else max_overflow
+        pooling = {"pool_size": pool_size, "max_overflow": overflow}
     try:
         engine = create_engine(
             target,
@@ -122,6 +135,8 @@ def engine_for(url: str, *, read_only: bool = False, pool_size: int | None = Non
         ) from None
     if engine.dialect.name == "sqlite":
         event.listen(engine, "connect", _sqlite_read_only if read_only else _sqlite_pragmas)
+        if sqlite_cache_kib is not None:
+            event.listen(engine, "connect", partial(_sqlite_cache, kib=sqlite_cache_kib))
     elif read_only:
         event.listen(engine, "connect", _postgresql_read_only)
     return engine
@@ -144,6 +159,13 @@ def _sqlite_read_only(dbapi_connection: Any, _record: Any) -> None:
     """A wait for the lock; nothing that writes (the journal mode stays the file's)."""
     cur = dbapi_connection.cursor()
     cur.execute("PRAGMA busy_timeout=30000")
+    cur.close()
+
+
+def _sqlite_cache(dbapi_connection: Any, _record: Any, *, kib: int) -> None:
+    """The connection's page cache at most ``kib`` KiB (``PRAGMA cache_size=-kib``)."""
+    cur = dbapi_connection.cursor()
+    cur.execute(f"PRAGMA cache_size=-{int(kib)}")
     cur.close()
 
 

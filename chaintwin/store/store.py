@@ -103,8 +103,14 @@ class Store:
         Open it for reading only (commands that only read: ``export``,
         ``report``): the database cannot be changed through this object.
     pool_size : int, optional
-        Connections kept open (and as many more opened for a while);
-        SQLAlchemy's default 5. ``serve`` keeps more: its requests come in bursts.
+        Connections kept open; SQLAlchemy's default 5. ``serve`` keeps more on
+        PostgreSQL: its requests come in bursts.
+    max_overflow : int, optional
+        Connections opened beyond ``pool_size`` for a while (each closed when
+        given back); default as many as ``pool_size``.
+    sqlite_cache_kib : int, optional
+        Each SQLite connection's page cache at most, KiB (SQLite's default
+        2 000); ``serve`` keeps it small, its memory bounded.
 
     A SQLite file is checked when it is opened (``PRAGMA quick_check`` up
     to :data:`~.engine.QUICK_CHECK_MAX_MB`, the schema always): a damaged file or
@@ -124,6 +130,8 @@ class Store:
         create: bool = True,
         read_only: bool = False,
         pool_size: int | None = None,
+        max_overflow: int | None = None,
+        sqlite_cache_kib: int | None = None,
     ) -> None:
         self.url = url
         path = sqlite_path(url)
@@ -133,7 +141,13 @@ class Store:
                 "CHAINTWIN_DB), or ingest recordings into it first",
                 field="url",
             )
-        self.engine: Engine = engine_for(url, read_only=read_only, pool_size=pool_size)
+        self.engine: Engine = engine_for(
+            url,
+            read_only=read_only,
+            pool_size=pool_size,
+            max_overflow=max_overflow,
+            sqlite_cache_kib=sqlite_cache_kib,
+        )
         where = safe_url(self.url)
         try:
             if path is not None:

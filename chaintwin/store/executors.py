@@ -249,6 +249,17 @@ def signals_deferred() -> Iterator[None]:
     try:
         yield
     finally:
+        # a signal sent during the block waits, blocked: taken here and raised
+        # below, where its handler runs at once (``raise_signal`` handles it
+        # before returning); unblocked, the interpreter would run the handler
+        # at its next check, a few instructions later, wherever that falls
+        pending = set(held) & signal.sigpending()
+        while pending:
+            info = signal.sigtimedwait(pending, 0)
+            if info is None:
+                break
+            noted.append(info.si_signo)
+            pending = set(held) & signal.sigpending()
         for sig, handler in handlers.items():
             signal.signal(sig, handler)
         signal.pthread_sigmask(signal.SIG_SETMASK, old)

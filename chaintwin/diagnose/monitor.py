@@ -629,13 +629,17 @@ class ConveyorMonitor:
         self.baseline_spectra = []  # the median is kept; the rows' spectra are not needed
         self.baselines = baseline.fit_features(rows)
 
-    def _missing_baselines(self, values: Mapping[str, Any]) -> list[str]:
-        """Tracked features of ``values`` with a cause and no baseline yet."""
+    def _late_fits_fed(self, values: Mapping[str, Any]) -> list[str]:
+        """Tracked features with a cause and no baseline yet that ``values`` holds a
+        finite value of: the late-baseline fits a row of them would feed."""
         assert self.baselines is not None
         return [
             k
             for k in values
-            if k not in self.baselines and is_tracked(k) and feature_spec(k).cause is not None
+            if k not in self.baselines
+            and is_tracked(k)
+            and feature_spec(k).cause is not None
+            and math.isfinite(as_number(values.get(k)))
         ]
 
     def _late_baselines(self, values: dict[str, float]) -> None:
@@ -649,9 +653,7 @@ class ConveyorMonitor:
         # Keeping every recording grew the health model by about 2 kB per
         # recording for ever (the retired belt_bump is never finite), in memory
         # and in the stored state read and written with each recording.
-        changed = [
-            k for k in self._missing_baselines(values) if math.isfinite(as_number(values.get(k)))
-        ]
+        changed = self._late_fits_fed(values)
         if not changed:
             return
         self.late_rows.append(values)
@@ -672,11 +674,7 @@ class ConveyorMonitor:
         """
         if self.baselines is None or not self.late_rows:
             return 0
-        keep = [
-            row
-            for row in self.late_rows
-            if any(math.isfinite(as_number(row.get(k))) for k in self._missing_baselines(row))
-        ]
+        keep = [row for row in self.late_rows if self._late_fits_fed(row)]
         dropped = len(self.late_rows) - len(keep)
         self.late_rows = keep
         return dropped

@@ -30,12 +30,15 @@ from chaintwin.diagnose.state import (
 from chaintwin.errors import MonitorError, StoreError
 from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.calibration import Calibration
+from chaintwin.identify.signatures import fit_condition
+from chaintwin.model.windows import window_integrals
 from chaintwin.read.profile import load_profile
 from chaintwin.read.writer import write_recording
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate
 from chaintwin.simulate.virtual import run_virtual
 from chaintwin.store.worker import prepare
+from chaintwin.validate import inspect_recording
 from chaintwin.validate.checks import load_recording
 
 PROFILE = load_profile(REFERENCE_PROFILE)
@@ -159,6 +162,26 @@ def test_a_drifting_payload_estimate_widens_a_sloped_baseline_by_hand() -> None:
     flat = FeatureBaseline(0.07, 0.0, 0.002, count=20, outliers=0, mean_payload_kg=20.0)
     assert flat.check(0.082, 20.0, 5.0, 0.10, payload_sigma_kg=10.0).exceeded
     assert flat.check(0.082, 20.0, 5.0, 0.10, payload_sigma_kg=10.0).z == pytest.approx(6.0)
+
+
+def test_a_loss_drift_allowance_is_a_bias_taken_off_before_the_noise_by_hand() -> None:
+    """A flat baseline 1.0 ± 0.05; z 5, smallest rise 50 %.
+
+    A value of 1.9 is 18 scales out and exceeds; if a loss drift within its
+    range may have moved the value by 0.7, only (0.9 - 0.7)/0.05 = 4 scales
+    are left and it does not; 2.0 leaves 6 and does. The reported z is the
+    whole deviation's. No allowance (NaN: the fit gave none) changes nothing.
+    """
+    fb = FeatureBaseline(1.0, 0.0, 0.05, count=20, outliers=0, mean_payload_kg=20.0)
+    assert fb.check(1.9, 20.0, 5.0, 0.5).exceeded
+    held = fb.check(1.9, 20.0, 5.0, 0.5, drift_allowance=0.7)
+    assert not held.exceeded
+    assert held.z == pytest.approx(18.0)
+    assert fb.check(2.0, 20.0, 5.0, 0.5, drift_allowance=0.7).exceeded
+    assert fb.check(1.9, 20.0, 5.0, 0.5, drift_allowance=math.nan).exceeded
+    # falls of a two-sided feature the same way
+    assert fb.check(0.1, 20.0, 5.0, 0.5, two_sided=True).exceeded
+    assert not fb.check(0.1, 20.0, 5.0, 0.5, two_sided=True, drift_allowance=0.7).exceeded
 
 
 def test_a_two_valued_baseline_keeps_both_values_and_neither_exceeds() -> None:
@@ -291,6 +314,45 @@ def _run(mon: ConveyorMonitor, files: list[Path]) -> list[RecordingResult]:
 def _onset(folder: Path) -> str:
     truth = [json.loads(x) for x in (folder / "truth.jsonl").read_text().splitlines()]
     return next(t["recorded_at"] for t in truth if any(v > 0 for v in t["faults"].values()))
+
+
+def test_condition_fit_s_loss_gradient_matches_a_refit_and_a_simulated_drift(
+    cal: Calibration,
+) -> None:
+    """Two ways to the same number: how the condition fit moves with the losses.
+
+    1. The fit's ``loss_gradient`` (one linear solve) against refitting the
+       same windows with 5 % of the calibrated losses added to their torque
+       (the refit re-estimates its noise weights): within 5 %.
+    2. The ``speed_loss_drift`` allowance (what a drift across ±10 % of the
+       losses moves the speed loss by) against the speed loss of the same
+       scope simulated with the plant's losses at 0.9 and at 1.1 of nominal:
+       the same size within a factor of 1.5 (on a drawn conveyor whose
+       calibration holds a negative constant loss it was 1.4x: see
+       ``_condition_values``).
+    """
+    rec = run_virtual(PROFILE, payload_kg=20.0, seed=5, loss_scale=1.0).recording
+    params = cal.parameters
+    tray = PROFILE.tray_mass_kg
+    wi = window_integrals(rec, PROFILE)
+    fit = fit_condition(rec, PROFILE, params, tray, windows=wi, ramp_rate=cal.ramp_noise_rate)
+    assert fit.loss_gradient is not None
+    v = np.maximum(params.values, 0.0)
+    column = v[2] * wi.sign + v[3] * wi.speed + v[4] * wi.speed_sq
+    moved = dataclasses.replace(wi, torque=wi.torque + 0.05 * column)
+    refit = fit_condition(rec, PROFILE, params, tray, windows=moved, ramp_rate=cal.ramp_noise_rate)
+    step = (refit.estimate - fit.estimate) / 0.05
+    assert step == pytest.approx(fit.loss_gradient, rel=0.05, abs=1e-9)
+
+    values = []
+    for scale in (0.9, 1.1):
+        run = run_virtual(PROFILE, payload_kg=20.0, seed=5, loss_scale=scale)
+        values.append(
+            recording_features(inspect_recording(run.recording, profile=PROFILE), cal).values
+        )
+    moved_by = abs(values[1]["speed_loss"] - values[0]["speed_loss"])
+    allowance = 0.5 * (values[0]["speed_loss_drift"] + values[1]["speed_loss_drift"])
+    assert 1 / 1.5 < moved_by / allowance < 1.5
 
 
 def test_healthy_series_raises_no_alarm(series: dict[str, Path], cal: Calibration) -> None:

@@ -119,7 +119,8 @@ def judge(
         regressor = regressor_of(name, fb)
         load = values.get(regressor, float("nan"))
         drift = values.get(DRIFT_OF.get(regressor, ""), 0.0)
-        ex = fb.check(value, load, settings.z_limit, spec.min_rel, spec.two_sided, drift)
+        allowance = values.get(spec.drift, 0.0) if spec.drift else 0.0
+        ex = fb.check(value, load, settings.z_limit, spec.min_rel, spec.two_sided, drift, allowance)
         win = windows.setdefault(name, [])
         times = window_times.setdefault(name, [])
         win.append(ex.exceeded)

@@ -188,6 +188,7 @@ class FeatureBaseline:
         min_rel: float,
         two_sided: bool = False,
         payload_sigma_kg: float = 0.0,
+        drift_allowance: float = 0.0,
     ) -> Exceedance:
         """Compare a value with the baseline: rises only, or falls too when ``two_sided``.
 
@@ -199,6 +200,15 @@ class FeatureBaseline:
         weighed payload drifted 12 kg below the baseline's with the losses
         while the load stayed, and a tooth-pass line with a real payload
         slope alarmed on 19 healthy recordings.
+
+        ``drift_allowance`` is how far a drift of the gear losses within its
+        range may have moved the value since the baseline (feature units,
+        :class:`~chaintwin.diagnose.features.FeatureSpec` ``drift``): a bounded
+        bias, not a random error, so a rise or fall counts only when what is
+        left of it beyond the allowance is ``z_limit`` scales out (the reported
+        ``z`` is the whole deviation's). It is the recording's own, not the
+        baseline's, since how well a recording tells a loss change from a
+        payload depends on its ramps.
 
         Falls count only on a flat baseline (no payload slope): a sloped line's
         expected value follows a payload estimate that a loss drift moves both
@@ -220,8 +230,9 @@ class FeatureBaseline:
             scale = math.hypot(scale, self.slope * payload_sigma_kg)
         z = dev / scale
         change = dev / abs(e) if e != 0.0 else math.copysign(math.inf, dev)
+        allowance = drift_allowance if math.isfinite(drift_allowance) else 0.0
         rose = (
-            z > z_limit
+            (dev - allowance) / scale > z_limit
             and dev > min_rel * abs(e)
             and (self.top_residual is None or dev > self.top_residual)
         )
@@ -229,7 +240,7 @@ class FeatureBaseline:
             two_sided
             and self.slope == 0.0
             and self.curve is None
-            and -z > z_limit
+            and (-dev - allowance) / scale > z_limit
             and -dev > min_rel * abs(e)
             and (self.bottom_residual is None or dev < self.bottom_residual)
         )

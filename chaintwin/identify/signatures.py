@@ -41,7 +41,8 @@ class SignatureFit:
     signature's model error on this recording."""
     loss_gradient: FloatArray | None = None
     """How the estimates move when the gear losses are (1 + δ) times the
-    calibration's: d estimate / dδ, kg (:func:`fit_signatures` only)."""
+    calibration's: d estimate / dδ, in the estimates' units (kg; N·m·s/rad for
+    :func:`fit_condition`'s ΔBmB)."""
 
 
 def _columns(
@@ -125,7 +126,8 @@ def _fit(
     ok, coef, cov, weights = _two_pass(np.ascontiguousarray(x0), z, wt, short, float(rate))
     if ok:
         # well conditioned: solved by the normal equations in one compiled pass
-        return _signature_fit(wi, z, xf, xi, coef, cov, weights, has_inertia, k, loss_term)
+        fit = _signature_fit(wi, z, xf, xi, coef, cov, weights, has_inertia, k, loss_term)
+        return _with_loss_gradient(fit, x0, values) if loss_term else fit
     _sol, _xw, resid, _rank = solve(wt)
     rate_short = float(np.mean(resid[short] ** 2)) if short.sum() >= 3 else float(np.mean(resid**2))
     rate_ramp = ramp_rate if ramp_rate is not None and np.isfinite(ramp_rate) else rate_short
@@ -143,7 +145,33 @@ def _fit(
         cov = s2 * np.linalg.inv(xw.T @ xw) / np.outer(scale, scale)
     except np.linalg.LinAlgError:
         raise EstimationError("the recording does not determine the payload") from None
-    return _signature_fit(wi, z, xf, xi, coef, cov, weights, has_inertia, k, loss_term)
+    fit = _signature_fit(wi, z, xf, xi, coef, cov, weights, has_inertia, k, loss_term)
+    return _with_loss_gradient(fit, x0, values) if loss_term else fit
+
+
+def _with_loss_gradient(fit: SignatureFit, x0: FloatArray, values: FloatArray) -> SignatureFit:
+    """The fit with its ``loss_gradient``: how its estimates move when the
+    plant's gear losses are (1 + δ) times the calibration's, d estimate / dδ.
+
+    The fit is linear in the measured torque at its final weights; a loss
+    drift adds ``δ·(BmA·sign + BmB·ω + BmC·ω²)`` integrated over each window
+    (the calibrated loss model, :func:`_columns`), so the gradient is one more
+    weighted least-squares solve of that column, exact to the weights' own
+    (second-order) dependence on the residuals.
+
+    Only the calibration's positive loss terms drift: a negative one is no
+    loss but the fit's stand-in for what the rigid model lacks (on a drawn
+    conveyor running 12° downhill, whose belt nearly overhauls the gear, the
+    calibration found BmA = -0.050 N·m beside the gear's viscous loss of
+    0.11 N·m at speed; counted as a loss it halved the drift's effect, which
+    the plant's own losses, scaled, showed to be twice the gradient's).
+    """
+    wi = fit.windows
+    vals = np.maximum(np.asarray(values, dtype=np.float64), 0.0)
+    loss = vals[2] * wi.sign + vals[3] * wi.speed + vals[4] * wi.speed_sq
+    w = fit.weights
+    sol, _r, _rank, _sv = np.linalg.lstsq(x0 * w[:, None], loss * w, rcond=None)
+    return replace(fit, loss_gradient=np.asarray(sol[: fit.estimate.shape[0]], dtype=np.float64))
 
 
 def _signature_fit(

@@ -22,7 +22,7 @@ from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
 from chaintwin.validate.phases import Phase
 
-__all__ = ["SignatureFit", "fit_condition", "fit_signatures"]
+__all__ = ["SignatureFit", "drifting_losses", "fit_condition", "fit_signatures"]
 
 
 @dataclass(frozen=True)
@@ -149,6 +149,23 @@ def _fit(
     return _with_loss_gradient(fit, x0, values) if loss_term else fit
 
 
+def drifting_losses(values: FloatArray) -> FloatArray:
+    """The loss terms (BmA N·m, BmB N·m·s/rad, BmC N·m·s²/rad²) that drift with
+    the oil's temperature, of one parameter vector (J_d, μ, BmA, BmB, BmC).
+
+    The calibration's positive loss terms: a negative one is no loss but the
+    fit's stand-in for what the rigid model lacks. On a drawn conveyor
+    running 12° downhill, whose belt nearly overhauls the gear, the
+    calibration found BmA = -0.050 N·m and a negative BmC beside the gear's
+    viscous loss of 0.11 N·m at speed; counted as losses they more than
+    halved the drift's effect: the payload weighed trusting the losses moved
+    100 kg between the
+    plant's losses at 0.9 and 1.1 of nominal while its drift allowance said
+    ±19 kg, and a payload of 31 kg was weighed -35 ± 22 kg.
+    """
+    return np.maximum(np.asarray(values, dtype=np.float64)[2:5], 0.0)
+
+
 def _with_loss_gradient(fit: SignatureFit, x0: FloatArray, values: FloatArray) -> SignatureFit:
     """The fit with its ``loss_gradient``: how its estimates move when the
     plant's gear losses are (1 + δ) times the calibration's, d estimate / dδ.
@@ -159,16 +176,11 @@ def _with_loss_gradient(fit: SignatureFit, x0: FloatArray, values: FloatArray) -
     weighted least-squares solve of that column, exact to the weights' own
     (second-order) dependence on the residuals.
 
-    Only the calibration's positive loss terms drift: a negative one is no
-    loss but the fit's stand-in for what the rigid model lacks (on a drawn
-    conveyor running 12° downhill, whose belt nearly overhauls the gear, the
-    calibration found BmA = -0.050 N·m beside the gear's viscous loss of
-    0.11 N·m at speed; counted as a loss it halved the drift's effect, which
-    the plant's own losses, scaled, showed to be twice the gradient's).
+    What drifts is :func:`drifting_losses`.
     """
     wi = fit.windows
-    vals = np.maximum(np.asarray(values, dtype=np.float64), 0.0)
-    loss = vals[2] * wi.sign + vals[3] * wi.speed + vals[4] * wi.speed_sq
+    bma, bmb, bmc = drifting_losses(np.asarray(values, dtype=np.float64))
+    loss = bma * wi.sign + bmb * wi.speed + bmc * wi.speed_sq
     w = fit.weights
     sol, _r, _rank, _sv = np.linalg.lstsq(x0 * w[:, None], loss * w, rcond=None)
     return replace(fit, loss_gradient=np.asarray(sol[: fit.estimate.shape[0]], dtype=np.float64))
@@ -558,10 +570,10 @@ def fit_signatures(
         moved.append(j)
         steps.append(step)
         shifted += [up, dn]
-    # and the losses scaled by 1 ± LOSS_STEP, for the loss drift's effect
+    # and the losses moved by ± LOSS_STEP of what drifts, for the loss drift's effect
     for sign in (1.0, -1.0):
         scaled = params.values.copy()
-        scaled[2:] *= 1.0 + sign * LOSS_STEP
+        scaled[2:] += sign * LOSS_STEP * drifting_losses(params.values)
         shifted.append(scaled)
     est = _estimates(wi, prof, np.stack(shifted), tray, ramp_rate)
     for m, (j, step) in enumerate(zip(moved, steps, strict=True)):

@@ -25,7 +25,11 @@ right (the first alarm's first cause), median delay after the onset
 sequences the alarms and the payload events noted; and how far a rail
 obstacle moved the friction feature and the weighing (largest |z| of the
 friction feature against its baseline after the onset, and the median
-payload error before and after the onset).
+payload error before and after the onset); and how the weighings before
+any fault (healthy sequences whole, fault sequences before their onset,
+recordings with a payload event left out) kept their uncertainty's promise:
+shares within 1, 2 and 3 reported standard uncertainties, how many beyond
+5, and on which conveyors (the JSON's ``weighing``).
 """
 
 from __future__ import annotations
@@ -119,6 +123,9 @@ def _sequence(task: dict[str, Any]) -> dict[str, Any]:
     events_true = events_noted = 0
     friction: list[tuple[int, float | None, float | None]] = []
     errors: list[tuple[int, float, float]] = []
+    # the weighing's promise before any fault, without payload events
+    promised = unweighable = 0
+    promise_z: list[float] = []
     for k in range(n):
         severity = 0.0
         if fault is not None and k >= onset:
@@ -159,6 +166,12 @@ def _sequence(task: dict[str, Any]) -> dict[str, Any]:
             if r.payload_kg is not None and r.uncertainty_kg:
                 err = r.payload_kg - payload_truth(run.truth)
                 errors.append((idx, err, err / r.uncertainty_kg))
+            if (healthy or idx < onset) and run.truth["payload_event_s"] is None:
+                promised += 1
+                if r.payload_kg is None or not r.uncertainty_kg:
+                    unweighable += 1
+                else:
+                    promise_z.append(errors[-1][2])
     z_after = _friction_z(monitor, friction, onset)
     return {
         "fault": fault,
@@ -180,6 +193,22 @@ def _sequence(task: dict[str, Any]) -> dict[str, Any]:
         # in reported standard uncertainties: what the weighing promised
         "payload_z_before": _median_abs([z for i, _, z in errors if i < onset]),
         "payload_z_after": _median_abs([z for i, _, z in errors if i >= onset]),
+        "weighing_before_fault": _promise(promised, unweighable, promise_z),
+    }
+
+
+def _promise(n: int, unweighable: int, z: list[float]) -> dict[str, Any]:
+    """How a sequence's weighings before any fault kept their uncertainty's promise."""
+    a = np.abs(np.asarray(z, dtype=np.float64))
+    return {
+        "recordings": n,
+        "unweighable": unweighable,
+        "weighed": int(a.shape[0]),
+        "within_1u": int(np.sum(a <= 1.0)),
+        "within_2u": int(np.sum(a <= 2.0)),
+        "within_3u": int(np.sum(a <= 3.0)),
+        "beyond_5u": int(np.sum(a > 5.0)),
+        "largest_z": float(a.max()) if a.shape[0] else None,
     }
 
 
@@ -243,7 +272,12 @@ def run_monitoring(
     seconds = time.perf_counter() - started
     table = _table(rows)
     _print(table, rows, args, seconds)
-    return {"table": table, "sequences": rows, "seconds": seconds}
+    return {
+        "table": table,
+        "weighing": promise_summary(rows),
+        "sequences": rows,
+        "seconds": seconds,
+    }
 
 
 def _run_task(task: dict[str, Any]) -> dict[str, Any]:
@@ -272,6 +306,36 @@ def _table(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
             }
         )
     return out
+
+
+def promise_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The weighings before any fault pooled over the sequences (the JSON's ``weighing``)."""
+    keys = ("recordings", "unweighable", "weighed", "within_1u", "within_2u", "within_3u")
+    done = [r["weighing_before_fault"] for r in rows if "weighing_before_fault" in r]
+    out: dict[str, Any] = {k: sum(int(d[k]) for d in done) for k in (*keys, "beyond_5u")}
+    worst = [
+        (d["largest_z"], r["conveyor"])
+        for r, d in ((r, r.get("weighing_before_fault")) for r in rows)
+        if d and d["largest_z"] is not None
+    ]
+    out["largest_z"], out["largest_z_conveyor"] = max(worst) if worst else (None, None)
+    out["conveyors_beyond_5u"] = sorted(
+        r["conveyor"] for r in rows if r.get("weighing_before_fault", {}).get("beyond_5u", 0) > 0
+    )
+    return out
+
+
+def _print_promise(rows: list[dict[str, Any]]) -> None:
+    p = promise_summary(rows)
+    n = max(p["weighed"], 1)
+    print(
+        f"weighing before any fault (no payload event): {p['recordings']} recordings, "
+        f"{p['unweighable'] / max(p['recordings'], 1):.1%} unweighable; of {p['weighed']} "
+        f"weighed {p['within_1u'] / n:.1%} / {p['within_2u'] / n:.1%} / "
+        f"{p['within_3u'] / n:.1%} within 1u / 2u / 3u, {p['beyond_5u']} beyond 5u "
+        f"(largest {_fmt(p['largest_z'], '.1f')}u, {p['largest_z_conveyor']}; "
+        f"conveyors beyond 5u: {', '.join(p['conveyors_beyond_5u']) or 'none'})"
+    )
 
 
 def _fmt(x: float | None, spec: str = ".1f") -> str:
@@ -311,6 +375,7 @@ def _print(table: list[dict[str, Any]], rows: list[dict[str, Any]], args: Any, s
                 f"{_fmt(r['payload_error_after_kg'], '.2f')} kg "
                 f"({_fmt(r['payload_z_after'], '.2f')} u) after"
             )
+    _print_promise(rows)
     print("missed or wrong:")
     for r in rows:
         if "error" in r:

@@ -105,3 +105,35 @@ def test_a_payload_less_certain_than_the_belt_is_heavy_is_no_number() -> None:
     assert "exceeds the belt's and tray's own mass (430 kg)" in out.warnings[0].message
     tight = Signatures(183.0, 40.0**2, None, None, 0.0, 0.0, moving_mass_kg=430.0)
     assert _combine(tight, LossDrift()).payload_kg == 183.0
+
+
+def test_the_monitoring_evaluation_counts_the_weighing_s_promise_by_hand() -> None:
+    """Three weighings at 0.5u, 2.5u and 6u and one unweighable recording, and a
+    second sequence of one at 1u: pooled, 5 recordings, 1 unweighable, 2 of 4
+    within 1u, 2 within 2u, 3 within 3u, one beyond 5u, on the first conveyor."""
+    path = SCRIPT.parent / "fidelity_monitoring.py"
+    spec = importlib.util.spec_from_file_location("fidelity_monitoring", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    first = module._promise(4, 1, [0.5, -2.5, 6.0])
+    assert first == {
+        "recordings": 4,
+        "unweighable": 1,
+        "weighed": 3,
+        "within_1u": 1,
+        "within_2u": 1,
+        "within_3u": 2,
+        "beyond_5u": 1,
+        "largest_z": 6.0,
+    }
+    rows = [
+        {"conveyor": "a", "weighing_before_fault": first},
+        {"conveyor": "b", "weighing_before_fault": module._promise(1, 0, [1.0])},
+        {"conveyor": "c", "error": "calibration: failed"},
+    ]
+    pooled = module.promise_summary(rows)
+    assert (pooled["recordings"], pooled["unweighable"], pooled["weighed"]) == (5, 1, 4)
+    assert (pooled["within_1u"], pooled["within_2u"], pooled["within_3u"]) == (2, 2, 3)
+    assert pooled["beyond_5u"] == 1 and pooled["conveyors_beyond_5u"] == ["a"]
+    assert (pooled["largest_z"], pooled["largest_z_conveyor"]) == (6.0, "a")

@@ -16,11 +16,12 @@ from conftest import REFERENCE_PROFILE
 from chaintwin.cli.app import EXIT_ALARM, main
 from chaintwin.cli.monitor_cmd import order_recordings
 from chaintwin.diagnose.causes import resolve_causes
-from chaintwin.diagnose.features import recording_features
+from chaintwin.diagnose.features import _line_sums, recording_features
 from chaintwin.diagnose.health import FeatureBaseline, fit_baseline, forecast_crossing, x_of_y
 from chaintwin.diagnose.monitor import ConveyorMonitor
 from chaintwin.diagnose.monitor_state import LEARNED, MonitorState
 from chaintwin.diagnose.records import Alarm, Event, MonitorSettings, RecordingResult
+from chaintwin.diagnose.spectra import Spectrum
 from chaintwin.diagnose.state import (
     STATE_VERSION,
     acknowledge_alarm,
@@ -234,6 +235,23 @@ def test_forecast_of_a_linear_trend_brackets_the_true_crossing() -> None:
     assert fc.slope_per_day == pytest.approx(0.01, rel=0.1)
     flat = [1.0 + rng.normal(0, 0.005) for _ in range(40)]
     assert forecast_crossing("friction", times, flat, limit=1.3) is None
+
+
+def test_a_shaft_comb_leaves_its_largest_line_out_and_a_tooth_pass_sum_does_not() -> None:
+    """Lines of 1, 2, 3 and 10 mNm on a 1 Hz grid: the comb sums 6 mNm (the
+    10 mNm line left out), the same lines as a plain line sum 16 mNm; a comb of
+    two lines (fewer than COMB_MIN_LINES) keeps both."""
+    x = np.arange(0.0, 100.0, 1.0)
+    amplitude = np.zeros_like(x)
+    for at, a in ((10.0, 0.001), (20.0, 0.002), (30.0, 0.003), (40.0, 0.010)):
+        amplitude[int(at)] = a
+    spec = Spectrum(x, amplitude, "frequency", 1.0, "torque", 1400.0)
+    lines = [10.0, 20.0, 30.0, 40.0]
+    sums = _line_sums(spec, {"comb_rotor": lines, "tooth_pass": lines}, ["comb_rotor"])
+    assert sums["comb_rotor"] == pytest.approx(0.006)
+    assert sums["tooth_pass"] == pytest.approx(0.016)
+    two = _line_sums(spec, {"comb_rotor": [30.0, 40.0]}, ["comb_rotor"])
+    assert two["comb_rotor"] == pytest.approx(0.013)
 
 
 def test_causes_name_the_specific_fault() -> None:

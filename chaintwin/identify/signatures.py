@@ -159,9 +159,9 @@ def drifting_losses(values: FloatArray) -> FloatArray:
     calibration found BmA = -0.050 N·m and a negative BmC beside the gear's
     viscous loss of 0.11 N·m at speed; counted as losses they more than
     halved the drift's effect: the payload weighed trusting the losses moved
-    100 kg between the
-    plant's losses at 0.9 and 1.1 of nominal while its drift allowance said
-    ±19 kg, and a payload of 31 kg was weighed -35 ± 22 kg.
+    100 kg between the plant's losses at 0.9 and 1.1 of nominal while its
+    drift allowance said ±19 kg, and a payload of 31 kg was weighed
+    -35 ± 22 kg.
     """
     return np.maximum(np.asarray(values, dtype=np.float64)[2:5], 0.0)
 

@@ -28,6 +28,7 @@ from sqlalchemy import func, select, text
 from sqlalchemy.orm import Session
 
 from chaintwin.cli.app import main
+from chaintwin.cli.serve_cmd import system_malloc_command
 from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.identify.calibrating import calibrate
 from chaintwin.live.ledger import acquire_lease, release_lease
@@ -84,6 +85,7 @@ class Service:
 
     def __init__(self, args: list[str], log: Path) -> None:
         env = dict(os.environ, PYTHONPATH=str(ROOT), OPENBLAS_NUM_THREADS="1")
+        env.pop("PYTHONMALLOC", None)  # the service's own default
         self.log = log
         with log.open("ab") as err:
             self.proc = subprocess.Popen(
@@ -183,6 +185,9 @@ def test_slowly_written_files_are_read_once_complete_with_metrics_health_and_sig
 
     try:
         wait_for(up, 60, "the service answers", service)
+        # serve ran itself again, the same process, with Python's objects in glibc's heap
+        environ = Path(f"/proc/{service.proc.pid}/environ").read_bytes().split(b"\0")
+        assert b"PYTHONMALLOC=malloc" in environ
         files = recordings(fleet)[:3]
         # chunks every 0.25 s, settle time 0.6 s: never read half-way
         writers = [threading.Thread(target=write_slowly, args=(f, watched / f.name)) for f in files]
@@ -1128,6 +1133,17 @@ def test_a_folder_remembers_recent_files_only_and_asks_the_store_about_older_one
     record_refusal(store, "e" * 64, "/in/bad.csv", "folder:/in", "bad")
     assert known_paths(store, [f, "/in/bad.csv", "/in/new.csv"], chunk=2) == {f, "/in/bad.csv"}
     store.close()
+
+
+def test_serve_from_the_command_line_runs_again_with_python_s_objects_in_glibc_s_heap() -> None:
+    """Only ``serve``, only from the command line, and a PYTHONMALLOC the user set is kept."""
+    argv = ["/venv/bin/python", "-X", "dev", "-m", "chaintwin", "serve", "--db", "x"]
+    again = system_malloc_command(["serve", "--db", "x"], {"PATH": "/bin"}, argv)
+    assert again == (argv, {"PATH": "/bin", "PYTHONMALLOC": "malloc"})
+    assert system_malloc_command(["serve"], {"PYTHONMALLOC": "pymalloc"}, argv) is None
+    assert system_malloc_command(["ingest", "serve"], {}, argv) is None
+    assert system_malloc_command(["--help"], {}, argv) is None
+    assert system_malloc_command([], {}, argv) is None
 
 
 def test_memory_usage_and_trim_on_glibc() -> None:

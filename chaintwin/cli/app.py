@@ -103,6 +103,13 @@ def main(argv: list[str] | None = None) -> int:
     argv : list of str, optional
         Arguments without the program name; default ``sys.argv[1:]``.
     """
+    if argv is None:
+        from chaintwin.cli.serve_cmd import system_malloc_command
+
+        again = system_malloc_command(sys.argv[1:], os.environ, sys.orig_argv)
+        if again is not None:
+            # the same process (pid, open files), Python's objects in glibc's heap
+            os.execve(sys.executable, *again)
     previous = None
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGTERM, _terminate)

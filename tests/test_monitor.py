@@ -165,6 +165,32 @@ def test_a_drifting_payload_estimate_widens_a_sloped_baseline_by_hand() -> None:
     assert flat.check(0.082, 20.0, 5.0, 0.10, payload_sigma_kg=10.0).z == pytest.approx(6.0)
 
 
+def test_the_inertia_payload_s_drift_widens_a_baseline_regressed_on_it_by_hand() -> None:
+    """The broadband residual regressed on the inertia payload: 0.006 + 0.00029·p
+    ± 0.00046 Nm. A value 0.0040 above the line at 20 kg (34 %, beyond the
+    smallest change of 30 %) is 8.7 scales out and exceeds; if the loss drift
+    may have moved the inertia payload by 2.4 kg (1 sigma, the part of its
+    uncertainty the drift adds: sqrt(3² - 1.8²) for an uncertainty of 3 kg,
+    1.8 trusting the losses), z = 0.0040 / hypot(0.00046, 0.00029·2.4) = 4.8:
+    no exceedance."""
+    from chaintwin.diagnose.alarms import judge
+    from chaintwin.diagnose.features import _drift_part
+
+    assert _drift_part(3.0, 1.8) == pytest.approx(2.4)
+    assert math.isnan(_drift_part(None, 1.8))
+    fb = FeatureBaseline(0.006, 0.00029, 0.00046, count=20, outliers=0, mean_payload_kg=25.0)
+    value = fb.expected(20.0) + 0.0040
+    settings = MonitorSettings()
+    when = datetime(2026, 3, 2, tzinfo=UTC)
+    plain = {"residual_std": value, "payload_inertia_kg": 20.0}
+    _, _, exceeded = judge({"residual_std": fb}, plain, {}, {}, settings, when)
+    assert exceeded == ["residual_std"]
+    drifting = plain | {"payload_inertia_drift_kg": _drift_part(3.0, 1.8)}
+    _, change, exceeded = judge({"residual_std": fb}, drifting, {}, {}, settings, when)
+    assert exceeded == [] and change["residual_std"] > 0.2
+    assert fb.check(value, 20.0, 5.0, 0.3, payload_sigma_kg=2.4).z == pytest.approx(4.8, abs=0.05)
+
+
 def test_a_loss_drift_allowance_is_a_bias_taken_off_before_the_noise_by_hand() -> None:
     """A flat baseline 1.0 ± 0.05; z 5, smallest rise 50 %.
 

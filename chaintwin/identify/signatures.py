@@ -22,7 +22,7 @@ from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
 from chaintwin.validate.phases import Phase
 
-__all__ = ["SignatureFit", "drifting_losses", "fit_condition", "fit_signatures"]
+__all__ = ["SignatureFit", "drift_bases", "fit_condition", "fit_signatures"]
 
 
 @dataclass(frozen=True)
@@ -149,21 +149,28 @@ def _fit(
     return _with_loss_gradient(fit, x0, values) if loss_term else fit
 
 
-def drifting_losses(values: FloatArray) -> FloatArray:
-    """The loss terms (BmA N·m, BmB N·m·s/rad, BmC N·m·s²/rad²) that drift with
-    the oil's temperature, of one parameter vector (J_d, μ, BmA, BmB, BmC).
+def drift_bases(values: FloatArray) -> list[FloatArray]:
+    """What may drift with the oil's temperature, of one parameter vector
+    (J_d, μ, BmA, BmB, BmC): the loss terms (BmA N·m, BmB N·m·s/rad, BmC
+    N·m·s²/rad²) a drift scales, in one or two readings.
 
-    The calibration's positive loss terms: a negative one is no loss but the
-    fit's stand-in for what the rigid model lacks. On a drawn conveyor
-    running 12° downhill, whose belt nearly overhauls the gear, the
-    calibration found BmA = -0.050 N·m and a negative BmC beside the gear's
-    viscous loss of 0.11 N·m at speed; counted as losses they more than
-    halved the drift's effect: the payload weighed trusting the losses moved
-    100 kg between the plant's losses at 0.9 and 1.1 of nominal while its
-    drift allowance said ±19 kg, and a payload of 31 kg was weighed
-    -35 ± 22 kg.
+    With a negative calibrated loss term the calibration does not say which:
+    it may be no loss but the fit's stand-in for what the rigid model lacks
+    (then only the positive terms drift), or a real part of the loss curve's
+    shape (then every term scales). The drift's allowance takes whichever
+    reading moves the estimate in question more. Both happen: on a drawn
+    conveyor 12° downhill, its belt nearly overhauling the gear (BmA = -0.050
+    N·m, BmC negative, beside a viscous loss of 0.11 N·m at speed), scaling
+    every term more than halved the drift's effect (the payload weighed
+    trusting the losses moved 100 kg between the plant's losses at 0.9 and
+    1.1 of nominal, the allowance said ±19 kg, a 31 kg payload was weighed
+    -35 ± 22 kg); on another (1 ms scopes), the positive terms alone gave
+    the smaller allowance (±5.6 kg against ±9 kg, its payloads weighed
+    about 25 kg low: 54 of 91 weighings beyond 5 uncertainties).
     """
-    return np.maximum(np.asarray(values, dtype=np.float64)[2:5], 0.0)
+    every = np.asarray(values, dtype=np.float64)[2:5]
+    positive = np.maximum(every, 0.0)
+    return [positive] if np.array_equal(positive, every) else [positive, every]
 
 
 def _with_loss_gradient(fit: SignatureFit, x0: FloatArray, values: FloatArray) -> SignatureFit:
@@ -176,14 +183,18 @@ def _with_loss_gradient(fit: SignatureFit, x0: FloatArray, values: FloatArray) -
     weighted least-squares solve of that column, exact to the weights' own
     (second-order) dependence on the residuals.
 
-    What drifts is :func:`drifting_losses`.
+    What drifts is :func:`drift_bases`; of two readings, the one that moves
+    the speed-loss change (the condition fit's drift-sensitive estimate) more.
     """
     wi = fit.windows
-    bma, bmb, bmc = drifting_losses(np.asarray(values, dtype=np.float64))
-    loss = bma * wi.sign + bmb * wi.speed + bmc * wi.speed_sq
+    columns = np.column_stack(
+        [b[0] * wi.sign + b[1] * wi.speed + b[2] * wi.speed_sq for b in drift_bases(values)]
+    )
     w = fit.weights
-    sol, _r, _rank, _sv = np.linalg.lstsq(x0 * w[:, None], loss * w, rcond=None)
-    return replace(fit, loss_gradient=np.asarray(sol[: fit.estimate.shape[0]], dtype=np.float64))
+    sol, _r, _rank, _sv = np.linalg.lstsq(x0 * w[:, None], columns * w[:, None], rcond=None)
+    k = fit.estimate.shape[0]
+    pick = int(np.argmax(np.abs(sol[k - 1, :])))
+    return replace(fit, loss_gradient=np.asarray(sol[:k, pick], dtype=np.float64))
 
 
 def _signature_fit(
@@ -570,18 +581,23 @@ def fit_signatures(
         moved.append(j)
         steps.append(step)
         shifted += [up, dn]
-    # and the losses moved by ± LOSS_STEP of what drifts, for the loss drift's effect
-    for sign in (1.0, -1.0):
-        scaled = params.values.copy()
-        scaled[2:] += sign * LOSS_STEP * drifting_losses(params.values)
-        shifted.append(scaled)
+    # and the losses moved by ± LOSS_STEP of what may drift, for the loss drift's effect
+    bases = drift_bases(params.values)
+    for basis in bases:
+        for sign in (1.0, -1.0):
+            scaled = params.values.copy()
+            scaled[2:] += sign * LOSS_STEP * basis
+            shifted.append(scaled)
     est = _estimates(wi, prof, np.stack(shifted), tray, ramp_rate)
     for m, (j, step) in enumerate(zip(moved, steps, strict=True)):
         jac[:, j] = (est[2 * m] - est[2 * m + 1]) / (2 * step)
     # the model subtracts the calibrated losses: when the plant's are (1 + δ)
-    # times those, the estimates move as if the calibrated ones were (1 - δ)
-    gradient = -(est[-2] - est[-1]) / (2.0 * LOSS_STEP)
-    base = replace(base, loss_gradient=gradient)
+    # times those, the estimates move as if the calibrated ones were (1 - δ);
+    # of the two readings of what drifts, the one that moves the friction
+    # payload (the drift-sensitive estimate) more
+    tail = est[len(est) - 2 * len(bases) :]
+    gradients = [-(tail[2 * b] - tail[2 * b + 1]) / (2.0 * LOSS_STEP) for b in range(len(bases))]
+    base = replace(base, loss_gradient=max(gradients, key=lambda g: abs(float(g[0]))))
     return base, base.covariance + jac @ params.covariance @ jac.T
 
 

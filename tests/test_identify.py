@@ -148,6 +148,43 @@ def test_one_load_one_speed_uncertainty_covers_the_ramp_bias(name: str, sample_t
     assert abs(error) < 2.0 * cal.sensitivity_rel_uncertainty
 
 
+def test_a_constant_loss_below_zero_is_refitted_without_it_by_hand() -> None:
+    """A several-loads fit with BmA = -1.15 ± 0.32 N·m (3.6 standard errors below
+    zero) and μ = 0.348: refitted with BmA fixed at 0 (μ = 0.1225 ± 0.02), half
+    the difference of the two μ (0.11275) joins μ's uncertainty:
+    sqrt(0.02² + 0.11275²) = 0.1145. A BmA only 0.3 standard errors below zero
+    is kept as it is, refit not asked."""
+    from chaintwin.identify.calibrating import _constant_loss_check
+    from chaintwin.model.rigid import RigidParameters
+
+    def params(mu: float, bma: float, sd_mu: float, sd_bma: float) -> RigidParameters:
+        cov = np.diag([1e-8, sd_mu**2, sd_bma**2, 1e-8, 1e-12])
+        return RigidParameters(np.array([0.003, mu, bma, 0.0023, 0.0]), cov, ())
+
+    asked: list[bool] = []
+
+    class Refit:
+        fit_bma = True
+
+        def fit(self, recordings: list[Recording], profile: Any) -> Any:
+            asked.append(self.fit_bma)
+            return dataclasses.make_dataclass("Fitted", ["parameters_"])(
+                RigidParameters(
+                    np.array([0.003, 0.1225, 0.0, 0.0038, 0.0]),
+                    np.diag([1e-8, 0.02**2, 0.0, 1e-8, 1e-12]),
+                    ("BmA",),
+                )
+            )
+
+    checked, notes = _constant_loss_check(Refit(), [], PROFILE, params(0.348, -1.15, 0.056, 0.32))  # type: ignore[arg-type]
+    assert asked == [False]  # refitted with BmA fixed
+    assert checked["mu"] == pytest.approx(0.1225) and checked["BmA"] == 0.0
+    assert checked.stderr("mu") == pytest.approx(np.hypot(0.02, 0.5 * (0.348 - 0.1225)))
+    assert [n.code for n in notes] == ["losses_not_physical"]
+    kept, none = _constant_loss_check(Refit(), [], PROFILE, params(0.2, -0.1, 0.05, 0.32))  # type: ignore[arg-type]
+    assert none == [] and kept["BmA"] == -0.1 and asked == [False]
+
+
 def test_one_load_several_speeds_case() -> None:
     recs = [virtual(0, 410, speed_rpm=1415), virtual(0, 411, speed_rpm=700)]
     cal = calibrate(recs, PROFILE)

@@ -122,6 +122,10 @@ class RigidModelRegression:
         Loads must differ by this much to separate μ from BmA, kg.
     fit_bmc : bool
         Fit the speed-squared loss BmC; False fixes it to 0.
+    fit_bma : bool
+        Fit the constant loss BmA where the loads can tell it from friction;
+        False fixes it to ``bma_prior`` (a check of a fit that found it
+        negative).
     ramp_windows : bool or None
         Use the short windows inside ramps. They resolve the speed dependence
         of the losses when all plateaus are at one speed, but a lightly damped
@@ -147,6 +151,7 @@ class RigidModelRegression:
         bma_prior: float = 0.0,
         min_load_spread_kg: float = 5.0,
         fit_bmc: bool = True,
+        fit_bma: bool = True,
         ramp_windows: bool | None = None,
         variance_components: bool = False,
         ramp_side: str = "both",
@@ -159,6 +164,7 @@ class RigidModelRegression:
         self.bma_prior = bma_prior
         self.min_load_spread_kg = min_load_spread_kg
         self.fit_bmc = fit_bmc
+        self.fit_bma = fit_bma
 
     # ------------------------------------------------------------------ fit
     def fit(
@@ -327,6 +333,10 @@ class RigidModelRegression:
                     "recording with a different known load to separate them",
                 )
             )
+        elif not self.fit_bma:
+            free[2] = False
+            values[2] = self.bma_prior
+            fixed.append("BmA")
         if not self.fit_bmc:
             free[4] = False
             fixed.append("BmC")

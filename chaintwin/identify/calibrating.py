@@ -187,6 +187,15 @@ def _friction_check(cal: Calibration, recordings: Sequence[Recording]) -> Record
     )
 
 
+def _widen_mu(parameters: RigidParameters, half: float) -> RigidParameters:
+    """``parameters`` with ``half`` (the split-half estimate of a systematic
+    error of μ) added in quadrature to μ's standard uncertainty."""
+    k = PARAMETER_NAMES.index("mu")
+    cov = np.array(parameters.covariance, dtype=np.float64)
+    cov[k, k] += half * half
+    return replace(parameters, covariance=cov)
+
+
 def _ramp_check(
     settings: RigidModelRegression,
     recordings: Sequence[Recording],
@@ -225,9 +234,6 @@ def _ramp_check(
             )
         ]
     half = 0.5 * abs(mus["accelerate"] - mus["decelerate"])
-    k = PARAMETER_NAMES.index("mu")
-    cov = np.array(parameters.covariance, dtype=np.float64)
-    cov[k, k] += half * half
     mu = parameters["mu"]
     note = RecordingWarning(
         "ramp_check",
@@ -236,7 +242,7 @@ def _ramp_check(
         f"difference ({half / mu:.1%} of mu) is added to mu's uncertainty (what the rigid "
         "model misses in the ramps)",
     )
-    return replace(parameters, covariance=cov), [note]
+    return _widen_mu(parameters, half), [note]
 
 
 STICK_SLIP_RATIO = 3.0
@@ -341,9 +347,6 @@ def _loss_check(
     except EstimationError:
         return parameters, notes
     half = 0.5 * abs(parameters["mu"] - refit["mu"])
-    k = PARAMETER_NAMES.index("mu")
-    cov = np.array(refit.covariance, dtype=np.float64)
-    cov[k, k] += half * half
     notes.append(
         RecordingWarning(
             "losses_not_physical",
@@ -354,7 +357,7 @@ def _loss_check(
             " of mu) is added to mu's uncertainty",
         )
     )
-    return replace(refit, covariance=cov), notes
+    return _widen_mu(refit, half), notes
 
 
 def _constant_loss_check(
@@ -387,9 +390,6 @@ def _constant_loss_check(
     except EstimationError:
         return parameters, []
     half = 0.5 * abs(parameters["mu"] - refit["mu"])
-    k = PARAMETER_NAMES.index("mu")
-    cov = np.array(refit.covariance, dtype=np.float64)
-    cov[k, k] += half * half
     note = RecordingWarning(
         "losses_not_physical",
         f"the constant loss BmA = {parameters['BmA']:.3g} N·m is below zero by "
@@ -398,7 +398,7 @@ def _constant_loss_check(
         f"({half / max(refit['mu'], 1e-12):.1%} of mu) is added to mu's uncertainty. A heavier "
         "reference load tells the belt's friction from the gear's constant loss better",
     )
-    return replace(refit, covariance=cov), [note]
+    return _widen_mu(refit, half), [note]
 
 
 def calibrate(

@@ -10,9 +10,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from threadpoolctl import threadpool_limits
 
 from chaintwin.read.profile import ConveyorProfile, load_profile
 from chaintwin.store.throwaway import free_port, postgres_binaries, throwaway_postgres
+
+# One BLAS thread: the machine's cores are shared with the processes the tests start
+# (workers, servers), and a multi-threaded BLAS on small matrices only contends for them.
+# The environment variables reach those processes; threadpoolctl pins this one, whose
+# BLAS may already be loaded by the time this file is read.
+for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_variable, "1")
+threadpool_limits(limits=1)
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "chaintwin" / "examples"
 REFERENCE_PROFILE = EXAMPLES / "profiles" / "white-belt-01.yaml"

@@ -667,6 +667,7 @@ def test_cli_monitor_state_fail_on_alarm_and_acknowledge(
     assert main([*args, *files[:20], "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert len(out["recordings"]) == 20
+    first_run = out["recordings"]
     assert out["conveyors"][0]["conveyor"] == "white-belt-01"
     code = main([*args, *files[20:], "--json", "--fail-on-alarm"])
     out = json.loads(capsys.readouterr().out)
@@ -674,6 +675,13 @@ def test_cli_monitor_state_fail_on_alarm_and_acknowledge(
     alarms = out["conveyors"][0]["open_alarms"]
     assert alarms and alarms[0]["cause"] == "friction"
     assert any(r["alarm"] for r in out["recordings"])
+    # the alarmed feature's forecast stays while its alarm is open: crossed, since when
+    (friction,) = [f for f in out["conveyors"][0]["forecasts"] if f["feature"] == "friction"]
+    assert friction["crossed"] is True
+    assert friction["remaining_life_days"]["expected"] == 0.0
+    recordings = first_run + out["recordings"]
+    exceeded = [r["recorded_at"] for r in recordings if "friction" in r["exceeded"]]
+    assert friction["crosses_at"] == exceeded[0]
     for a in alarms:
         assert (
             main(["acknowledge", a["id"], "--state", str(state), "--by", "me", "--why", "WO 17"])
@@ -684,6 +692,12 @@ def test_cli_monitor_state_fail_on_alarm_and_acknowledge(
     assert main([*args, files[-1], "--json", "--fail-on-alarm"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["recordings"][0]["status"] == "duplicate"
+    assert main([*args, files[-1]]) == 0
+    text = " ".join(capsys.readouterr().out.split())  # as wrapped to the terminal's width
+    assert (
+        f"forecast: friction (friction) crossed {friction['limit']:.4g} since {exceeded[0][:16]}, "
+        "remaining life 0"
+    ) in text
     assert (
         load_state(state)["conveyors"]["white-belt-01"]["alarms"][0]["acknowledged"]["by"] == "me"
     )

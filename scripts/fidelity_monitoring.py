@@ -29,7 +29,13 @@ payload error before and after the onset); and how the weighings before
 any fault (healthy sequences whole, fault sequences before their onset,
 recordings with a payload event left out) kept their uncertainty's promise:
 shares within 1, 2 and 3 reported standard uncertainties, how many beyond
-5, and on which conveyors (the JSON's ``weighing``).
+5, and on which conveyors (the JSON's ``weighing``); and how good the
+remaining-life forecast was, as prognostics judges it (the JSON's
+``remaining_life``): on each alarmed fault sequence the true time to the
+limit is the recording at which the alarm opened, and the alarmed feature's
+forecast made :data:`LAMBDAS` of the way from the onset to that recording is
+within +-20 % of the true remaining time or not (alpha-lambda accuracy);
+the coverage is the share of those forecasts whose band holds the truth.
 """
 
 from __future__ import annotations
@@ -43,6 +49,8 @@ from typing import Any
 
 import numpy as np
 
+from chaintwin.diagnose import baseline
+from chaintwin.diagnose.health import FeatureBaseline
 from chaintwin.diagnose.monitor import ConveyorMonitor
 from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.errors import ChaintwinError
@@ -88,6 +96,12 @@ END_SEVERITY = {
 DRIFT = 0.10
 """Amplitude of the slow gear-loss drift, 1."""
 
+LAMBDAS = (0.5, 0.8)
+"""Where the remaining life is judged: this share of the way from the onset to the alarm."""
+
+ALPHA = 0.2
+"""A remaining life counts as accurate within this share of the true one (alpha-lambda)."""
+
 
 def _sequence(task: dict[str, Any]) -> dict[str, Any]:
     """Simulate and monitor one sequence (runs in a worker process)."""
@@ -126,6 +140,8 @@ def _sequence(task: dict[str, Any]) -> dict[str, Any]:
     # the weighing's promise before any fault, without payload events
     promised = unweighable = 0
     promise_z: list[float] = []
+    # the baselines as they stood at each recording (frozen values: a shallow copy)
+    baselines_at: dict[int, dict[str, FeatureBaseline]] = {}
     for k in range(n):
         severity = 0.0
         if fault is not None and k >= onset:
@@ -150,6 +166,7 @@ def _sequence(task: dict[str, Any]) -> dict[str, Any]:
         events_true += run.truth["payload_event_s"] is not None
         for r in monitor.process(inspect_recording(run.recording, profile=profile)):
             idx = int(r.file.rsplit("-", 1)[1])
+            baselines_at[idx] = dict(monitor.baselines or {})
             if r.alarm and not healthy and idx >= onset and first_alarm is None:
                 first_alarm = idx
                 first_cause = r.causes[0]["cause"] if r.causes else None
@@ -173,6 +190,7 @@ def _sequence(task: dict[str, Any]) -> dict[str, Any]:
                 else:
                     promise_z.append(errors[-1][2])
     z_after = _friction_z(monitor, friction, onset)
+    life = _remaining_life(monitor, baselines_at, onset, first_alarm, first_feature)
     return {
         "fault": fault,
         "conveyor": profile.id,
@@ -194,7 +212,119 @@ def _sequence(task: dict[str, Any]) -> dict[str, Any]:
         "payload_z_before": _median_abs([z for i, _, z in errors if i < onset]),
         "payload_z_after": _median_abs([z for i, _, z in errors if i >= onset]),
         "weighing_before_fault": _promise(promised, unweighable, promise_z),
+        "remaining_life": life,
     }
+
+
+def _remaining_life(
+    monitor: ConveyorMonitor,
+    baselines_at: dict[int, dict[str, FeatureBaseline]],
+    onset: int,
+    alarm: int | None,
+    feature: str | None,
+) -> list[dict[str, Any]]:
+    """The alarmed feature's remaining life forecast at each of :data:`LAMBDAS`.
+
+    The truth is the time from the forecast's recording to the recording at
+    which the alarm opened. The forecast is the monitor's
+    (:func:`chaintwin.diagnose.baseline.forecasts`) over the results up to
+    that recording, with the baselines as they stood then. ``within`` says
+    whether its expected remaining life is within +-:data:`ALPHA` of the
+    truth (False without a forecast), ``covered`` whether the truth lies in
+    its band (earliest .. latest; no latest: beyond the horizon, open).
+    """
+    if alarm is None or feature is None or alarm <= onset:
+        return []
+    rows = {int(h["file"].rsplit("-", 1)[1]): h for h in monitor.history if h.get("file")}
+    out = []
+    for lam in LAMBDAS:
+        k = onset + round(lam * (alarm - onset))
+        if k >= alarm or k not in rows or alarm not in rows:
+            continue
+        history = [h for i, h in sorted(rows.items()) if i <= k]
+        true_days = (
+            datetime.fromisoformat(rows[alarm]["recorded_at"])
+            - datetime.fromisoformat(rows[k]["recorded_at"])
+        ).total_seconds() / 86400.0
+        fc = next(
+            (
+                f
+                for f in baseline.forecasts(
+                    baselines_at.get(k, {}),
+                    history,
+                    monitor.baseline_since or "",
+                    monitor.settings.z_limit,
+                )
+                if f["feature"] == feature
+            ),
+            None,
+        )
+        life = (fc or {}).get("remaining_life_days") or {}
+        expected, earliest, latest = (life.get(x) for x in ("expected", "earliest", "latest"))
+        out.append(
+            {
+                "lambda": lam,
+                "recording": k,
+                "feature": feature,
+                "true_days": true_days,
+                "expected_days": expected,
+                "earliest_days": earliest,
+                "latest_days": latest,
+                "crossed": None if fc is None else fc["crossed"],
+                "within": expected is not None and abs(expected - true_days) <= ALPHA * true_days,
+                "covered": None
+                if expected is None
+                else earliest <= true_days and (latest is None or true_days <= latest),
+            }
+        )
+    return out
+
+
+def life_summary(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The alpha-lambda accuracy and the band's coverage per lambda (the JSON's ``remaining_life``).
+
+    ``sequences``: alarmed fault sequences judged at that lambda;
+    ``forecasts``: of them with a forecast of the alarmed feature;
+    ``within``: forecasts within +-:data:`ALPHA` of the truth (its share is of
+    ``sequences``: a missing forecast counts as a miss); ``covered``: truths
+    inside the band (its share is of ``forecasts``); ``within_by_fault``:
+    per fault type, [within, sequences].
+    """
+    out = []
+    for lam in LAMBDAS:
+        got = [x for r in rows for x in r.get("remaining_life", []) if x["lambda"] == lam]
+        made = [x for x in got if x["expected_days"] is not None]
+        within = sum(1 for x in got if x["within"])
+        covered = sum(1 for x in made if x["covered"])
+        out.append(
+            {
+                "lambda": lam,
+                "alpha": ALPHA,
+                "sequences": len(got),
+                "forecasts": len(made),
+                "within": within,
+                "within_share": within / len(got) if got else None,
+                "covered": covered,
+                "coverage": covered / len(made) if made else None,
+                "within_by_fault": {
+                    f: [
+                        sum(1 for x in mine if x["within"]),
+                        len(mine),
+                    ]
+                    for f in FAULT_TYPES
+                    for mine in (
+                        [
+                            x
+                            for r in rows
+                            if r["fault"] == f
+                            for x in r.get("remaining_life", [])
+                            if x["lambda"] == lam
+                        ],
+                    )
+                },
+            }
+        )
+    return out
 
 
 def _promise(n: int, unweighable: int, z: list[float]) -> dict[str, Any]:
@@ -275,6 +405,7 @@ def run_monitoring(
     return {
         "table": table,
         "weighing": promise_summary(rows),
+        "remaining_life": life_summary(rows),
         "sequences": rows,
         "seconds": seconds,
     }
@@ -376,6 +507,13 @@ def _print(table: list[dict[str, Any]], rows: list[dict[str, Any]], args: Any, s
                 f"({_fmt(r['payload_z_after'], '.2f')} u) after"
             )
     _print_promise(rows)
+    for x in life_summary(rows):
+        print(
+            f"remaining life at lambda {x['lambda']}: {x['within']} of {x['sequences']} alarmed "
+            f"sequences within +-{x['alpha']:.0%} ({_fmt(x['within_share'], '.0%')}), "
+            f"{x['forecasts']} with a forecast, band covering the truth in {x['covered']} "
+            f"({_fmt(x['coverage'], '.0%')})"
+        )
     print("missed or wrong:")
     for r in rows:
         if "error" in r:

@@ -110,3 +110,28 @@ def test_a_forecast_carries_its_band_for_plotting_beside_its_crossings() -> None
     for series, crossing in ((mid, fc.crosses_at), (hi, fc.earliest), (lo, fc.latest)):
         assert abs(when(series) - (crossing - T0).total_seconds()) <= thin + 1.0
     assert "band" not in fc.to_dict()  # the monitor's JSON is unchanged
+
+
+def test_a_limit_crossed_says_since_when_rising_or_levelled_off() -> None:
+    # flat at 1.0 for 20 days, a step to 1.3 at day 20 (recording 40), then 1.3 on:
+    # levelled off, no rising trend over the last steps, yet above the 1.2 limit
+    rng = np.random.default_rng(4)
+    n = 70
+    values = np.where(np.arange(n) < 40, 1.0, 1.3) + rng.normal(0.0, 0.01, n)
+    times = _times(n)
+    fc = forecast_feature("friction", times, values, 1.2)
+    assert fc is not None and fc.crossed
+    # when it went above to stay: the first recording above, day 20 (recording 40)
+    assert fc.crosses_at == fc.earliest == fc.latest == times[40]
+    assert fc.band is None
+    d = fc.to_dict()
+    assert d["crossed"] is True
+    assert d["remaining_life_days"] == {"earliest": 0.0, "expected": 0.0, "latest": 0.0}
+    # rising through the limit: crossed since the first recording of the run above it
+    rise = 1.0 + 0.01 * np.arange(n)  # 1.0 + 0.01·k reaches 1.5 at recording 50
+    fc = forecast_feature("friction", times, rise, 1.5)
+    assert fc is not None and fc.crossed and fc.crosses_at == times[50]
+    # one value above among values below is no crossing (and no trend: no forecast)
+    blip = 1.0 + rng.normal(0.0, 0.01, n)
+    blip[-1] = 1.3
+    assert forecast_feature("friction", times, blip, 1.2) is None

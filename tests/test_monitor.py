@@ -15,8 +15,11 @@ from conftest import REFERENCE_PROFILE
 
 from chaintwin.cli.app import EXIT_ALARM, main
 from chaintwin.cli.monitor_cmd import order_recordings
+from chaintwin.diagnose import baseline
+from chaintwin.diagnose.baseline import at_mean_payload, payload_of
 from chaintwin.diagnose.causes import resolve_causes
 from chaintwin.diagnose.features import _line_sums, recording_features
+from chaintwin.diagnose.forecasting import MIN_POINTS
 from chaintwin.diagnose.health import FeatureBaseline, fit_baseline, forecast_crossing, x_of_y
 from chaintwin.diagnose.monitor import ConveyorMonitor
 from chaintwin.diagnose.monitor_state import LEARNED, MonitorState
@@ -263,6 +266,37 @@ def test_forecast_of_a_linear_trend_brackets_the_true_crossing() -> None:
     assert forecast_crossing("friction", times, flat, limit=1.3) is None
 
 
+def test_the_load_part_is_taken_out_at_the_weighed_payload_without_the_regressor() -> None:
+    # friction = 1.0 + 0.002·(payload − 25) on the baseline; a recording whose
+    # signatures disagreed has no payload_inertia_kg, but the monitor weighed it by
+    # inertia (payload_kg 35, warning weighed_by_inertia)
+    fb = FeatureBaseline(
+        intercept=0.95, slope=0.002, scale=0.01, count=20, outliers=0, mean_payload_kg=25.0
+    )
+    result = {
+        "features": {"friction": 1.30, "payload_inertia_kg": None},
+        "payload_kg": 35.0,
+        "warnings": [{"code": "weighed_by_inertia", "message": "..."}],
+    }
+    load, source = payload_of("friction", fb, result)
+    assert (load, source) == (35.0, "weighed_by_inertia")
+    # 1.30 − 0.002·(35 − 25) = 1.28
+    assert at_mean_payload("friction", fb, result["features"], load) == pytest.approx(1.28)
+    # the regressor when the recording holds it
+    held = result | {"features": {"friction": 1.30, "payload_inertia_kg": 15.0}}
+    assert payload_of("friction", fb, held) == (15.0, "payload_inertia_kg")
+    assert at_mean_payload("friction", fb, held["features"]) == pytest.approx(1.32)
+    # the payload as weighed (no inertia warning), and neither known
+    assert payload_of("friction", fb, result | {"warnings": []}) == (35.0, "weighed")
+    load, source = payload_of("friction", fb, result | {"payload_kg": None})
+    assert math.isnan(load) and source == "payload_inertia_kg"
+    assert math.isnan(at_mean_payload("friction", fb, result["features"], load))
+    # a baseline without a load part needs no payload: the value as it is
+    flat = dataclasses.replace(fb, slope=0.0)
+    assert payload_of("friction", flat, result | {"payload_kg": None})[1] == "none"
+    assert at_mean_payload("friction", flat, result["features"]) == 1.30
+
+
 def test_a_shaft_comb_leaves_its_largest_line_out_and_a_tooth_pass_sum_does_not() -> None:
     """Lines of 1, 2, 3 and 10 mNm on a 1 Hz grid: the comb sums 6 mNm (the
     10 mNm line left out), the same lines as a plain line sum 16 mNm; a comb of
@@ -465,6 +499,60 @@ def test_fault_series_alarm_with_the_right_cause(
             assert abs(r.payload_kg - truth[Path(r.file).name]) < 4 * r.uncertainty_kg, r.file
 
 
+def test_the_friction_forecast_follows_the_fault_while_its_alarm_is_open(
+    series: dict[str, Path], cal: Calibration
+) -> None:
+    """Once the friction alarm opens, the recordings are weighed by inertia (their
+    signatures disagree: no ``payload_inertia_kg``); the friction forecast stays,
+    crossed since the first recording that exceeded on friction, remaining life 0."""
+    mon = ConveyorMonitor(PROFILE, MonitorSettings(baseline_n=BASELINE), cal)
+    results = _run(mon, _files(series["friction"]))
+    first = next(k for k, r in enumerate(results) if "friction" in r.exceeded)
+    opened = next(
+        k
+        for k, r in enumerate(results)
+        if r.alarm and any(c["feature"] == "friction" for c in r.causes)
+    )
+    later = results[opened:]
+    assert any(
+        (r.features or {}).get("payload_inertia_kg") is None for r in later
+    )  # what made the forecast vanish
+    history = mon.history
+    # from the alarm on, once the models have their fewest values (MIN_POINTS monitored)
+    start = max(opened, BASELINE + MIN_POINTS - 1)
+    for k in (start, (start + len(history)) // 2, len(history) - 1):
+        fcs = baseline.forecasts(
+            mon.baselines, history[: k + 1], mon.baseline_since or "", mon.settings.z_limit
+        )
+        fc = next(f for f in fcs if f["feature"] == "friction")
+        assert fc["crossed"] is True
+        assert fc["crosses_at"] == results[first].recorded_at
+        assert fc["remaining_life_days"] == {"earliest": 0.0, "expected": 0.0, "latest": 0.0}
+        assert fc["payload_source"] in {"none", "payload_inertia_kg", "weighed_by_inertia"}
+        assert sum(fc["payload_sources"].values()) >= k + 1 - BASELINE - 2
+    assert any(f["feature"] == "friction" for f in mon.forecasts())
+    # weighed by inertia, a recording has the TLF of that payload. Known answer: on the
+    # flat conveyor the sprocket's work per metre is mu·g·(moving mass), so the TLF is
+    # mu·m(m_p)/m_p (test_tlf), here with the truth's rail friction at the truth's
+    # payload, the TLF moved by the weighing's payload error (its work stays the truth's)
+    truth = {
+        Path(t["file"]).name: t
+        for t in map(json.loads, (series["friction"] / "truth.jsonl").read_text().splitlines())
+    }
+    weighed = [
+        r
+        for r in later
+        if r.payload_kg is not None and "weighed_by_inertia" in {w["code"] for w in r.warnings}
+    ]
+    assert weighed
+    for r in weighed:
+        assert r.tlf is not None and r.uncertainty_kg is not None
+        t = truth[Path(r.file).name]
+        hand = t["friction"] * PROFILE.moving_mass_kg(t["payload_kg"]) / r.payload_kg
+        # measured 1.03-1.08 of the hand value (the ramps' work beside the steady travel)
+        assert r.tlf == pytest.approx(hand, rel=0.1), r.file
+
+
 def test_state_round_trip_continues_where_it_stopped(
     series: dict[str, Path], cal: Calibration
 ) -> None:
@@ -579,6 +667,7 @@ def test_cli_monitor_state_fail_on_alarm_and_acknowledge(
     assert main([*args, *files[:20], "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert len(out["recordings"]) == 20
+    first_run = out["recordings"]
     assert out["conveyors"][0]["conveyor"] == "white-belt-01"
     code = main([*args, *files[20:], "--json", "--fail-on-alarm"])
     out = json.loads(capsys.readouterr().out)
@@ -586,6 +675,13 @@ def test_cli_monitor_state_fail_on_alarm_and_acknowledge(
     alarms = out["conveyors"][0]["open_alarms"]
     assert alarms and alarms[0]["cause"] == "friction"
     assert any(r["alarm"] for r in out["recordings"])
+    # the alarmed feature's forecast stays while its alarm is open: crossed, since when
+    (friction,) = [f for f in out["conveyors"][0]["forecasts"] if f["feature"] == "friction"]
+    assert friction["crossed"] is True
+    assert friction["remaining_life_days"]["expected"] == 0.0
+    recordings = first_run + out["recordings"]
+    exceeded = [r["recorded_at"] for r in recordings if "friction" in r["exceeded"]]
+    assert friction["crosses_at"] == exceeded[0]
     for a in alarms:
         assert (
             main(["acknowledge", a["id"], "--state", str(state), "--by", "me", "--why", "WO 17"])
@@ -596,6 +692,12 @@ def test_cli_monitor_state_fail_on_alarm_and_acknowledge(
     assert main([*args, files[-1], "--json", "--fail-on-alarm"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["recordings"][0]["status"] == "duplicate"
+    assert main([*args, files[-1]]) == 0
+    text = " ".join(capsys.readouterr().out.split())  # as wrapped to the terminal's width
+    assert (
+        f"forecast: friction (friction) crossed {friction['limit']:.4g} since {exceeded[0][:16]}, "
+        "remaining life 0"
+    ) in text
     assert (
         load_state(state)["conveyors"]["white-belt-01"]["alarms"][0]["acknowledged"]["by"] == "me"
     )

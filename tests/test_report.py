@@ -288,3 +288,45 @@ def test_campbell_peaks_are_the_lines_standing_out_of_the_floor() -> None:
     sp = Spectrum(f, amp, "frequency", 0.5, "torque", 1400.0)
     where, height = campbell_peaks(sp)
     assert list(where) == [37.0, 80.0] and list(height) == [0.02, 0.005]
+
+
+def test_a_missing_tlf_or_payload_is_said_in_words_never_an_empty_chart(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import math
+    from datetime import UTC, datetime, timedelta
+
+    from chaintwin.report import figures
+    from chaintwin.report.data import ConveyorData
+
+    prof = load_profile(EXAMPLES / "profiles" / f"{HEALTHY}.yaml")
+    t0 = datetime(2026, 1, 5, tzinfo=UTC)
+
+    def data(results: list[dict[str, object]]) -> ConveyorData:
+        times: list[datetime | None] = [t0 + timedelta(hours=k) for k in range(len(results))]
+        return ConveyorData(prof, results, times, [], [], {}, [], [], None, None)
+
+    unweighed = data([{"payload_kg": None, "tlf": None}] * 3)
+    assert math.isnan(unweighed.recent_tlf())
+    assert unweighed.tlf_absence() == (
+        "none of its 3 recordings could be weighed (each recording's warnings say why); "
+        "a TLF needs a weighed payload"
+    )
+    light = data([{"payload_kg": 0.5, "tlf": None}])
+    assert (light.tlf_absence() or "").startswith("its weighed payloads are under 1 kg")
+    assert data([]).tlf_absence() == "no recording yet"
+    assert (
+        data([{"payload_kg": 20.0, "tlf": None}, {"payload_kg": 21.0, "tlf": 1.5}]).tlf_absence()
+        is None
+    )
+    # an empty panel says why in words
+    said: list[str] = []
+    monkeypatch.setattr(figures, "_words", lambda ax, text: said.append(text))
+    assert figures.payload_tlf_figure(light) is not None
+    assert said == ["no TLF: it needs a weighed payload of at least 1 kg\nand belt travel"]
+    said.clear()
+    assert figures.payload_tlf_figure(data([{"payload_kg": 20.0, "tlf": 1.5}])) is not None
+    assert said == []
+    # the fleet's TLF bars: only conveyors with one, no figure when none has
+    assert figures.fleet_tlf_figure(["a", "b"], [math.nan, math.nan]) is None
+    assert figures.fleet_tlf_figure(["a", "b"], [1.2, math.nan]) is not None

@@ -624,6 +624,48 @@ def test_in_a_browser_a_trend_shows_its_forecast_band(rising: Served) -> None:
         browser.close()
 
 
+def test_in_a_browser_a_missing_tlf_or_payload_is_said_in_words(rising: Served) -> None:
+    """No empty chart: where nothing has a TLF (or a payload) the chart says why in words.
+
+    The API's answers are the server's own with ``tlf`` and ``payload_kg`` made
+    null, as for conveyors whose latest recordings could not be weighed.
+    """
+    if not CHROMIUM.exists():
+        pytest.fail("Chromium not found at /usr/bin/chromium: `make test` installs it")
+    from playwright.sync_api import Route, sync_playwright
+
+    def unweighed(route: Route) -> None:
+        answer = route.fetch()
+        body = answer.json()
+        rows = body["items"] if isinstance(body, dict) else body
+        for row in rows:
+            row["tlf"] = row["payload_kg"] = None
+        route.fulfill(response=answer, json=body)
+
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=str(CHROMIUM))
+        page = browser.new_page()
+        page.goto(rising.base + "/login")
+        page.fill("#token", rising.tokens["viewer"])
+        page.click("form.login button")
+        page.wait_for_url(rising.base + "/")
+        # as served: the TLF drawn
+        page.wait_for_selector("#tlf-chart .main-svg")
+        page.route("**/api/v1/conveyors", unweighed)
+        page.route("**/api/v1/conveyors/*/recordings?limit=1000", unweighed)
+        page.reload()
+        page.wait_for_selector("#tlf-chart.absent")
+        text = page.inner_text("#tlf-chart")
+        assert text.startswith("No TLF to draw: no conveyor's latest recording has one.")
+        assert f"{PROFILE.id} (its payload could not be weighed" in text
+        assert page.locator("#tlf-chart .main-svg").count() == 0
+        page.goto(f"{rising.base}/conveyors/{PROFILE.id}")
+        page.wait_for_selector("#payloads.absent", timeout=30000)
+        assert page.inner_text("#payloads").startswith("No payload to draw: none of its latest")
+        assert page.locator("#payloads .main-svg").count() == 0
+        browser.close()
+
+
 # ------------------------------------------------------------------ property-based
 import schemathesis  # noqa: E402
 from hypothesis import HealthCheck, settings  # noqa: E402

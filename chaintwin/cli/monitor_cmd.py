@@ -217,6 +217,13 @@ def _print_table(results: list[RecordingResult], monitors: list[ConveyorMonitor]
                 highlight=False,
             )
         for fc in s["forecasts"]:
+            if fc.get("crossed"):
+                console.print(
+                    f"  forecast: {fc['feature']} ({fc['cause']}) crossed {fc['limit']:.4g} "
+                    f"since {fc['crosses_at'][:16]}, remaining life 0",
+                    highlight=False,
+                )
+                continue
             console.print(
                 f"  forecast ({fc.get('model', 'line')}): {fc['feature']} ({fc['cause']}) crosses "
                 f"{fc['limit']:.4g} about {fc['crosses_at'][:10]} (90 %: {fc['earliest'][:10]} "

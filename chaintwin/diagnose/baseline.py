@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from datetime import datetime
 from typing import Any
@@ -19,9 +20,11 @@ from .records import as_number
 __all__ = [
     "ALTERNATIVE_SHARE",
     "NO_FORECAST",
+    "WEIGHED_SOURCES",
     "at_mean_payload",
     "fit_features",
     "forecasts",
+    "payload_of",
     "regressor_of",
 ]
 
@@ -104,17 +107,80 @@ def regressor_of(name: str, fb: FeatureBaseline) -> str:
     return fb.regressor or feature_spec(name).regressor
 
 
-def at_mean_payload(name: str, fb: FeatureBaseline, features: Mapping[str, Any]) -> float:
+WEIGHED_SOURCES: tuple[str, str] = ("weighed_by_inertia", "weighed")
+"""The sources (:func:`payload_of`) besides the regressor's name: the recording's
+payload weighed by the inertia signature alone (the monitor's reading while the
+friction is suspect), or as weighed."""
+
+
+def payload_of(name: str, fb: FeatureBaseline, result: Mapping[str, Any]) -> tuple[float, str]:
+    """The load a feature's value is moved to the mean payload from, and which it is.
+
+    The baseline's regressor where the recording holds it; else the payload
+    the weighing gave the recording (``payload_kg``): a recording whose
+    signatures disagree (a friction rise) has no ``payload_inertia_kg``
+    feature, but the monitor weighs it by the inertia signature alone.
+
+    Parameters
+    ----------
+    name : str
+        The feature.
+    fb : FeatureBaseline
+        Its baseline.
+    result : Mapping
+        A recording's result (``RecordingResult.to_dict()``): ``features``,
+        ``payload_kg`` and ``warnings``.
+
+    Returns
+    -------
+    load : float
+        kg; NaN when neither is known.
+    source : str
+        The regressor's name (also when neither is known), one of
+        :data:`WEIGHED_SOURCES`, or ``none`` when the baseline does not depend
+        on the payload.
+    """
+    if fb.slope == 0.0 and fb.curve is None:
+        return math.nan, "none"
+    regressor = regressor_of(name, fb)
+    load = as_number((result.get("features") or {}).get(regressor))
+    if math.isfinite(load):
+        return load, regressor
+    weighed = as_number(result.get("payload_kg"))
+    if not math.isfinite(weighed):
+        return math.nan, regressor
+    codes = {w.get("code") for w in result.get("warnings") or () if isinstance(w, Mapping)}
+    return weighed, WEIGHED_SOURCES[0] if "weighed_by_inertia" in codes else WEIGHED_SOURCES[1]
+
+
+def at_mean_payload(
+    name: str, fb: FeatureBaseline, features: Mapping[str, Any], load_kg: float | None = None
+) -> float:
     """A feature's value with the load's part taken out: as at the baseline's mean payload.
 
     What the forecasts and the wear rates fit over time (NaN when unknown).
+
+    Parameters
+    ----------
+    name : str
+        The feature.
+    fb : FeatureBaseline
+        Its baseline.
+    features : Mapping
+        The recording's features.
+    load_kg : float, optional
+        The load to take out, kg (:func:`payload_of`); default the
+        baseline's regressor among ``features``.
     """
-    load = as_number(features.get(regressor_of(name, fb)))
+    value = as_number(features.get(name))
+    if fb.slope == 0.0 and fb.curve is None:
+        return value  # no load part
+    load = as_number(features.get(regressor_of(name, fb))) if load_kg is None else load_kg
+    if not math.isfinite(load):
+        return math.nan
     if fb.curve is not None:
-        if not math.isfinite(load):
-            return math.nan
-        return as_number(features.get(name)) - (fb.expected(load) - fb.expected(fb.mean_payload_kg))
-    return as_number(features.get(name)) - fb.slope * (load - fb.mean_payload_kg)
+        return value - (fb.expected(load) - fb.expected(fb.mean_payload_kg))
+    return value - fb.slope * (load - fb.mean_payload_kg)
 
 
 def forecasts(
@@ -140,6 +206,16 @@ def forecasts(
     bands : bool
         Add each forecast's ``band`` (its path and 90 % interval ahead,
         :class:`~chaintwin.diagnose.health.ForecastBand`; None when crossed).
+
+    Returns
+    -------
+    list of dict
+        :meth:`~chaintwin.diagnose.health.Forecast.to_dict` with the feature's
+        ``cause``, ``payload_source`` (what the latest value's load part was
+        taken out at, :func:`payload_of`: on a friction rise the regressor
+        ``payload_inertia_kg`` until the signatures disagree, then
+        ``weighed_by_inertia``) and ``payload_sources`` (how many of the
+        values stand on each).
     """
     out = []
     rows = [
@@ -154,10 +230,19 @@ def forecasts(
         spec = feature_spec(name)
         if spec.cause is None or name in NO_FORECAST:
             continue
-        vals = [at_mean_payload(name, fb, h["features"]) for h in rows]
+        vals, sources = [], []
+        for h in rows:
+            load, source = payload_of(name, fb, h)
+            vals.append(at_mean_payload(name, fb, h["features"], load))
+            sources.append(source)
         fc = forecast_feature(name, times, vals, fb.limit(z_limit, spec.min_rel))
         if fc is not None:
-            extra: dict[str, Any] = {"cause": spec.cause}
+            used = [src for src, v in zip(sources, vals, strict=True) if math.isfinite(v)]
+            extra: dict[str, Any] = {
+                "cause": spec.cause,
+                "payload_source": used[-1],
+                "payload_sources": dict(sorted(Counter(used).items())),
+            }
             if bands:
                 extra["band"] = None if fc.band is None else fc.band.to_dict()
             out.append(fc.to_dict() | extra)

@@ -22,6 +22,10 @@ where the next values will be. :func:`forecast_feature` forecasts the values:
    interval does, ``latest`` where its lower end does (None when it does not
    within the horizon). The remaining useful life is the band from the last
    value to ``earliest`` .. ``latest``.
+6. **Crossed**: once the values are above the limit (the alarm open), the
+   forecast says so, with when they went above it to stay, instead of a
+   crossing time ahead; it stays while they are above, whether still rising
+   or levelled off.
 """
 
 from __future__ import annotations
@@ -255,6 +259,12 @@ def _first_cross(t: FloatArray, series: FloatArray, limit: float) -> float | Non
     return float(t[hit[0]]) if hit.size else None
 
 
+def _since(above: np.ndarray) -> int:
+    """Index of the first of the trailing run of True values (``above[-1]`` is True)."""
+    below = np.flatnonzero(~above)
+    return int(below[-1]) + 1 if below.size else 0
+
+
 def forecast_feature(
     feature: str,
     times: Sequence[datetime],
@@ -294,6 +304,12 @@ def forecast_feature(
     Forecast or None
         None without a significant rising trend, with too few values, or
         when the forecast mean does not reach the limit within the horizon.
+        A limit already crossed (the last even step above it, and the trend
+        rising or the last :data:`BACKTEST_STEPS` steps all above it) is a
+        forecast with ``crossed`` True whose times are when the values went
+        above the limit to stay (the first recording of the even step that
+        began the run above it), ``model`` ``line`` (no model forecasts) and a
+        remaining life of zero.
     """
     import statsmodels.api as sm
 
@@ -308,7 +324,18 @@ def forecast_feature(
     recent = t >= grid[-WINDOW:][0] - 0.5 * step
     line = sm.OLS(v[recent], sm.add_constant(t[recent])).fit()
     slope = float(line.params[1])
-    if slope <= 0.0 or float(line.pvalues[1]) >= MAX_P_VALUE:
+    rising = slope > 0.0 and float(line.pvalues[1]) < MAX_P_VALUE
+    day = timedelta(days=1)
+    above = series >= limit
+    if above[-1] and (rising or bool(np.all(above[-BACKTEST_STEPS:]))):
+        # already there (rising, or above for several steps however it got
+        # there): since the start of the steps above the limit that reach the
+        # last one; no model is needed
+        start = float(grid[_since(above)]) - 0.5 * step
+        at = t0 + float(t[np.searchsorted(t, start - 1e-9 * step)]) * day
+        last = t0 + float(t[-1]) * day
+        return Forecast(feature, limit, slope, at, at, at, True, "line", None, last)
+    if not rising:
         return None
     steps = max(1, math.ceil(horizon_days / step))
     try:
@@ -316,13 +343,6 @@ def forecast_feature(
     except (ValueError, np.linalg.LinAlgError):
         return None
     ahead = grid[-1] + step * np.arange(1, steps + 1)
-    day = timedelta(days=1)
-    if float(series[-1]) >= limit:
-        # already there: since when, from the even series
-        since = _first_cross(grid, series, limit)
-        at = t0 + (since if since is not None else float(grid[-1])) * day
-        last = t0 + float(t[-1]) * day
-        return Forecast(feature, limit, slope, at, at, at, True, model, mae, last)
     cross = _first_cross(ahead, mean, limit)
     if cross is None:
         return None

@@ -41,8 +41,12 @@ from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording, RecordingWarning
 from chaintwin.validate.checks import Inspection
 from chaintwin.validate.phases import Phase, segment
-from chaintwin.weigh.tlf import belt_travel_m
-from chaintwin.weigh.weigh import reweigh
+from chaintwin.weigh.tlf import (
+    belt_travel_m,
+    motor_shaft_transport_loss_factor,
+    transport_loss_factor,
+)
+from chaintwin.weigh.weigh import WeighResult, reweigh
 
 from . import alarms, baseline, monitor_state
 from .causes import (
@@ -542,7 +546,7 @@ class ConveyorMonitor:
                 a.cause in FRICTION_CAUSES for a in self.open_alarms()
             ):
                 # a friction rise must not read as payload: weigh by inertia
-                w = reweigh(w, w.loss_drift, friction=False)
+                w = self._by_inertia(w, recording)
                 warnings = [x for x in warnings if x.get("code") not in _BY_INERTIA]
                 warnings += [x.to_dict() for x in w.warnings if x.code in _BY_INERTIA]
         if (
@@ -571,6 +575,24 @@ class ConveyorMonitor:
         if sha256 is not None:
             self.processed[sha256] = len(self.history) - 1
         return base
+
+    def _by_inertia(self, w: WeighResult, recording: Recording) -> WeighResult:
+        """The weighing combined again trusting the inertia signature alone, with its TLF.
+
+        A recording whose signatures disagreed (the friction rise itself) was
+        unweighable and had no TLF; weighed by inertia it has a payload, and
+        the TLF is that of this payload (the same work over the same travel),
+        also where the combined payload had one (that TLF was of another payload).
+        """
+        w = reweigh(w, w.loss_drift, friction=False)
+        if w.payload_kg is None or self.calibration is None:
+            return w
+        prof = self.calibration.id_profile
+        return dataclasses.replace(
+            w,
+            tlf=transport_loss_factor(recording, prof, self.calibration.parameters, w.payload_kg),
+            tlf_motor_shaft=motor_shaft_transport_loss_factor(recording, prof, w.payload_kg),
+        )
 
     def _usage_so_far(self) -> float:
         """Usage since the baseline before this recording, kg·m, from the history.

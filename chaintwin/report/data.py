@@ -190,6 +190,22 @@ class ConveyorData:
         vals = [r["payload_kg"] for r in self.results if r.get("payload_kg") is not None]
         return float(statistics.median(vals[-RECENT:])) if vals else math.nan
 
+    def tlf_absence(self) -> str | None:
+        """Why no recording gives a TLF, in words; None when one does (:meth:`recent_tlf`)."""
+        if any(r.get("tlf") is not None for r in self.results):
+            return None
+        if not self.results:
+            return "no recording yet"
+        if not any(r.get("payload_kg") is not None for r in self.results):
+            return (
+                f"none of its {len(self.results)} recordings could be weighed (each "
+                "recording's warnings say why); a TLF needs a weighed payload"
+            )
+        return (
+            "its weighed payloads are under 1 kg or the belt did not travel; a TLF needs "
+            "both (it is the work per kg carried per metre)"
+        )
+
     def open_alarms(self) -> list[Alarm]:
         """Open alarms, acknowledged ones included."""
         return [a for a in self.alarms if a.is_open]

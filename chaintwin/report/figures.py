@@ -182,18 +182,39 @@ def payload_tlf_figure(data: ConveyorData) -> str | None:
             linewidth=0.8,
             color="tab:blue",
         )
+    else:
+        _words(
+            ax1, "no payload: no recording could be weighed\n(each recording's warnings say why)"
+        )
+    n = len(data.results)
     ax1.set_ylabel("payload [kg] (± 1 σ)")
-    ax1.set_title("payload weighed from torque", fontsize=10)
+    ax1.set_title("payload weighed from torque" + _left_out(n - len(pay), n), fontsize=10)
     _marks(ax1, data)
     _time_axis(ax1, label)
     ax2 = fig.add_subplot(1, 2, 2)
     if tlf:
         ax2.plot([t[0] for t in tlf], [t[1] for t in tlf], "o", markersize=3, color="tab:orange")
+    else:
+        _words(ax2, "no TLF: it needs a weighed payload of at least 1 kg\nand belt travel")
     ax2.set_ylabel("transport loss factor [-]")
-    ax2.set_title("TLF: work at the sprocket / (payload weight x distance)", fontsize=10)
+    ax2.set_title(
+        "TLF: work at the sprocket / (payload weight x distance)" + _left_out(n - len(tlf), n),
+        fontsize=10,
+    )
     _marks(ax2, data)
     _time_axis(ax2, label)
     return _uri(fig)
+
+
+def _words(ax: Axes, text: str) -> None:
+    """An empty panel says why in words instead of showing bare axes."""
+    ax.text(0.5, 0.5, text, transform=ax.transAxes, ha="center", va="center", fontsize=9)
+    ax.set_yticks([])
+
+
+def _left_out(missing: int, n: int) -> str:
+    """The title's note of the recordings a panel has no value for."""
+    return f"\n{missing} of {n} recordings without (not weighed)" if 0 < missing < n else ""
 
 
 def residual_figure(data: ConveyorData) -> str | None:
@@ -456,12 +477,13 @@ def fleet_health_figure(names: Sequence[str], index: Sequence[float]) -> str | N
 
 
 def fleet_tlf_figure(names: Sequence[str], tlf: Sequence[float]) -> str | None:
-    """Median TLF of the latest recordings per conveyor."""
-    if not names:
+    """Median TLF of the latest recordings per conveyor (those with one; None if none has)."""
+    have = [(n, v) for n, v in zip(names, tlf, strict=True) if math.isfinite(v)]
+    if not have:
         return None
-    fig = _figure(8.0, 0.5 + 0.4 * len(names))
+    fig = _figure(8.0, 0.5 + 0.4 * len(have))
     ax = fig.add_subplot()
-    ax.barh(list(names), [0.0 if not math.isfinite(v) else v for v in tlf], color="tab:orange")
+    ax.barh([n for n, _ in have], [v for _, v in have], color="tab:orange")
     ax.invert_yaxis()
     ax.set_xlabel("transport loss factor, median of the latest recordings [-]")
     ax.grid(True, axis="x", alpha=0.3)

@@ -282,7 +282,7 @@ def _rank(x: float) -> float:
 
 def _forecast_text(fc: dict[str, Any]) -> str:
     if fc.get("crossed"):
-        return f"{fc['feature']}: crossed"
+        return f"{fc['feature']}: crossed {str(fc['crosses_at'])[:16].replace('T', ' ')}"
     return f"{fc['feature']}: {str(fc['crosses_at'])[:10]}"
 
 
@@ -342,6 +342,7 @@ def fleet_page(
         recent=RECENT,
         health_figure=figures.fleet_health_figure([r.id for r in rows], [r.health for r in rows]),
         tlf_figure=figures.fleet_tlf_figure([r.id for r in by_tlf], [r.tlf for r in by_tlf]),
+        no_tlf=[(d.profile.id, why) for d in data if (why := d.tlf_absence()) is not None],
     )
 
 

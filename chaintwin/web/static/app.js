@@ -48,10 +48,52 @@ window.chaintwin = (function () {
       { responsive: true });
   }
 
+  // A chart with nothing to draw is said in words instead (never an empty chart).
+  function absent(div, text) {
+    Plotly.purge(div);
+    div.classList.add("absent");
+    div.textContent = text;
+  }
+
+  function present(div) {
+    if (div.classList.contains("absent")) { div.classList.remove("absent"); div.textContent = ""; }
+  }
+
+  // The words under a chart for what it leaves out (hidden when nothing is).
+  function leftOut(div, text) {
+    let p = div.nextElementSibling;
+    if (!p || !p.classList.contains("left-out")) {
+      p = document.createElement("p");
+      p.className = "hint left-out";
+      div.after(p);
+    }
+    p.textContent = text;
+    p.hidden = !text;
+  }
+
+  // Why a conveyor's latest recording has no TLF: f_T = W / (m_p g s) needs both.
+  function noTlf(r) {
+    if (r.last_recorded_at === null && r.status === null) return `${r.id} (no recording yet)`;
+    if (r.payload_kg === null) return `${r.id} (its payload could not be weighed; see the recording's warnings)`;
+    if (r.payload_kg < 1) return `${r.id} (payload under 1 kg: nearly empty)`;
+    return `${r.id} (no belt travel)`;
+  }
+
   function tlfChart(rows) {
+    const div = document.getElementById("tlf-chart");
     const have = rows.filter((r) => r.tlf !== null).sort((a, b) => b.tlf - a.tlf);
-    Plotly.react("tlf-chart", [{ type: "bar", x: have.map((r) => r.id), y: have.map((r) => r.tlf) }],
+    const without = rows.filter((r) => r.tlf === null).map(noTlf);
+    if (!have.length) {
+      absent(div, rows.length
+        ? `No TLF to draw: no conveyor's latest recording has one. Not drawn: ${without.join("; ")}.`
+        : "No conveyors yet.");
+      leftOut(div, "");
+      return;
+    }
+    present(div);
+    Plotly.react(div, [{ type: "bar", x: have.map((r) => r.id), y: have.map((r) => r.tlf) }],
       { margin: { t: 10 }, yaxis: { title: "TLF" } }, { responsive: true });
+    leftOut(div, without.length ? `Not drawn, no TLF in the latest recording: ${without.join("; ")}.` : "");
   }
 
   // Refresh on the server's events (GET /api/v1/events); poll every 30 s if they cannot come.
@@ -133,6 +175,10 @@ window.chaintwin = (function () {
     div.className = "chart trend";
     div.dataset.feature = feature;
     holder.appendChild(div);
+    if (!t.points.some((p) => p.value !== null)) {
+      absent(div, `${feature}: no value to draw yet (${t.recordings} recording(s), none with this feature).`);
+      return;
+    }
     const x = t.points.map((p) => p.recorded_at);
     const traces = [{ x, y: t.points.map((p) => p.value), mode: "lines+markers", name: feature,
       marker: { color: t.points.map((p) => (p.exceeded ? "#c0392b" : "#2c3e50")), size: 5 } }];
@@ -215,8 +261,20 @@ window.chaintwin = (function () {
     await waterfallChart(conveyor);
     const page = await api(`/api/v1/conveyors/${encodeURIComponent(conveyor)}/recordings?limit=1000`);
     const payloads = page.items.map((r) => r.payload_kg).filter((p) => p !== null);
-    Plotly.newPlot("payloads", [{ type: "histogram", x: payloads }],
-      { margin: { t: 10 }, xaxis: { title: "payload kg" }, height: 260 }, { responsive: true });
+    const histogram = document.getElementById("payloads");
+    if (!payloads.length) {
+      absent(histogram, page.items.length
+        ? `No payload to draw: none of its latest ${page.items.length} recordings could be weighed (each recording's warnings say why).`
+        : "No recordings yet.");
+    } else {
+      present(histogram);
+      Plotly.newPlot(histogram, [{ type: "histogram", x: payloads }],
+        { margin: { t: 10 }, xaxis: { title: "payload kg" }, height: 260 }, { responsive: true });
+      const unweighed = page.items.length - payloads.length;
+      leftOut(histogram, unweighed
+        ? `${unweighed} of the latest ${page.items.length} recordings could not be weighed and are not counted (each recording's warnings say why).`
+        : "");
+    }
     if (page.items.length) {
       const rec = await api(`/api/v1/recordings/${page.items[0].recording_id}`);
       const s = rec.series;

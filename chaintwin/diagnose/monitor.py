@@ -78,7 +78,7 @@ __all__ = ["FRICTION_CAUSES", "ConveyorMonitor"]
 FRICTION_CAUSES = frozenset({"friction", "lubrication", "obstruction"})
 """Causes under which the friction signature is not trusted for the payload."""
 
-_BY_INERTIA = ("weighed_by_inertia", "unweighable")
+_BY_INERTIA = ("weighed_by_inertia", "unweighable", "friction_changed")
 
 
 class ConveyorMonitor:
@@ -541,8 +541,20 @@ class ConveyorMonitor:
             if any(feature_spec(e).cause in FRICTION_CAUSES for e in exceeded) or any(
                 a.cause in FRICTION_CAUSES for a in self.open_alarms()
             ):
-                # a friction rise must not read as payload: weigh by inertia
-                w = reweigh(w, w.loss_drift, friction=False)
+                # a friction rise must not read as payload: weigh by inertia, and
+                # carry the friction feature's measured change (relative to its
+                # baseline) in the friction signature's uncertainty
+                moved = change.get("friction")
+                if moved is None:
+                    moved = next(
+                        (
+                            a.change
+                            for a in self.open_alarms()
+                            if a.feature == "friction" and a.change is not None
+                        ),
+                        None,
+                    )
+                w = reweigh(w, w.loss_drift, friction=False, friction_change=moved)
                 warnings = [x for x in warnings if x.get("code") not in _BY_INERTIA]
                 warnings += [x.to_dict() for x in w.warnings if x.code in _BY_INERTIA]
         if (

@@ -6,6 +6,7 @@ import dataclasses
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import REFERENCE_PROFILE
 
@@ -113,3 +114,27 @@ def test_recordings_without_set_points_calibrate_on_the_actual_torque(tmp_path: 
     ]
     cal = calibrate(bare, PROFILE)
     assert cal.torque_channel == "torque" and cal.channel_spreads is None
+
+
+def test_windows_chosen_on_the_actual_torque_are_kept_on_the_set_point(
+    noisy_actual: tuple[Realism, Calibration],
+) -> None:
+    """Monitoring hands weighing the windows it kept (impacts left out), on the actual
+    torque: a calibration on the set point integrates the same windows on its channel."""
+    from chaintwin.model.rigid import motoring_mask
+    from chaintwin.model.windows import window_integrals
+
+    realism, cal = noisy_actual
+    assert cal.actual_torque is not None
+    run = run_virtual(PROFILE, payload_kg=25.0, sample_time_s=0.002, seed=951, realism=realism)
+    ins = inspect_recording(run.recording, PROFILE)
+    params = cal.actual_torque.parameters
+    mot = motoring_mask(run.recording, drive_inertia_kgm2=params["J_d"], losses=params.losses)
+    every = window_integrals(run.recording, cal.id_profile, motoring=mot, phases=list(ins.phases))
+    plain = weigh(ins, cal)
+    same = weigh(ins, cal, motoring=mot, windows=every)
+    assert same.payload_kg == plain.payload_kg and same.uncertainty_kg == plain.uncertainty_kg
+    keep = every.kind == 1
+    keep |= (every.constant) & (np.arange(every.count) % 2 == 0)
+    fewer = weigh(ins, cal, motoring=mot, windows=every.select(keep))
+    assert fewer.payload_kg is not None and fewer.payload_kg != plain.payload_kg

@@ -51,11 +51,12 @@ from chaintwin.identify.calibration import INERTIA_MODEL_REL, Calibration
 from chaintwin.identify.channels import on_channel
 from chaintwin.identify.signatures import SignatureFit, fit_signatures
 from chaintwin.model.rigid import incline_terms, motoring_mask
-from chaintwin.model.windows import WindowIntegrals
+from chaintwin.model.windows import WindowIntegrals, window_integrals
 from chaintwin.read.profile import ConveyorProfile
-from chaintwin.read.recording import RecordingWarning
+from chaintwin.read.recording import Recording, RecordingWarning
 from chaintwin.units import RPM_TO_RAD_S
 from chaintwin.validate.checks import Inspection
+from chaintwin.validate.phases import Phase
 from chaintwin.weigh.drift import LossDrift
 from chaintwin.weigh.tlf import motor_shaft_transport_loss_factor, transport_loss_factor
 
@@ -487,6 +488,35 @@ def _friction_rel_kg(
     return rails_kg * float(np.sum(w * xf * dz)) / den if den > 0.0 else float("nan")
 
 
+def _same_windows(
+    recording: Recording,
+    prof: ConveyorProfile,
+    motoring: np.ndarray,
+    phases: list[Phase],
+    given: WindowIntegrals,
+) -> WindowIntegrals | None:
+    """The windows of ``given`` (by their start and end, s) integrated on ``recording``.
+
+    For windows a caller chose on the actual torque (impacts left out) when
+    the calibration weighs another channel; None when none matches.
+    """
+    try:
+        every = window_integrals(recording, prof, motoring=motoring, phases=phases)
+    except EstimationError:
+        return None
+    spans = set(zip(np.round(given.t0, 9).tolist(), np.round(given.t1, 9).tolist(), strict=True))
+    keep = np.array(
+        [
+            (a, b) in spans
+            for a, b in zip(
+                np.round(every.t0, 9).tolist(), np.round(every.t1, 9).tolist(), strict=True
+            )
+        ],
+        dtype=bool,
+    )
+    return every.select(keep) if keep.any() else None
+
+
 def _no_payload(name: str, warnings: tuple[RecordingWarning, ...], drift: LossDrift) -> WeighResult:
     """An unweighable result: every number None, the warnings kept."""
     return WeighResult(
@@ -584,6 +614,7 @@ def weigh(
     phases = list(inspection.phases)
     name = source if source is not None else recording.source
     channel_note: RecordingWarning | None = None
+    subset: WindowIntegrals | None = None
     if calibration.torque_channel != "torque":
         spreads = calibration.channel_spreads
         if recording.torque_setpoint is None or spreads is None:
@@ -597,8 +628,9 @@ def weigh(
             calibration = calibration.actual_torque or calibration
         else:
             recording = on_channel(recording, calibration.torque_channel, spreads.torque_weight)
-            # motoring and windows handed in were computed on the actual torque
-            motoring = windows = None
+            # motoring and windows handed in were computed on the actual torque:
+            # the same windows (by their spans) are integrated again on the channel
+            subset, motoring, windows = windows, None, None
     prof = calibration.id_profile
     params = calibration.parameters
     drifted = LossDrift.unknown() if loss_drift is None else loss_drift
@@ -625,6 +657,8 @@ def weigh(
             losses=params.losses,
         )
     )
+    if subset is not None:
+        windows = _same_windows(recording, prof, mot, phases, subset)
     rate = calibration.ramp_noise_rate
     try:
         fit, cov = fit_signatures(

@@ -4,14 +4,20 @@
 Run::
 
     OPENBLAS_NUM_THREADS=1 python scripts/evaluate_fidelity.py weighing \
-        [--conveyors 30] [--seed 20261125] [--json fidelity-weighing.json]
+        [--conveyors 30] [--seed 20261125] [--seeds 1] [--json fidelity-weighing.json] \
+        [--markdown table.md]
 
-(about 20 s for 30 conveyors on one core).
+(about 20 s for 30 conveyors on one idle core; ``--seeds N`` draws the
+conveyors N times, seeds SEED to SEED+N-1, and pools them; the per-conveyor
+lines are then left out).
 
 Conveyors are drawn from the design distribution below (:func:`draw_conveyor`)
 with seeds no test uses. Every realism effect of the virtual conveyor is on
 (noise, quantisation, elastic belt, stick-slip, polygon effect, gear mesh
-ripple, scope sampling without anti-alias filter). Each conveyor is
+ripple, scope sampling without anti-alias filter), the torque set point's
+noise included (the speed controller's answer to its encoder's counts and
+noise, :data:`REALISM`), so each calibration chooses its torque channel
+(``torque_channel`` of every row; the table counts the choices). Each conveyor is
 calibrated under three protocols and weighs the same test recordings:
 
 ``one_load_one_speed``
@@ -80,7 +86,7 @@ from chaintwin.model.physics import loss_torque_nm, payload_sensitivity_nm_kg
 from chaintwin.read.profile import ConveyorProfile, parse_profile
 from chaintwin.read.recording import Recording
 from chaintwin.read.writer import write_recording
-from chaintwin.simulate.virtual import default_setpoints, run_virtual
+from chaintwin.simulate.virtual import Realism, default_setpoints, run_virtual
 from chaintwin.units import RPM_TO_RAD_S, G
 from chaintwin.validate import Inspection, load_recording
 from chaintwin.weigh import reweigh, weigh
@@ -123,6 +129,9 @@ class Conveyor:
     max_payload_kg: float
     design: dict[str, float] = field(default_factory=dict)
 
+
+REALISM = Realism(setpoint_noise=True)
+"""Every realism effect of the virtual conveyor, the set point's noise included."""
 
 RICHER = ("back_efficiency", "stribeck_speed_m_s", "unlisted_inertia_kgm2")
 """Plant effects beyond the identification model (``--without`` switches one off)."""
@@ -248,6 +257,7 @@ def _run(
         sample_time_s=conv.sample_time_s,
         seed=seed,
         setpoints=sp,
+        realism=REALISM,
         calibration=calibration,
         loss_scale=loss_scale,
         source=f"{conv.profile.id}-{seed}",
@@ -334,6 +344,7 @@ def evaluate_conveyor(conv: Conveyor, seed: int) -> list[dict[str, Any]]:
                 "loss_scale": scale,
                 "payload_true_kg": payload,
                 "mu_rel_error": mu_err,
+                "torque_channel": cal.torque_channel,
                 "friction_unchecked": any(w.code == "friction_unchecked" for w in cal.warnings),
             }
             unknown = weigh(ins, cal)  # the default: ±10 % loss drift allowed for
@@ -395,11 +406,22 @@ def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                     if mu_errs
                     else math.nan,
                     "calibration_failures": sum(1 for r in mine if "error" in r),
+                    "channels": _channel_counts(mine),
                     "belt_mass_3pct_median_kg": _median_abs(
                         [r.get("belt_mass_3pct_shift_kg") for r in mine]
                     ),
                 }
             )
+    return out
+
+
+def _channel_counts(rows: list[dict[str, Any]]) -> dict[str, int]:
+    """How many calibrations (seed and conveyor) chose each torque channel."""
+    chosen = {(r.get("seed"), r["conveyor"]): r.get("torque_channel") for r in rows}
+    out: dict[str, int] = {}
+    for channel in chosen.values():
+        key = str(channel) if channel is not None else "failed"
+        out[key] = out.get(key, 0) + 1
     return out
 
 
@@ -574,6 +596,28 @@ def _print(summary: list[dict[str, Any]], convs: list[dict[str, Any]], seconds: 
     print(f"\ntotal run time {seconds:.0f} s")
 
 
+def markdown(summary: list[dict[str, Any]], title: str) -> str:
+    """The summary as a markdown table (per protocol, drift condition and mode)."""
+    lines = [
+        f"{title}",
+        "",
+        "| protocol | drift | mode | n | unweighable | median kg | max kg | <=1u | <=2u | >5u "
+        "| u/\\|e\\| | channels |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|",
+    ]
+    for r in summary:
+        if r["drift"] == "both":
+            continue  # per condition, not pooled
+        channels = ", ".join(f"{k} {v}" for k, v in sorted(r.get("channels", {}).items()))
+        lines.append(
+            f"| {r['protocol']} | {r['drift']} | {r['mode']} | {r['n']} | "
+            f"{r['unweighable_share']:.1%} | {_fmt(r['median_kg'])} | {_fmt(r['max_kg'])} | "
+            f"{r['within_1u']:.0%} | {r['within_2u']:.0%} | {r['beyond_5u']:.1%} | "
+            f"{_fmt(r['u_over_error'])} | {channels} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
 def _header(args: argparse.Namespace) -> None:
     print(
         f"weighing over {args.conveyors} random conveyors (seed {args.seed}), every realism "
@@ -590,6 +634,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("what", choices=["weighing", "monitoring"])
     parser.add_argument("--conveyors", type=int, default=30)
     parser.add_argument("--seed", type=int, default=20261125)
+    parser.add_argument(
+        "--seeds",
+        type=int,
+        default=1,
+        help="weighing: draw the conveyors this many times (seeds SEED, SEED+1, ...), pooled",
+    )
+    parser.add_argument(
+        "--markdown", type=Path, default=None, help="weighing: also write the summary as markdown"
+    )
     parser.add_argument(
         "--without",
         action="append",
@@ -616,17 +669,30 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     started = time.perf_counter()
     _header(args)
-    rng = np.random.default_rng(args.seed)
     without = tuple(args.without)
-    convs = [draw_conveyor(rng, k, without) for k in range(args.conveyors)]
     rows: list[dict[str, Any]] = []
-    for k, conv in enumerate(convs):
-        try:
-            rows += evaluate_conveyor(conv, args.seed + 1000 * (k + 1))
-        except ChaintwinError as exc:  # a conveyor the simulator cannot run is listed
-            print(f"{conv.profile.id}: not evaluated ({exc})", file=sys.stderr)
+    convs: list[Conveyor] = []
+    for s in range(args.seeds):
+        seed = args.seed + s
+        rng = np.random.default_rng(seed)
+        drawn = [draw_conveyor(rng, k, without) for k in range(args.conveyors)]
+        for k, conv in enumerate(drawn):
+            try:
+                found = evaluate_conveyor(conv, seed + 1000 * (k + 1))
+            except ChaintwinError as exc:  # a conveyor the simulator cannot run is listed
+                print(f"{conv.profile.id}: not evaluated ({exc})", file=sys.stderr)
+                continue
+            rows += [r | {"seed": seed} for r in found]
+            print(f"seed {seed} {conv.profile.id} done", file=sys.stderr, flush=True)
+        convs += drawn if args.seeds == 1 else []
     summary = summarise(rows)
     table = per_conveyor(rows, convs)
+    if args.markdown is not None:
+        title = (
+            f"Weighing over {args.conveyors} drawn conveyors x {args.seeds} seed(s) "
+            f"(from {args.seed}), every realism effect on, the set point's noise included"
+        )
+        args.markdown.write_text(markdown(summary, title))
     seconds = time.perf_counter() - started
     _print(summary, table, seconds)
     args.json.write_text(

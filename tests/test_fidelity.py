@@ -43,8 +43,12 @@ def test_with_the_drift_allowance_the_uncertainty_is_honest_over_random_conveyor
     # the calibration falls back to losses linear in speed and says so. The
     # median uncertainty over the median error misses the 2.2 target with empty
     # runs (2.76: the ±10 % drift allowance is carried where no drift happened;
-    # documented in the user guide): these bounds guard what is reached now
-    bounds = {"several_loads": (0.9, 0.0, 2.4), "one_load_several_speeds": (0.95, 0.0, 2.9)}
+    # documented in the user guide): these bounds guard what is reached now.
+    # With the set point's noise on in the evaluation (the speed controller's
+    # answer to its encoder, in the set point and through the torque lag in the
+    # actual torque) the ratios are 2.47 and 3.03 (2.47 and 3.09 with the
+    # previous release's weighing on the same recordings)
+    bounds = {"several_loads": (0.9, 0.0, 2.5), "one_load_several_speeds": (0.95, 0.0, 3.1)}
     for protocol, (within_2u, beyond_5u, inflation) in bounds.items():
         for drift in ("none", "drift10"):
             s = rows[protocol, drift, "unknown"]

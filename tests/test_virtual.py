@@ -277,3 +277,40 @@ def test_cli_simulate_with_calibration(tmp_path: Path, capsys: pytest.CaptureFix
     )
     assert code == 2
     assert "not of 'other-belt'" in capsys.readouterr().err
+
+
+def test_the_set_point_carries_the_controller_gain_times_the_speed_noise(
+    reference_profile: ConveyorProfile,
+) -> None:
+    """The set point's noise against Kp times the filtered speed noise, by hand.
+
+    The speed controller sees the encoder's speed: whole increments per
+    cycle, a quantisation error ``(r_(k-1) - r_k)·inc/dt`` with ``r``
+    uniform in [0, 1), plus white noise ``σ``; through the speed filter
+    (first order, ``α`` of a new sample per cycle) their variances become
+    ``σ²·α/(2-α)`` and ``(inc/dt)²/12·2α²/(2-α)``. The set point carries
+    ``Kp`` times that, unfiltered by the torque lag; the actual torque less.
+    """
+    from chaintwin.simulate.virtual import speed_filter_alpha
+    from chaintwin.units import RPM_TO_RAD_S
+
+    quiet = Realism(noise=False, quantisation=False, setpoint_noise=False)
+    noisy = Realism(noise=False, quantisation=False, setpoint_noise=True)
+    kw = {"payload_kg": 20.0, "sample_time_s": 0.001, "seed": 7}
+    a = run_virtual(reference_profile, realism=quiet, **kw).recording
+    b = run_virtual(reference_profile, realism=noisy, **kw).recording
+    assert a.torque_setpoint is not None and b.torque_setpoint is not None
+    du = b.torque_setpoint - a.torque_setpoint
+    dt = reference_profile.controller.cycle_s
+    alpha = speed_filter_alpha(dt, noisy.speed_filter_s)
+    sigma = noisy.speed_noise_rpm * RPM_TO_RAD_S
+    inc = 2.0 * math.pi / noisy.speed_increments_per_rev
+    var = sigma**2 * alpha / (2.0 - alpha) + (inc / dt) ** 2 / 12.0 * 2.0 * alpha**2 / (2.0 - alpha)
+    kp = reference_profile.controller.speed_gain_nm_s_rad
+    moving = np.abs(a.speed) > 0.5 * np.max(np.abs(a.speed))  # quantisation at speed
+    spread = float(np.std(du[moving]))
+    assert spread == pytest.approx(kp * math.sqrt(var), rel=0.1)
+    assert float(np.mean(du[moving])) == pytest.approx(0.0, abs=0.1 * spread)
+    # the actual torque sees it through the torque lag: less, not more
+    lagged = float(np.std((b.torque - a.torque)[moving]))
+    assert 0.0 < lagged < spread

@@ -192,7 +192,8 @@ def run_demo(out: Path, *, days: int, per_day: int, workers: int | None, console
     console.print(
         "payload and TLF: medians of the latest recordings; weights right: share of the "
         "weighed recordings within 2 standard uncertainties of the simulated payload, median "
-        "error; health: worst feature, 0 = baseline, 1 = alarm limit",
+        "error, and how many weights carry friction_changed (taken while monitoring saw the "
+        "rail friction move); health: worst feature, 0 = baseline, 1 = alarm limit",
         style="dim",
         highlight=False,
     )
@@ -241,9 +242,19 @@ def _weights_right(results: list[dict[str, Any]], truth_file: Path) -> str:
             continue
         err.append(abs(p - true))
         z.append(abs(p - true) / u)
+    # weights taken while monitoring saw the rail friction move (friction_changed)
+    changed = sum(
+        1
+        for r in results
+        if any(
+            (w.get("code") if isinstance(w, dict) else w) == "friction_changed"
+            for w in r.get("warnings") or []
+        )
+    )
+    note = f", {changed} friction_changed" if changed else ""
     if not z:
-        return "-"
-    return f"{np.mean(np.array(z) <= 2):.0%}, {np.median(err):.1f} kg"
+        return "-" + note
+    return f"{np.mean(np.array(z) <= 2):.0%}, {np.median(err):.1f} kg{note}"
 
 
 def register(app: typer.Typer) -> None:

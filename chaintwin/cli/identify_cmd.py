@@ -268,6 +268,18 @@ def register(app: typer.Typer) -> None:
             bool, typer.Option("--json", help="Print the calibration file's content.")
         ] = False,
         columns: ColumnsOption = None,
+        friction_drift: Annotated[
+            float,
+            typer.Option(
+                "--friction-drift",
+                min=0.0,
+                max=1.0,
+                help="Standard uncertainty of the rail friction relative to the calibration's, "
+                "stored in the calibration: weigh, ingest and the live service carry it into "
+                "the uncertainty (default 0: trusted). E.g. 0.1 where the calibration warns "
+                "`friction_unchecked`.",
+            ),
+        ] = 0.0,
     ) -> None:
         """Calibrate a conveyor for weighing and write a versioned calibration file.
 
@@ -285,7 +297,7 @@ def register(app: typer.Typer) -> None:
         recs, refused = _read_all(expand_recordings(files), prof, cmap, known=True)
         if not recs:
             raise _none_usable(refused, "calibrate")
-        cal = calibrate(recs, prof, version=__version__)
+        cal = calibrate(recs, prof, version=__version__, friction_drift=friction_drift)
         if out is not None:
             _save(cal, out)
         if db is not None:
@@ -335,16 +347,17 @@ def register(app: typer.Typer) -> None:
             ),
         ] = LOSS_DRIFT_REL,
         friction_drift: Annotated[
-            float,
+            float | None,
             typer.Option(
                 "--friction-drift",
                 min=0.0,
                 max=1.0,
                 help="Standard uncertainty of the rail friction relative to the calibration's, "
-                "carried into the uncertainty (default 0: trusted). Use it where the "
+                "carried into the uncertainty; overrides the calibration's own (`calibrate "
+                "--friction-drift`, 0 unless given there: trusted). Use it where the "
                 "calibration warns `friction_unchecked` (e.g. 0.1).",
             ),
-        ] = 0.0,
+        ] = None,
     ) -> None:
         """Weigh the payload of each recording from torque alone, with an uncertainty.
 

@@ -612,8 +612,11 @@ def recording_features(
     """
     recording = inspection.recording
     phases = list(inspection.phases)
-    prof = calibration.id_profile
-    params = calibration.parameters
+    # the features read the actual torque: the calibration's terms for it (a
+    # calibration that weighs with the set point keeps them apart)
+    actual = calibration.actual_torque or calibration
+    prof = actual.id_profile
+    params = actual.parameters
     warnings: list[RecordingWarning] = []
     # the acceleration (a Savitzky-Golay derivative) serves the power-flow mask
     # and both model torques: computed once
@@ -686,13 +689,13 @@ def recording_features(
     }
     try:
         cond = fit_condition(
-            recording, prof, params, tray, mot, calibration.ramp_noise_rate, windows=every
+            recording, prof, params, tray, mot, actual.ramp_noise_rate, windows=every
         )
     except EstimationError:
         values["friction"] = values["speed_loss"] = nan
         values["friction_drift"] = values["speed_loss_drift"] = nan
     else:
-        values.update(_condition_values(cond, params, calibration, m0))
+        values.update(_condition_values(cond, params, actual, m0))
 
     if load_kg == first_load:
         model = first  # the same load: the same torque (nothing has changed it)
@@ -702,7 +705,7 @@ def recording_features(
         )
     if residual == "closed-loop":
         try:
-            model = closed_loop_torque(recording, prof, twin_parameters(prof, calibration), load_kg)
+            model = closed_loop_torque(recording, prof, twin_parameters(prof, actual), load_kg)
         except (EstimationError, ModelError) as exc:
             warnings.append(
                 RecordingWarning(

@@ -82,7 +82,7 @@ __all__ = ["FRICTION_CAUSES", "ConveyorMonitor"]
 FRICTION_CAUSES = frozenset({"friction", "lubrication", "obstruction"})
 """Causes under which the friction signature is not trusted for the payload."""
 
-_BY_INERTIA = ("weighed_by_inertia", "unweighable")
+_BY_INERTIA = ("weighed_by_inertia", "unweighable", "friction_changed")
 
 
 class ConveyorMonitor:
@@ -545,8 +545,20 @@ class ConveyorMonitor:
             if any(feature_spec(e).cause in FRICTION_CAUSES for e in exceeded) or any(
                 a.cause in FRICTION_CAUSES for a in self.open_alarms()
             ):
-                # a friction rise must not read as payload: weigh by inertia
-                w = self._by_inertia(w, recording)
+                # a friction rise must not read as payload: weigh by inertia, and
+                # carry the friction feature's measured change (relative to its
+                # baseline) in the friction signature's uncertainty
+                moved = change.get("friction")
+                if moved is None:
+                    moved = next(
+                        (
+                            a.change
+                            for a in self.open_alarms()
+                            if a.feature == "friction" and a.change is not None
+                        ),
+                        None,
+                    )
+                w = self._by_inertia(w, recording, moved)
                 warnings = [x for x in warnings if x.get("code") not in _BY_INERTIA]
                 warnings += [x.to_dict() for x in w.warnings if x.code in _BY_INERTIA]
         if (
@@ -576,15 +588,19 @@ class ConveyorMonitor:
             self.processed[sha256] = len(self.history) - 1
         return base
 
-    def _by_inertia(self, w: WeighResult, recording: Recording) -> WeighResult:
+    def _by_inertia(
+        self, w: WeighResult, recording: Recording, friction_change: float | None = None
+    ) -> WeighResult:
         """The weighing combined again trusting the inertia signature alone, with its TLF.
 
         A recording whose signatures disagreed (the friction rise itself) was
         unweighable and had no TLF; weighed by inertia it has a payload, and
         the TLF is that of this payload (the same work over the same travel),
         also where the combined payload had one (that TLF was of another payload).
+        ``friction_change`` (relative, the friction feature's measured change) joins
+        the friction signature's uncertainty.
         """
-        w = reweigh(w, w.loss_drift, friction=False)
+        w = reweigh(w, w.loss_drift, friction=False, friction_change=friction_change)
         if w.payload_kg is None or self.calibration is None:
             return w
         prof = self.calibration.id_profile

@@ -25,6 +25,7 @@ from chaintwin.identify.calibration import (
     Calibration,
     identification_profile,
 )
+from chaintwin.identify.channels import choose_channel, measure_spreads, on_channel
 from chaintwin.identify.regression import RigidModelRegression, speed_clusters
 from chaintwin.identify.torque_lag import identify_torque_lag
 from chaintwin.model.rigid import PARAMETER_NAMES, RigidParameters
@@ -407,8 +408,16 @@ def calibrate(
     *,
     estimator: RigidModelRegression | None = None,
     version: str = "",
+    friction_drift: float = 0.0,
 ) -> Calibration:
     """Calibrate a conveyor from recordings with a known ``payload_kg``.
+
+    When every recording holds the torque set point, the torque channel is
+    chosen by the data (:mod:`chaintwin.identify.channels`): the rigid
+    model's residual spread on the actual torque, on the set point and on
+    their inverse-variance combination; the calibration is then made on the
+    channel with the smallest, keeping the actual torque's as
+    :attr:`Calibration.actual_torque` for recordings without a set point.
 
     Parameters
     ----------
@@ -420,6 +429,9 @@ def calibrate(
         Settings of the regression (default settings otherwise).
     version : str
         chaintwin version to record.
+    friction_drift : float
+        Standard uncertainty of the rail friction relative to the
+        calibration's, 1, stored for weighing (default 0: trusted).
 
     Returns
     -------
@@ -429,7 +441,58 @@ def calibrate(
     ------
     EstimationError
         When a recording lacks ``payload_kg`` or the data cannot determine the model.
+    CalibrationError
+        When ``friction_drift`` is not a share in [0, 1].
     """
+    cal, est = _calibrate_on(
+        recordings, profile, estimator=estimator, version=version, friction_drift=friction_drift
+    )
+    if not recordings or any(r.torque_setpoint is None for r in recordings):
+        return cal
+    settings = estimator or RigidModelRegression()
+    try:
+        spreads = measure_spreads(recordings, cal.id_profile, settings, est)
+    except EstimationError:
+        return cal
+    channel = choose_channel(spreads)
+    if channel == "torque":
+        return replace(cal, channel_spreads=spreads)
+    derived = [on_channel(r, channel, spreads.torque_weight) for r in recordings]
+    try:
+        other, _est = _calibrate_on(
+            derived, profile, estimator=estimator, version=version, friction_drift=friction_drift
+        )
+    except EstimationError:
+        return replace(cal, channel_spreads=spreads)
+    # the torque lag is the actual torque's behind the set point: the actual calibration's
+    lag_codes = ("torque_lag_unknown",)
+    warnings = [w for w in other.warnings if w.code not in lag_codes]
+    warnings += [w for w in cal.warnings if w.code in lag_codes]
+    return replace(
+        other,
+        torque_channel=channel,
+        channel_spreads=spreads,
+        actual_torque=cal,
+        torque_lag_s=cal.torque_lag_s,
+        torque_lag_stderr_s=cal.torque_lag_stderr_s,
+        warnings=tuple(warnings),
+    )
+
+
+def _calibrate_on(
+    recordings: Sequence[Recording],
+    profile: ConveyorProfile,
+    *,
+    estimator: RigidModelRegression | None = None,
+    version: str = "",
+    friction_drift: float = 0.0,
+) -> tuple[Calibration, RigidModelRegression]:
+    """:func:`calibrate` on the recordings' ``torque`` as they are; with its main fit."""
+    if not (math.isfinite(friction_drift) and 0.0 <= friction_drift <= 1.0):
+        raise CalibrationError(
+            f"friction drift {friction_drift!r}: give the rail friction's standard "
+            "uncertainty as a share between 0 and 1 (e.g. 0.1)"
+        )
     id_prof = identification_profile(profile)
     missing = [r.source for r in recordings if r.metadata.payload_kg is None]
     if missing:
@@ -497,6 +560,7 @@ def calibrate(
         ramp_noise_rate=float(est.noise_rates_[1]),
         warnings=tuple(warnings),
         chaintwin_version=version,
+        friction_drift=friction_drift,
     )
     cal = _calibrate_inertia_signature(cal, recordings, est.loads_kg_, est.trays_kg_)
     unchecked = _friction_check(cal, recordings)
@@ -505,4 +569,4 @@ def calibrate(
     note = cal.recommendation()
     if note is not None:
         cal = replace(cal, warnings=(*cal.warnings, RecordingWarning("calibration_weak", note)))
-    return cal
+    return cal, est

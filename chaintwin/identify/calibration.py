@@ -46,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from chaintwin.errors import CalibrationError
+from chaintwin.identify.channels import TORQUE_CHANNELS, ChannelSpreads
 from chaintwin.identify.regression import speed_clusters
 from chaintwin.model.physics import payload_sensitivity_nm_kg
 from chaintwin.model.rigid import (
@@ -137,6 +138,21 @@ class Calibration:
         differ refine it) and its standard uncertainty.
     inertia_offset_kg, inertia_offset_sigma_kg : float
         The offset (raw reading of an empty tray) and its uncertainty, kg.
+    friction_drift : float
+        Standard uncertainty of the rail friction μ relative to this
+        calibration's that weighing carries into the friction signature's
+        variance, 1 (``calibrate --friction-drift``; 0: the calibration's
+        rail friction is trusted, as in files written before this field).
+    torque_channel : str
+        The torque weighing reads (:data:`~chaintwin.identify.channels.TORQUE_CHANNELS`):
+        ``torque`` (the actual torque), ``torque_setpoint`` or ``combined``;
+        the parameters are those fitted on it.
+    channel_spreads : ChannelSpreads or None
+        The residual spread of each channel on the calibration's recordings
+        that chose it (None: the recordings hold no set point).
+    actual_torque : Calibration or None
+        The calibration on the actual torque, when ``torque_channel`` is
+        another: a recording without a set point is weighed with it.
     ramp_noise_rate : float
         How well whole-ramp windows fit on this conveyor: residual variance
         per second of window, (N·m·s)²/s; weighing weights them with it.
@@ -161,6 +177,10 @@ class Calibration:
     inertia_gain_sigma: float = INERTIA_GAIN_PRIOR_SIGMA
     inertia_offset_kg: float = 0.0
     inertia_offset_sigma_kg: float = 0.0
+    friction_drift: float = 0.0
+    torque_channel: str = "torque"
+    channel_spreads: ChannelSpreads | None = None
+    actual_torque: Calibration | None = None
     ramp_noise_rate: float = float("nan")
     warnings: tuple[RecordingWarning, ...] = ()
     method: str = "windowed least squares of the rigid model (integral form)"
@@ -275,6 +295,12 @@ class Calibration:
             "torque_lag_s": self.torque_lag_s,
             "torque_lag_stderr_s": self.torque_lag_stderr_s,
             "residual_rms_nm": self.residual_rms_nm,
+            "friction_drift": self.friction_drift,
+            "torque_channel": self.torque_channel,
+            "torque_channel_spreads_nm": None
+            if self.channel_spreads is None
+            else self.channel_spreads.to_dict(),
+            "actual_torque": None if self.actual_torque is None else self.actual_torque.to_dict(),
             "inertia_signature": {
                 "gain": self.inertia_gain,
                 "gain_sigma": self.inertia_gain_sigma,
@@ -346,6 +372,14 @@ class Calibration:
                 inertia_offset_kg=float(data["inertia_signature"]["offset_kg"]),
                 inertia_offset_sigma_kg=float(data["inertia_signature"]["offset_sigma_kg"]),
                 ramp_noise_rate=_number(data["inertia_signature"]["ramp_noise_rate"]),
+                friction_drift=float(data.get("friction_drift", 0.0)),
+                torque_channel=str(data.get("torque_channel", "torque")),
+                channel_spreads=None
+                if data.get("torque_channel_spreads_nm") is None
+                else ChannelSpreads.from_dict(data["torque_channel_spreads_nm"]),
+                actual_torque=None
+                if data.get("actual_torque") is None
+                else cls.from_dict(data["actual_torque"], f"{source}: actual_torque"),
                 warnings=tuple(
                     RecordingWarning(str(w["code"]), str(w["message"]))
                     for w in data.get("warnings", [])
@@ -354,6 +388,15 @@ class Calibration:
                 created_at=str(data.get("created_at", "")),
                 chaintwin_version=str(data.get("chaintwin_version", "")),
             )
+            if cal.torque_channel not in TORQUE_CHANNELS:
+                raise ValueError(
+                    f"torque_channel {cal.torque_channel!r} is not one of "
+                    + ", ".join(TORQUE_CHANNELS)
+                )
+            if cal.torque_channel != "torque" and (
+                cal.actual_torque is None or cal.channel_spreads is None
+            ):
+                raise ValueError("a calibration on the set point needs its actual-torque terms")
             if cal.case not in CALIBRATION_CASES:
                 raise ValueError(f"case {cal.case!r} is not one of {', '.join(CALIBRATION_CASES)}")
             if not cal.directions <= {1, -1}:
@@ -408,6 +451,8 @@ def _broken_invariant(cal: Calibration) -> str | None:
         cal.inertia_offset_kg
     ):
         return "the inertia signature's offset or uncertainties are not finite and non-negative"
+    if not (math.isfinite(cal.friction_drift) and 0.0 <= cal.friction_drift <= 1.0):
+        return f"the friction drift {cal.friction_drift:g} is not a share in [0, 1]"
     return None
 
 

@@ -17,8 +17,16 @@ The virtual conveyor therefore adds, each switchable in :class:`Realism`:
   the move, so that a 1 ms scope holds only part of a 10 s cycle;
 * exported units: rpm, % of nominal torque, encoder increments.
 
-Simplification: measurement noise is added to the exported channels, not fed
-back through the simulated speed controller.
+The torque set point carries the noise a drive's own speed measurement puts
+into it (:func:`setpoint_noise`): encoder quantisation and speed-measurement
+noise, through the speed filter, times the speed controller's gain, added to
+the set point unfiltered and to the actual torque through the torque lag.
+
+Simplifications: the exported channels' measurement noise is drawn apart
+from the controller's (the scope's speed channel keeps its own draw), and
+the controller's noise is added to the simulated torques afterwards, not fed
+back through the plant (at the controller cycle the motor's inertia barely
+moves with it).
 """
 
 from __future__ import annotations
@@ -32,6 +40,7 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from scipy.signal import lfilter
 
 from chaintwin._types import FloatArray
 from chaintwin.errors import ModelError
@@ -68,6 +77,8 @@ __all__ = [
     "default_setpoints",
     "faulty_plant",
     "run_virtual",
+    "setpoint_noise",
+    "speed_filter_alpha",
 ]
 
 INCREMENTS_PER_REV = 4096
@@ -82,7 +93,8 @@ OBSTRUCTION_PLACE = 0.37
 
 @dataclass(frozen=True, slots=True)
 class Realism:
-    """What the virtual conveyor adds to the rigid model; all on by default.
+    """What the virtual conveyor adds to the rigid model; all on by default but
+    ``setpoint_noise``.
 
     Parameters
     ----------
@@ -105,10 +117,25 @@ class Realism:
         recording, as drives export them: near zero in two recordings of three
         (the counter reset at the trigger), anywhere in the third. Positions
         are then not comparable across recordings.
+    setpoint_noise : bool
+        The speed controller's reaction to its own speed measurement
+        (encoder quantisation and ``speed_noise_rpm``) in the torque set
+        point and, through the torque lag, in the actual torque
+        (:func:`setpoint_noise`). Off by default, unlike the others: the
+        known-answer tests' tolerances were set without it (it moves their
+        noise realisations); the weighing evaluation
+        (``scripts/evaluate_fidelity.py``) turns it on.
     torque_noise : float
         Torque noise standard deviation, share of nominal torque.
     speed_noise_rpm : float
         Speed noise standard deviation, rpm.
+    speed_filter_s : float
+        Time constant of the drive's filter of the measured speed before
+        the speed controller, s.
+    speed_increments_per_rev : int
+        Encoder counts per motor revolution the drive's speed measurement
+        resolves: four edges of each of the encoder's lines (the scope
+        exports the position in :data:`INCREMENTS_PER_REV`).
     max_samples : int
         Scope depth.
     pretrigger_s : float
@@ -123,8 +150,11 @@ class Realism:
     gear_mesh: bool = True
     scope_limits: bool = True
     position_offset: bool = True
+    setpoint_noise: bool = False
     torque_noise: float = 0.004
     speed_noise_rpm: float = 0.8
+    speed_filter_s: float = 0.002
+    speed_increments_per_rev: int = 4 * INCREMENTS_PER_REV
     max_samples: int = 2048
     pretrigger_s: float = 0.2
 
@@ -133,6 +163,7 @@ class Realism:
         """The rigid identification model, exported exactly (scope limits kept)."""
         return cls(
             noise=False,
+            setpoint_noise=False,
             quantisation=False,
             elastic=False,
             stick_slip=False,
@@ -329,6 +360,71 @@ def default_setpoints(
     )
 
 
+SETPOINT_NOISE_STREAM = 35
+"""Second key of the random stream of the controller's speed noise (beside the
+run's seed), so that the other draws of a seeded run stay as they were."""
+
+
+def _first_order(x: FloatArray, dt: float, tau: float) -> FloatArray:
+    """``x`` through a first-order lag of time constant ``tau`` (s), exactly
+    discretised at step ``dt`` (s), starting from 0; ``tau`` 0 passes it on."""
+    if tau <= 0.0:
+        return x.copy()
+    alpha = 1.0 - math.exp(-dt / tau)
+    return np.asarray(lfilter([alpha], [1.0, alpha - 1.0], x), dtype=np.float64)
+
+
+def speed_filter_alpha(cycle_s: float, speed_filter_s: float) -> float:
+    """Share of a new speed sample the drive's speed filter takes per cycle, 1."""
+    return 1.0 if speed_filter_s <= 0.0 else 1.0 - math.exp(-cycle_s / speed_filter_s)
+
+
+def setpoint_noise(
+    position: FloatArray,
+    plant: PlantParameters,
+    realism: Realism,
+    rng: np.random.Generator,
+) -> tuple[FloatArray, FloatArray]:
+    """What the drive's own speed measurement adds to its torques, per controller cycle.
+
+    The speed controller sees the motor speed as the encoder measures it:
+    whole increments counted per cycle (``(N_k - N_(k-1))·inc/cycle``, a
+    quantisation error of up to one increment per cycle) plus measurement
+    noise of ``realism.speed_noise_rpm``, through the drive's speed filter
+    (first order, ``realism.speed_filter_s``). Its proportional gain turns
+    that into torque: the set point carries ``-Kp·n`` unfiltered, the actual
+    torque the same through the torque lag. The integral part's share
+    (``Kp/Ti`` per second) is left out: at the controller cycle it is two
+    orders smaller.
+
+    Parameters
+    ----------
+    position : FloatArray
+        Motor angle at every controller cycle, rad.
+    plant : PlantParameters
+        Controller cycle, speed gain and torque time constant.
+    realism : Realism
+        Speed noise and filter.
+    rng : np.random.Generator
+        The noise's random stream.
+
+    Returns
+    -------
+    (FloatArray, FloatArray)
+        Additions to the torque set point and to the actual torque, N·m.
+    """
+    dt = plant.cycle_s
+    inc = 2.0 * math.pi / realism.speed_increments_per_rev
+    counts = np.floor(position / inc)
+    measured = np.empty_like(position)
+    measured[1:] = np.diff(counts) * inc / dt - np.diff(position) / dt
+    measured[0] = 0.0
+    measured += rng.normal(0.0, realism.speed_noise_rpm * RPM_TO_RAD_S, position.shape)
+    filtered = _first_order(measured, dt, realism.speed_filter_s)
+    du = -plant.speed_gain_nm_s_rad * filtered
+    return du, _first_order(du, dt, plant.torque_time_constant_s)
+
+
 def _quantise(x: FloatArray, step: float) -> FloatArray:
     return np.round(x / step) * step
 
@@ -501,6 +597,13 @@ def run_virtual(
     th = sim.position[idx].copy()
     t_sp = sim.torque_setpoint[idx].copy()
     tq = sim.torque[idx].copy()
+    if realism.setpoint_noise:
+        stream = np.random.default_rng(
+            None if seed is None else [seed & 0xFFFFFFFF, SETPOINT_NOISE_STREAM]
+        )
+        du, du_lagged = setpoint_noise(sim.position, plant, realism, stream)
+        t_sp = t_sp + du[idx]
+        tq = tq + du_lagged[idx]
     if realism.noise:
         noise_scale = 1.0 + sum(f.severity for f in faults if f.name == "bearing")
         tq = tq + rng.normal(0.0, realism.torque_noise * tn * noise_scale, tq.shape)

@@ -48,18 +48,22 @@ import numpy as np
 from chaintwin._stats import median
 from chaintwin.errors import EstimationError
 from chaintwin.identify.calibration import INERTIA_MODEL_REL, Calibration
+from chaintwin.identify.channels import on_channel
 from chaintwin.identify.signatures import SignatureFit, fit_signatures
 from chaintwin.model.rigid import incline_terms, motoring_mask
-from chaintwin.model.windows import WindowIntegrals
+from chaintwin.model.windows import WindowIntegrals, window_integrals
 from chaintwin.read.profile import ConveyorProfile
-from chaintwin.read.recording import RecordingWarning
+from chaintwin.read.recording import Recording, RecordingWarning
 from chaintwin.units import RPM_TO_RAD_S
 from chaintwin.validate.checks import Inspection
+from chaintwin.validate.phases import Phase
 from chaintwin.weigh.drift import LossDrift
 from chaintwin.weigh.tlf import motor_shaft_transport_loss_factor, transport_loss_factor
 
 __all__ = [
     "CONSISTENCY_SIGMA",
+    "FRICTION_CHANGED",
+    "SETPOINT_MISSING",
     "UNWEIGHABLE",
     "Segment",
     "Signatures",
@@ -70,6 +74,14 @@ __all__ = [
 
 UNWEIGHABLE = "unweighable"
 """Warning code of a recording whose payload is None."""
+
+SETPOINT_MISSING = "torque_setpoint_missing"
+"""Warning code of a recording without the set point weighed with a calibration
+on the set point (or the combination): the actual torque's terms were used."""
+
+FRICTION_CHANGED = "friction_changed"
+"""Warning code of a weight taken while the conveyor's monitoring sees its
+rail friction move (:func:`reweigh` with ``friction=False``)."""
 
 CONSISTENCY_SIGMA = 3.0
 """Friction and inertia estimates disagree beyond this many combined sigmas."""
@@ -173,7 +185,12 @@ def _unweighable(reason: str) -> RecordingWarning:
     return RecordingWarning(UNWEIGHABLE, f"no payload: {reason}")
 
 
-def _combine(sig: Signatures, drift: LossDrift, friction: bool = True) -> _Combined:
+def _combine(
+    sig: Signatures,
+    drift: LossDrift,
+    friction: bool = True,
+    friction_change: float | None = None,
+) -> _Combined:
     """The payload from both signatures, or none when its uncertainty exceeds the belt's mass.
 
     See :func:`_combine_signatures`; a payload whose standard uncertainty is
@@ -181,7 +198,7 @@ def _combine(sig: Signatures, drift: LossDrift, friction: bool = True) -> _Combi
     is no number to stand behind (a 1 ms scope of a long, heavy belt can
     give 183 ± 1050 kg): unweighable, with the reason and what to record.
     """
-    out = _combine_signatures(sig, drift, friction)
+    out = _combine_signatures(sig, drift, friction, friction_change)
     u = out.uncertainty_kg
     if out.payload_kg is None or u is None or u <= sig.moving_mass_kg:
         return out
@@ -194,7 +211,28 @@ def _combine(sig: Signatures, drift: LossDrift, friction: bool = True) -> _Combi
     return _Combined(None, None, None, None, None, False, (*out.warnings, _unweighable(reason)))
 
 
-def _combine_signatures(sig: Signatures, drift: LossDrift, friction: bool = True) -> _Combined:
+def _friction_changed(sig: Signatures, change: float | None, weighed_by: str) -> RecordingWarning:
+    """The ``friction_changed`` warning: what the monitoring measured, what it is worth."""
+    per_10 = 0.1 * sig.friction_rel_kg
+    worth = f" ({abs(per_10):.1f} kg per 10 %)" if math.isfinite(per_10) else ""
+    moved = (
+        f"by {change:+.0%}"
+        if change is not None and math.isfinite(change)
+        else "by an unmeasured amount"
+    )
+    return RecordingWarning(
+        FRICTION_CHANGED,
+        f"the conveyor's monitoring sees its rail friction moved {moved} since the "
+        f"calibration: the friction signature would read that as payload{worth}; {weighed_by}",
+    )
+
+
+def _combine_signatures(
+    sig: Signatures,
+    drift: LossDrift,
+    friction: bool = True,
+    friction_change: float | None = None,
+) -> _Combined:
     """The payload from both signatures, corrected for the loss drift.
 
     Each signature is moved by ``drift.mean`` times its drift gradient and
@@ -202,8 +240,13 @@ def _combine_signatures(sig: Signatures, drift: LossDrift, friction: bool = True
     (``drift.sigma²`` times the gradients' outer product). When the
     two disagree beyond :data:`CONSISTENCY_SIGMA` combined sigmas there is
     no payload (unweighable); else it is their covariance-weighted mean.
-    With ``friction`` False (the rail friction is suspect) the payload is the
-    inertia estimate alone.
+    With ``friction`` False (the conveyor's monitoring sees the rail
+    friction move by the relative ``friction_change``) the payload is the
+    inertia estimate alone, and the friction signature's uncertainty carries
+    the measured change (``friction_change`` times :attr:`Signatures.friction_rel_kg`);
+    without a ramp the payload is the friction signature's with that
+    uncertainty (unweighable when the change is not known). Either way the
+    warning ``friction_changed`` says so.
     """
     k_f, k_i = sig.drift_friction_kg, sig.drift_inertia_kg
     p_f = sig.friction_kg - drift.mean * k_f
@@ -213,9 +256,29 @@ def _combine_signatures(sig: Signatures, drift: LossDrift, friction: bool = True
         var_f += (sig.friction_sigma * sig.friction_rel_kg) ** 2
     w = sig.widen
     if not friction:
+        change = (
+            abs(friction_change)
+            if friction_change is not None and math.isfinite(friction_change)
+            else None
+        )
+        if change is not None and math.isfinite(sig.friction_rel_kg):
+            # the measured change of the rail friction, as payload
+            var_f += (change * sig.friction_rel_kg) ** 2
         if sig.inertia_kg is None or var_i is None:
-            reason = "the rail friction is suspect and there is no ramp to weigh by inertia"
-            return _Combined(None, None, None, None, None, False, (_unweighable(reason),))
+            if change is None or not math.isfinite(sig.friction_rel_kg):
+                reason = "the rail friction is suspect and there is no ramp to weigh by inertia"
+                changed = _friction_changed(sig, friction_change, "no payload")
+                return _Combined(
+                    None, None, None, None, None, False, (changed, _unweighable(reason))
+                )
+            s_f = float(np.sqrt(var_f)) * w
+            changed = _friction_changed(
+                sig,
+                friction_change,
+                "no ramp to weigh by inertia: the payload is the friction signature's, its "
+                "uncertainty carrying the measured change",
+            )
+            return _Combined(p_f, s_f, p_f, s_f, None, True, (changed,))
         p_i_only = sig.inertia_kg - drift.mean * k_i
         s_i = float(np.sqrt(var_i)) * w
         note = RecordingWarning(
@@ -223,7 +286,13 @@ def _combine_signatures(sig: Signatures, drift: LossDrift, friction: bool = True
             "a friction, lubrication or obstruction alarm is open or developing: the "
             "payload is the inertia signature's, which friction cannot move",
         )
-        return _Combined(p_i_only, s_i, p_f, float(np.sqrt(var_f)) * w, s_i, True, (note,))
+        changed = _friction_changed(
+            sig,
+            friction_change,
+            "the payload is the inertia signature's; the friction signature's uncertainty "
+            "carries the measured change",
+        )
+        return _Combined(p_i_only, s_i, p_f, float(np.sqrt(var_f)) * w, s_i, True, (note, changed))
     if sig.inertia_kg is None or var_i is None:
         s_f = float(np.sqrt(var_f))
         return _Combined(p_f, s_f * w, p_f, s_f * w, None, True, ())
@@ -419,6 +488,35 @@ def _friction_rel_kg(
     return rails_kg * float(np.sum(w * xf * dz)) / den if den > 0.0 else float("nan")
 
 
+def _same_windows(
+    recording: Recording,
+    prof: ConveyorProfile,
+    motoring: np.ndarray,
+    phases: list[Phase],
+    given: WindowIntegrals,
+) -> WindowIntegrals | None:
+    """The windows of ``given`` (by their start and end, s) integrated on ``recording``.
+
+    For windows a caller chose on the actual torque (impacts left out) when
+    the calibration weighs another channel; None when none matches.
+    """
+    try:
+        every = window_integrals(recording, prof, motoring=motoring, phases=phases)
+    except EstimationError:
+        return None
+    spans = set(zip(np.round(given.t0, 9).tolist(), np.round(given.t1, 9).tolist(), strict=True))
+    keep = np.array(
+        [
+            (a, b) in spans
+            for a, b in zip(
+                np.round(every.t0, 9).tolist(), np.round(every.t1, 9).tolist(), strict=True
+            )
+        ],
+        dtype=bool,
+    )
+    return every.select(keep) if keep.any() else None
+
+
 def _no_payload(name: str, warnings: tuple[RecordingWarning, ...], drift: LossDrift) -> WeighResult:
     """An unweighable result: every number None, the warnings kept."""
     return WeighResult(
@@ -468,7 +566,7 @@ def weigh(
     motoring: np.ndarray | None = None,
     windows: WindowIntegrals | None = None,
     loss_drift: LossDrift | None = None,
-    friction_drift: float = 0.0,
+    friction_drift: float | None = None,
 ) -> WeighResult:
     """Weigh the payload of one recording.
 
@@ -495,11 +593,13 @@ def weigh(
         by it and its uncertainty carried. Default :meth:`LossDrift.unknown`:
         a drift of ±10 % allowed for, as nothing is known of it;
         ``LossDrift()`` trusts the calibration's losses.
-    friction_drift : float
+    friction_drift : float, optional
         Standard uncertainty of the rail friction μ relative to the
         calibration's, carried into the friction signature's variance
-        (default 0: the calibration's rail friction is trusted). Matters
-        where the recording's inertia signature cannot check the friction
+        (default: the calibration's :attr:`~Calibration.friction_drift`,
+        0 unless it was calibrated with one: the calibration's rail
+        friction is trusted). Matters where the recording's inertia
+        signature cannot check the friction
         (:attr:`WeighResult.friction_checked_rel` large or None).
 
     Returns
@@ -513,12 +613,32 @@ def weigh(
     recording = inspection.recording
     phases = list(inspection.phases)
     name = source if source is not None else recording.source
+    channel_note: RecordingWarning | None = None
+    subset: WindowIntegrals | None = None
+    if calibration.torque_channel != "torque":
+        spreads = calibration.channel_spreads
+        if recording.torque_setpoint is None or spreads is None:
+            channel_note = RecordingWarning(
+                SETPOINT_MISSING,
+                f"the calibration weighs with the {calibration.torque_channel.replace('_', ' ')} "
+                "(the smaller residual spread on its recordings), but this recording has no "
+                "torque set point column: weighed with the actual torque and the "
+                "calibration's actual-torque terms",
+            )
+            calibration = calibration.actual_torque or calibration
+        else:
+            recording = on_channel(recording, calibration.torque_channel, spreads.torque_weight)
+            # motoring and windows handed in were computed on the actual torque:
+            # the same windows (by their spans) are integrated again on the channel
+            subset, motoring, windows = windows, None, None
     prof = calibration.id_profile
     params = calibration.parameters
     drifted = LossDrift.unknown() if loss_drift is None else loss_drift
     tray = recording.metadata.tray_kg
     tray = prof.tray_mass_kg if tray is None else tray
     warnings: list[RecordingWarning] = list(recording.warnings)
+    if channel_note is not None:
+        warnings.append(channel_note)
 
     def nothing(reason: str) -> WeighResult:
         return _no_payload(name, (*warnings, _unweighable(reason)), drifted)
@@ -537,6 +657,8 @@ def weigh(
             losses=params.losses,
         )
     )
+    if subset is not None:
+        windows = _same_windows(recording, prof, mot, phases, subset)
     rate = calibration.ramp_noise_rate
     try:
         fit, cov = fit_signatures(
@@ -641,7 +763,7 @@ def weigh(
             float(params["mu"]),
             prof.belt_mass_kg + tray + max(float(fit.estimate[0]), 0.0),
         ),
-        friction_sigma=friction_drift,
+        friction_sigma=calibration.friction_drift if friction_drift is None else friction_drift,
     )
     cal_speeds = calibration.plateau_speeds_rpm
     wi = fit.windows
@@ -679,19 +801,32 @@ def weigh(
     )
 
 
-def reweigh(result: WeighResult, loss_drift: LossDrift, *, friction: bool = True) -> WeighResult:
+def reweigh(
+    result: WeighResult,
+    loss_drift: LossDrift,
+    *,
+    friction: bool = True,
+    friction_change: float | None = None,
+) -> WeighResult:
     """The result combined again with another loss drift (see :func:`weigh`).
 
     Cheap (no fit): for what became known after the recording was weighed,
     e.g. on a worker: a drift estimate, or (``friction=False``) that the
-    rail friction is suspect, so that the payload is the inertia
-    signature's. The TLF is kept (it depends on the payload only weakly).
+    conveyor's monitoring sees the rail friction move, by the relative
+    ``friction_change`` when it measured it, so that the payload is the
+    inertia signature's (without a ramp, the friction signature's with the
+    change in its uncertainty) and the result carries ``friction_changed``.
+    The TLF is kept (it depends on the payload only weakly).
     """
     sig = result.signatures
     if sig is None:
         return result
-    combined = _combine(sig, loss_drift, friction)
-    kept = tuple(w for w in result.warnings if w.code not in (UNWEIGHABLE, "weighed_by_inertia"))
+    combined = _combine(sig, loss_drift, friction, friction_change)
+    kept = tuple(
+        w
+        for w in result.warnings
+        if w.code not in (UNWEIGHABLE, "weighed_by_inertia", FRICTION_CHANGED)
+    )
     if combined.payload_kg is None:
         out = _no_payload(result.file, (*kept, *combined.warnings), loss_drift)
         return dataclasses.replace(out, segments=result.segments, signatures=sig)

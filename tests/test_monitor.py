@@ -440,15 +440,20 @@ def test_fault_series_alarm_with_the_right_cause(
         # the hits make the residual impulsive too: those alarms name the obstacle
         impulsive = {feature, "residual_kurtosis", "crest_factor", "impact_count"}
         assert first.causes[0]["feature"] in impulsive | {"impact_rate_per_m"}
-        rate = [a for a in mon.alarms if a.feature == feature]
-        assert [a.cause for a in rate] == [cause]
-        # a baseline of no impacts has no relative change: the rate itself says it
-        assert rate[0].change is None
+        # one fault, one alarm: the features that name the obstacle are its evidence
+        grouped = [a for a in mon.alarms if feature in {e.feature for e in a.evidence}]
+        assert [a.cause for a in grouped] == [cause]
+        assert len(grouped[0].evidence) >= 2
+        hits = next(e for e in grouped[0].evidence if e.feature == feature)
+        assert hits.value is not None and hits.value > 0
+        assert hits.since is not None
     else:
         assert first.causes[0]["feature"] == feature
         assert first.causes[0]["change"] > 0
         opened = mon.open_alarms()
         assert [a.cause for a in opened if a.feature == feature] == [cause]
+    for c in {a.cause for a in mon.alarms}:
+        assert sum(a.is_open and a.cause == c for a in mon.alarms) <= 1
     # from the alarm on, a friction rise must not read as payload: the
     # payload is the inertia signature's, within its uncertainty of the truth
     truth = {

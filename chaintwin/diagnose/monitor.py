@@ -501,8 +501,9 @@ class ConveyorMonitor:
             values["unexplained_peak"] = peak
             judged = self._after_expected_wear(values)
             base.features = {k: finite_or_none(v) for k, v in values.items()}
+            zs: dict[str, float] = {}
             met, change, exceeded = alarms.judge(
-                self.baselines, judged, self.windows, self.window_times, self.settings, when
+                self.baselines, judged, self.windows, self.window_times, self.settings, when, zs
             )
             base.exceeded.extend(exceeded)
             self._late_baselines(values)
@@ -525,7 +526,9 @@ class ConveyorMonitor:
                     }
                 )
             for name in met:
-                alarm = self._open_alarm(name, resolved[name], change.get(name), when)
+                alarm = self._open_alarm(
+                    name, resolved[name], change.get(name), when, values.get(name), zs.get(name)
+                )
                 detail = {
                     "cause": resolved[name],
                     "feature": name,
@@ -680,9 +683,15 @@ class ConveyorMonitor:
         return dropped
 
     def _open_alarm(
-        self, feature: str, cause: str, change: float | None, when: datetime | None
+        self,
+        feature: str,
+        cause: str,
+        change: float | None,
+        when: datetime | None,
+        value: float | None,
+        z: float | None,
     ) -> Alarm:
-        """The open alarm of a feature, opened now if there is none (:func:`.alarms.open_alarm`)."""
+        """The open alarm of a cause, opened now if there is none (:func:`.alarms.open_alarm`)."""
         return alarms.open_alarm(
             self.alarms,
             conveyor=self.profile.id,
@@ -692,6 +701,8 @@ class ConveyorMonitor:
             when=when,
             window=self.windows.get(feature, []),
             window_times=self.window_times.get(feature, []),
+            value=value,
+            z=z,
         )
 
     def _judge_limits(
@@ -728,6 +739,7 @@ class ConveyorMonitor:
                 rule=c.limit.rule,
                 kind="limit",
                 limit=c.limit.alarm,
+                value=c.value,
             )
             causes.append(
                 {

@@ -23,6 +23,7 @@ from chaintwin.identify.calibration import Calibration
 from chaintwin.read.recording import Recording, RecordingWarning
 
 from . import baseline
+from .alarms import group_by_cause
 from .features import feature_spec
 from .health import FeatureBaseline
 from .records import Alarm, Event, MonitorSettings, as_number
@@ -242,6 +243,7 @@ def restore(
     """
     for name in LEARNED:
         setattr(mon, name, getattr(state, name))
+    group_by_cause(mon.alarms)  # a state kept before alarms were grouped by cause
     mon.processed = {h["sha256"]: k for k, h in enumerate(mon.history) if h.get("sha256")}
     for pending in state.pending:
         try:

@@ -12,7 +12,7 @@ from chaintwin.diagnose.records import Alarm, Event, RecordingResult
 from chaintwin.diagnose.state import json_ready
 from chaintwin.read.recording import Recording
 
-from .schema import AlarmRow, EventRow, OutboxRow
+from .schema import AlarmAliasRow, AlarmRow, EventRow, OutboxRow
 
 __all__ = ["Finished", "Waiting", "notify_alarm", "put_alarms_events"]
 
@@ -66,9 +66,17 @@ def put_alarms_events(s: Session, conveyor: str, alarms: list[Alarm], events: li
     """Bring the alarm and event rows of a conveyor up to its health model.
 
     An alarm that opens or closes puts a notification in the outbox
-    (:func:`notify_alarm`).
+    (:func:`notify_alarm`). An alarm grouped into another (its id in the
+    other's ``merged``) leaves the table; its id stays an alias of the other.
     """
     rows = {r.id: r for r in s.scalars(select(AlarmRow).where(AlarmRow.conveyor_id == conveyor))}
+    for alarm in alarms:
+        for old in alarm.merged:
+            gone = rows.pop(old, None)
+            if gone is not None:
+                s.delete(gone)
+            if s.get(AlarmAliasRow, old) is None:
+                s.add(AlarmAliasRow(old_id=old, alarm_id=alarm.id))
     for alarm in alarms:
         row_before = rows.get(alarm.id)
         if row_before is None:

@@ -1,0 +1,115 @@
+"""Alarms: one per probable cause with its evidence, the ISA-18.2 lifecycle."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime, timedelta
+
+from chaintwin.diagnose.alarms import close_quiet_alarms, open_alarm
+from chaintwin.diagnose.records import Acknowledgement, Alarm, Shelving
+
+T0 = datetime(2026, 1, 5, 8, 0, tzinfo=UTC)
+
+
+def _at(k: int) -> datetime:
+    return T0 + timedelta(minutes=10 * k)
+
+
+def _open(alarms: list[Alarm], feature: str, cause: str, k: int, **kw: object) -> Alarm:
+    return open_alarm(
+        alarms,
+        conveyor="c1",
+        feature=feature,
+        cause=cause,
+        change=0.5,
+        when=_at(k),
+        window=[False, True, True],
+        window_times=[_at(k - 2).isoformat(), _at(k - 1).isoformat(), _at(k).isoformat()],
+        **kw,  # type: ignore[arg-type]
+    )
+
+
+def test_features_of_one_cause_join_one_alarm_a_second_cause_opens_another() -> None:
+    alarms: list[Alarm] = []
+    first = _open(alarms, "impact_energy_max", "obstruction", 3, value=4.0, z=9.0)
+    same = _open(alarms, "crest_factor", "obstruction", 4, value=7.5, z=6.0)
+    again = _open(alarms, "impact_energy_max", "obstruction", 5, value=5.0, z=11.0)
+    other = _open(alarms, "friction", "friction", 5, value=0.3, z=8.0)
+    assert first is same is again
+    assert other is not first
+    assert len(alarms) == 2
+    # the lead is the feature that opened it; the evidence lists each feature once
+    assert first.feature == "impact_energy_max"
+    assert first.since == _at(2).isoformat()
+    assert [(e.feature, e.value, e.z) for e in first.evidence] == [
+        ("impact_energy_max", 5.0, 11.0),
+        ("crest_factor", 7.5, 6.0),
+    ]
+    assert first.evidence[1].since == _at(3).isoformat()
+    assert first.last_seen == _at(5).isoformat()
+    d = first.to_dict(now=_at(5))
+    assert d["evidence"][1] == {
+        "feature": "crest_factor",
+        "kind": "statistical",
+        "value": 7.5,
+        "z": 6.0,
+        "since": _at(3).isoformat(),
+    }
+    assert Alarm.from_dict(d).evidence == first.evidence
+
+
+def test_a_grouped_alarm_closes_only_when_all_its_features_are_quiet() -> None:
+    alarms: list[Alarm] = []
+    a = _open(alarms, "impact_energy_max", "obstruction", 3)
+    _open(alarms, "crest_factor", "obstruction", 3)
+    quiet = [False] * 4
+    close_quiet_alarms(
+        alarms, {"impact_energy_max": quiet, "crest_factor": [True, *quiet[1:]]}, 4, _at(6)
+    )
+    assert a.is_open
+    assert a.lifecycle(_at(6)) == "returned_unacknowledged"
+    close_quiet_alarms(alarms, {"impact_energy_max": quiet, "crest_factor": quiet}, 4, _at(7))
+    assert not a.is_open
+    assert a.lifecycle(_at(7)) == "closed"
+    # the cause may open again: a new alarm
+    b = _open(alarms, "crest_factor", "obstruction", 8)
+    assert b is not a and len(alarms) == 2
+
+
+def test_lifecycle_words() -> None:
+    alarms: list[Alarm] = []
+    a = _open(alarms, "friction", "friction", 3)
+    close_quiet_alarms(alarms, {"friction": [True]}, 4, _at(3))
+    assert a.lifecycle(_at(3)) == "unacknowledged"
+    a.acknowledged = Acknowledgement("ann", "seen", _at(4).isoformat())
+    assert a.lifecycle(_at(4)) == "acknowledged"
+    a.shelved = Shelving("ann", "repair planned", _at(4).isoformat(), _at(10).isoformat())
+    assert a.lifecycle(_at(5)) == "shelved"
+    assert not a.counts(_at(5))
+    # the shelf ends by itself: the alarm returns to the state it had
+    assert a.lifecycle(_at(10)) == "acknowledged"
+    assert a.counts(_at(10))
+    a.out_of_service, a.out_of_service_until = True, _at(20).isoformat()
+    assert a.lifecycle(_at(11)) == "out_of_service"
+    assert a.lifecycle(_at(21)) == "acknowledged"
+    a.close(_at(22).isoformat(), "quiet")
+    assert a.lifecycle(_at(23)) == "closed"
+    assert not a.counts(_at(23))
+
+
+def test_alarms_stored_before_evidence_rest_on_their_feature() -> None:
+    old = {
+        "id": "ab12cd34",
+        "conveyor": "c1",
+        "feature": "friction",
+        "cause": "friction",
+        "change": 0.4,
+        "since": "2026-01-05T08:00:00+00:00",
+        "opened_at": "2026-01-05T08:20:00+00:00",
+        "last_seen": "2026-01-05T08:20:00+00:00",
+        "status": "open",
+        "acknowledged": None,
+    }
+    a = Alarm.from_dict(old)
+    assert [(e.feature, e.since) for e in a.evidence] == [("friction", old["since"])]
+    assert a.lifecycle(T0) == "unacknowledged"
+    assert a.comments == [] and a.shelved is None

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import json
 from datetime import UTC, datetime, timedelta
+from pathlib import Path
+
+import pytest
 
 from chaintwin.diagnose.alarms import close_quiet_alarms, open_alarm
 from chaintwin.diagnose.records import Acknowledgement, Alarm, Shelving
@@ -113,3 +117,134 @@ def test_alarms_stored_before_evidence_rest_on_their_feature() -> None:
     assert [(e.feature, e.since) for e in a.evidence] == [("friction", old["since"])]
     assert a.lifecycle(T0) == "unacknowledged"
     assert a.comments == [] and a.shelved is None
+
+
+def test_a_feature_whose_cause_reads_otherwise_carries_or_merges_its_alarm() -> None:
+    alarms: list[Alarm] = []
+    gear = _open(alarms, "impact_energy_max", "gear", 3)
+    _open(alarms, "crest_factor", "gear", 3)
+    # the same features later read as an obstacle, no obstruction alarm open: relabelled
+    again = _open(alarms, "crest_factor", "obstruction", 4)
+    assert again is gear and gear.cause == "obstruction" and len(alarms) == 1
+    # a third alarm of another cause, then one of its features reads as the obstacle:
+    # both are one fault, one alarm (the other's id still names it)
+    wear = _open(alarms, "residual_kurtosis", "bearing", 5)
+    joined = _open(alarms, "residual_kurtosis", "obstruction", 6)
+    assert joined is gear and alarms == [gear]
+    assert gear.merged == [wear.id] and gear.answers_to(wear.id)
+    assert [e.feature for e in gear.evidence] == [
+        "impact_energy_max",
+        "crest_factor",
+        "residual_kurtosis",
+    ]
+
+
+def _state_file(tmp_path: Path) -> Path:
+    from chaintwin.diagnose.state import empty_state, save_state
+
+    alarms: list[Alarm] = []
+    _open(alarms, "impact_energy_max", "obstruction", 3, value=4.0, z=9.0)
+    _open(alarms, "crest_factor", "obstruction", 4, value=7.5, z=6.0)
+    data = empty_state()
+    data["conveyors"]["c1"] = {"alarms": [a.to_dict() for a in alarms]}
+    path = tmp_path / "plant.state"
+    save_state(path, data)
+    return path
+
+
+def _cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    from chaintwin.cli.app import main
+
+    code = main(args)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_cli_alarms_on_a_state_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    state = _state_file(tmp_path)
+    st = ["--state", str(state)]
+    code, out, _ = _cli(["alarms", "list", *st, "--json"], capsys)
+    assert code == 0
+    (alarm,) = json.loads(out)
+    aid = alarm["id"]
+    assert alarm["lifecycle"] == "unacknowledged"
+    assert [e["feature"] for e in alarm["evidence"]] == ["impact_energy_max", "crest_factor"]
+    assert _cli(["alarms", "acknowledge", aid, "--by", "ann", "--why", "WO 7", *st], capsys)[0] == 0
+    code, out, _ = _cli(["alarms", "list", "--lifecycle", "acknowledged", "--json", *st], capsys)
+    assert [a["id"] for a in json.loads(out)] == [aid]
+    assert (
+        _cli(
+            ["alarms", "shelve", aid, "--by", "ann", "--why", "parts", "--minutes", "90", *st],
+            capsys,
+        )[0]
+        == 0
+    )
+    code, out, _ = _cli(["alarms", "list", "--lifecycle", "shelved", "--json", *st], capsys)
+    (shelved,) = json.loads(out)
+    assert shelved["shelved_until"] is not None
+    until = datetime.fromisoformat(shelved["shelved_until"])
+    assert timedelta(minutes=89) < until - datetime.now(UTC) <= timedelta(minutes=90)
+    assert _cli(["alarms", "unshelve", aid, "--by", "ann", *st], capsys)[0] == 0
+    assert _cli(["alarms", "comment", aid, "rail bolt loose", "--by", "bob", *st], capsys)[0] == 0
+    code, out, _ = _cli(["alarms", "list", "--status", "open", "--json", *st], capsys)
+    (a,) = json.loads(out)
+    assert a["lifecycle"] == "acknowledged"
+    assert [(c["by"], c["text"]) for c in a["comments"]] == [("bob", "rail bolt loose")]
+    # a conveyor out of service: its alarms read so, then back
+    until_text = (datetime.now(UTC) + timedelta(hours=4)).isoformat()
+    oos = ["out-of-service", "--conveyor", "c1", "--by", "ann", "--why", "chain swap"]
+    assert _cli([*oos, "--until", until_text, *st], capsys)[0] == 0
+    code, out, _ = _cli(["alarms", "list", "--lifecycle", "out_of_service", "--json", *st], capsys)
+    assert [x["id"] for x in json.loads(out)] == [aid]
+    assert _cli(["out-of-service", "--conveyor", "c1", "--by", "ann", "--end", *st], capsys)[0] == 0
+    code, out, _ = _cli(["alarms", "list", "--json", *st], capsys)
+    assert json.loads(out)[0]["lifecycle"] == "acknowledged"
+    assert _cli(["alarms", "list", "--status", "closed", *st], capsys)[1].strip() == "no alarms"
+
+
+def test_cli_alarm_mistakes_are_one_line_errors(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    state = _state_file(tmp_path)
+    before = state.read_bytes()
+    st = ["--state", str(state)]
+    cases = [
+        (
+            ["alarms", "shelve", "nope", "--by", "a", "--why", "x", "--minutes", "5", *st],
+            "no alarm 'nope'",
+        ),
+        (["alarms", "list", "--lifecycle", "sleeping", *st], "lifecycle 'sleeping' must be one of"),
+        (["alarms", "list", "--status", "gone", *st], "status 'gone' must be open or closed"),
+        (
+            ["out-of-service", "--conveyor", "c9", "--by", "a", "--why", "x", *st],
+            "no conveyor 'c9'",
+        ),
+        (
+            [
+                "out-of-service",
+                "--conveyor",
+                "c1",
+                "--by",
+                "a",
+                "--why",
+                "x",
+                "--until",
+                "soon",
+                *st,
+            ],
+            "--until 'soon'",
+        ),
+    ]
+    for args, says in cases:
+        code, _, err = _cli(args, capsys)
+        assert code == 2, args
+        assert says in err and len(err.strip().splitlines()) == 1, err
+    code, out, _ = _cli(["alarms", "list", "--json", *st], capsys)
+    aid = json.loads(out)[0]["id"]
+    code, _, err = _cli(
+        ["alarms", "shelve", aid, "--by", "a", "--why", "x", "--minutes", "0", *st], capsys
+    )
+    assert code == 2 and "minutes 0 must be from 1" in err
+    code, _, err = _cli(["alarms", "unshelve", aid, "--by", "a", *st], capsys)
+    assert code == 2 and "is not shelved" in err
+    assert state.read_bytes() == before  # nothing was changed by a refused command

@@ -77,19 +77,27 @@ def open_alarm(
     value = value if value is None or math.isfinite(value) else None
     z = z if z is None or math.isfinite(z) else None
     alarm = next((a for a in alarms if a.is_open and a.cause == cause), None)
-    if alarm is None:
-        alarm = next(
-            (a for a in alarms if a.is_open and a.feature == feature and a.kind == kind), None
-        )
-        if alarm is not None:
-            alarm.cause = cause
+    former = next(
+        (
+            a
+            for a in alarms
+            if a.is_open and a.cause != cause and any(_is(e, feature, kind) for e in a.evidence)
+        ),
+        None,
+    )
+    if former is not None:  # the feature's probable cause now reads otherwise
+        if alarm is None:
+            former.cause = cause  # the latest known
+            alarm = former
+        else:  # the fault of the other alarm: one alarm
+            _merge(alarm, former)
+            alarms.remove(former)
     if alarm is not None:
-        lead = alarm.feature == feature and alarm.kind == kind
-        if lead and change is not None:
+        if alarm.feature == feature and alarm.kind == kind and change is not None:
             alarm.change = change
         alarm.last_seen = at
         alarm.active = True
-        ev = next((e for e in alarm.evidence if e.feature == feature and e.kind == kind), None)
+        ev = next((e for e in alarm.evidence if _is(e, feature, kind)), None)
         if ev is None:
             alarm.evidence.append(
                 Evidence(feature, kind, value, z, _window_since(window, window_times, at))
@@ -115,6 +123,28 @@ def open_alarm(
     return alarm
 
 
+def _is(e: Evidence, feature: str, kind: str) -> bool:
+    return e.feature == feature and e.kind == kind
+
+
+def _merge(into: Alarm, alarm: Alarm) -> None:
+    """Put ``alarm`` into ``into``: its evidence, comments and ids; the earliest since,
+    the latest last_seen; an acknowledgement of either carries over (the earliest)."""
+    known = {(e.feature, e.kind) for e in into.evidence}
+    into.evidence += [e for e in alarm.evidence if (e.feature, e.kind) not in known]
+    into.comments = sorted(into.comments + alarm.comments, key=lambda c: c.at)
+    into.merged += [alarm.id, *alarm.merged]
+    if alarm.since is not None and (into.since is None or alarm.since < into.since):
+        into.since = alarm.since
+    if alarm.last_seen is not None and (into.last_seen or "") < alarm.last_seen:
+        into.last_seen = alarm.last_seen
+    into.active = into.active or alarm.active
+    acks = [a for a in (into.acknowledged, alarm.acknowledged) if a is not None]
+    into.acknowledged = min(acks, key=lambda a: a.at) if acks else None
+    if alarm.shelved is not None and into.shelved is None:
+        into.shelved = alarm.shelved
+
+
 def group_by_cause(alarms: list[Alarm]) -> dict[str, str]:
     """Group the open alarms of one cause into the oldest (alarms kept before grouping).
 
@@ -136,17 +166,7 @@ def group_by_cause(alarms: list[Alarm]) -> dict[str, str]:
         into = keeper.setdefault(alarm.cause, alarm)
         if into is alarm:
             continue
-        known = {(e.feature, e.kind) for e in into.evidence}
-        into.evidence += [e for e in alarm.evidence if (e.feature, e.kind) not in known]
-        into.comments = sorted(into.comments + alarm.comments, key=lambda c: c.at)
-        into.merged += [alarm.id, *alarm.merged]
-        if alarm.since is not None and (into.since is None or alarm.since < into.since):
-            into.since = alarm.since
-        if alarm.last_seen is not None and (into.last_seen or "") < alarm.last_seen:
-            into.last_seen = alarm.last_seen
-        into.active = into.active or alarm.active
-        acks = [a for a in (into.acknowledged, alarm.acknowledged) if a is not None]
-        into.acknowledged = min(acks, key=lambda a: a.at) if acks else None
+        _merge(into, alarm)
         moved[alarm.id] = into.id
         moved.update({m: into.id for m in alarm.merged})
         alarms.remove(alarm)

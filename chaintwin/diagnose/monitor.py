@@ -45,6 +45,7 @@ from chaintwin.weigh.tlf import belt_travel_m
 from chaintwin.weigh.weigh import reweigh
 
 from . import alarms, baseline, monitor_state
+from .alarm_actions import out_of_service_at
 from .causes import (
     NOTE_CAUSES,
     cause_priority,
@@ -133,6 +134,8 @@ class ConveyorMonitor:
         self.window_times: dict[str, list[str | None]] = {}
         self.alarms: list[Alarm] = []
         self.events: list[Event] = []
+        # the conveyor out of service (by, why, from, until: :mod:`.alarm_actions`) or None
+        self.out_of_service: dict[str, Any] | None = None
         self.history: list[dict[str, Any]] = []
         self.processed: dict[str, int] = {}
         self.last_recorded_at: str | None = None
@@ -473,6 +476,19 @@ class ConveyorMonitor:
                     "not_judged",
                     "the load changed during the movement: this recording's features are "
                     "reported but neither learned nor compared with the baseline",
+                ).to_dict()
+            )
+        elif out_of_service_at(self.out_of_service, when):
+            # work on the conveyor: shown, neither judged nor learned
+            base.status = "baseline" if self.baselines is None else "monitored"
+            base.features = {k: finite_or_none(v) for k, v in values.items()}
+            oos = self.out_of_service or {}
+            warnings.append(
+                RecordingWarning(
+                    "out_of_service",
+                    f"made while the conveyor is out of service ({oos.get('why')}, by "
+                    f"{oos.get('by')}): its features are reported but neither learned nor "
+                    "compared with the baseline",
                 ).to_dict()
             )
         elif self.baselines is None:

@@ -15,6 +15,7 @@ from chaintwin.errors import MonitorError
 
 __all__ = [
     "LIFECYCLES",
+    "NOT_COUNTED",
     "Acknowledgement",
     "Alarm",
     "Comment",
@@ -38,7 +39,10 @@ LIFECYCLES: tuple[str, ...] = (
     "out_of_service",
     "closed",
 )
-"""An alarm's states in the words of ISA-18.2 (:attr:`Alarm.lifecycle`)."""
+"""An alarm's states in the words of ISA-18.2 (:meth:`Alarm.lifecycle`)."""
+
+NOT_COUNTED: tuple[str, ...] = ("closed", "shelved", "out_of_service")
+"""Lifecycles of alarms that neither fail scripts nor raise the health index."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -417,7 +421,7 @@ class Alarm:
 
     def counts(self, now: datetime | None = None) -> bool:
         """Whether it counts as a standing alarm: open, neither shelved nor out of service."""
-        return self.lifecycle(now) not in ("closed", "shelved", "out_of_service")
+        return self.lifecycle(now) not in NOT_COUNTED
 
     def to_dict(self, now: datetime | None = None) -> dict[str, Any]:
         """JSON-ready (the form of state files, the store and ``monitor --json``).

@@ -425,7 +425,9 @@ def conveyor(request: Request, conveyor_id: str) -> dict[str, Any]:
         "baseline_since": data.baseline_since,
         "summary": data.summary,
         "forecasts": data.forecasts,
-        "health_index": health_index(_finite(float(data.health_index)), len(data.open_alarms())),
+        "health_index": health_index(
+            _finite(float(data.health_index)), sum(a.counts() for a in data.open_alarms())
+        ),
         "deviation": _finite(float(data.health_index)),
         "status": data.status,
         "features": [t.name for t in data.trends],

@@ -1,0 +1,111 @@
+"""The alarm lifecycle over the JSON API: shelve, unshelve, comments, out of service, KPIs."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from datetime import UTC, datetime, timedelta
+
+import pytest
+from test_web import PROFILE, Served, _error
+
+from chaintwin.simulate.faults import Fault
+from chaintwin.simulate.fleet import generate
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
+    """A store of one conveyor whose friction rises from day 2 (one open alarm), served."""
+    folder = tmp_path_factory.mktemp("fleet")
+    generate(
+        PROFILE, folder, days=6, per_day=5, faults=[Fault("friction", 0.8)], onset_day=2, seed=5
+    )
+    s = Served(f"sqlite:///{tmp_path_factory.mktemp('web') / 'plant.db'}", folder)
+    yield s
+    s.close()
+
+
+def test_shelve_unshelve_and_comment_an_alarm(served: Served) -> None:
+    viewer, maintainer, admin = (served.client(r) for r in ("viewer", "maintainer", "admin"))
+    (alarm,) = viewer.get("/api/v1/alarms", params={"state": "open"}).json()
+    assert alarm["lifecycle"] == "unacknowledged"
+    assert alarm["evidence"][0]["feature"] == alarm["feature"]
+    assert alarm["shelved_until"] is None and alarm["comments"] == []
+    path = f"/api/v1/alarms/{alarm['id']}"
+    _error(viewer.post(f"{path}/shelve", json={"why": "x", "minutes": 60}), 403, "forbidden")
+    _error(maintainer.post(f"{path}/shelve", json={"why": "x", "minutes": 0}), 422, "invalid")
+    _error(maintainer.post(f"{path}/shelve", json={"minutes": 60}), 422, "invalid")
+    _error(
+        maintainer.post("/api/v1/alarms/nope/shelve", json={"why": "x", "minutes": 60}),
+        404,
+        "not_found",
+    )
+    done = maintainer.post(f"{path}/shelve", json={"why": "parts on order", "minutes": 120})
+    assert done.status_code == 200, done.text
+    shelved = done.json()
+    assert shelved["lifecycle"] == "shelved"
+    left = datetime.fromisoformat(shelved["shelved_until"]) - datetime.now(UTC)
+    assert timedelta(minutes=119) < left <= timedelta(minutes=120)
+    listed = viewer.get("/api/v1/alarms", params={"lifecycle": "shelved"}).json()
+    assert [a["id"] for a in listed] == [alarm["id"]]
+    assert viewer.get("/api/v1/alarms", params={"lifecycle": "unacknowledged"}).json() == []
+    # ?state=open still means "not closed"
+    assert [a["id"] for a in viewer.get("/api/v1/alarms", params={"state": "open"}).json()] == [
+        alarm["id"]
+    ]
+    _error(viewer.get("/api/v1/alarms", params={"lifecycle": "asleep"}), 422, "invalid")
+    back = maintainer.post(f"{path}/unshelve").json()
+    assert back["lifecycle"] == "unacknowledged" and back["shelved_until"] is None
+    assert "not shelved" in _error(maintainer.post(f"{path}/unshelve"), 400, "bad_request")
+    _error(maintainer.post(f"{path}/comments", json={"text": ""}), 422, "invalid")
+    noted = maintainer.post(f"{path}/comments", json={"text": "belt checked, rails dry"}).json()
+    (c,) = noted["comments"]
+    assert (c["by"], c["text"]) == ("maintainer-1", "belt checked, rails dry")
+    log = admin.get("/api/v1/audit").json()
+    assert {"shelve", "unshelve", "comment"} <= {e["action"] for e in log}
+
+
+def test_a_conveyor_out_of_service_and_back(served: Served) -> None:
+    viewer, maintainer = served.client("viewer"), served.client("maintainer")
+    path = f"/api/v1/conveyors/{PROFILE.id}/out-of-service"
+    past = (datetime.now(UTC) - timedelta(hours=1)).isoformat()
+    later = (datetime.now(UTC) + timedelta(hours=8)).isoformat()
+    _error(viewer.post(path, json={"why": "chain swap", "until": later}), 403, "forbidden")
+    assert "is not after now" in _error(
+        maintainer.post(path, json={"why": "chain swap", "until": past}), 400, "bad_request"
+    )
+    _error(
+        maintainer.post("/api/v1/conveyors/nope/out-of-service", json={"why": "x"}),
+        404,
+        "not_found",
+    )
+    window = maintainer.post(path, json={"why": "chain swap", "until": later}).json()
+    assert window["conveyor"] == PROFILE.id and window["by"] == "maintainer-1"
+    assert datetime.fromisoformat(window["until"]) == datetime.fromisoformat(later)
+    out = viewer.get("/api/v1/alarms", params={"lifecycle": "out_of_service"}).json()
+    assert len(out) == 1 and out[0]["conveyor"] == PROFILE.id
+    done = maintainer.delete(path)
+    assert done.status_code == 200, done.text
+    assert viewer.get("/api/v1/alarms", params={"lifecycle": "out_of_service"}).json() == []
+    assert "not out of service" in _error(maintainer.delete(path), 400, "bad_request")
+
+
+def test_alarm_kpis_over_a_period(served: Served) -> None:
+    viewer = served.client("viewer")
+    _error(served.client().get("/api/v1/alarm-kpis"), 401, "unauthorized")
+    alarms = viewer.get("/api/v1/alarms").json()
+    opened = sorted(a["opened_at"] for a in alarms)
+    since = datetime.fromisoformat(opened[0]) - timedelta(days=1)
+    until = datetime.fromisoformat(opened[-1]) + timedelta(days=1)
+    k = viewer.get(
+        "/api/v1/alarm-kpis", params={"since": since.isoformat(), "until": until.isoformat()}
+    ).json()
+    assert k["fleet"]["alarms"] == len(alarms)
+    assert k["days"] == pytest.approx((until - since).total_seconds() / 86400)
+    assert k["conveyors"][PROFILE.id]["alarms"] == len(alarms)
+    assert k["fleet"]["alarms_per_day"] == pytest.approx(len(alarms) / k["days"])
+    bad = {"since": until.isoformat(), "until": since.isoformat()}
+    assert "is not after since" in _error(
+        viewer.get("/api/v1/alarm-kpis", params=bad), 400, "bad_request"
+    )
+    before = {"since": (since - timedelta(days=30)).isoformat(), "until": since.isoformat()}
+    assert viewer.get("/api/v1/alarm-kpis", params=before).json()["fleet"]["alarms"] == 0

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from datetime import UTC, datetime, timedelta
 
+import httpx
 import pytest
 from test_web import PROFILE, Served, _error
 
@@ -109,3 +110,37 @@ def test_alarm_kpis_over_a_period(served: Served) -> None:
     )
     before = {"since": (since - timedelta(days=30)).isoformat(), "until": since.isoformat()}
     assert viewer.get("/api/v1/alarm-kpis", params=before).json()["fleet"]["alarms"] == 0
+
+
+def test_the_dashboard_forms_shelve_comment_and_take_out_of_service(served: Served) -> None:
+    from test_web import _csrf
+
+    with httpx.Client(base_url=served.base, timeout=30) as browser:
+        assert (
+            browser.post("/login", data={"token": served.tokens["maintainer"]}).status_code == 303
+        )
+        page = browser.get("/alarms").text
+        csrf = _csrf(page)
+        (alarm,) = served.client("viewer").get("/api/v1/alarms", params={"state": "open"}).json()
+        aid = alarm["id"]
+        assert f'action="/alarms/{aid}/shelve"' in page
+        form = {"why": "parts", "minutes": "30"}
+        assert browser.post(f"/alarms/{aid}/shelve", data=form).status_code == 403  # no CSRF
+        assert browser.post(f"/alarms/{aid}/shelve", data=form | {"csrf": csrf}).status_code == 303
+        page = browser.get("/alarms").text
+        assert 'data-lifecycle="shelved"' in page and f'action="/alarms/{aid}/unshelve"' in page
+        done = browser.post(f"/alarms/{aid}/unshelve", data={"csrf": csrf})
+        assert done.status_code == 303
+        text = {"text": "<b>bolt</b> loose", "csrf": csrf}
+        assert browser.post(f"/alarms/{aid}/comments", data=text).status_code == 303
+        page = browser.get("/alarms").text
+        assert "&lt;b&gt;bolt&lt;/b&gt; loose" in page and "<b>bolt</b>" not in page
+        oos = {"why": "chain swap", "hours": "2", "csrf": csrf}
+        assert browser.post(f"/conveyors/{PROFILE.id}/out-of-service", data=oos).status_code == 303
+        assert 'data-lifecycle="out_of_service"' in browser.get("/alarms").text
+        back = browser.post(f"/conveyors/{PROFILE.id}/in-service", data={"csrf": csrf})
+        assert back.status_code == 303
+        assert 'data-lifecycle="out_of_service"' not in browser.get("/alarms").text
+        kpis = browser.get("/alarm-kpis")
+        assert kpis.status_code == 200
+        assert 'data-kpis="fleet"' in kpis.text and f'data-kpis="{PROFILE.id}"' in kpis.text

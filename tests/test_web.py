@@ -645,6 +645,7 @@ def test_every_operation_answers_as_its_schema_says(api_schema: Any) -> None:
     pytest plugin does not support this pytest).
     """
     from hypothesis import given
+    from schemathesis.checks import positive_data_acceptance
 
     # the event stream is an endless text/event-stream, tested on its own above
     operations = [
@@ -660,7 +661,10 @@ def test_every_operation_answers_as_its_schema_says(api_schema: Any) -> None:
             max_examples=20, deadline=None, suppress_health_check=list(HealthCheck), database=None
         )
         def check(case: Any) -> None:
-            case.call_and_validate()
+            # a period whose since is after its until is refused (400): the schema
+            # cannot say that one bound must follow the other
+            kpis = case.operation.path == "/api/v1/alarm-kpis"
+            case.call_and_validate(excluded_checks=[positive_data_acceptance] if kpis else None)
 
         check()
 

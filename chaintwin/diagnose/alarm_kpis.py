@@ -37,11 +37,14 @@ __all__ = [
     "CHATTER_WINDOW",
     "FLOOD_ALARMS",
     "FLOOD_WINDOW",
+    "KPI_DAYS",
     "STALE_AFTER",
     "alarm_kpis",
     "flood_periods",
 ]
 
+KPI_DAYS = 30
+"""The period the dashboard and the reports show by default: the last 30 days."""
 STALE_AFTER = timedelta(hours=24)
 """An alarm open longer than this is stale."""
 CHATTER_OPENS = 3

@@ -13,9 +13,9 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Form, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
+from chaintwin.diagnose.alarm_kpis import KPI_DAYS
 from chaintwin.errors import StoreError
 from chaintwin.web.alarms_api import (
-    KPI_DAYS,
     comment_as,
     kpis_of,
     out_of_service_as,

@@ -23,14 +23,13 @@ from chaintwin.diagnose.alarm_actions import (
     shelve_alarm,
     unshelve_alarm,
 )
-from chaintwin.diagnose.alarm_kpis import alarm_kpis
+from chaintwin.diagnose.alarm_kpis import KPI_DAYS, alarm_kpis
 from chaintwin.errors import StoreError
 from chaintwin.store.access import audit
 from chaintwin.web.api import _ERRORS, _web, who
 from chaintwin.web.security import ApiError
 
 __all__ = [
-    "KPI_DAYS",
     "comment_as",
     "kpis_of",
     "out_of_service_as",
@@ -40,9 +39,6 @@ __all__ = [
 ]
 
 T = TypeVar("T")
-
-KPI_DAYS = 30
-"""The KPIs' default period: the last 30 days."""
 
 router = APIRouter(prefix="/api/v1", tags=["api"], responses=_ERRORS)
 

@@ -248,3 +248,30 @@ def test_cli_alarm_mistakes_are_one_line_errors(
     code, _, err = _cli(["alarms", "unshelve", aid, "--by", "a", *st], capsys)
     assert code == 2 and "is not shelved" in err
     assert state.read_bytes() == before  # nothing was changed by a refused command
+
+
+def test_alarms_kept_before_grouping_group_by_cause_with_their_acknowledgement() -> None:
+    from chaintwin.diagnose.alarms import group_by_cause
+
+    def old(aid: str, feature: str, cause: str, k: int) -> Alarm:
+        return Alarm(aid, "c1", feature, cause, 0.2, _at(k).isoformat(), _at(k).isoformat(),
+                     _at(k).isoformat())  # fmt: skip
+
+    first, second, third = (
+        old("a1", "impact_energy_max", "obstruction", 1),
+        old("a2", "crest_factor", "obstruction", 2),
+        old("a3", "friction", "friction", 2),
+    )
+    second.acknowledged = Acknowledgement("ann", "seen", _at(3).isoformat())
+    closed = old("a0", "crest_factor", "obstruction", 0)
+    closed.close(_at(1).isoformat(), "quiet")
+    alarms = [closed, first, second, third]
+    for a in alarms:
+        a.evidence = Alarm.from_dict(a.to_dict() | {"evidence": []}).evidence
+    assert group_by_cause(alarms) == {"a2": "a1"}
+    assert alarms == [closed, first, third]
+    assert [e.feature for e in first.evidence] == ["impact_energy_max", "crest_factor"]
+    assert first.merged == ["a2"] and first.answers_to("a2")
+    assert first.acknowledged is not None and first.acknowledged.by == "ann"
+    assert first.last_seen == _at(2).isoformat() and first.since == _at(1).isoformat()
+    assert group_by_cause(alarms) == {}  # grouped once

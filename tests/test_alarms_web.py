@@ -144,3 +144,62 @@ def test_the_dashboard_forms_shelve_comment_and_take_out_of_service(served: Serv
         kpis = browser.get("/alarm-kpis")
         assert kpis.status_code == 200
         assert 'data-kpis="fleet"' in kpis.text and f'data-kpis="{PROFILE.id}"' in kpis.text
+
+
+def test_in_a_browser_acknowledge_shelve_comment_and_unshelve(served: Served) -> None:
+    """Chromium driven by Playwright through the alarms page's forms."""
+    from test_web import CHROMIUM
+
+    if not CHROMIUM.exists():
+        pytest.fail("Chromium not found at /usr/bin/chromium: `make test` installs it")
+    from playwright.sync_api import sync_playwright
+
+    broken: list[str] = []
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=str(CHROMIUM))
+        page = browser.new_page()
+        page.on("console", lambda m: broken.append(m.text) if m.type == "error" else None)
+        page.goto(served.base + "/login")
+        page.fill("#token", served.tokens["maintainer"])
+        page.click("form.login button")
+        page.wait_for_url(served.base + "/")
+        page.goto(served.base + "/alarms")
+        row = page.locator("table.alarms tbody tr").first
+        aid = row.get_attribute("data-alarm")
+        assert aid
+        tr = f"tr[data-alarm='{aid}']"
+        # acknowledge
+        page.fill(f"{tr} form.acknowledge input[name=why]", "work order 4711")
+        page.click(f"{tr} form.acknowledge button")
+        page.wait_for_selector(f"{tr}[data-lifecycle='acknowledged']")
+        assert "acknowledged by maintainer-1 (work order 4711)" in page.inner_text(tr)
+        # shelve for an hour
+        page.fill(f"{tr} form.shelve input[name=why]", "spare parts on order")
+        page.fill(f"{tr} form.shelve input[name=minutes]", "60")
+        page.click(f"{tr} form.shelve button")
+        page.wait_for_selector(f"{tr}[data-lifecycle='shelved']")
+        assert "shelved by maintainer-1" in page.inner_text(tr)
+        # comment
+        page.fill(f"{tr} form.comment input[name=text]", "rail bolt found loose")
+        page.click(f"{tr} form.comment button")
+        newest = page.locator(f"{tr} div.comment").last
+        newest.wait_for()
+        page.wait_for_function(
+            "(sel) => [...document.querySelectorAll(sel)].some("
+            "(c) => c.innerText.includes('rail bolt found loose'))",
+            arg=f"{tr} div.comment",
+        )
+        assert newest.inner_text().startswith("maintainer-1, ")
+        assert newest.inner_text().endswith("rail bolt found loose")
+        # unshelve: back to acknowledged
+        page.click(f"{tr} form.unshelve button")
+        page.wait_for_selector(f"{tr}[data-lifecycle='acknowledged']")
+        # the KPI page shows the fleet
+        page.click("nav a:text('Alarm KPIs')")
+        page.wait_for_selector("table.kpis tr[data-kpis='fleet']")
+        browser.close()
+    assert broken == []
+    api = served.client("viewer").get("/api/v1/alarms", params={"lifecycle": "acknowledged"})
+    (alarm,) = [a for a in api.json() if a["id"] == aid]
+    assert [c["text"] for c in alarm["comments"]][-1] == "rail bolt found loose"
+    assert alarm["shelved_until"] is None

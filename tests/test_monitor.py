@@ -879,3 +879,35 @@ def test_monitor_and_ingest_resume_and_order_alike(
     assert moved.calibration is not None
     assert moved.calibration.to_dict()["parameters"] == other.to_dict()["parameters"]
     assert moved.baseline_rows == []
+
+
+def test_a_conveyor_out_of_service_is_shown_not_judged_and_resumes_with_its_baseline(
+    series: dict[str, Path], cal: Calibration
+) -> None:
+    files = _files(series["friction"])
+    onset = _onset(series["friction"])
+    mon = ConveyorMonitor(PROFILE, MonitorSettings(baseline_n=BASELINE), cal)
+    # out of service from the fault's onset on, for a day: the friction rise is not judged
+    start = datetime.fromisoformat(onset)
+    mon.out_of_service = {
+        "by": "ann",
+        "why": "chain change",
+        "from": start.isoformat(),
+        "until": (start + timedelta(days=1)).isoformat(),
+    }
+    results = _run(mon, files)
+    inside = [r for r in results if onset <= (r.recorded_at or "") < mon.out_of_service["until"]]
+    assert inside
+    for r in inside:
+        assert "out_of_service" in [w["code"] for w in r.warnings]
+        assert not r.alarm and r.exceeded == [] and r.features
+        assert r.status == "monitored"
+    baseline_rows = len(mon.baseline_rows)
+    assert baseline_rows == BASELINE  # none of the window learned
+    # after the window the same baseline judges again: the rise alarms
+    after = [r for r in results if (r.recorded_at or "") >= mon.out_of_service["until"]]
+    assert any(r.alarm for r in after)
+    assert all(a.opened_at >= mon.out_of_service["until"] for a in mon.alarms if a.opened_at)
+    # the window survives the state
+    again = MonitorState.from_dict(mon.to_state().to_dict())
+    assert again.out_of_service == mon.out_of_service

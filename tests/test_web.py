@@ -725,8 +725,8 @@ def test_in_a_browser_log_in_see_charts_acknowledge_and_a_viewer_refused(
             assert page.locator("#trends .trend").count() >= 3
             # acknowledge the open alarm as maintainer
             page.goto(served.base + "/alarms")
-            page.fill("form.inline input[name=why]", "rails to be cleaned")
-            page.click("form.inline button")
+            page.fill("form.acknowledge input[name=why]", "rails to be cleaned")
+            page.click("form.acknowledge button")
             page.wait_for_url(served.base + "/alarms")
             assert "acknowledged by maintainer-1" in page.content()
             # a viewer cannot open the upload page

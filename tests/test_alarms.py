@@ -275,3 +275,44 @@ def test_alarms_kept_before_grouping_group_by_cause_with_their_acknowledgement()
     assert first.acknowledged is not None and first.acknowledged.by == "ann"
     assert first.last_seen == _at(2).isoformat() and first.since == _at(1).isoformat()
     assert group_by_cause(alarms) == {}  # grouped once
+
+
+def test_cli_alarms_on_a_store_are_audited(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """On a store (here the 0.1.0 fixture, upgraded), the commands change it and audit it."""
+    import shutil
+
+    from chaintwin.store.access import audit_entries
+    from chaintwin.store.store import Store
+
+    fixture = Path(__file__).parent / "fixtures" / "store-c909904.sqlite"
+    shutil.copyfile(fixture, tmp_path / "plant.db")
+    db = f"sqlite:///{tmp_path / 'plant.db'}"
+    assert _cli(["db", "upgrade", "--db", db], capsys)[0] == 0
+    code, out, _ = _cli(["alarms", "list", "--db", db, "--status", "closed", "--json"], capsys)
+    (closed,) = json.loads(out)
+    assert closed["lifecycle"] == "closed"
+    aid = closed["id"]
+    code, _, err = _cli(
+        ["alarms", "shelve", aid, "--by", "a", "--why", "x", "--minutes", "5", "--db", db], capsys
+    )
+    assert code == 2 and "only open alarms are shelved" in err
+    assert (
+        _cli(
+            ["alarms", "comment", aid, "cause found: dry rails", "--by", "ann", "--db", db], capsys
+        )[0]
+        == 0
+    )
+    until = (datetime.now(UTC) + timedelta(hours=2)).isoformat()
+    oos = ["out-of-service", "--conveyor", "white-belt-01", "--by", "ann", "--why", "rail work"]
+    assert _cli([*oos, "--until", until, "--db", db], capsys)[0] == 0
+    store = Store(db)
+    (alarm,) = store.alarms()
+    assert [c.text for c in alarm.comments] == ["cause found: dry rails"]
+    state = store.state("white-belt-01")
+    assert state is not None and state.out_of_service is not None
+    assert state.out_of_service["why"] == "rail work"
+    actions = [(e["who"], e["action"]) for e in audit_entries(store)]
+    assert actions[:2] == [("ann", "out_of_service"), ("ann", "comment")]
+    store.close()

@@ -216,3 +216,79 @@ def test_another_programs_database_is_refused_and_left_alone(
     engine = engine_for(f"sqlite:///{path}")
     assert inspect(engine).get_table_names() == ["users"]
     engine.dispose()
+
+
+def test_a_0005_store_groups_open_alarms_of_one_cause_and_old_ids_still_resolve(
+    db: str, tmp_path: Path
+) -> None:
+    """0006: two open friction alarms become one with both features; old ids resolve."""
+    from alembic import command
+    from sqlalchemy.orm import Session
+
+    from chaintwin.diagnose.state import acknowledge_alarm
+    from chaintwin.store.schema import AlarmRow, MonitorStateRow
+
+    _legacy_store(db, tmp_path)
+    engine = engine_for(db)
+    with engine.begin() as connection:
+        command.stamp(migrate._config(connection), migrate.BASELINE_REVISION)
+        command.upgrade(migrate._config(connection), "0005")
+
+    def old_alarm(aid: str, feature: str, since: str, ack: dict[str, str] | None) -> dict:
+        return {
+            "id": aid,
+            "conveyor": "white-belt-01",
+            "feature": feature,
+            "cause": "friction",
+            "change": 0.3,
+            "since": since,
+            "opened_at": since,
+            "last_seen": since,
+            "status": "open",
+            "acknowledged": ack,
+            "rule": "x_of_y",
+            "kind": "statistical",
+        }
+
+    ack = {"by": "ann", "why": "seen", "at": "2026-02-01T10:00:00+00:00"}
+    first = old_alarm("aaaa0001", "friction", "2026-02-01T08:00:00+00:00", None)
+    second = old_alarm("aaaa0002", "residual_rms", "2026-02-01T09:00:00+00:00", ack)
+    with Session(engine) as s, s.begin():
+        row = s.get(MonitorStateRow, "white-belt-01")
+        assert row is not None
+        closed = [a for a in row.state["alarms"] if a["status"] == "closed"]
+        row.state = dict(row.state, alarms=[*closed, first, second])
+        for a in (first, second):
+            s.add(
+                AlarmRow(
+                    id=a["id"],
+                    conveyor_id="white-belt-01",
+                    feature=a["feature"],
+                    cause="friction",
+                    status="open",
+                    since=a["since"],
+                    content=a,
+                )
+            )
+    before, after = migrate.upgrade(engine)
+    assert (before, after) == ("0005", migrate.HEAD_REVISION)
+    store = Store(db)
+    opened = [a for a in store.alarms() if a.is_open]
+    assert [a.id for a in opened] == ["aaaa0001"]
+    grouped = opened[0]
+    assert [e.feature for e in grouped.evidence] == ["friction", "residual_rms"]
+    assert grouped.merged == ["aaaa0002"]
+    assert grouped.acknowledged is not None and grouped.acknowledged.by == "ann"
+    assert grouped.lifecycle() == "acknowledged"
+    assert len([a for a in store.alarms() if not a.is_open]) == len(closed)
+    # the old id names the grouped alarm: its conveyor, and its acknowledgement
+    assert store.alarm_conveyor("aaaa0002") == "white-belt-01"
+    with pytest.raises(StoreError, match="was acknowledged by ann"):
+        store.edit_state(
+            "white-belt-01", lambda d: acknowledge_alarm(d, "aaaa0002", "bob", "again")
+        )
+    state = store.state("white-belt-01")
+    assert state is not None
+    assert [a.id for a in state.alarms if a.is_open] == ["aaaa0001"]
+    store.close()
+    engine.dispose()

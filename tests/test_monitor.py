@@ -474,15 +474,20 @@ def test_fault_series_alarm_with_the_right_cause(
         # the hits make the residual impulsive too: those alarms name the obstacle
         impulsive = {feature, "residual_kurtosis", "crest_factor", "impact_count"}
         assert first.causes[0]["feature"] in impulsive | {"impact_rate_per_m"}
-        rate = [a for a in mon.alarms if a.feature == feature]
-        assert [a.cause for a in rate] == [cause]
-        # a baseline of no impacts has no relative change: the rate itself says it
-        assert rate[0].change is None
+        # one fault, one alarm: the features that name the obstacle are its evidence
+        grouped = [a for a in mon.alarms if feature in {e.feature for e in a.evidence}]
+        assert [a.cause for a in grouped] == [cause]
+        assert len(grouped[0].evidence) >= 2
+        hits = next(e for e in grouped[0].evidence if e.feature == feature)
+        assert hits.value is not None and hits.value > 0
+        assert hits.since is not None
     else:
         assert first.causes[0]["feature"] == feature
         assert first.causes[0]["change"] > 0
         opened = mon.open_alarms()
         assert [a.cause for a in opened if a.feature == feature] == [cause]
+    for c in {a.cause for a in mon.alarms}:
+        assert sum(a.is_open and a.cause == c for a in mon.alarms) <= 1
     # from the alarm on, a friction rise must not read as payload: the
     # payload is the inertia signature's, within its uncertainty of the truth
     truth = {
@@ -976,3 +981,35 @@ def test_monitor_and_ingest_resume_and_order_alike(
     assert moved.calibration is not None
     assert moved.calibration.to_dict()["parameters"] == other.to_dict()["parameters"]
     assert moved.baseline_rows == []
+
+
+def test_a_conveyor_out_of_service_is_shown_not_judged_and_resumes_with_its_baseline(
+    series: dict[str, Path], cal: Calibration
+) -> None:
+    files = _files(series["friction"])
+    onset = _onset(series["friction"])
+    mon = ConveyorMonitor(PROFILE, MonitorSettings(baseline_n=BASELINE), cal)
+    # out of service from the fault's onset on, for a day: the friction rise is not judged
+    start = datetime.fromisoformat(onset)
+    mon.out_of_service = {
+        "by": "ann",
+        "why": "chain change",
+        "from": start.isoformat(),
+        "until": (start + timedelta(days=1)).isoformat(),
+    }
+    results = _run(mon, files)
+    inside = [r for r in results if onset <= (r.recorded_at or "") < mon.out_of_service["until"]]
+    assert inside
+    for r in inside:
+        assert "out_of_service" in [w["code"] for w in r.warnings]
+        assert not r.alarm and r.exceeded == [] and r.features
+        assert r.status == "monitored"
+    baseline_rows = len(mon.baseline_rows)
+    assert baseline_rows == BASELINE  # none of the window learned
+    # after the window the same baseline judges again: the rise alarms
+    after = [r for r in results if (r.recorded_at or "") >= mon.out_of_service["until"]]
+    assert any(r.alarm for r in after)
+    assert all(a.opened_at >= mon.out_of_service["until"] for a in mon.alarms if a.opened_at)
+    # the window survives the state
+    again = MonitorState.from_dict(mon.to_state().to_dict())
+    assert again.out_of_service == mon.out_of_service

@@ -119,6 +119,11 @@ def test_fleet_page_ranks_the_faulty_conveyor_first(plant_db: str, tmp_path: Pat
     assert order == [FAULTY, HEALTHY]
     assert 'class="status alarm"' in ranking and 'class="status ok"' in ranking
     assert _pngs(ranking) and _pngs(_section(fleet, "ranking-tlf"))
+    # the alarm system: the faulty conveyor's alarms counted, the healthy one's none
+    kpis = _section(fleet, "alarm-kpis")
+    counts = dict(re.findall(r"<tr><td>([a-z0-9-]+)</td><td class=\"num\">(\d+)</td>", kpis))
+    assert int(counts[FAULTY]) >= 1 and int(counts.get(HEALTHY, "0")) == 0
+    assert int(counts["fleet"]) == int(counts[FAULTY]) + int(counts.get(HEALTHY, "0"))
     # conveyor pages link back to the fleet page
     assert 'href="fleet.html"' in (tmp_path / "r" / f"{HEALTHY}.html").read_text(encoding="utf-8")
 

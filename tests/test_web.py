@@ -687,6 +687,7 @@ def test_every_operation_answers_as_its_schema_says(api_schema: Any) -> None:
     pytest plugin does not support this pytest).
     """
     from hypothesis import given
+    from schemathesis.checks import positive_data_acceptance
 
     # the event stream is an endless text/event-stream, tested on its own above
     operations = [
@@ -702,7 +703,10 @@ def test_every_operation_answers_as_its_schema_says(api_schema: Any) -> None:
             max_examples=20, deadline=None, suppress_health_check=list(HealthCheck), database=None
         )
         def check(case: Any) -> None:
-            case.call_and_validate()
+            # a period whose since is after its until is refused (400): the schema
+            # cannot say that one bound must follow the other
+            kpis = case.operation.path == "/api/v1/alarm-kpis"
+            case.call_and_validate(excluded_checks=[positive_data_acceptance] if kpis else None)
 
         check()
 
@@ -763,8 +767,8 @@ def test_in_a_browser_log_in_see_charts_acknowledge_and_a_viewer_refused(
             assert page.locator("#trends .trend").count() >= 3
             # acknowledge the open alarm as maintainer
             page.goto(served.base + "/alarms")
-            page.fill("form.inline input[name=why]", "rails to be cleaned")
-            page.click("form.inline button")
+            page.fill("form.acknowledge input[name=why]", "rails to be cleaned")
+            page.click("form.acknowledge button")
             page.wait_for_url(served.base + "/alarms")
             assert "acknowledged by maintainer-1" in page.content()
             # a viewer cannot open the upload page

@@ -62,6 +62,7 @@ def _options(
 def _register() -> None:
     # imported here so that `chaintwin --help` stays fast and modules stay small
     from chaintwin.cli import (
+        alarms_cmd,
         db_cmd,
         demo_cmd,
         drive_sim_cmd,
@@ -83,6 +84,7 @@ def _register() -> None:
     demo_cmd.register(app)
     spectrum_cmd.register(app)
     monitor_cmd.register(app)
+    alarms_cmd.register(app)
     store_cmd.register(app)
     report_cmd.register(app)
     db_cmd.register(app)

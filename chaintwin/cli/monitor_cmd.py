@@ -65,7 +65,10 @@ _EDIT_DB_HELP = (
 _RULE_HELP = "Alarm rule X/Y: X exceedances of one feature in the last Y recordings [3/10]."
 _Z_HELP = "A feature exceeds above this many robust baseline scales [5]."
 _JSON_HELP = "Print one JSON object: recordings and conveyors."
-_FAIL_HELP = "Exit with 3 when an unacknowledged alarm is open."
+_FAIL_HELP = (
+    "Exit with 3 when an unacknowledged alarm is open (shelved ones and those of a conveyor "
+    "out of service aside)."
+)
 _FILES_HELP = "Recordings (files or folders), in any order: they are sorted by recorded_at."
 
 
@@ -167,14 +170,17 @@ def run_monitor(
 
 
 def open_unacknowledged(state: dict[str, Any] | None, monitors: list[ConveyorMonitor]) -> bool:
-    """Whether any conveyor (of this run, or of the state) has an open, unacknowledged alarm."""
+    """Whether any conveyor (of this run, or of the state) has an open, unacknowledged alarm.
+
+    Shelved alarms and those of a conveyor out of service do not count.
+    """
     alarms = [a for m in monitors for a in m.open_alarms()]
     ran = {m.profile.id for m in monitors}
     if state is not None:  # the conveyors of the state this run did not monitor
         for cid, conveyor in state["conveyors"].items():
             if cid not in ran:
                 alarms += [a for a in MonitorState.from_dict(conveyor).alarms if a.is_open]
-    return any(a.acknowledged is None for a in alarms)
+    return any(a.acknowledged is None and a.counts() for a in alarms)
 
 
 def _print_table(results: list[RecordingResult], monitors: list[ConveyorMonitor]) -> None:

@@ -105,6 +105,8 @@ class LiveArgs:
     notify_mail_from: str | None = None
     notify_smtp_starttls: bool = False
     notify_smtp_login_file: Path | None = None
+    escalate_after_min: float | None = None
+    """Notify again (``escalated``) of an alarm unacknowledged this many minutes after it opened."""
 
 
 def system_malloc_command(
@@ -252,7 +254,16 @@ def serve(
                 file=sys.stderr,
                 flush=True,
             )
-            await service.run(config)
+            escalating = None
+            if live.escalate_after_min is not None:
+                from chaintwin.live.escalation import escalate_forever
+
+                escalating = asyncio.create_task(escalate_forever(store, live.escalate_after_min))
+            try:
+                await service.run(config)
+            finally:
+                if escalating is not None:
+                    escalating.cancel()
 
         asyncio.run(main())
     finally:
@@ -408,6 +419,15 @@ def register(app: typer.Typer) -> None:
                 help="File with the SMTP user (first line) and password (second line).",
             ),
         ] = None,
+        escalate_after_min: Annotated[
+            float | None,
+            typer.Option(
+                "--escalate-after-min",
+                min=1,
+                help="Notify again (event escalated) of an alarm still unacknowledged N minutes "
+                "after it opened.",
+            ),
+        ] = None,
     ) -> None:
         """Serve the dashboard and the HTTP API over a results store; follow live sources.
 
@@ -433,6 +453,7 @@ def register(app: typer.Typer) -> None:
             notify_mail_from=notify_mail_from,
             notify_smtp_starttls=notify_smtp_starttls,
             notify_smtp_login_file=notify_smtp_login_file,
+            escalate_after_min=escalate_after_min,
         )
         serve(db, profiles, host, port, max_upload_mb, ssl_certfile, ssl_keyfile, live)
 

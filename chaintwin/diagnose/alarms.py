@@ -1,5 +1,7 @@
 """Alarms of a conveyor's health model: opened by the X-of-Y rule, closed when quiet.
 
+One alarm per probable cause: the features that exceed with a cause are its evidence.
+
 Alarms are :class:`~chaintwin.diagnose.records.Alarm` records.
 """
 
@@ -12,9 +14,16 @@ from datetime import datetime
 from .baseline import regressor_of
 from .features import DRIFT_OF, feature_spec
 from .health import FeatureBaseline
-from .records import Alarm, MonitorSettings, iso_utc
+from .records import Alarm, Evidence, MonitorSettings, iso_utc
 
-__all__ = ["LIMIT_PREFIX", "close_quiet_alarms", "judge", "open_alarm", "window_key"]
+__all__ = [
+    "LIMIT_PREFIX",
+    "close_quiet_alarms",
+    "group_by_cause",
+    "judge",
+    "open_alarm",
+    "window_key",
+]
 
 LIMIT_PREFIX = "limit:"
 """Prefix of the exceedance windows of absolute limits (``limit:<feature>``)."""
@@ -23,6 +32,11 @@ LIMIT_PREFIX = "limit:"
 def window_key(feature: str, kind: str = "statistical") -> str:
     """The key of a feature's exceedance window: its name, or ``limit:<name>`` for a limit."""
     return f"{LIMIT_PREFIX}{feature}" if kind == "limit" else feature
+
+
+def _window_since(window: list[bool], window_times: list[str | None], at: str | None) -> str | None:
+    """Time of the first exceedance in a window (``at`` when it holds none)."""
+    return next((t for t, f in zip(window_times, window, strict=True) if f), at)
 
 
 def open_alarm(
@@ -38,37 +52,125 @@ def open_alarm(
     rule: str = "x_of_y",
     kind: str = "statistical",
     limit: float | None = None,
+    value: float | None = None,
+    z: float | None = None,
 ) -> Alarm:
-    """The open alarm of a feature, opened now if there is none.
+    """The open alarm of a probable cause, opened now if there is none.
 
-    Its cause and change are the latest known (a recording that cannot tell
-    keeps the last change); a new alarm dates from the first exceedance in
-    the feature's window. A feature has at most one open alarm per ``kind``
-    (``statistical`` or ``limit``); ``rule`` says what raised it.
+    A conveyor has at most one open alarm per cause: a feature whose rule is
+    met with that cause joins the open one as evidence (or refreshes its
+    evidence), a second cause opens a second alarm. The alarm's lead fields
+    (``feature``, ``kind``, ``limit``, ``rule``, ``change``) describe the
+    feature that opened it; a lead feature whose cause now reads otherwise,
+    with no alarm of that cause open, carries its alarm over to the new cause
+    (the latest known). A new alarm dates from the first exceedance in the
+    feature's window.
+
+    Parameters
+    ----------
+    value : float or None
+        The feature's value at this recording (feature units).
+    z : float or None
+        Its distance from the baseline, robust baseline scales (None for a limit).
     """
-    for alarm in alarms:
-        if alarm.is_open and alarm.feature == feature and alarm.kind == kind:
-            alarm.cause = cause
-            if change is not None:
-                alarm.change = change
-            alarm.last_seen = iso_utc(when)
-            return alarm
-    since = next((t for t, f in zip(window_times, window, strict=True) if f), iso_utc(when))
+    at = iso_utc(when)
+    value = value if value is None or math.isfinite(value) else None
+    z = z if z is None or math.isfinite(z) else None
+    alarm = next((a for a in alarms if a.is_open and a.cause == cause), None)
+    former = next(
+        (
+            a
+            for a in alarms
+            if a.is_open and a.cause != cause and any(_is(e, feature, kind) for e in a.evidence)
+        ),
+        None,
+    )
+    if former is not None:  # the feature's probable cause now reads otherwise
+        if alarm is None:
+            former.cause = cause  # the latest known
+            alarm = former
+        else:  # the fault of the other alarm: one alarm
+            _merge(alarm, former)
+            alarms.remove(former)
+    if alarm is not None:
+        if alarm.feature == feature and alarm.kind == kind and change is not None:
+            alarm.change = change
+        alarm.last_seen = at
+        alarm.active = True
+        ev = next((e for e in alarm.evidence if _is(e, feature, kind)), None)
+        if ev is None:
+            alarm.evidence.append(
+                Evidence(feature, kind, value, z, _window_since(window, window_times, at))
+            )
+        else:
+            ev.value, ev.z = value, z
+        return alarm
     alarm = Alarm(
         id=uuid.uuid4().hex[:8],
         conveyor=conveyor,
         feature=feature,
         cause=cause,
         change=change,
-        since=since,
-        opened_at=iso_utc(when),
-        last_seen=iso_utc(when),
+        since=_window_since(window, window_times, at),
+        opened_at=at,
+        last_seen=at,
         rule=rule,
         kind=kind,
         limit=limit,
     )
+    alarm.evidence.append(Evidence(feature, kind, value, z, alarm.since))
     alarms.append(alarm)
     return alarm
+
+
+def _is(e: Evidence, feature: str, kind: str) -> bool:
+    return e.feature == feature and e.kind == kind
+
+
+def _merge(into: Alarm, alarm: Alarm) -> None:
+    """Put ``alarm`` into ``into``: its evidence, comments and ids; the earliest since,
+    the latest last_seen; an acknowledgement of either carries over (the earliest)."""
+    known = {(e.feature, e.kind) for e in into.evidence}
+    into.evidence += [e for e in alarm.evidence if (e.feature, e.kind) not in known]
+    into.comments = sorted(into.comments + alarm.comments, key=lambda c: c.at)
+    into.merged += [alarm.id, *alarm.merged]
+    if alarm.since is not None and (into.since is None or alarm.since < into.since):
+        into.since = alarm.since
+    if alarm.last_seen is not None and (into.last_seen or "") < alarm.last_seen:
+        into.last_seen = alarm.last_seen
+    into.active = into.active or alarm.active
+    acks = [a for a in (into.acknowledged, alarm.acknowledged) if a is not None]
+    into.acknowledged = min(acks, key=lambda a: a.at) if acks else None
+    if alarm.shelved is not None and into.shelved is None:
+        into.shelved = alarm.shelved
+
+
+def group_by_cause(alarms: list[Alarm]) -> dict[str, str]:
+    """Group the open alarms of one cause into the oldest (alarms kept before grouping).
+
+    The later ones' evidence, comments and ids (``merged``) join the oldest,
+    which keeps the earliest ``since`` and the latest ``last_seen``; an
+    acknowledgement of any of them carries over (the earliest). The grouped
+    ones leave ``alarms``.
+
+    Returns
+    -------
+    dict of str to str
+        Each grouped alarm's id and the id of the alarm it joined.
+    """
+    keeper: dict[str, Alarm] = {}
+    moved: dict[str, str] = {}
+    for alarm in list(alarms):
+        if not alarm.is_open:
+            continue
+        into = keeper.setdefault(alarm.cause, alarm)
+        if into is alarm:
+            continue
+        _merge(into, alarm)
+        moved[alarm.id] = into.id
+        moved.update({m: into.id for m in alarm.merged})
+        alarms.remove(alarm)
+    return moved
 
 
 def close_quiet_alarms(
@@ -77,13 +179,21 @@ def close_quiet_alarms(
     y: int,
     when: datetime | None,
 ) -> None:
-    """Close every open alarm whose feature has not exceeded in its last ``y`` recordings."""
+    """Close every open alarm none of whose features exceeded in its last ``y`` recordings.
+
+    An open alarm not seen at this recording (``when``) is marked inactive:
+    its features are back in band (ISA-18.2's "returned").
+    """
+    at = iso_utc(when)
     for alarm in alarms:
         if not alarm.is_open:
             continue
-        win = windows.get(window_key(alarm.feature, alarm.kind), [])
-        if len(win) >= y and not any(win):
-            alarm.close(iso_utc(when), f"no exceedance in the last {y} recordings")
+        alarm.active = alarm.last_seen == at
+        keys = {window_key(e.feature, e.kind) for e in alarm.evidence}
+        keys.add(window_key(alarm.feature, alarm.kind))
+        wins = [windows.get(k, []) for k in keys]
+        if all(len(w) >= y and not any(w) for w in wins):
+            alarm.close(at, f"no exceedance in the last {y} recordings")
 
 
 def judge(
@@ -93,11 +203,13 @@ def judge(
     window_times: dict[str, list[str | None]],
     settings: MonitorSettings,
     when: datetime | None,
+    z_out: dict[str, float] | None = None,
 ) -> tuple[list[str], dict[str, float], list[str]]:
     """Check a recording's features against their baselines and apply the X-of-Y rule.
 
     Each tracked feature's window (the last Y exceedances, with their times)
-    is updated in place.
+    is updated in place; ``z_out``, when given, receives each feature's
+    distance from its baseline (robust baseline scales, where known).
 
     Returns
     -------
@@ -131,6 +243,8 @@ def judge(
             exceeded.append(name)
         if math.isfinite(ex.change):
             change[name] = ex.change
+        if z_out is not None and math.isfinite(ex.z):
+            z_out[name] = ex.z
         # the X-of-Y rule at this recording (x_of_y(win, x, y)[-1]): the window
         # holds the last y exceedances
         if sum(win) >= settings.x:

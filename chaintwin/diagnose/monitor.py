@@ -49,6 +49,7 @@ from chaintwin.weigh.tlf import (
 from chaintwin.weigh.weigh import WeighResult, reweigh
 
 from . import alarms, baseline, monitor_state
+from .alarm_actions import out_of_service_at
 from .causes import (
     NOTE_CAUSES,
     cause_priority,
@@ -137,6 +138,8 @@ class ConveyorMonitor:
         self.window_times: dict[str, list[str | None]] = {}
         self.alarms: list[Alarm] = []
         self.events: list[Event] = []
+        # the conveyor out of service (by, why, from, until: :mod:`.alarm_actions`) or None
+        self.out_of_service: dict[str, Any] | None = None
         self.history: list[dict[str, Any]] = []
         self.processed: dict[str, int] = {}
         self.last_recorded_at: str | None = None
@@ -479,6 +482,19 @@ class ConveyorMonitor:
                     "reported but neither learned nor compared with the baseline",
                 ).to_dict()
             )
+        elif out_of_service_at(self.out_of_service, when):
+            # work on the conveyor: shown, neither judged nor learned
+            base.status = "baseline" if self.baselines is None else "monitored"
+            base.features = {k: finite_or_none(v) for k, v in values.items()}
+            oos = self.out_of_service or {}
+            warnings.append(
+                RecordingWarning(
+                    "out_of_service",
+                    f"made while the conveyor is out of service ({oos.get('why')}, by "
+                    f"{oos.get('by')}): its features are reported but neither learned nor "
+                    "compared with the baseline",
+                ).to_dict()
+            )
         elif self.baselines is None:
             base.status = "baseline"
             if self.baseline_since is None:
@@ -505,8 +521,9 @@ class ConveyorMonitor:
             values["unexplained_peak"] = peak
             judged = self._after_expected_wear(values)
             base.features = {k: finite_or_none(v) for k, v in values.items()}
+            zs: dict[str, float] = {}
             met, change, exceeded = alarms.judge(
-                self.baselines, judged, self.windows, self.window_times, self.settings, when
+                self.baselines, judged, self.windows, self.window_times, self.settings, when, zs
             )
             base.exceeded.extend(exceeded)
             self._late_baselines(values)
@@ -529,7 +546,9 @@ class ConveyorMonitor:
                     }
                 )
             for name in met:
-                alarm = self._open_alarm(name, resolved[name], change.get(name), when)
+                alarm = self._open_alarm(
+                    name, resolved[name], change.get(name), when, values.get(name), zs.get(name)
+                )
                 detail = {
                     "cause": resolved[name],
                     "feature": name,
@@ -718,9 +737,15 @@ class ConveyorMonitor:
         return dropped
 
     def _open_alarm(
-        self, feature: str, cause: str, change: float | None, when: datetime | None
+        self,
+        feature: str,
+        cause: str,
+        change: float | None,
+        when: datetime | None,
+        value: float | None,
+        z: float | None,
     ) -> Alarm:
-        """The open alarm of a feature, opened now if there is none (:func:`.alarms.open_alarm`)."""
+        """The open alarm of a cause, opened now if there is none (:func:`.alarms.open_alarm`)."""
         return alarms.open_alarm(
             self.alarms,
             conveyor=self.profile.id,
@@ -730,6 +755,8 @@ class ConveyorMonitor:
             when=when,
             window=self.windows.get(feature, []),
             window_times=self.window_times.get(feature, []),
+            value=value,
+            z=z,
         )
 
     def _judge_limits(
@@ -766,6 +793,7 @@ class ConveyorMonitor:
                 rule=c.limit.rule,
                 kind="limit",
                 limit=c.limit.alarm,
+                value=c.value,
             )
             causes.append(
                 {

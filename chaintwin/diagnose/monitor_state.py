@@ -23,6 +23,7 @@ from chaintwin.identify.calibration import Calibration
 from chaintwin.read.recording import Recording, RecordingWarning
 
 from . import baseline
+from .alarms import group_by_cause
 from .features import feature_spec
 from .health import FeatureBaseline
 from .records import Alarm, Event, MonitorSettings, as_number
@@ -97,6 +98,7 @@ class MonitorState:
     history: list[dict[str, Any]] = field(default_factory=list)
     notes: list[dict[str, str]] = field(default_factory=list)
     last_recorded_at: str | None = None
+    out_of_service: dict[str, Any] | None = None
     version: int = STATE_VERSION
 
     def to_dict(self) -> dict[str, Any]:
@@ -130,6 +132,7 @@ class MonitorState:
             "history": self.history,
             "notes": self.notes,
             "last_recorded_at": self.last_recorded_at,
+            "out_of_service": self.out_of_service,
         }
 
     @classmethod
@@ -180,6 +183,8 @@ class MonitorState:
                 history=list(data["history"]),
                 notes=list(data["notes"]),
                 last_recorded_at=data["last_recorded_at"],
+                # states kept before conveyors could be out of service have none
+                out_of_service=_window(data.get("out_of_service")),
             )
         except ChaintwinError as exc:
             raise StoreError(f"{source}: monitoring state is damaged ({exc})") from None
@@ -189,6 +194,15 @@ class MonitorState:
                 f"{source}: monitoring state of '{conveyor}' is damaged ({exc!r}); restore it "
                 "from a backup or start a new state file"
             ) from None
+
+
+def _window(data: Any) -> dict[str, Any] | None:
+    """An out-of-service window as stored (by, why, from, until), checked; None when absent."""
+    if data is None:
+        return None
+    if not isinstance(data, dict) or not isinstance(data.get("from"), str):
+        raise ValueError(f"out_of_service {data!r} is not a window with 'from'")
+    return {k: data.get(k) for k in ("by", "why", "from", "until")}
 
 
 LEARNED: tuple[str, ...] = (
@@ -209,6 +223,7 @@ LEARNED: tuple[str, ...] = (
     "history",
     "notes",
     "last_recorded_at",
+    "out_of_service",
 )
 """Attributes a monitor and its :class:`MonitorState` share by name (copied as they are)."""
 
@@ -242,6 +257,7 @@ def restore(
     """
     for name in LEARNED:
         setattr(mon, name, getattr(state, name))
+    group_by_cause(mon.alarms)  # a state kept before alarms were grouped by cause
     mon.processed = {h["sha256"]: k for k, h in enumerate(mon.history) if h.get("sha256")}
     for pending in state.pending:
         try:

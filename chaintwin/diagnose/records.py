@@ -14,17 +14,35 @@ from typing import Any
 from chaintwin.errors import MonitorError
 
 __all__ = [
+    "LIFECYCLES",
+    "NOT_COUNTED",
     "Acknowledgement",
     "Alarm",
+    "Comment",
     "Event",
+    "Evidence",
     "MonitorSettings",
     "RecordingResult",
     "SettingsGiven",
+    "Shelving",
     "as_number",
     "finite_or_none",
     "iso_utc",
     "parse_time",
 ]
+
+LIFECYCLES: tuple[str, ...] = (
+    "unacknowledged",
+    "acknowledged",
+    "returned_unacknowledged",
+    "shelved",
+    "out_of_service",
+    "closed",
+)
+"""An alarm's states in the words of ISA-18.2 (:meth:`Alarm.lifecycle`)."""
+
+NOT_COUNTED: tuple[str, ...] = ("closed", "shelved", "out_of_service")
+"""Lifecycles of alarms that neither fail scripts nor raise the health index."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -180,17 +198,120 @@ class Acknowledgement:
 
 
 @dataclass(slots=True)
+class Evidence:
+    """A feature that exceeded with an alarm's cause: what the alarm rests on.
+
+    Attributes
+    ----------
+    feature : str
+        The condition feature.
+    kind : str
+        ``statistical`` (against the baseline) or ``limit`` (an absolute limit).
+    value : float or None
+        Its latest value that met the rule (feature units; None when unknown).
+    z : float or None
+        Its distance from the baseline then, in robust baseline scales (None
+        for a limit, or when unknown).
+    since : str or None
+        ISO time of its first exceedance in the window that made it join.
+    """
+
+    feature: str
+    kind: str = "statistical"
+    value: float | None = None
+    z: float | None = None
+    since: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready."""
+        return {
+            "feature": self.feature,
+            "kind": self.kind,
+            "value": self.value,
+            "z": self.z,
+            "since": self.since,
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Evidence:
+        """Inverse of :meth:`to_dict`; KeyError, TypeError or ValueError when damaged."""
+        value, z = data.get("value"), data.get("z")
+        return cls(
+            feature=_text(data, "feature"),
+            kind=str(data.get("kind", "statistical")),
+            value=None if value is None else float(value),
+            z=None if z is None else float(z),
+            since=_text(data, "since", optional=True),
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class Comment:
+    """A comment on an alarm: who wrote what, when (ISO time, UTC)."""
+
+    by: str
+    at: str
+    text: str
+
+    def to_dict(self) -> dict[str, str]:
+        """JSON-ready."""
+        return {"by": self.by, "at": self.at, "text": self.text}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Comment:
+        """Inverse of :meth:`to_dict`; KeyError or TypeError when damaged."""
+        return cls(by=_text(data, "by"), at=_text(data, "at"), text=_text(data, "text"))
+
+
+@dataclass(frozen=True, slots=True)
+class Shelving:
+    """An alarm set aside for a time: who, why, when and until when (ISO, UTC)."""
+
+    by: str
+    why: str
+    at: str
+    until: str
+
+    def to_dict(self) -> dict[str, str]:
+        """JSON-ready."""
+        return {"by": self.by, "why": self.why, "at": self.at, "until": self.until}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Shelving:
+        """Inverse of :meth:`to_dict`; KeyError or TypeError when damaged."""
+        return cls(
+            by=_text(data, "by"),
+            why=_text(data, "why"),
+            at=_text(data, "at"),
+            until=_text(data, "until"),
+        )
+
+
+def _later(a: str | None, b: datetime) -> bool:
+    """Whether ISO time ``a`` is after ``b`` (False when ``a`` is absent or unreadable)."""
+    t = parse_time(a)
+    if t is None:
+        return False
+    if t.tzinfo is None:
+        t = t.replace(tzinfo=UTC)
+    return t > b
+
+
+@dataclass(slots=True)
 class Alarm:
-    """An alarm of a conveyor's health model (opened by the X-of-Y rule).
+    """An alarm of a conveyor's health model: one probable cause, its evidence.
+
+    A conveyor has at most one open alarm per probable cause; every feature
+    that exceeds with that cause is part of its ``evidence``.
 
     Attributes
     ----------
     id : str
         Short unique id (``acknowledge`` takes it).
     conveyor, feature, cause : str
-        Where, on which condition feature, and its probable cause.
+        Where, the lead feature (the one that opened it) and the probable cause.
     change : float or None
-        The feature's latest relative change against its baseline, 1
+        The lead feature's latest relative change against its baseline, 1
         (None while unknown).
     since : str or None
         ISO time of the first exceedance in the window that opened it.
@@ -210,6 +331,23 @@ class Alarm:
         of the profile's ``limits:``).
     limit : float or None
         The absolute limit exceeded (feature units), for ``kind`` ``limit``.
+    evidence : list of Evidence
+        Every feature that exceeded with its cause, the lead first.
+    active : bool
+        Whether the last judged recording met the rule of one of its features
+        (False: its features are back in band, it closes once they stay so).
+    shelved : Shelving or None
+        Set aside until ``shelved.until`` (it then returns by itself).
+    out_of_service_until : str or None
+        Its conveyor is out of service until then (ISO time; no end: None
+        with ``out_of_service`` set).
+    out_of_service : bool
+        Its conveyor is out of service.
+    comments : list of Comment
+        Comments, oldest first.
+    merged : list of str
+        Ids of alarms of the same cause grouped into this one (they still
+        name it: :func:`~chaintwin.diagnose.alarms.group_by_cause`).
     """
 
     id: str
@@ -227,6 +365,17 @@ class Alarm:
     rule: str = "x_of_y"
     kind: str = "statistical"
     limit: float | None = None
+    evidence: list[Evidence] = field(default_factory=list)
+    active: bool = True
+    shelved: Shelving | None = None
+    out_of_service: bool = False
+    out_of_service_until: str | None = None
+    comments: list[Comment] = field(default_factory=list)
+    merged: list[str] = field(default_factory=list)
+
+    def answers_to(self, alarm_id: str) -> bool:
+        """Whether ``alarm_id`` names this alarm (its id, or one grouped into it)."""
+        return alarm_id == self.id or alarm_id in self.merged
 
     @property
     def is_open(self) -> bool:
@@ -239,8 +388,46 @@ class Alarm:
         self.closed_at = at
         self.closed_by = by
 
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready (the form of state files, the store and ``monitor --json``)."""
+    def is_shelved(self, now: datetime | None = None) -> bool:
+        """Whether it is shelved at ``now`` (default: the clock); a shelf ends by itself."""
+        if self.shelved is None:
+            return False
+        return _later(self.shelved.until, now or datetime.now(UTC))
+
+    def is_out_of_service(self, now: datetime | None = None) -> bool:
+        """Whether its conveyor is out of service at ``now`` (default: the clock)."""
+        if not self.out_of_service:
+            return False
+        until = self.out_of_service_until
+        return until is None or _later(until, now or datetime.now(UTC))
+
+    def lifecycle(self, now: datetime | None = None) -> str:
+        """Its state in ISA-18.2's words at ``now`` (default: the clock): one of :data:`LIFECYCLES`.
+
+        ``closed`` (ISA's "normal"), else ``out_of_service`` while its
+        conveyor is, else ``shelved`` until the shelf ends, else
+        ``acknowledged``, ``unacknowledged`` (active) or
+        ``returned_unacknowledged`` (its features back in band).
+        """
+        if not self.is_open:
+            return "closed"
+        if self.is_out_of_service(now):
+            return "out_of_service"
+        if self.is_shelved(now):
+            return "shelved"
+        if self.acknowledged is not None:
+            return "acknowledged"
+        return "unacknowledged" if self.active else "returned_unacknowledged"
+
+    def counts(self, now: datetime | None = None) -> bool:
+        """Whether it counts as a standing alarm: open, neither shelved nor out of service."""
+        return self.lifecycle(now) not in NOT_COUNTED
+
+    def to_dict(self, now: datetime | None = None) -> dict[str, Any]:
+        """JSON-ready (the form of state files, the store and ``monitor --json``).
+
+        ``lifecycle`` is its state at ``now`` (default: the clock).
+        """
         out: dict[str, Any] = {
             "id": self.id,
             "conveyor": self.conveyor,
@@ -254,7 +441,17 @@ class Alarm:
             "acknowledged": None if self.acknowledged is None else self.acknowledged.to_dict(),
             "rule": self.rule,
             "kind": self.kind,
+            "lifecycle": self.lifecycle(now),
+            "evidence": [e.to_dict() for e in self.evidence],
+            "active": self.active,
+            "shelved_until": None if self.shelved is None else self.shelved.until,
+            "shelved": None if self.shelved is None else self.shelved.to_dict(),
+            "out_of_service": self.out_of_service,
+            "out_of_service_until": self.out_of_service_until,
+            "comments": [c.to_dict() for c in self.comments],
         }
+        if self.merged:
+            out["merged"] = list(self.merged)
         if self.limit is not None:
             out["limit"] = self.limit
         if self.status == "closed":
@@ -264,7 +461,7 @@ class Alarm:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Alarm:
-        """Inverse of :meth:`to_dict`.
+        """Inverse of :meth:`to_dict` (``lifecycle`` is worked out again, not read).
 
         Raises
         ------
@@ -276,13 +473,20 @@ class Alarm:
             raise ValueError(f"alarm status '{status}' is neither open nor closed")
         change = data["change"]
         ack = data.get("acknowledged")
+        shelved = data.get("shelved")
+        feature = _text(data, "feature")
+        kind = str(data.get("kind", "statistical"))
+        since = _text(data, "since", optional=True)
+        evidence = [Evidence.from_dict(e) for e in data.get("evidence") or []]
+        if not evidence:  # alarms stored before evidence existed rest on their feature
+            evidence = [Evidence(feature, kind, None, None, since)]
         return cls(
             id=_text(data, "id"),
             conveyor=_text(data, "conveyor"),
-            feature=_text(data, "feature"),
+            feature=feature,
             cause=_text(data, "cause"),
             change=None if change is None else float(change),
-            since=_text(data, "since", optional=True),
+            since=since,
             opened_at=_text(data, "opened_at", optional=True),
             last_seen=_text(data, "last_seen", optional=True),
             status=status,
@@ -291,8 +495,17 @@ class Alarm:
             closed_by=data.get("closed_by"),
             # alarms stored before rules and limits existed were statistical X-of-Y ones
             rule=str(data.get("rule", "x_of_y")),
-            kind=str(data.get("kind", "statistical")),
+            kind=kind,
             limit=None if data.get("limit") is None else float(data["limit"]),
+            evidence=evidence,
+            active=bool(data.get("active", True)),
+            shelved=None if shelved is None else Shelving.from_dict(shelved),
+            out_of_service=bool(data.get("out_of_service", False)),
+            out_of_service_until=_text(data, "out_of_service_until", optional=True)
+            if "out_of_service_until" in data
+            else None,
+            comments=[Comment.from_dict(c) for c in data.get("comments") or []],
+            merged=[str(m) for m in data.get("merged") or []],
         )
 
 

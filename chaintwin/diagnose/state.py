@@ -242,7 +242,7 @@ def acknowledge_alarm(
                 f"the state of '{conveyor}' is damaged ({exc!r}); start a new one"
             ) from None
         for k, alarm in enumerate(alarms):
-            if alarm.id == alarm_id:
+            if alarm.answers_to(alarm_id):
                 if not alarm.is_open:
                     raise StoreError(
                         f"alarm '{alarm_id}' is closed ({alarm.closed_by or 'closed'}); "

@@ -17,13 +17,14 @@ import hashlib
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
 from jinja2 import Environment, PackageLoader, StrictUndefined
 
 from chaintwin import __version__
+from chaintwin.diagnose.alarm_kpis import KPI_DAYS, alarm_kpis
 from chaintwin.diagnose.residuals import residual_analysis
 from chaintwin.errors import ChaintwinError, StoreError
 from chaintwin.identify.verification import verify_recording
@@ -56,7 +57,7 @@ CONVEYOR_SECTIONS = (
 )
 """HTML ids of a conveyor page's sections, in page order."""
 
-FLEET_SECTIONS = ("ranking-health", "ranking-tlf")
+FLEET_SECTIONS = ("ranking-health", "ranking-tlf", "alarm-kpis")
 """HTML ids of the fleet page's sections."""
 
 RESIDUAL_COLUMNS = ("mean", "std", "rms", "max_abs", "kurtosis", "skewness", "crest_factor")
@@ -315,7 +316,9 @@ def fleet_page(
     *,
     links: Mapping[str, str] | None = None,
 ) -> str:
-    """The fleet page: conveyors ranked by health and by TLF.
+    """The fleet page: conveyors ranked by health and by TLF; the alarm KPIs.
+
+    The alarm KPIs cover the :data:`KPI_DAYS` days up to the latest recording.
 
     Parameters
     ----------
@@ -334,7 +337,14 @@ def fleet_page(
     rows = [_fleet_row(d, links) for d in data]
     rows.sort(key=lambda r: (STATUS_ORDER.index(r.status), -_rank(r.health), r.id))
     by_tlf = sorted(rows, key=lambda r: (-_rank(r.tlf), r.id))
+    latest = [t for d in data for t in d.times if t is not None]
+    until = (max(latest) + timedelta(seconds=1)) if latest else datetime.now(UTC)
+    if until.tzinfo is None:
+        until = until.replace(tzinfo=UTC)
+    kpis = alarm_kpis(store.alarms(), until - timedelta(days=KPI_DAYS), until)
     return _ENV.get_template("fleet.html.j2").render(
+        kpis=kpis,
+        kpi_days=KPI_DAYS,
         rows=rows,
         by_tlf=by_tlf,
         made=datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),

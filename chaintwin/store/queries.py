@@ -15,6 +15,7 @@ from typing import Any
 from sqlalchemy import and_, func, or_, select, text
 from sqlalchemy.orm import Session
 
+from chaintwin.diagnose.records import Alarm
 from chaintwin.errors import StoreError
 from chaintwin.read.recording import Recording
 from chaintwin.store.schema import (
@@ -144,6 +145,14 @@ def recording_by_hash(store: Store, sha256: str) -> tuple[dict[str, Any], Record
     return result, store.recording(int(rec_id))
 
 
+def _lifecycle(content: Any) -> str | None:
+    """A stored alarm's lifecycle now (None when its record is damaged)."""
+    try:
+        return Alarm.from_dict(dict(content)).lifecycle()
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
 def fleet_rows(store: Store) -> list[dict[str, Any]]:
     """Per conveyor: its latest result's numbers and its open alarms.
 
@@ -178,7 +187,13 @@ def fleet_rows(store: Store) -> list[dict[str, Any]]:
         open_alarms: dict[str, list[dict[str, Any]]] = {}
         for a in s.scalars(select(AlarmRow).where(AlarmRow.status != "closed")):
             open_alarms.setdefault(str(a.conveyor_id), []).append(
-                {"id": a.id, "feature": a.feature, "cause": a.cause, "since": a.since}
+                {
+                    "id": a.id,
+                    "feature": a.feature,
+                    "cause": a.cause,
+                    "since": a.since,
+                    "lifecycle": _lifecycle(a.content),
+                }
             )
     out = []
     for cid, _rid in pairs:

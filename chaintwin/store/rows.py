@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from datetime import UTC, datetime
+from typing import Any
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
@@ -12,7 +14,7 @@ from chaintwin.diagnose.records import Alarm, Event, RecordingResult
 from chaintwin.diagnose.state import json_ready
 from chaintwin.read.recording import Recording
 
-from .schema import AlarmRow, EventRow, OutboxRow
+from .schema import AlarmAliasRow, AlarmRow, EventRow, OutboxRow
 
 __all__ = ["Finished", "Waiting", "notify_alarm", "put_alarms_events"]
 
@@ -39,15 +41,24 @@ class Finished:
     """Stored already (while it waited for a learned calibration): only its result is new."""
 
 
-def notify_alarm(s: Session, conveyor: str, alarm: Alarm, event: str) -> None:
-    """Put a notification of an alarm opened or closed in the outbox (once per alarm and event).
+def notify_alarm(
+    s: Session, conveyor: str, alarm: Alarm, event: str, at: str | None = None
+) -> None:
+    """Put a notification of an alarm's change in the outbox (once per alarm and event).
 
+    ``event`` is ``opened``, ``acknowledged``, ``shelved``, ``closed`` or
+    ``escalated``; ``at`` is when it happened (default: when it opened or
+    closed). A shelving is told once per shelf (its start in the id).
     Written in the transaction that changes the alarm's row: a notification
     exists exactly when its change was stored (the live service sends it).
     """
     key = f"{alarm.id}-{event}"
+    if event == "shelved" and alarm.shelved is not None:
+        key += "-" + hashlib.sha256(alarm.shelved.at.encode()).hexdigest()[:8]
     if s.get(OutboxRow, key) is not None:
         return
+    if at is None:
+        at = alarm.closed_at if event == "closed" else (alarm.opened_at or alarm.since)
     s.add(
         OutboxRow(
             id=key,
@@ -56,25 +67,43 @@ def notify_alarm(s: Session, conveyor: str, alarm: Alarm, event: str) -> None:
             conveyor_id=conveyor,
             feature=alarm.feature,
             cause=alarm.cause,
-            at=alarm.closed_at if event == "closed" else (alarm.opened_at or alarm.since),
+            at=at,
             created_at=datetime.now(UTC).isoformat(),
         )
     )
 
 
+def _notify_changes(s: Session, conveyor: str, alarm: Alarm, before: AlarmRow | None) -> None:
+    """The notifications of an alarm's changes since its stored row ``before``."""
+    if before is None:
+        notify_alarm(s, conveyor, alarm, "opened")
+    was: dict[str, Any] = dict(before.content) if before is not None else {}
+    if alarm.acknowledged is not None and not was.get("acknowledged"):
+        notify_alarm(s, conveyor, alarm, "acknowledged", alarm.acknowledged.at)
+    shelf = alarm.shelved
+    if shelf is not None and (was.get("shelved") or {}).get("at") != shelf.at:
+        notify_alarm(s, conveyor, alarm, "shelved", shelf.at)
+    if alarm.status == "closed" and (before is None or before.status != "closed"):
+        notify_alarm(s, conveyor, alarm, "closed")
+
+
 def put_alarms_events(s: Session, conveyor: str, alarms: list[Alarm], events: list[Event]) -> None:
     """Bring the alarm and event rows of a conveyor up to its health model.
 
-    An alarm that opens or closes puts a notification in the outbox
-    (:func:`notify_alarm`).
+    An alarm that opens, is acknowledged or shelved, or closes puts a
+    notification in the outbox (:func:`notify_alarm`). An alarm grouped into another (its id in the
+    other's ``merged``) leaves the table; its id stays an alias of the other.
     """
     rows = {r.id: r for r in s.scalars(select(AlarmRow).where(AlarmRow.conveyor_id == conveyor))}
     for alarm in alarms:
-        row_before = rows.get(alarm.id)
-        if row_before is None:
-            notify_alarm(s, conveyor, alarm, "opened")
-        if alarm.status == "closed" and (row_before is None or row_before.status != "closed"):
-            notify_alarm(s, conveyor, alarm, "closed")
+        for old in alarm.merged:
+            gone = rows.pop(old, None)
+            if gone is not None:
+                s.delete(gone)
+            if s.get(AlarmAliasRow, old) is None:
+                s.add(AlarmAliasRow(old_id=old, alarm_id=alarm.id))
+    for alarm in alarms:
+        _notify_changes(s, conveyor, alarm, rows.get(alarm.id))
         values = {
             "conveyor_id": conveyor,
             "feature": alarm.feature,

@@ -18,6 +18,8 @@ table              what a row holds
 ``monitor_states`` the health model of a conveyor (baseline, belt map, alarm
                    windows): :meth:`ConveyorMonitor.to_state` as JSON
 ``alarms``         alarms with their life: opened, acknowledged, closed
+``alarm_aliases``  alarm ids that now name another alarm (alarms of one cause
+                   grouped into one): old id, the alarm's id
 ``events``         maintenance events with who, when, why
 ``api_tokens``     the web service's access tokens: name, role, a keyed SHA-256
                    of the token (never the token), created, expires, revoked
@@ -63,6 +65,7 @@ from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
 __all__ = [
     "SCHEMA_VERSION",
+    "AlarmAliasRow",
     "AlarmRow",
     "AuditRow",
     "Base",
@@ -179,6 +182,14 @@ class AlarmRow(Base):
     status: Mapped[str] = mapped_column(String(10))
     since: Mapped[str | None] = mapped_column(String(40))
     content: Mapped[dict[str, Any]] = mapped_column(JSON)
+
+
+class AlarmAliasRow(Base):
+    """An alarm id that now names another alarm (alarms of one cause grouped into one)."""
+
+    __tablename__ = "alarm_aliases"
+    old_id: Mapped[str] = mapped_column(String(16), primary_key=True)
+    alarm_id: Mapped[str] = mapped_column(String(16), index=True)
 
 
 class EventRow(Base):

@@ -41,6 +41,7 @@ from .engine import _first_line, check_sqlite_file, engine_for, safe_url, sqlite
 from .rows import Finished, Waiting, put_alarms_events
 from .samples import pack_samples, recording_meta, stored_recording
 from .schema import (
+    AlarmAliasRow,
     AlarmRow,
     CalibrationRow,
     ConveyorRow,
@@ -610,6 +611,9 @@ class Store:
         """
         with Session(self.engine) as s:
             row = s.get(AlarmRow, alarm_id)
+            alias = None if row is not None else s.get(AlarmAliasRow, alarm_id)
+            if alias is not None:  # an alarm grouped into another: the other's conveyor
+                row = s.get(AlarmRow, alias.alarm_id)
             if row is None:
                 raise StoreError(
                     f"{safe_url(self.url)}: no alarm '{alarm_id}'; the ids are in "

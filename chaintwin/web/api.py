@@ -25,6 +25,7 @@ from pydantic import BaseModel, Field
 
 from chaintwin import __version__
 from chaintwin.diagnose.monitor_state import health_index
+from chaintwin.diagnose.records import LIFECYCLES
 from chaintwin.diagnose.state import acknowledge_alarm, add_maintenance
 from chaintwin.errors import ChaintwinError, StoreError
 from chaintwin.store.access import (
@@ -425,7 +426,9 @@ def conveyor(request: Request, conveyor_id: str) -> dict[str, Any]:
         "baseline_since": data.baseline_since,
         "summary": data.summary,
         "forecasts": data.forecasts,
-        "health_index": health_index(_finite(float(data.health_index)), len(data.open_alarms())),
+        "health_index": health_index(
+            _finite(float(data.health_index)), sum(a.counts() for a in data.open_alarms())
+        ),
         "deviation": _finite(float(data.health_index)),
         "status": data.status,
         "features": [t.name for t in data.trends],
@@ -440,14 +443,19 @@ def alarms(
     request: Request,
     state: Literal["open", "closed"] | None = None,
     acknowledged: bool | None = None,
+    lifecycle: Literal[LIFECYCLES] | None = None,  # type: ignore[valid-type]
 ) -> list[dict[str, Any]]:
-    """Alarms of every conveyor, oldest first, optionally filtered."""
+    """Alarms of every conveyor, oldest first, optionally filtered (``state=open``: not closed;
+    ``lifecycle``: unacknowledged, acknowledged, returned_unacknowledged, shelved,
+    out_of_service or closed)."""
     who(request, "viewer")
     out = []
     for a in _web(request).store.alarms():
         if state is not None and (a.is_open != (state == "open")):
             continue
         if acknowledged is not None and ((a.acknowledged is not None) != acknowledged):
+            continue
+        if lifecycle is not None and a.lifecycle() != lifecycle:
             continue
         out.append(a.to_dict())
     return out

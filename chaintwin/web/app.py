@@ -139,7 +139,7 @@ def create_app(
         The live service of this process (:mod:`chaintwin.live.service`):
         its sources in the health endpoint, its metrics at ``/metrics``.
     """
-    from chaintwin.web import api, pages
+    from chaintwin.web import alarm_pages, alarms_api, api, pages
 
     app = FastAPI(
         title="chaintwin",
@@ -253,7 +253,9 @@ def create_app(
 
         return Response(service_metrics.text(), media_type=CONTENT_TYPE)
 
+    app.include_router(alarms_api.router)  # before api's /conveyors/{id:path} routes
     app.include_router(api.router)
+    app.include_router(alarm_pages.router)  # before pages' /conveyors/{id:path} routes
     app.include_router(pages.router)
     return app
 

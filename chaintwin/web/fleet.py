@@ -19,6 +19,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from chaintwin.diagnose.monitor_state import MonitorState, deviations, health_index
+from chaintwin.diagnose.records import NOT_COUNTED
 from chaintwin.errors import ChaintwinError
 from chaintwin.store.queries import fleet_rows
 from chaintwin.store.schema import MonitorStateRow
@@ -105,6 +106,7 @@ class FleetHealth:
             row["health"] = health_label(row)
             row["deviation"] = deviation
             row["worst_feature"] = worst
-            row["health_index"] = health_index(deviation, len(row["open_alarms"]))
+            standing = [a for a in row["open_alarms"] if a["lifecycle"] not in NOT_COUNTED]
+            row["health_index"] = health_index(deviation, len(standing))
             out.append(row)
         return out

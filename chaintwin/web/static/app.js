@@ -292,7 +292,7 @@ window.chaintwin = (function () {
   function alarmsPage() {
     const body = document.querySelector("table.alarms tbody");
     live(async () => {
-      const typing = Array.from(body.querySelectorAll("input[name=why]")).some((i) => i.value);
+      const typing = Array.from(body.querySelectorAll("input:not([type=hidden])")).some((i) => i.value);
       if (typing) return;
       const r = await fetch("/alarms", { credentials: "same-origin" });
       if (r.status === 401 || r.redirected) { window.location = "/login"; return; }

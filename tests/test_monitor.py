@@ -693,7 +693,14 @@ def test_cli_monitor_state_fail_on_alarm_and_acknowledge(
             == 0
         )
     capsys.readouterr()
-    # nothing new, everything acknowledged: scripts pass
+    # acknowledged alarms still stand (the fault is still there): scripts still fail
+    assert main([*args, files[-1], "--json", "--fail-on-alarm"]) == EXIT_ALARM
+    capsys.readouterr()
+    for a in alarms:
+        shelve = ["alarms", "shelve", a["id"], "--state", str(state), "--by", "me"]
+        assert main([*shelve, "--why", "WO 17", "--minutes", "600"]) == 0
+    capsys.readouterr()
+    # nothing new, everything shelved: scripts pass
     assert main([*args, files[-1], "--json", "--fail-on-alarm"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["recordings"][0]["status"] == "duplicate"

@@ -66,8 +66,8 @@ _RULE_HELP = "Alarm rule X/Y: X exceedances of one feature in the last Y recordi
 _Z_HELP = "A feature exceeds above this many robust baseline scales [5]."
 _JSON_HELP = "Print one JSON object: recordings and conveyors."
 _FAIL_HELP = (
-    "Exit with 3 when an unacknowledged alarm is open (shelved ones and those of a conveyor "
-    "out of service aside)."
+    "Exit with 3 when an alarm stands: open, acknowledged or not (shelved ones and those of a "
+    "conveyor out of service aside)."
 )
 _FILES_HELP = "Recordings (files or folders), in any order: they are sorted by recorded_at."
 
@@ -169,10 +169,12 @@ def run_monitor(
     return results, monitors
 
 
-def open_unacknowledged(state: dict[str, Any] | None, monitors: list[ConveyorMonitor]) -> bool:
-    """Whether any conveyor (of this run, or of the state) has an open, unacknowledged alarm.
+def standing_alarm(state: dict[str, Any] | None, monitors: list[ConveyorMonitor]) -> bool:
+    """Whether any conveyor (of this run, or of the state) has a standing alarm.
 
-    Shelved alarms and those of a conveyor out of service do not count.
+    Every alarm that is not closed counts, acknowledged or not (an acknowledged
+    alarm is still active); shelved alarms and those of a conveyor out of
+    service do not.
     """
     alarms = [a for m in monitors for a in m.open_alarms()]
     ran = {m.profile.id for m in monitors}
@@ -180,7 +182,7 @@ def open_unacknowledged(state: dict[str, Any] | None, monitors: list[ConveyorMon
         for cid, conveyor in state["conveyors"].items():
             if cid not in ran:
                 alarms += [a for a in MonitorState.from_dict(conveyor).alarms if a.is_open]
-    return any(a.acknowledged is None and a.counts() for a in alarms)
+    return any(a.counts() for a in alarms)
 
 
 def _print_table(results: list[RecordingResult], monitors: list[ConveyorMonitor]) -> None:
@@ -283,7 +285,8 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Follow conveyors' health over their recordings: baselines, alarms, causes, forecasts.
 
-        Exit code 3 with --fail-on-alarm when an unacknowledged alarm is open,
+        Exit code 3 with --fail-on-alarm when an alarm stands (open, neither shelved
+        nor of a conveyor out of service),
         else 2 when a file was refused (after the others are done).
         """
         profs = load_profiles(profile, profiles)
@@ -305,7 +308,7 @@ def register(app: typer.Typer) -> None:
             )
         else:
             _print_table(results, monitors)
-        if fail_on_alarm and open_unacknowledged(data, monitors):
+        if fail_on_alarm and standing_alarm(data, monitors):
             raise typer.Exit(EXIT_ALARM)
         if any(r.error is not None for r in results):
             raise typer.Exit(2)
@@ -343,7 +346,7 @@ def register(app: typer.Typer) -> None:
         state: Annotated[Path | None, typer.Option("--state", help=_EDIT_STATE_HELP)] = None,
         db: Annotated[str | None, typer.Option("--db", help=_EDIT_DB_HELP)] = None,
     ) -> None:
-        """Acknowledge an alarm: it stays open but --fail-on-alarm no longer fails on it."""
+        """Acknowledge an alarm: someone has seen it; it stays open until it closes."""
         a = _edit(state, db, None, lambda data: acknowledge_alarm(data, alarm, by, why), alarm)
         Console().print(
             f"acknowledged alarm {a.id} ({a.cause}, {a.feature}) on {a.conveyor}",

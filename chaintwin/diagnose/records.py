@@ -320,7 +320,7 @@ class Alarm:
     status : str
         ``open`` or ``closed``.
     acknowledged : Acknowledgement or None
-        Set while open: it stays open but no longer fails ``--fail-on-alarm``.
+        Set while open: someone has seen it; it stays open (and counts) until it closes.
     closed_at, closed_by : str or None
         When and by what (quiet recordings, a maintenance event) it closed.
     rule : str

@@ -47,6 +47,7 @@ if TYPE_CHECKING:
     from chaintwin.read.profile import ConveyorProfile
 
 __all__ = [
+    "MAX_COLUMNS",
     "MIN_SAMPLES",
     "parse_metadata",
     "parse_recording",
@@ -58,6 +59,10 @@ __all__ = [
 
 MIN_SAMPLES = 32
 """Fewest samples a recording may hold."""
+
+MAX_COLUMNS = 256
+"""Most header columns a recording may have (a drive's scope has a few dozen); more is
+refused before the header is looked at cell by cell."""
 
 SAMPLE_TIME_RANGE_S = (1e-4, 0.1)
 """Sample times a drive scope can have, s (0.1 to 100 ms); others are refused."""
@@ -249,9 +254,18 @@ def _split_head(source: str, text: str) -> tuple[list[tuple[int, str, str]], int
 def _parse_header(
     source: str, header: str, sep: str, lineno: int, column_map: ColumnMap | None
 ) -> tuple[list[str], list[str], list[str]]:
+    ncols = header.count(sep) + 1
+    if ncols > MAX_COLUMNS:
+        raise RecordingError(
+            source,
+            f"header row has {ncols} columns, more than the {MAX_COLUMNS} a recording may have; "
+            "is this a drive recording?",
+            line=lineno,
+        )
     cells = [c.strip().strip('"').strip() for c in header.split(sep)]
     names: list[str] = []
     units: list[str] = []
+    seen: set[str] = set()
     for idx, cell in enumerate(cells, start=1):
         target = column_map.lookup(cell) if column_map is not None else None
         if target is not None:
@@ -275,16 +289,17 @@ def _parse_header(
                     line=lineno,
                     column=cell,
                 )
-        if name in names:
+        if name in seen:
             raise RecordingError(
                 source,
                 f"channel '{name}' appears twice in the header; keep one column per channel",
                 line=lineno,
                 column=cell,
             )
+        seen.add(name)
         names.append(name)
         units.append(unit)
-    missing = [r for r in REQUIRED_CHANNELS if r not in names]
+    missing = [r for r in REQUIRED_CHANNELS if r not in seen]
     if missing:
         found = ", ".join(cells)
         raise RecordingError(
@@ -298,19 +313,42 @@ def _parse_header(
 
 
 def _fast_body(body: str, sep: str, ncols: int) -> FloatArray | None:
-    """Parse the numeric body in one compiled pass; None when anything is unusual."""
+    """Parse the numeric body in one compiled pass; None when anything is unusual.
+
+    Every value takes at least two characters (a digit and a separator or
+    line end): a body too short for ``lines × columns`` values (blank lines)
+    is left to the line-by-line parser without allocating its grid.
+    """
     nrows = body.count("\n") + 1
+    if 2 * nrows * ncols - 1 > len(body):
+        return None
     return parse_grid(body.encode("utf-8"), sep, "." if sep == "," else ",", nrows, ncols)
 
 
 def _slow_body(
     source: str, body: str, sep: str, cells: list[str], first_line: int
 ) -> tuple[FloatArray, list[int]]:
-    """Parse line by line; raise naming the first bad line and column."""
-    rows: list[list[float]] = []
-    linenos: list[int] = []
+    """Parse line by line; raise naming the first bad line and column.
+
+    The lines are taken one at a time (no list of them all) into a table
+    sized for the most rows the body can hold (each takes at least two
+    characters a column), so memory follows the values, not the line count.
+    """
     ncols = len(cells)
-    for offset, line in enumerate(body.split("\n")):
+    most = min(body.count("\n") + 1, len(body) // (2 * ncols) + 1)
+    table = np.empty((most, ncols), dtype=np.float64)
+    nrows = 0
+    linenos: list[int] = []
+    pos = 0
+    n = len(body)
+    offset = -1
+    while pos <= n:
+        end = body.find("\n", pos)
+        if end < 0:
+            end = n
+        line = body[pos:end]
+        pos = end + 1
+        offset += 1
         lineno = first_line + offset
         if not line.strip():
             continue
@@ -339,11 +377,10 @@ def _slow_body(
                     line=lineno,
                     column=cell,
                 ) from None
-        rows.append(row)
+        table[nrows] = row
+        nrows += 1
         linenos.append(lineno)
-    if not rows:
-        return np.empty((0, ncols)), []
-    return np.asarray(rows, dtype=np.float64), linenos
+    return np.array(table[:nrows]), linenos
 
 
 def parse_recording(

@@ -331,12 +331,13 @@ def _slow_body(
     """Parse line by line; raise naming the first bad line and column.
 
     The lines are taken one at a time (no list of them all) into a table
-    sized for the most rows the body can hold (each takes at least two
-    characters a column), so memory follows the values, not the line count.
+    that doubles as rows come, up to the most rows the body can hold (each
+    takes at least two characters a column), so memory follows the values,
+    not the line count.
     """
     ncols = len(cells)
     most = min(body.count("\n") + 1, len(body) // (2 * ncols) + 1)
-    table = np.empty((most, ncols), dtype=np.float64)
+    table = np.empty((min(most, 1024), ncols), dtype=np.float64)
     nrows = 0
     linenos: list[int] = []
     pos = 0
@@ -377,6 +378,10 @@ def _slow_body(
                     line=lineno,
                     column=cell,
                 ) from None
+        if nrows == table.shape[0]:
+            grown = np.empty((min(most, 2 * nrows), ncols), dtype=np.float64)
+            grown[:nrows] = table
+            table = grown
         table[nrows] = row
         nrows += 1
         linenos.append(lineno)

@@ -143,7 +143,7 @@ def scaling() -> None:
             lambda k: parse_time(with_blanks(k)),
             100_000,
         ),
-        ("data rows (compiled parser)", lambda k: parse_time(with_rows(k)), 10_000),
+        ("data rows (compiled parser)", lambda k: parse_time(with_rows(k)), 100_000),
     ]
     print()
     print(f"{'input':50s} {'n':>8s} {'s (n)':>9s} {'s (10 n)':>9s} {'ratio':>7s}")

@@ -360,3 +360,65 @@ def test_blank_lines_do_not_size_the_table(tmp_path: Path) -> None:
     # the text (0.13 MB) is copied a few times; a list of its 10^5 lines would add
     # 0.8 MB, a grid of 10^5 rows 6.4 MB
     assert peak < 8 * len(padded), peak
+
+
+def _dense(rows: int) -> str:
+    """A valid recording of ``rows`` samples and 8 columns, values as short as they come."""
+    head = "# conveyor: white-belt-01\n# nominal_torque_nm: 2.5\n"
+    header = "time [s],speed [rpm],torque [Nm]," + ",".join(f"x{k} [-]" for k in range(5))
+    body = "\n".join(f"{k * 0.001:.3f},0,0,0,0,0,0,0" for k in range(rows))
+    return head + header + "\n" + body + "\n"
+
+
+def test_more_values_than_a_recording_may_hold_is_refused_before_parsing() -> None:
+    from chaintwin.read.reader import MAX_VALUES
+
+    assert MAX_VALUES == 8_000_000
+    rows = MAX_VALUES // 8 + 1
+    text = "# conveyor: white-belt-01\ntime [s],speed [rpm],torque [Nm]," + ",".join(
+        f"x{k} [-]" for k in range(5)
+    )
+    text += "\n" + "0,0,0,0,0,0,0,0\n" * rows
+    with pytest.raises(RecordingError) as info:
+        parse_recording(text.encode(), "many.csv")
+    assert str(info.value) == (
+        f"many.csv, line 3: holds {rows} lines of 8 columns, more than the 8000000 values a "
+        "recording may hold; cut it into shorter recordings"
+    )
+
+
+def test_parsing_the_largest_recording_holds_its_bytes_and_its_samples_only(
+    tmp_path: Path,
+) -> None:
+    """10^6 samples x 8 columns (the most a recording may hold, 24 MB of text): the
+    parse's peak resident growth stays within the file, its samples (64 MB) and 20 MB."""
+    import subprocess
+    import sys
+
+    path = tmp_path / "dense.csv"
+    path.write_text(_dense(1_000_000))
+    size = path.stat().st_size
+    script = (
+        "from chaintwin.read.reader import read_recording, parse_recording\n"
+        "from chaintwin.read.files import read_limited\n"
+        f"warm = {_dense(64)!r}\n"
+        "parse_recording(warm.encode(), 'warm')\n"
+        "def kb(key):\n"
+        "    for line in open('/proc/self/status'):\n"
+        "        if line.startswith(key):\n"
+        "            return int(line.split()[1]) * 1024\n"
+        "before = kb('VmRSS')\n"
+        f"rec = read_recording({str(path)!r})\n"
+        "print(rec.samples, kb('VmHWM') - before)\n"
+    )
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    out = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, env=env, check=True
+    ).stdout.split()
+    samples, grown = int(out[0]), int(out[1])
+    assert samples == 1_000_000
+    values = 1_000_000 * 8 * 8
+    assert grown <= size + values + 20_000_000, f"grew {grown / 1e6:.0f} MB, file {size / 1e6:.0f}"
+    print(
+        f"file {size / 1e6:.1f} MB, samples {values / 1e6:.0f} MB, peak growth {grown / 1e6:.1f} MB"
+    )

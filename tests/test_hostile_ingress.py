@@ -79,7 +79,7 @@ class Watched:
             self.service = Service(
                 [
                     "--db", self.url, "--watch", str(self.folder), "--profiles", str(PROFILES),
-                    "--settle-s", "1.0", "--no-web",
+                    "--settle-s", "0.5", "--no-web",
                 ],
                 root / "serve.log",
             )  # fmt: skip
@@ -422,3 +422,34 @@ def test_parsing_the_largest_recording_holds_its_bytes_and_its_samples_only(
     print(
         f"file {size / 1e6:.1f} MB, samples {values / 1e6:.0f} MB, peak growth {grown / 1e6:.1f} MB"
     )
+
+
+def test_a_file_that_cannot_be_read_now_fails_and_is_tried_again_not_refused(
+    tmp_path: Path,
+) -> None:
+    """An OS error (here a loop of links) is not the file's content: the ingest fails (the
+    folder hands it again later) and no refusal is kept; a pipe is refused and kept."""
+    from chaintwin.live.sources import Ingestor, Job
+
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    a.symlink_to(b)
+    b.symlink_to(a)
+    pipe = tmp_path / "pipe.csv"
+    os.mkfifo(pipe)
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    store = Store(url)
+    try:
+        ingestor = Ingestor(store, {})
+        with pytest.raises(RecordingError, match="cannot be read") as info:
+            ingestor.ingest_one(Job(str(a), "folder:x"))
+        assert isinstance(info.value.__cause__, OSError)
+        refused = ingestor.ingest_one(Job(str(pipe), "folder:x"))
+        assert (refused.status, refused.reason) == ("refused", f"{pipe}: {NOT_REGULAR}")
+        gone = ingestor.ingest_one(Job(str(tmp_path / "gone.csv"), "folder:x"))
+        assert gone.status == "gone"
+        with Session(store.engine) as s:
+            rows = [(r.path, r.reason) for r in s.scalars(select(RefusedFileRow))]
+        assert rows == [(str(pipe), f"{pipe}: {NOT_REGULAR}")]
+        ingestor.close()
+    finally:
+        store.close()

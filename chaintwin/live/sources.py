@@ -298,6 +298,8 @@ class Ingestor:
             except RecordingError as exc:
                 if not os.path.lexists(job.path):
                     return Outcome("gone")
+                if isinstance(exc.__cause__, OSError):
+                    raise  # not readable now (permissions, I/O): failed, tried again later
                 return self._refuse_unread(job, exc)
             sha = hashlib.sha256(raw).hexdigest()
             del raw

@@ -101,9 +101,9 @@ def read_limited(
     Raises
     ------
     ChaintwinError
-        Of the loader's type: the file is missing or unreadable, a folder, not
-        a regular file, or larger than the limit, or grew past it while being
-        read (``field`` ``max_file_mb``).
+        Of the loader's type: the file is missing or unreadable (its cause the
+        ``OSError``), a folder, not a regular file, or larger than the limit,
+        or grew past it while being read (``field`` ``max_file_mb``).
     """
     source = str(path)
     limit = max_file_bytes()
@@ -112,19 +112,19 @@ def read_limited(
         # (opening some devices does something); the descriptor decides below
         named = os.stat(path)  # follows links; a loop raises ELOOP
     except OSError as exc:
-        raise error(source, f"cannot be read ({exc.strerror or exc}); check the path") from None
+        raise error(source, f"cannot be read ({exc.strerror or exc}); check the path") from exc
     _check_kind(named, source, what, limit, error)
     try:
         fd = os.open(path, os.O_RDONLY | _NONBLOCK | _NOCTTY | _CLOEXEC)
     except OSError as exc:
-        raise error(source, f"cannot be read ({exc.strerror or exc}); check the path") from None
+        raise error(source, f"cannot be read ({exc.strerror or exc}); check the path") from exc
     with os.fdopen(fd, "rb") as handle:
         opened = os.fstat(handle.fileno())  # what was opened, whatever the name now is
         _check_kind(opened, source, what, limit, error)
         try:
             return _read_at_most(handle, opened.st_size, limit, source, what, error)
         except OSError as exc:
-            raise error(source, f"cannot be read ({exc.strerror or exc}); check the path") from None
+            raise error(source, f"cannot be read ({exc.strerror or exc}); check the path") from exc
 
 
 _NONBLOCK = getattr(os, "O_NONBLOCK", 0)

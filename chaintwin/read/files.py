@@ -1,11 +1,13 @@
 """Reading an input file safely: regular files only, and none larger than the limit.
 
 Every loader (recordings, profiles, column maps, calibrations, state files)
-reads through :func:`read_limited`, so that a named pipe, a device or a
-socket given as a file is refused instead of blocking forever, and an
-oversized file is refused before it is read (memory stays bounded by the
-limit). Symbolic links are followed to the file they name; a loop of links
-is refused.
+and the live service's watched folders read through :func:`read_limited`, so
+that a named pipe, a device or a socket given as a file is refused instead of
+blocking forever, and an oversized file is refused before it is read, or
+once reading passes the limit should it grow (memory stays bounded by the
+limit). What decides is the opened descriptor (``fstat``), not the name.
+Symbolic links are followed to the file they name; a loop of links is
+refused.
 
 The limit is :data:`DEFAULT_MAX_FILE_MB` (64 MB) unless the environment
 variable ``CHAINTWIN_MAX_FILE_MB`` says otherwise (the command line's

@@ -26,6 +26,8 @@ from conftest import REFERENCE_PROFILE
 from chaintwin.errors import ConnectorError, RecordingError
 from chaintwin.live.drive_sim import DriveSim, Published
 from chaintwin.live.opcua import (
+    MAX_MESSAGE_BYTES,
+    MAX_SCOPE_SAMPLES,
     DriveState,
     DriveStatus,
     OpcuaConfig,
@@ -390,6 +392,45 @@ def test_a_scope_that_cannot_be_used_is_refused_and_said_why(ua_loop: Loop, sim:
             assert state.connected and state.connects == 1 and state.scopes_read == 0
     finally:
         f.close()
+
+
+def test_a_scope_longer_than_a_drive_holds_is_refused_in_one_line_and_the_next_taken(
+    ua_loop: Loop, sim: DriveSim, follower: Follower
+) -> None:
+    """A drive's arrays are capped: 4096 samples are refused unread, the drive followed on."""
+    import dataclasses
+
+    state = follower.status.drives[CONVEYOR]
+    base = sim.history[-1] if sim.history else ua_loop.run(sim.publish_next())
+    wait_until("the current scope", lambda: state.last_counter == sim.counter)
+    rec = base.recording
+    long = dataclasses.replace(
+        rec, channels={k: np.concatenate([v, v]) for k, v in rec.channels.items()}
+    )
+    assert len(long.channels["speed"]) == 2 * len(rec.channels["speed"]) > MAX_SCOPE_SAMPLES
+    refused_before = state.refused
+    counter = ua_loop.run(sim.publish(Published(sim.counter + 1, long, base.truth, base.faults)))
+    wait_until("the long scope refused", lambda: state.last_counter == counter)
+    first = next(k for k in ("speed_setpoint", "speed") if k in rec.channels)
+    assert state.last_error == (
+        f"{key_of(sim.history[-1])}: channel {first} holds {2 * len(rec.channels[first])} "
+        f"samples, more than the {MAX_SCOPE_SAMPLES} a drive's scope holds; "
+        f"check the drive's {first} node"
+    )
+    assert state.refused == refused_before + 1 and state.connected
+    assert key_of(sim.history[-1]) not in follower.received()
+    good = ua_loop.run(sim.publish_next())  # the next scope is taken as ever
+    wait_until("the next scope", lambda: key_of(good) in follower.received())
+    assert state.refused == refused_before + 1
+
+
+def test_the_client_tells_the_drive_the_largest_message_it_takes() -> None:
+    from chaintwin.live.opcua import DriveState, _Follower
+
+    config = config_for({"conveyor": CONVEYOR, "endpoint": "opc.tcp://127.0.0.1:4840"})
+    follower = _Follower(config.drives[0], config.reconnect, lambda *a: None, DriveState("x"))
+    client = asyncio.run(follower._client())
+    assert client.max_messagesize == MAX_MESSAGE_BYTES
 
 
 def test_a_scope_read_twice_is_stored_once(ua_loop: Loop, sim: DriveSim, tmp_path: Path) -> None:

@@ -50,6 +50,8 @@ from chaintwin.read.recording import Recording
 from chaintwin.units import accepted_units
 
 __all__ = [
+    "MAX_MESSAGE_BYTES",
+    "MAX_SCOPE_SAMPLES",
     "DriveConfig",
     "DriveState",
     "DriveStatus",
@@ -64,6 +66,13 @@ __all__ = [
 from .sources import Submit
 
 log = logging.getLogger("chaintwin.live.opcua")
+
+MAX_SCOPE_SAMPLES = 2048
+"""Most samples a drive's scope holds per channel; a longer array is refused unread."""
+
+MAX_MESSAGE_BYTES = 8 * 1024 * 1024
+"""Largest OPC UA message the client accepts, bytes (told to the drive when the
+connection opens; a whole scope's Read answer is about 150 kB)."""
 
 REQUIRED_NODES = ("counter", "sample_time", "speed", "torque")
 """``nodes`` keys a drive cannot do without (the others may be set to null)."""
@@ -406,6 +415,12 @@ def recording_from_scope(
         samples = values.get(key)
         if samples is None or len(samples) == 0:
             continue
+        if len(samples) > MAX_SCOPE_SAMPLES:
+            raise RecordingError(
+                source,
+                f"channel {key} holds {len(samples)} samples, more than the "
+                f"{MAX_SCOPE_SAMPLES} a drive's scope holds; check the drive's {key} node",
+            )
         unit = (units or {}).get(key) or values.get(unit_key(key)) or ""
         if not isinstance(unit, str) or not unit.strip():
             raise RecordingError(
@@ -577,6 +592,8 @@ class _Follower:
         client = Client(d.endpoint, timeout=d.timeout_s, watchdog_intervall=self.WATCHDOG_S)
         client.application_uri = d.application_uri
         client.session_timeout = self.SESSION_TIMEOUT_MS
+        # the largest answer taken: the drive is told so, and asyncua refuses larger ones
+        client.max_messagesize = MAX_MESSAGE_BYTES
         client.name = client.description = f"chaintwin ({d.conveyor})"
         if d.username is not None:
             client.set_user(d.username)

@@ -17,6 +17,7 @@ import asyncio
 import hashlib
 import itertools
 import logging
+import os
 import re
 import tempfile
 import time
@@ -28,8 +29,9 @@ from pathlib import Path
 from typing import Literal, Protocol
 
 from chaintwin.diagnose.records import MonitorSettings
-from chaintwin.errors import ChaintwinError
+from chaintwin.errors import ChaintwinError, RecordingError
 from chaintwin.read.profile import ConveyorProfile
+from chaintwin.read.reader import read_bytes
 from chaintwin.read.recording import Recording
 from chaintwin.store.store import Store
 
@@ -263,8 +265,8 @@ class Ingestor:
         from chaintwin.read.reader import parse_metadata
 
         try:
-            conveyor = parse_metadata(Path(job.path).read_bytes(), job.name).conveyor
-        except (ChaintwinError, OSError):
+            conveyor = parse_metadata(read_bytes(job.path), job.name).conveyor
+        except ChaintwinError:
             return "recording", None
         profiles = self.profiles_for()
         if conveyor is None and len(profiles) == 1:
@@ -290,9 +292,15 @@ class Ingestor:
 
         try:
             try:
-                raw = Path(job.path).read_bytes()
-            except FileNotFoundError:
-                return Outcome("gone")
+                # the guarded way in: a pipe, device, socket or oversized file is
+                # refused from what is opened, without waiting or reading it whole
+                raw = read_bytes(job.path)
+            except RecordingError as exc:
+                if not os.path.lexists(job.path):
+                    return Outcome("gone")
+                if isinstance(exc.__cause__, OSError):
+                    raise  # not readable now (permissions, I/O): failed, tried again later
+                return self._refuse_unread(job, exc)
             sha = hashlib.sha256(raw).hexdigest()
             del raw
             if self.store.known([sha]):
@@ -342,6 +350,27 @@ class Ingestor:
         finally:
             if job.spooled:
                 Path(job.path).unlink(missing_ok=True)
+
+    def _refuse_unread(self, job: Job, exc: RecordingError) -> Outcome:
+        """Record the refusal of a file that was not read (no content to hash).
+
+        It is kept under a digest of its name and reason, so that the same
+        refusal is stored once; the folder hands the file again only once it
+        changes.
+        """
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        if job.spooled:
+            reason = reason.replace(job.path, job.name)
+        seconds = time.monotonic() - job.ready_at
+        log.warning(
+            "refused %s: %s",
+            job.name,
+            reason,
+            extra={"source": job.source, "file": job.name, "reason": reason},
+        )
+        digest = hashlib.sha256(f"unread\n{job.name}\n{reason}".encode()).hexdigest()
+        record_refusal(self.store, digest, job.name, job.source, reason)
+        return Outcome("refused", None, reason, seconds, "recording")
 
     def close(self) -> None:
         """Remove the spool folder; end the worker thread."""

@@ -108,13 +108,15 @@ def _parse(
     return -1, -1
 
 
-def parse_grid(body: bytes, sep: str, decimal: str, nrows: int, ncols: int) -> FloatArray | None:
+def parse_grid(
+    body: bytes | memoryview, sep: str, decimal: str, nrows: int, ncols: int
+) -> FloatArray | None:
     """Parse ``nrows`` lines of ``ncols`` numbers; None when anything is unusual.
 
     Parameters
     ----------
-    body : bytes
-        The data lines, ``\\n`` separated, no trailing newline.
+    body : bytes or memoryview
+        The data lines, ``\\n`` separated, no trailing newline (read in place).
     sep, decimal : str
         Field separator and decimal mark (``","``/``"."`` or ``";"``/``","``).
     nrows, ncols : int
@@ -125,7 +127,7 @@ def parse_grid(body: bytes, sep: str, decimal: str, nrows: int, ncols: int) -> F
     FloatArray or None
         The grid, or None when the fast path cannot parse it exactly.
     """
-    out = np.empty((nrows, ncols), dtype=np.float64)
+    out = np.empty((nrows, ncols), dtype=np.float64, order="F")  # a channel is a column
     buf = np.frombuffer(body, dtype=np.uint8)
     row, _col = _parse(buf, ord(sep), ord(decimal), out, _POW10)
     return out if row < 0 else None

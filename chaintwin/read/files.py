@@ -1,11 +1,13 @@
 """Reading an input file safely: regular files only, and none larger than the limit.
 
 Every loader (recordings, profiles, column maps, calibrations, state files)
-reads through :func:`read_limited`, so that a named pipe, a device or a
-socket given as a file is refused instead of blocking forever, and an
-oversized file is refused before it is read (memory stays bounded by the
-limit). Symbolic links are followed to the file they name; a loop of links
-is refused.
+and the live service's watched folders read through :func:`read_limited`, so
+that a named pipe, a device or a socket given as a file is refused instead of
+blocking forever, and an oversized file is refused before it is read, or
+once reading passes the limit should it grow (memory stays bounded by the
+limit). What decides is the opened descriptor (``fstat``), not the name.
+Symbolic links are followed to the file they name; a loop of links is
+refused.
 
 The limit is :data:`DEFAULT_MAX_FILE_MB` (64 MB) unless the environment
 variable ``CHAINTWIN_MAX_FILE_MB`` says otherwise (the command line's
@@ -22,7 +24,7 @@ import stat
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import yaml
 
@@ -77,10 +79,22 @@ def read_limited(
 ) -> bytes:
     """The bytes of a regular file no larger than :func:`max_file_bytes`.
 
+    The one way bytes of a file come in (the command line, the watched
+    folders, the live service's re-reads). What is read is decided on the
+    opened descriptor, not on the name: the file is opened without waiting
+    (``O_NONBLOCK``: a pipe without a writer does not block) and without
+    becoming a terminal (``O_NOCTTY``), and ``fstat`` of the descriptor must
+    show a regular file no larger than the limit; a look at the name before
+    opening keeps devices, pipes and sockets from being opened at all. The
+    limit is enforced while reading too: a file that grows past it while
+    being read (or reports a size of 0 but yields more, as ``/proc`` files
+    do) is refused once the limit is passed, having held at most the limit
+    in memory.
+
     Parameters
     ----------
     path : str or Path
-        The file (a symbolic link is followed).
+        The file (a symbolic link is followed; it must lead to a regular file).
     what : str
         What the file should be, for messages (``"recording"``, ``"profile"``).
     error : callable
@@ -89,15 +103,48 @@ def read_limited(
     Raises
     ------
     ChaintwinError
-        Of the loader's type: the file is missing or unreadable, a folder, not
-        a regular file, or larger than the limit (``field`` ``max_file_mb``).
+        Of the loader's type: the file is missing or unreadable (its cause the
+        ``OSError``), a folder, not a regular file, or larger than the limit,
+        or grew past it while being read (``field`` ``max_file_mb``).
     """
     source = str(path)
     limit = max_file_bytes()
     try:
-        info = os.stat(path)  # follows links; a loop raises ELOOP
+        # a first look by name: a device, pipe or socket is not even opened
+        # (opening some devices does something); the descriptor decides below
+        named = os.stat(path)  # follows links; a loop raises ELOOP
     except OSError as exc:
-        raise error(source, f"cannot be read ({exc.strerror or exc}); check the path") from None
+        raise error(source, f"cannot be read ({exc.strerror or exc}); check the path") from exc
+    _check_kind(named, source, what, limit, error)
+    try:
+        fd = os.open(path, os.O_RDONLY | _NONBLOCK | _NOCTTY | _CLOEXEC)
+    except OSError as exc:
+        raise error(source, f"cannot be read ({exc.strerror or exc}); check the path") from exc
+    with os.fdopen(fd, "rb") as handle:
+        opened = os.fstat(handle.fileno())  # what was opened, whatever the name now is
+        _check_kind(opened, source, what, limit, error)
+        try:
+            return _read_at_most(handle, opened.st_size, limit, source, what, error)
+        except OSError as exc:
+            raise error(source, f"cannot be read ({exc.strerror or exc}); check the path") from exc
+
+
+_NONBLOCK = getattr(os, "O_NONBLOCK", 0)
+_NOCTTY = getattr(os, "O_NOCTTY", 0)
+_CLOEXEC = getattr(os, "O_CLOEXEC", 0)
+
+_CHUNK = 1 << 20
+"""What is read at a time beyond the size ``fstat`` gave, bytes."""
+
+
+def _check_kind(
+    info: os.stat_result,
+    source: str,
+    what: str,
+    limit: int,
+    error: Callable[[str, str], ChaintwinError],
+) -> None:
+    """Refuse what is not a regular file no larger than ``limit`` (from its stat)."""
     if stat.S_ISDIR(info.st_mode):
         raise error(source, f"is a folder, not a {what} file")
     if not stat.S_ISREG(info.st_mode):
@@ -107,23 +154,43 @@ def read_limited(
         )
     if info.st_size > limit:
         raise _too_large(error, source, info.st_size, limit, what)
-    try:
-        # O_NONBLOCK: should the path have become a pipe since the check, open
-        # must not wait for a writer
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-    except OSError as exc:
-        raise error(source, f"cannot be read ({exc.strerror or exc}); check the path") from None
-    with os.fdopen(fd, "rb") as handle:
-        info = os.fstat(handle.fileno())
-        if not stat.S_ISREG(info.st_mode):
-            raise error(source, f"is not a regular file; give a {what} file")
-        # read(n) allocates n bytes first: ask for the file's size, not the limit
-        data = handle.read(min(info.st_size, limit) + 1)
-        if len(data) > info.st_size:  # it grows while being read
-            data += handle.read(limit + 1 - len(data))
-    if len(data) > limit:  # it grew while being read
-        raise _too_large(error, source, len(data), limit, what)
-    return data
+
+
+def _read_at_most(
+    handle: BinaryIO,
+    size: int,
+    limit: int,
+    source: str,
+    what: str,
+    error: Callable[[str, str], ChaintwinError],
+) -> bytes:
+    """Read an opened regular file of ``size`` bytes (``fstat``), refusing it past ``limit``.
+
+    One read of the size ``fstat`` gave (one allocation, as large as the
+    file); should more come (it grows, or its size was not told), the rest
+    in chunks of :data:`_CHUNK` until the end or until the limit is passed.
+    """
+    data: bytes = handle.read(size + 1) or b""
+    if len(data) <= size:
+        return data
+    parts = [data]
+    total = len(data)
+    while total <= limit:
+        chunk: bytes = handle.read(min(_CHUNK, limit + 1 - total)) or b""
+        if not chunk:
+            break
+        parts.append(chunk)
+        total += len(chunk)
+    if total > limit:
+        del parts
+        exc = error(
+            source,
+            f"grew past {limit / _MB:g} MB while being read (max_file_mb {limit / _MB:g} MB); "
+            f"a {what} file is read once complete: check what writes it",
+        )
+        exc.field = "max_file_mb"
+        raise exc
+    return b"".join(parts)
 
 
 def write_atomic(

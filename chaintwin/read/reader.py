@@ -21,6 +21,7 @@ line.
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Callable
 from datetime import UTC, datetime
@@ -47,6 +48,8 @@ if TYPE_CHECKING:
     from chaintwin.read.profile import ConveyorProfile
 
 __all__ = [
+    "MAX_COLUMNS",
+    "MAX_VALUES",
     "MIN_SAMPLES",
     "parse_metadata",
     "parse_recording",
@@ -58,6 +61,14 @@ __all__ = [
 
 MIN_SAMPLES = 32
 """Fewest samples a recording may hold."""
+
+MAX_VALUES = 8_000_000
+"""Most values (sample lines × columns) a recording may hold: 64 MB as numbers, a
+thousand times a scope's 2048 samples × 8 channels; more is refused before parsing."""
+
+MAX_COLUMNS = 256
+"""Most header columns a recording may have (a drive's scope has a few dozen); more is
+refused before the header is looked at cell by cell."""
 
 SAMPLE_TIME_RANGE_S = (1e-4, 0.1)
 """Sample times a drive scope can have, s (0.1 to 100 ms); others are refused."""
@@ -219,6 +230,12 @@ def _parse_metadata(source: str, items: list[tuple[int, str, str]]) -> Metadata:
 
 def _split_head(source: str, text: str) -> tuple[list[tuple[int, str, str]], int, str, str]:
     """Return (metadata items, header line number, header line, body text)."""
+    items, lineno, header, pos = _head(source, text)
+    return items, lineno, header, text[pos:]
+
+
+def _head(source: str, text: str) -> tuple[list[tuple[int, str, str]], int, str, int]:
+    """Return (metadata items, header line number, header line, where the body starts)."""
     items: list[tuple[int, str, str]] = []
     pos = 0
     lineno = 0
@@ -239,7 +256,7 @@ def _split_head(source: str, text: str) -> tuple[list[tuple[int, str, str]], int
             if sep and key.strip() and " " not in key.strip():
                 items.append((lineno, key.strip(), value.strip()))
             continue  # other comment lines are allowed and ignored
-        return items, lineno, line, text[pos:] if pos <= n else ""
+        return items, lineno, line, min(pos, n)
     raise RecordingError(
         source,
         "holds no header row; a recording needs a row like 'time [s],speed [rpm],torque [Nm]'",
@@ -249,9 +266,18 @@ def _split_head(source: str, text: str) -> tuple[list[tuple[int, str, str]], int
 def _parse_header(
     source: str, header: str, sep: str, lineno: int, column_map: ColumnMap | None
 ) -> tuple[list[str], list[str], list[str]]:
+    ncols = header.count(sep) + 1
+    if ncols > MAX_COLUMNS:
+        raise RecordingError(
+            source,
+            f"header row has {ncols} columns, more than the {MAX_COLUMNS} a recording may have; "
+            "is this a drive recording?",
+            line=lineno,
+        )
     cells = [c.strip().strip('"').strip() for c in header.split(sep)]
     names: list[str] = []
     units: list[str] = []
+    seen: set[str] = set()
     for idx, cell in enumerate(cells, start=1):
         target = column_map.lookup(cell) if column_map is not None else None
         if target is not None:
@@ -275,16 +301,17 @@ def _parse_header(
                     line=lineno,
                     column=cell,
                 )
-        if name in names:
+        if name in seen:
             raise RecordingError(
                 source,
                 f"channel '{name}' appears twice in the header; keep one column per channel",
                 line=lineno,
                 column=cell,
             )
+        seen.add(name)
         names.append(name)
         units.append(unit)
-    missing = [r for r in REQUIRED_CHANNELS if r not in names]
+    missing = [r for r in REQUIRED_CHANNELS if r not in seen]
     if missing:
         found = ", ".join(cells)
         raise RecordingError(
@@ -297,20 +324,70 @@ def _parse_header(
     return cells, names, units
 
 
-def _fast_body(body: str, sep: str, ncols: int) -> FloatArray | None:
-    """Parse the numeric body in one compiled pass; None when anything is unusual."""
-    nrows = body.count("\n") + 1
-    return parse_grid(body.encode("utf-8"), sep, "." if sep == "," else ",", nrows, ncols)
+def _fast_body(buf: bytes, start: int, stop: int, sep: str, ncols: int) -> FloatArray | None:
+    """Parse the numeric body ``buf[start:stop]`` in one compiled pass, in place.
+
+    None when anything is unusual. Every value takes at least two characters
+    (a digit and a separator or line end): a body too short for ``lines ×
+    columns`` values (blank lines) is left to the line-by-line parser
+    without allocating its grid. The grid is in column order, so each
+    channel is a contiguous column of it (no copy).
+    """
+    nrows = buf.count(b"\n", start, stop) + 1
+    if 2 * nrows * ncols - 1 > stop - start:
+        return None
+    view = memoryview(buf)[start:stop]
+    return parse_grid(view, sep, "." if sep == "," else ",", nrows, ncols)
+
+
+def _rstrip_end(text: str, start: int) -> int:
+    """Where ``text[start:]`` ends once trailing whitespace is stripped (no copy of it)."""
+    end = len(text)
+    while end > start:
+        low = max(start, end - 4096)
+        chunk = text[low:end]
+        if not chunk.isspace():
+            return low + len(chunk.rstrip())
+        end = low
+    return end
+
+
+def _lstrip_newlines(text: str, start: int, stop: int) -> int:
+    """Where ``text[start:stop]`` starts once leading line ends are stripped (no copy)."""
+    while start < stop:
+        chunk = text[start : min(stop, start + 4096)]
+        kept = len(chunk.lstrip("\n"))
+        start += len(chunk) - kept
+        if kept:
+            break
+    return start
 
 
 def _slow_body(
     source: str, body: str, sep: str, cells: list[str], first_line: int
 ) -> tuple[FloatArray, list[int]]:
-    """Parse line by line; raise naming the first bad line and column."""
-    rows: list[list[float]] = []
-    linenos: list[int] = []
+    """Parse line by line; raise naming the first bad line and column.
+
+    The lines are taken one at a time (no list of them all) into a table
+    that doubles as rows come, up to the most rows the body can hold (each
+    takes at least two characters a column), so memory follows the values,
+    not the line count.
+    """
     ncols = len(cells)
-    for offset, line in enumerate(body.split("\n")):
+    most = min(body.count("\n") + 1, len(body) // (2 * ncols) + 1)
+    table = np.empty((min(most, 1024), ncols), dtype=np.float64)
+    nrows = 0
+    linenos: list[int] = []
+    pos = 0
+    n = len(body)
+    offset = -1
+    while pos <= n:
+        end = body.find("\n", pos)
+        if end < 0:
+            end = n
+        line = body[pos:end]
+        pos = end + 1
+        offset += 1
         lineno = first_line + offset
         if not line.strip():
             continue
@@ -339,11 +416,14 @@ def _slow_body(
                     line=lineno,
                     column=cell,
                 ) from None
-        rows.append(row)
+        if nrows == table.shape[0]:
+            grown = np.empty((min(most, 2 * nrows), ncols), dtype=np.float64)
+            grown[:nrows] = table
+            table = grown
+        table[nrows] = row
+        nrows += 1
         linenos.append(lineno)
-    if not rows:
-        return np.empty((0, ncols)), []
-    return np.asarray(rows, dtype=np.float64), linenos
+    return np.asfortranarray(table[:nrows]), linenos
 
 
 def parse_recording(
@@ -364,29 +444,45 @@ def parse_recording(
     profile, column_map
         As for :func:`read_recording`.
     """
+    # ASCII bytes are their own text: the body is parsed from them where they are
+    raw = data if isinstance(data, bytes) and data.isascii() and b"\r" not in data else None
     text = _decode(data) if isinstance(data, bytes) else data
     if "\r" in text:
         text = text.replace("\r\n", "\n").replace("\r", "\n")
     if "\x00" in text:
         raise RecordingError(source, "is a binary file, not a text recording")
-    items, header_line, header, body = _split_head(source, text)
+    items, header_line, header, start = _head(source, text)
     metadata = _parse_metadata(source, items)
 
     sep = ";" if ";" in header else ","
     cells, names, units = _parse_header(source, header, sep, header_line, column_map)
     ncols = len(cells)
 
-    body = body.rstrip()
-    first_line = header_line + 1
+    stop = _rstrip_end(text, start)
     # leading blank lines between header and data shift the line numbers
-    lead = len(body) - len(body.lstrip("\n"))
-    body_stripped = body.lstrip("\n")
-    first_line += lead
-    table = _fast_body(body_stripped, sep, ncols) if body_stripped else None
+    body_at = _lstrip_newlines(text, start, stop)
+    first_line = header_line + 1 + text.count("\n", start, body_at)
+    if raw is not None:
+        buf = raw
+        del text  # memory holds the file's bytes once, and the samples
+    else:
+        buf = text[body_at:stop].encode("utf-8")
+        body_at, stop = 0, len(buf)
+    lines = buf.count(b"\n", body_at, stop) + 1 if stop > body_at else 0
+    if lines * ncols > MAX_VALUES:
+        raise RecordingError(
+            source,
+            f"holds {lines} lines of {ncols} columns, more than the {MAX_VALUES} values a "
+            "recording may hold; cut it into shorter recordings",
+            line=first_line,
+        )
+    table = _fast_body(buf, body_at, stop, sep, ncols) if stop > body_at else None
     if table is not None:
         linenos: list[int] | None = None
     else:
-        table, linenos = _slow_body(source, body_stripped, sep, cells, first_line)
+        body = str(memoryview(buf)[body_at:stop], "utf-8")
+        del buf
+        table, linenos = _slow_body(source, body, sep, cells, first_line)
 
     return _recording(source, metadata, cells, names, units, table, first_line, linenos, profile)
 
@@ -434,7 +530,8 @@ def recording_from_samples(
     metadata = _parse_metadata(source, items)
     sep = ";" if ";" in header else ","
     cells, names, units = _parse_header(source, header, sep, header_line, None)
-    table = np.asarray(table, dtype=np.float64)
+    # a copy of its own, in column order: the caller's samples are never changed
+    table = np.array(table, dtype=np.float64, order="F")
     if table.ndim != 2 or table.shape[1] != len(cells):
         raise RecordingError(
             source,
@@ -468,9 +565,16 @@ def _recording(
             source,
             f"holds {nrows} samples; at least {MIN_SAMPLES} are needed (record a longer scope)",
         )
-    finite = np.isfinite(table)
-    if not finite.all():
-        row, col = np.argwhere(~finite)[0]
+    # column by column (a column's flags at a time, not the table's); the first bad
+    # value in row order, as a reader going down the file meets it
+    first: tuple[int, int] | None = None
+    for j in range(table.shape[1]):
+        finite = np.isfinite(table[:, j])
+        if not finite.all():
+            bad = (int(np.flatnonzero(~finite)[0]), j)
+            first = bad if first is None else min(first, bad)
+    if first is not None:
+        row, col = first
         raise RecordingError(
             source,
             f"value is {float(table[row, col])!r}; every sample must be a finite number "
@@ -480,9 +584,10 @@ def _recording(
         )
 
     time_col = names.index("time")
-    dt = np.diff(table[:, time_col])
-    if np.any(dt <= 0):
-        row = int(np.flatnonzero(dt <= 0)[0]) + 1
+    times = table[:, time_col]
+    falls = times[1:] <= times[:-1]  # finite values: the step is not positive
+    if falls.any():
+        row = int(np.flatnonzero(falls)[0]) + 1
         raise RecordingError(
             source,
             f"time {table[row, time_col]:g} does not increase after {table[row - 1, time_col]:g}; "
@@ -518,10 +623,12 @@ def _recording(
                     column=cell,
                 ) from None
             if factor != 1.0:
-                with np.errstate(over="ignore"):
-                    column = column * factor
-                if not np.isfinite(column).all():
-                    row = int(np.flatnonzero(~np.isfinite(column))[0])
+                # rounding is monotonic: no product overflows unless the largest does
+                largest = max(float(column.max()), -float(column.min()))
+                if not math.isfinite(largest * abs(factor)):
+                    with np.errstate(over="ignore"):
+                        converted = column * factor
+                    row = int(np.flatnonzero(~np.isfinite(converted))[0])
                     raise RecordingError(
                         source,
                         f"value {table[row, j]:g} {unit} is too large to convert to SI; "
@@ -529,6 +636,7 @@ def _recording(
                         line=line_of(row),
                         column=cell,
                     )
+                column *= factor  # in the table's own column: no second copy
         channels[name] = column
         unit_of[name] = unit
         header_of[name] = cell

@@ -638,31 +638,71 @@ def api_schema(fleet: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterato
     s.close()
 
 
-def test_every_operation_answers_as_its_schema_says(api_schema: Any) -> None:
+def test_every_operation_answers_as_its_schema_says(
+    api_schema: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """Property-based, from the OpenAPI schema: no 5xx, every response as declared.
 
     Run operation by operation with Hypothesis directly (schemathesis's
-    pytest plugin does not support this pytest).
+    pytest plugin does not support this pytest). The event stream is cut to
+    half a second a call (it lasts 15 s when served).
     """
     from hypothesis import given
 
-    # the event stream is an endless text/event-stream, tested on its own above
-    operations = [
-        op
-        for result in api_schema.get_all_operations()
-        if (op := result.ok()).path != "/api/v1/events"
-    ]
-    assert len(operations) >= 12
+    from chaintwin.web import events
+
+    monkeypatch.setattr(events, "STREAM_S", 0.5)
+    operations = [result.ok() for result in api_schema.get_all_operations()]
+    assert len(operations) >= 13
+    assert any(op.path == "/api/v1/events" for op in operations)
     for operation in operations:
 
         @given(case=operation.as_strategy())
         @settings(
-            max_examples=20, deadline=None, suppress_health_check=list(HealthCheck), database=None
+            max_examples=5 if operation.path == "/api/v1/events" else 20,
+            deadline=None,
+            suppress_health_check=list(HealthCheck),
+            database=None,
         )
         def check(case: Any) -> None:
             case.call_and_validate()
 
         check()
+
+
+def test_sequences_of_operations_answer_as_their_schema_says(
+    api_schema: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Stateful: schemathesis chains the operations by the links it infers (a token
+    created, then revoked; an alarm listed, then acknowledged), every response as declared."""
+    from schemathesis.specs.openapi.checks import ensure_resource_availability
+
+    from chaintwin.web import events
+
+    monkeypatch.setattr(events, "STREAM_S", 0.5)
+
+    class Machine(api_schema.as_state_machine()):  # type: ignore[misc]
+        def validate_response(self, response: Any, case: Any, **kwargs: Any) -> None:
+            # An upload answers each file, a refused one with `recording_id` null (no
+            # recording was made); the link schemathesis infers from the answer follows
+            # that null to GET /recordings/None, whose 404 it then takes for a recording
+            # created and lost. Only there is that one check left out; the others run.
+            excluded = []
+            if (case.path_parameters or {}).get("recording_id") in (None, "None"):
+                excluded = [ensure_resource_availability]
+            case.validate_response(
+                response, excluded_checks=excluded, recorder=self.recorder, **kwargs
+            )
+
+    Machine.run(
+        settings=settings(
+            max_examples=15,
+            stateful_step_count=6,
+            deadline=None,
+            suppress_health_check=list(HealthCheck),
+            database=None,
+        )
+    )
 
 
 # ------------------------------------------------------------------ in a browser

@@ -638,3 +638,15 @@ def test_connections_beyond_the_bound_are_closed_at_once(
     assert log.count(f"more than {bound} connections at once") == 1
     assert "Too many open files" not in log
     server.peak_bounded()
+
+
+def test_serve_refuses_a_proxy_list_it_cannot_read(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from chaintwin.cli.app import main
+
+    db = f"sqlite:///{tmp_path / 'p.db'}"
+    assert main(["serve", "--db", db, "--forwarded-allow-ips", "10.0.0.5, proxy.lan"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "--forwarded-allow-ips: 'proxy.lan' is not an address or network" in err

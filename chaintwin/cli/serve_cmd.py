@@ -164,6 +164,8 @@ def serve(
         raise StoreError("give both --ssl-certfile and --ssl-keyfile, or neither")
     if max_upload_mb <= 0:
         raise StoreError(f"--max-upload-mb {max_upload_mb} must be positive")
+    if forwarded_allow_ips is not None:
+        _check_proxies(forwarded_allow_ips)
     if live.settle_s < 0:
         raise StoreError(f"--settle-s {live.settle_s} must be zero or more")
     if live.lease_s <= 0:
@@ -251,6 +253,29 @@ def serve(
         asyncio.run(main())
     finally:
         store.close()
+
+
+def _check_proxies(given: str) -> None:
+    """Refuse a ``--forwarded-allow-ips`` uvicorn could not read, naming the entry.
+
+    Raises
+    ------
+    StoreError
+        For an entry that is neither ``*``, an address, a network nor a
+        Unix socket's path (``unix:...``).
+    """
+    import ipaddress
+
+    for entry in (e.strip() for e in given.split(",")):
+        if entry == "*" or entry.startswith("unix:"):
+            continue
+        try:
+            ipaddress.ip_network(entry, strict=False)
+        except ValueError:
+            raise StoreError(
+                f"--forwarded-allow-ips: '{entry}' is not an address or network; give the "
+                "proxy's address (10.0.0.5), a network (10.0.0.0/24) or '*', comma-separated"
+            ) from None
 
 
 def _mail_settings(live: LiveArgs) -> MailSettings | None:

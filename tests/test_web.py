@@ -715,7 +715,7 @@ def test_in_a_browser_log_in_see_charts_acknowledge_and_a_viewer_refused(
     """Chromium (the distribution's, installed by the test setup) driven by Playwright."""
     if not CHROMIUM.exists():
         pytest.fail("Chromium not found at /usr/bin/chromium: `make test` installs it")
-    from playwright.sync_api import sync_playwright
+    from playwright.sync_api import expect, sync_playwright
 
     served = Served(f"sqlite:///{tmp_path / 'plant.db'}", fleet)
     outside: list[str] = []
@@ -741,17 +741,17 @@ def test_in_a_browser_log_in_see_charts_acknowledge_and_a_viewer_refused(
             assert index >= 1.0  # the friction alarm is open
             # a recording stored meanwhile (here by ingest, as the live service would)
             # changes the table through the event stream, without a reload
-            before = page.inner_text("#fleet tbody tr")
+            row = page.locator("#fleet tbody tr")
+            before = row.text_content()
+            assert before
             page.evaluate("window.notReloaded = true")
             late = run_virtual(PROFILE, payload_kg=38.0, seed=321).recording
             late_file = write_recording(late, tmp_path / "late.csv")
             summary = ingest([str(late_file)], {PROFILE.id: PROFILE}, served.store, workers=1)
             assert summary.refused == 0
-            page.wait_for_function(
-                "(before) => document.querySelector('#fleet tbody tr').innerText !== before",
-                arg=before,
-                timeout=15000,
-            )
+            # (waited on by Playwright's assertions: its wait_for_function evaluates a
+            # string, which the pages' CSP forbids)
+            expect(row).not_to_have_text(before, timeout=15000)
             assert page.evaluate("window.notReloaded === true && window.chaintwin.updates >= 1")
             page.click(f"#fleet a:text('{PROFILE.id}')")
             page.wait_for_selector("#trends .trend .main-svg", timeout=30000)
@@ -783,11 +783,12 @@ def test_in_a_browser_log_in_see_charts_acknowledge_and_a_viewer_refused(
                 f"/api/v1/conveyors/{PROFILE.id}/maintenance", json=body
             )
             assert done.is_success
-            viewer.wait_for_function(
-                "document.querySelector('table.alarms tbody').innerText.includes('closed')",
-                timeout=15000,
-            )
+            expect(viewer.locator("table.alarms tbody")).to_contain_text("closed", timeout=15000)
             assert viewer.evaluate("window.notReloaded === true")
+            # the API docs' Swagger UI starts under the same CSP (no inline script)
+            viewer.on("console", lambda m: broken.append(m.text) if m.type == "error" else None)
+            viewer.goto(served.base + "/docs")
+            viewer.wait_for_selector("#swagger-ui .swagger-ui", timeout=30000)
             browser.close()
     finally:
         served.close()

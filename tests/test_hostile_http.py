@@ -650,3 +650,90 @@ def test_serve_refuses_a_proxy_list_it_cannot_read(
     err = capsys.readouterr().err
     assert err.count("\n") == 1
     assert "--forwarded-allow-ips: 'proxy.lan' is not an address or network" in err
+
+
+# ------------------------------------------------------------------ the guard alone
+def _guarded(path: str, receive: Any) -> list[dict[str, Any]]:
+    """What the guard sends for one POST to ``path`` whose body comes from ``receive``."""
+    import asyncio
+
+    from starlette.applications import Starlette
+    from starlette.requests import Request
+    from starlette.responses import JSONResponse, Response
+    from starlette.routing import Route
+
+    from chaintwin.web.guard import Guard
+
+    async def echo(request: Request) -> Response:
+        return JSONResponse({"read": len(await request.body())})
+
+    async def refuse(
+        request: Request, status: int, code: str, message: str, headers: dict[str, str]
+    ) -> Response:
+        return JSONResponse({"error": {"code": code, "message": message}}, status, headers)
+
+    app = Guard(
+        Starlette(routes=[Route(path, echo, methods=["POST"])]),
+        principal=lambda request: None,
+        upload_limit=lambda: 1024,
+        refuse=refuse,
+    )
+    sent: list[dict[str, Any]] = []
+
+    async def send(message: dict[str, Any]) -> None:
+        sent.append(message)
+
+    scope = {
+        "type": "http", "method": "POST", "path": path, "raw_path": path.encode(),
+        "query_string": b"", "headers": [], "client": ("10.1.1.1", 5), "scheme": "http",
+        "server": ("127.0.0.1", 80), "http_version": "1.1", "root_path": "",
+    }  # fmt: skip
+    asyncio.run(app(scope, receive, send))
+    return sent
+
+
+def test_a_body_that_stalls_is_refused_with_408(monkeypatch: pytest.MonkeyPatch) -> None:
+    import asyncio
+
+    from chaintwin.web import guard
+
+    monkeypatch.setattr(guard, "BODY_IDLE_S", 0.2)
+    parts = [{"type": "http.request", "body": b"token=", "more_body": True}]
+
+    async def stalling() -> dict[str, Any]:
+        if parts:
+            return parts.pop()
+        await asyncio.Event().wait()  # nothing more, ever
+        raise AssertionError
+
+    sent = _guarded("/login", stalling)
+    assert sent[0]["status"] == 408
+    assert json.loads(sent[1]["body"]) == {
+        "error": {"code": "timeout", "message": "the request's body sent nothing for 0.2 s"}
+    }
+    # a body that comes whole is read as it is
+    whole = [{"type": "http.request", "body": b"token=abc", "more_body": False}]
+
+    async def complete() -> dict[str, Any]:
+        return whole.pop()
+
+    answered = _guarded("/login", complete)
+    assert answered[0]["status"] == 200 and json.loads(answered[1]["body"]) == {"read": 9}
+    headers = dict(answered[0]["headers"])
+    assert headers[b"x-content-type-options"] == b"nosniff"
+
+
+def test_login_attempts_are_counted_in_a_sliding_window() -> None:
+    from chaintwin.web.guard import LoginAttempts
+
+    now = [1000.0]
+    attempts = LoginAttempts(attempts=3, window_s=60.0, clients=2, clock=lambda: now[0])
+    assert [attempts.wait_s("a") for _ in range(3)] == [None, None, None]
+    now[0] += 10.0
+    assert attempts.wait_s("a") == pytest.approx(50.0)  # the first attempt leaves at 1060
+    assert attempts.wait_s("b") is None  # another client
+    now[0] += 50.0
+    assert attempts.wait_s("a") is None  # the first three have left the window
+    # at most `clients` remembered: the oldest forgotten first
+    attempts.wait_s("c")
+    assert set(attempts._seen) == {"a", "c"}

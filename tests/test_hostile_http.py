@@ -72,7 +72,11 @@ class Server:
         profiles = folder / "profiles"
         profiles.mkdir()
         shutil.copy(REFERENCE_PROFILE, profiles)
-        env = dict(os.environ, TMPDIR=str(self.tmp), PYTHONMALLOC="malloc")
+        # uvicorn's default proxy list, from the environment, trusts nobody here: the
+        # proxy headers the tests send count only through --forwarded-allow-ips
+        env = dict(
+            os.environ, TMPDIR=str(self.tmp), PYTHONMALLOC="malloc", FORWARDED_ALLOW_IPS="192.0.2.1"
+        )
 
         def limit_files() -> None:  # in the child, before it runs
             if files_limit is not None:
@@ -151,7 +155,7 @@ def door(
     store = Store(url)
     tokens = {r: create_token(store, f"{r}-1", r) for r in ("viewer", "maintainer", "admin")}
     store.close()
-    server = Server(url, folder, files_limit=FILES)
+    server = Server(url, folder, "--forwarded-allow-ips", "127.0.0.1", files_limit=FILES)
     yield server, tokens
     log = server.stop()
     # nothing of the password in the log, however the server was treated

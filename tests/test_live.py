@@ -454,7 +454,7 @@ def test_serve_refuses_an_old_store_naming_db_upgrade_then_upgraded_it_runs(
     capsys.readouterr()
     engine = engine_for(db)
     with engine.connect() as c:
-        assert migrate.revision_of(c) == "0006" == migrate.HEAD_REVISION
+        assert migrate.revision_of(c) == migrate.HEAD_REVISION == migrate.head_from_scripts()
         # the new tables, empty: an upgraded store does not notify its past alarms
         for table in ("refused_files", "outbox", "outbox_deliveries", "live_sources", "leases"):
             assert c.execute(text(f"SELECT COUNT(*) FROM {table}")).scalar() == 0
@@ -795,7 +795,7 @@ def test_web_uploads_take_the_profiles_the_live_service_reads_again(
 ) -> None:
     """An upload is weighed with the --profiles the service follows, not those it started with."""
     from chaintwin.live.service import LiveOptions, LiveService
-    from chaintwin.web.api import ingest_uploads
+    from chaintwin.web.api import Staged, ingest_uploads
     from chaintwin.web.app import create_app
 
     url = f"sqlite:///{tmp_path / 'plant.db'}"
@@ -804,11 +804,12 @@ def test_web_uploads_take_the_profiles_the_live_service_reads_again(
         service = LiveService(store, {}, LiveOptions())
         web = create_app(store, {}, live=service).state.web
         f = recordings(fleet)[0]
-        (first,) = ingest_uploads(web, [(f.name, f.read_bytes())], "tester")
+        upload = [Staged(f.name, str(f), sha(f))]  # as the upload's handler copies it aside
+        (first,) = ingest_uploads(web, upload, "tester")
         assert first.status == "refused" and "profile" in (first.reason or "")
         service.use_profiles({PROFILE.id: PROFILE})  # as the folder's follower does
         assert service.profiles == {PROFILE.id: PROFILE} == service.profiles_now
-        (again,) = ingest_uploads(web, [(f.name, f.read_bytes())], "tester")
+        (again,) = ingest_uploads(web, upload, "tester")
         assert again.status == "stored" and again.recording_id == sha(f)
     finally:
         store.close()

@@ -39,7 +39,7 @@ def register(app: typer.Typer) -> None:
         from sqlalchemy.exc import OperationalError
 
         from chaintwin.store import migrate
-        from chaintwin.store.engine import engine_for, safe_url, store_url
+        from chaintwin.store.engine import engine_for, hide_password, safe_url, store_url
 
         given = store_url(url)
         engine = engine_for(given)
@@ -47,7 +47,8 @@ def register(app: typer.Typer) -> None:
             before, after = migrate.upgrade(engine, safe_url(given))
         except OperationalError as exc:
             raise StoreError(
-                f"url {safe_url(given)}: cannot open the store ({exc.orig}); check the path "
+                f"url {safe_url(given)}: cannot open the store "
+                f"({hide_password(str(exc.orig), given)}); check the path "
                 "or server",
                 field="url",
             ) from None

@@ -140,6 +140,7 @@ def serve(
     ssl_certfile: Path | None = None,
     ssl_keyfile: Path | None = None,
     live: LiveArgs | None = None,
+    forwarded_allow_ips: str | None = None,
 ) -> None:
     """Run the service until SIGTERM or Ctrl-C, then exit 0.
 
@@ -148,13 +149,12 @@ def serve(
     """
     import asyncio
 
-    import uvicorn
-
     from chaintwin.cli.monitor_cmd import load_profiles
     from chaintwin.live.logs import setup_logging
     from chaintwin.live.service import LiveOptions, LiveService
     from chaintwin.store.engine import safe_url, store_url
     from chaintwin.web.app import create_app
+    from chaintwin.web.connections import server_config
 
     live = live or LiveArgs()
     drives = None
@@ -166,6 +166,8 @@ def serve(
         raise StoreError("give both --ssl-certfile and --ssl-keyfile, or neither")
     if max_upload_mb <= 0:
         raise StoreError(f"--max-upload-mb {max_upload_mb} must be positive")
+    if forwarded_allow_ips is not None:
+        _check_proxies(forwarded_allow_ips)
     if live.settle_s < 0:
         raise StoreError(f"--settle-s {live.settle_s} must be zero or more")
     if live.lease_s <= 0:
@@ -229,19 +231,13 @@ def serve(
                 from chaintwin.web.app import freeze_heap
 
                 freeze_heap(app)  # no full garbage collection walks the start-up heap
-                config = uvicorn.Config(
+                config = server_config(
                     app,
                     host=host,
                     port=port,
-                    log_level="warning",
-                    ssl_certfile=str(ssl_certfile) if ssl_certfile else None,
-                    ssl_keyfile=str(ssl_keyfile) if ssl_keyfile else None,
-                    proxy_headers=True,
-                    # dashboards poll every few seconds: keep their connections open
-                    # longer than that (uvicorn's default of 5 s races a 5 s poll)
-                    timeout_keep_alive=75,
-                    # a stop waits for the requests in hand, not for ever
-                    timeout_graceful_shutdown=20,
+                    ssl_certfile=ssl_certfile,
+                    ssl_keyfile=ssl_keyfile,
+                    forwarded_allow_ips=forwarded_allow_ips,
                 )
             followed = [str(f) for f in live.watch]
             if drives is not None:
@@ -268,6 +264,29 @@ def serve(
         asyncio.run(main())
     finally:
         store.close()
+
+
+def _check_proxies(given: str) -> None:
+    """Refuse a ``--forwarded-allow-ips`` uvicorn could not read, naming the entry.
+
+    Raises
+    ------
+    StoreError
+        For an entry that is neither ``*``, an address, a network nor a
+        Unix socket's path (``unix:...``).
+    """
+    import ipaddress
+
+    for entry in (e.strip() for e in given.split(",")):
+        if entry == "*" or entry.startswith("unix:"):
+            continue
+        try:
+            ipaddress.ip_network(entry, strict=False)
+        except ValueError:
+            raise StoreError(
+                f"--forwarded-allow-ips: '{entry}' is not an address or network; give the "
+                "proxy's address (10.0.0.5), a network (10.0.0.0/24) or '*', comma-separated"
+            ) from None
 
 
 def _mail_settings(live: LiveArgs) -> MailSettings | None:
@@ -336,6 +355,15 @@ def register(app: typer.Typer) -> None:
         ] = 20.0,
         ssl_certfile: Annotated[Path | None, typer.Option("--ssl-certfile")] = None,
         ssl_keyfile: Annotated[Path | None, typer.Option("--ssl-keyfile")] = None,
+        forwarded_allow_ips: Annotated[
+            str | None,
+            typer.Option(
+                "--forwarded-allow-ips",
+                help="Proxies whose X-Forwarded-For/-Proto are believed (comma-separated "
+                "addresses or networks, '*' for any) [FORWARDED_ALLOW_IPS, else 127.0.0.1]: "
+                "the client's address for the login limit, https for Secure cookies.",
+            ),
+        ] = None,
         watch: Annotated[
             list[Path] | None,
             typer.Option(
@@ -455,7 +483,10 @@ def register(app: typer.Typer) -> None:
             notify_smtp_login_file=notify_smtp_login_file,
             escalate_after_min=escalate_after_min,
         )
-        serve(db, profiles, host, port, max_upload_mb, ssl_certfile, ssl_keyfile, live)
+        serve(
+            db, profiles, host, port, max_upload_mb, ssl_certfile, ssl_keyfile, live,
+            forwarded_allow_ips,
+        )  # fmt: skip
 
     token = typer.Typer(
         name="token", help="Access tokens of the web service.", no_args_is_help=True

@@ -98,7 +98,7 @@ def register(app: typer.Typer) -> None:
         Idempotent: a recording already stored is skipped. Refused files never
         stop the batch; the exit code is 0 when the batch ran.
         """
-        from chaintwin.store.engine import store_url
+        from chaintwin.store.engine import safe_url, store_url
         from chaintwin.store.ingest import ingest
         from chaintwin.store.store import Store
 
@@ -132,7 +132,7 @@ def register(app: typer.Typer) -> None:
             return
         console = Console()
         console.print(
-            f"ingested into {safe(store.url.split('@')[-1])}: {summary.processed} processed, "
+            f"ingested into {safe(safe_url(store.url))}: {summary.processed} processed, "
             f"{summary.duplicates} duplicates skipped, {summary.refused} refused, "
             f"{summary.warnings} warnings, {summary.new_alarms} new alarms "
             f"({summary.seconds:.1f} s)",

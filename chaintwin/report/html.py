@@ -29,6 +29,7 @@ from chaintwin.diagnose.residuals import residual_analysis
 from chaintwin.errors import ChaintwinError, StoreError
 from chaintwin.identify.verification import verify_recording
 from chaintwin.read.files import write_atomic
+from chaintwin.store.engine import safe_url
 from chaintwin.store.store import Store
 from chaintwin.weigh.tlf import PUBLISHED_TLF, PUBLISHED_TLF_NOTE
 
@@ -235,7 +236,7 @@ def conveyor_page(
     html = _ENV.get_template("conveyor.html.j2").render(
         d=d,
         made=datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
-        source=store.url.split("@")[-1],
+        source=safe_url(store.url),
         fleet_link=fleet_link,
         description=_description(d),
         first=times[0].strftime("%Y-%m-%d %H:%M") if times else None,
@@ -333,7 +334,7 @@ def fleet_page(
     if data is None:
         data = [conveyor_data(store, c, waterfall=0) for c in store.conveyors()]
     if not data:
-        raise StoreError(f"{store.url.split('@')[-1]}: the store holds no conveyor yet")
+        raise StoreError(f"{safe_url(store.url)}: the store holds no conveyor yet")
     rows = [_fleet_row(d, links) for d in data]
     rows.sort(key=lambda r: (STATUS_ORDER.index(r.status), -_rank(r.health), r.id))
     by_tlf = sorted(rows, key=lambda r: (-_rank(r.tlf), r.id))
@@ -348,7 +349,7 @@ def fleet_page(
         rows=rows,
         by_tlf=by_tlf,
         made=datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
-        source=store.url.split("@")[-1],
+        source=safe_url(store.url),
         recent=RECENT,
         health_figure=figures.fleet_health_figure([r.id for r in rows], [r.health for r in rows]),
         tlf_figure=figures.fleet_tlf_figure([r.id for r in by_tlf], [r.tlf for r in by_tlf]),
@@ -389,7 +390,7 @@ def write_folder(store: Store, folder: str | Path) -> list[Path]:
     """
     conveyors = store.conveyors()
     if not conveyors:
-        raise StoreError(f"{store.url.split('@')[-1]}: the store holds no conveyor yet")
+        raise StoreError(f"{safe_url(store.url)}: the store holds no conveyor yet")
     root = Path(folder)
     names = page_names(conveyors)
     written, data = [], []

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from functools import partial
 from typing import Any
-from urllib.parse import quote
+from urllib.parse import quote, unquote
 
 import orjson
 from sqlalchemy import create_engine, event
@@ -22,6 +23,7 @@ __all__ = [
     "WAL_AUTOCHECKPOINT_PAGES",
     "check_sqlite_file",
     "engine_for",
+    "hide_password",
     "safe_url",
     "sqlite_path",
     "store_url",
@@ -67,20 +69,64 @@ def _from_json(text: str | bytes) -> Any:
 
 
 def safe_url(url: str) -> str:
-    """The URL for messages: without its password, control characters escaped (one line)."""
+    """The URL for messages: without its password, control characters escaped (one line).
+
+    The password is hidden whatever its form: in the user information
+    (``user:***@host``, even when the password holds ``@`` or ``/``: the user
+    information runs to the *last* ``@``), and as a query parameter
+    (``?password=***``, and every parameter whose name speaks of a password,
+    secret, token or key).
+    """
     return "".join(c if c.isprintable() else repr(c)[1:-1] for c in _without_password(url))
 
 
+def hide_password(text: str, url: str) -> str:
+    """``text`` (a driver's error message about ``url``) with the URL's password hidden.
+
+    A driver names the host it could not reach, and a password holding
+    ``@`` is cut there by URL parsers: its tail is taken for the host and
+    would be shown. Each piece of the password (split at ``@``, ``:`` and
+    ``/``) and each secret query value is replaced by ``***`` wherever it
+    appears, longest first.
+    """
+    _scheme, sep, rest = url.partition("://")
+    where, _question, query = rest.partition("?")
+    secrets: list[str] = []
+    if sep and "@" in where and not where.startswith("/"):
+        cred = where.rpartition("@")[0]
+        password = cred.partition(":")[2]
+        secrets += [password, unquote(password), *re.split(r"[@:/]", password)]
+    for item in query.split("&") if query else ():
+        name, equals, value = item.partition("=")
+        if equals and _SECRET_PARAMETER.search(unquote(name)):
+            secrets += [value, unquote(value)]
+    for secret in sorted({s for s in secrets if len(s) >= 2}, key=len, reverse=True):
+        text = text.replace(secret, "***")
+    return text
+
+
+_SECRET_PARAMETER = re.compile(r"pass|pwd|secret|token|key", re.IGNORECASE)
+"""Query parameters of a URL whose values are hidden in messages."""
+
+
 def _without_password(url: str) -> str:
-    """The URL with its password, if any, replaced by ``***``."""
-    head, sep, tail = url.partition("@")
-    if not sep or "://" not in head:
+    """The URL with its password, if any, replaced by ``***`` (user information and query)."""
+    scheme, sep, rest = url.partition("://")
+    if not sep:
         return url
-    scheme, _, cred = head.partition("://")
-    user, colon, _password = cred.partition(":")
-    if not colon:  # no password to hide
-        return url
-    return f"{scheme}://{user}:***@{tail}"
+    where, question, query = rest.partition("?")
+    if "@" in where and not where.startswith("/"):  # a host, user information before it
+        cred, _, host = where.rpartition("@")
+        user, colon, _password = cred.partition(":")
+        where = f"{user}:***@{host}" if colon else f"{user}@{host}"
+    if question:
+        parts = []
+        for item in query.split("&"):
+            name, equals, _value = item.partition("=")
+            hidden = equals and _SECRET_PARAMETER.search(unquote(name))
+            parts.append(f"{name}=***" if hidden else item)
+        query = "&".join(parts)
+    return f"{scheme}://{where}{question}{query}"
 
 
 def engine_for(
@@ -129,7 +175,8 @@ def engine_for(
         )
     except (SQLAlchemyError, ImportError, ValueError) as exc:
         raise StoreError(
-            f"url {safe_url(url)}: not a usable database URL ({_first_line(exc)}); use "
+            f"url {safe_url(url)}: not a usable database URL "
+            f"({hide_password(_first_line(exc), url)}); use "
             "sqlite:///file.db or postgresql://user:password@host/database",
             field="url",
         ) from None

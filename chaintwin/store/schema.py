@@ -27,6 +27,9 @@ table              what a row holds
 ``secrets``        random keys the web service needs, created on first use and
                    shared by every process on the store (token-hash key,
                    session-cookie key)
+``web_sessions``   the browser sessions: a SHA-256 of the session id (never the
+                   id), its token's name, CSRF nonce, created, expires; logging
+                   out deletes the row
 ``refused_files``  files the live service refused (content SHA-256, path, the
                    one-line reason, its cause and conveyor): not read again until
                    their content changes, or (cause ``profile``) until a profile
@@ -83,6 +86,7 @@ __all__ = [
     "SchemaRow",
     "SecretRow",
     "TokenRow",
+    "WebSessionRow",
 ]
 
 SCHEMA_VERSION = 2
@@ -232,6 +236,17 @@ class SecretRow(Base):
     __tablename__ = "secrets"
     name: Mapped[str] = mapped_column(String(40), primary_key=True)
     value: Mapped[str] = mapped_column(String(128))
+
+
+class WebSessionRow(Base):
+    """A browser session: its cookie's id (a SHA-256 of it), token and CSRF nonce."""
+
+    __tablename__ = "web_sessions"
+    id_hash: Mapped[str] = mapped_column(String(64), primary_key=True)
+    token_name: Mapped[str] = mapped_column(String(100), index=True)
+    csrf: Mapped[str] = mapped_column(String(64))
+    created_at: Mapped[str] = mapped_column(String(40))
+    expires_at: Mapped[str] = mapped_column(String(40), index=True)
 
 
 class RefusedFileRow(Base):

@@ -37,7 +37,14 @@ from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
 
 from . import migrate
-from .engine import _first_line, check_sqlite_file, engine_for, safe_url, sqlite_path
+from .engine import (
+    _first_line,
+    check_sqlite_file,
+    engine_for,
+    hide_password,
+    safe_url,
+    sqlite_path,
+)
 from .rows import Finished, Waiting, put_alarms_events
 from .samples import pack_samples, recording_meta, stored_recording
 from .schema import (
@@ -76,9 +83,10 @@ def _iso_time(recording: Recording) -> str | None:
     return None if at is None else at.astimezone(UTC).isoformat()
 
 
-def _why(exc: DatabaseError) -> str:
-    """The database's reason, on one line (psycopg's run over several)."""
-    return _first_line(exc.orig or exc)
+def _why(exc: DatabaseError, url: str) -> str:
+    """The database's reason, on one line (psycopg's run over several), the URL's password
+    hidden (a driver names the host it could not reach, where a password's tail may be)."""
+    return hide_password(_first_line(exc.orig or exc), url)
 
 
 class StateConflict(Exception):
@@ -164,13 +172,14 @@ class Store:
         except OperationalError as exc:
             self.engine.dispose()
             raise StoreError(
-                f"url {where}: cannot open the store ({_why(exc)}); check the path or server",
+                f"url {where}: cannot open the store ({_why(exc, self.url)}); "
+                "check the path or server",
                 field="url",
             ) from None
         except DatabaseError as exc:
             self.engine.dispose()
             raise StoreError(
-                f"url {where}: the file is not a usable SQLite database ({_why(exc)}); "
+                f"url {where}: the file is not a usable SQLite database ({_why(exc, self.url)}); "
                 "restore the store from a backup",
                 field="url",
             ) from None
@@ -413,8 +422,8 @@ class Store:
             raise StateConflict(conveyor) from None
         except OperationalError as exc:
             raise StoreError(
-                f"{safe_url(self.url)}: cannot write to the store ({_why(exc)}); nothing of "
-                "this group was stored, run the command again"
+                f"{safe_url(self.url)}: cannot write to the store ({_why(exc, self.url)}); "
+                "nothing of this group was stored, run the command again"
             ) from None
         return 1 if version == 0 else version + 1
 
@@ -569,8 +578,8 @@ class Store:
                 continue  # an ingest advanced the model meanwhile: edit the newer one
             except OperationalError as exc:
                 raise StoreError(
-                    f"{safe_url(self.url)}: cannot write to the store ({_why(exc)}); nothing "
-                    "was changed, run the command again"
+                    f"{safe_url(self.url)}: cannot write to the store ({_why(exc, self.url)}); "
+                    "nothing was changed, run the command again"
                 ) from None
         raise StoreError(f"the health model of '{conveyor}' kept changing; try again")
 

@@ -12,16 +12,17 @@ import math
 import re
 import tempfile
 import threading
+from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
 import orjson
-from fastapi import APIRouter, File, Header, Query, Request, Response, UploadFile
+from fastapi import APIRouter, Form, Header, Query, Request, Response, UploadFile
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, ConfigDict, Field
 
 from chaintwin import __version__
 from chaintwin.diagnose.monitor_state import health_index
@@ -132,13 +133,22 @@ class TokenBody(BaseModel):
     expires_days: float | None = Field(default=None, gt=0, le=36500)
 
 
+class UploadForm(BaseModel):
+    """An upload: files, and nothing else (any other part is refused, 422)."""
+
+    model_config = ConfigDict(extra="forbid")
+    files: list[UploadFile] = Field(min_length=1)
+
+
 class UploadedFile(BaseModel):
     """What became of one uploaded file."""
 
     file: str
     status: Literal["stored", "already_stored", "refused"]
-    reason: str | None = None
-    recording_id: str | None = None
+    reason: str | None
+    """Why a refused file was refused (null for the others)."""
+    recording_id: str | None
+    """The stored recording's id (its content's SHA-256); null for a refused file."""
 
 
 class UploadResult(BaseModel):
@@ -153,23 +163,26 @@ def health(request: Request) -> dict[str, Any]:
     """The service and its store (no token needed): cheap enough to poll.
 
     The store's schema revision and number of conveyors (a small table);
-    ``/api/v1/store`` counts the large ones. With a token, in a process
+    ``/api/v1/store`` counts the large ones. The store's ``url`` (its
+    password hidden) only with a token: null for anonymous callers. With a token, in a process
     running live sources, ``live`` holds each source's state (who follows
     it, counts, scopes missed, last error) and the ingest queue's depth.
     """
     web = _web(request)
     with web.store.engine.connect() as connection:
         revision = revision_of(connection)
+    known = web.principal(request) is not None
     live = None
     service = web.extra.get("live")
-    if service is not None and web.principal(request) is not None:
+    if service is not None and known:
         live = service.health()
     return {
         "live": live,
         "status": "ok",
         "version": __version__,
         "store": {
-            "url": safe_url(web.store.url),
+            # the store's address (its password hidden) only to a caller with a token
+            "url": safe_url(web.store.url) if known else None,
             "revision": revision,
             "conveyors": len(web.store.conveyors()),
         },
@@ -189,6 +202,40 @@ def fast_json(content: Any) -> Response:
     return Response(orjson.dumps(content), media_type="application/json")
 
 
+_EVENT_DATA = {
+    "type": "object",
+    "required": ["id", "results", "states", "conveyors", "open_alarms", "changed"],
+    "properties": {
+        "id": {"type": "string", "description": "The store's signature (Last-Event-ID)"},
+        "results": {"type": "integer"},
+        "states": {"type": "integer"},
+        "conveyors": {"type": "integer"},
+        "open_alarms": {"type": "integer"},
+        "changed": {
+            "type": "array",
+            "items": {"type": "string", "enum": ["results", "alarms", "conveyors"]},
+        },
+    },
+}
+"""The data of a ``ready`` or ``update`` event (JSON)."""
+
+_EVENT_SCHEMA = {
+    "type": "object",
+    "required": ["event", "data"],
+    "properties": {
+        "event": {"type": "string", "enum": ["ready", "update"]},
+        "id": {"type": "string"},
+        "retry": {"type": "integer"},
+        "data": {
+            "type": "string",
+            "contentMediaType": "application/json",
+            "contentSchema": _EVENT_DATA,
+        },
+    },
+}
+"""One event of ``GET /api/v1/events``."""
+
+
 @router.get(
     "/events",
     response_class=StreamingResponse,
@@ -197,7 +244,9 @@ def fast_json(content: Any) -> Response:
             "description": "A server-sent event stream (text/event-stream): `ready` when it "
             "opens, `update` when results are stored or alarms change; it ends after "
             "15 s and the browser reconnects",
-            "content": {"text/event-stream": {"schema": {"type": "string"}}},
+            # each event, as an event-stream parser gives it (OpenAPI 3.1: the schema of
+            # a text/event-stream is that of one event)
+            "content": {"text/event-stream": {"schema": _EVENT_SCHEMA}},
         }
     },
 )
@@ -219,10 +268,10 @@ async def events(
         from chaintwin.web.events import ChangeFeed
 
         feed = web.extra.setdefault("feed", ChangeFeed(web.store))
-    from chaintwin.web.events import event_stream
+    from chaintwin.web import events as stream
 
     return StreamingResponse(
-        event_stream(feed, last_event_id),
+        stream.event_stream(feed, last_event_id, stream.STREAM_S),
         media_type="text/event-stream",
         headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
     )
@@ -534,8 +583,8 @@ def maintenance(request: Request, conveyor_id: str, body: MaintenanceBody) -> di
 _SAFE_NAME = re.compile(r"[^A-Za-z0-9._-]+")
 
 
-def ingest_uploads(web: Any, named: list[tuple[str, bytes]], who_name: str) -> list[UploadedFile]:
-    """Store uploaded files exactly as ``chaintwin ingest`` would; what became of each."""
+def ingest_uploads(web: Any, staged: list[Staged], who_name: str) -> list[UploadedFile]:
+    """Store staged uploads exactly as ``chaintwin ingest`` would; what became of each."""
     from chaintwin.store.ingest import ingest
 
     profiles = {cid: p for cid in web.store.conveyors() if (p := web.store.profile(cid))}
@@ -543,24 +592,21 @@ def ingest_uploads(web: Any, named: list[tuple[str, bytes]], who_name: str) -> l
     # the live service follows --profiles and reads a changed folder again
     profiles |= live.profiles_now if live is not None else web.profiles
     out: list[UploadedFile] = []
-    with tempfile.TemporaryDirectory(prefix="chaintwin-upload-") as folder, _upload_lock:
-        paths: dict[str, tuple[str, str]] = {}
-        for k, (name, raw) in enumerate(named):
-            base = _SAFE_NAME.sub("_", Path(name).name)[-120:] or "upload.csv"
-            path = str(Path(folder) / f"{k:03d}-{base}")
-            Path(path).write_bytes(raw)
-            paths[path] = (name, hashlib.sha256(raw).hexdigest())
-        known = web.store.known(sha for _n, sha in paths.values())
-        summary = ingest(list(paths), profiles, web.store, workers=1)
-        refused = {r["file"]: r["error"] for r in summary.refusals}
-        for path, (name, sha) in paths.items():
-            if path in refused:
-                reason = refused[path].replace(path, name)
-                out.append(UploadedFile(file=name, status="refused", reason=reason))
-            elif sha in known:
-                out.append(UploadedFile(file=name, status="already_stored", recording_id=sha))
-            else:
-                out.append(UploadedFile(file=name, status="stored", recording_id=sha))
+    with _upload_lock:
+        known = web.store.known(f.sha256 for f in staged)
+        summary = ingest([f.path for f in staged], profiles, web.store, workers=1)
+    refused = {r["file"]: r["error"] for r in summary.refusals}
+    for f in staged:
+        if f.path in refused:
+            reason = refused[f.path].replace(f.path, f.name)
+            out.append(
+                UploadedFile(file=f.name, status="refused", reason=reason, recording_id=None)
+            )
+        else:
+            status: Literal["stored", "already_stored"] = (
+                "already_stored" if f.sha256 in known else "stored"
+            )
+            out.append(UploadedFile(file=f.name, status=status, reason=None, recording_id=f.sha256))
     audit(
         web.store,
         who_name,
@@ -570,33 +616,93 @@ def ingest_uploads(web: Any, named: list[tuple[str, bytes]], who_name: str) -> l
     return out
 
 
-async def read_uploads(web: Any, files: list[UploadFile]) -> list[tuple[str, bytes]]:
-    """The uploaded files' names and contents; ApiError 413 beyond the size limit."""
-    named: list[tuple[str, bytes]] = []
+@dataclass(frozen=True, slots=True)
+class Staged:
+    """An uploaded file copied to the upload's folder: its name as sent, path and SHA-256."""
+
+    name: str
+    path: str
+    sha256: str
+
+
+_COPY_CHUNK = 1024 * 1024
+"""Bytes copied at a time from an upload to its file (never a whole file in memory)."""
+
+
+def stage_uploads(web: Any, files: list[UploadFile], folder: Path) -> list[Staged]:
+    """Copy the uploaded files into ``folder`` chunk by chunk; ApiError 413 beyond the limit.
+
+    The files arrive spooled by the multipart parser (in memory up to 1 MB,
+    then in a temporary file), their total already bounded by the guard
+    (:mod:`chaintwin.web.guard`); this copies them under their own names for
+    ingest, hashing as it goes.
+    """
+    staged: list[Staged] = []
     total = 0
-    for f in files:
-        raw = await f.read()
-        total += len(raw)
-        if total > web.max_upload_bytes:
+    for k, f in enumerate(files):
+        name = f.filename or "upload.csv"
+        base = _SAFE_NAME.sub("_", Path(name).name)[-120:] or "upload.csv"
+        path = folder / f"{k:03d}-{base}"
+        digest = hashlib.sha256()
+        f.file.seek(0)
+        with path.open("xb") as out:
+            while chunk := f.file.read(_COPY_CHUNK):
+                total += len(chunk)
+                if total > web.max_upload_bytes:
+                    raise ApiError(
+                        413,
+                        "too_large",
+                        f"the upload is larger than {web.max_upload_bytes / (1024 * 1024):g} "
+                        "MB; send fewer files at once",
+                    )
+                digest.update(chunk)
+                out.write(chunk)
+        staged.append(Staged(name, str(path), digest.hexdigest()))
+    return staged
+
+
+async def take_uploads(
+    request: Request, files: list[UploadFile], who_name: str, fields: frozenset[str]
+) -> list[UploadedFile]:
+    """Check an upload's parts, copy its files aside, ingest them; what became of each.
+
+    Every part must be a file named ``files``, or one of ``fields`` (the
+    page's ``csrf``): anything else is refused (422) before a byte is stored.
+    """
+    web = _web(request)
+    form = await request.form()  # parsed already for the handler's parameters
+    for key, value in form.multi_items():
+        if key == "files" and isinstance(value, str):
             raise ApiError(
-                413,
-                "too_large",
-                f"the upload is larger than {web.max_upload_bytes / (1024 * 1024):g} MB; "
-                "send fewer files at once",
+                422, "invalid", "files: a part named 'files' is not a file; send files only"
             )
-        named.append((f.filename or "upload.csv", raw))
-    return named
+        if key != "files" and key not in fields:
+            raise ApiError(
+                422,
+                "invalid",
+                f"{key[:80]}: not a part of an upload; send the files as 'files' only",
+            )
+    with tempfile.TemporaryDirectory(prefix="chaintwin-upload-") as folder:
+        staged = await run_in_threadpool(stage_uploads, web, files, Path(folder))
+        done: list[UploadedFile] = await run_in_threadpool(ingest_uploads, web, staged, who_name)
+    return done
 
 
 @router.post("/recordings", response_model=UploadResult)
 async def upload(
-    request: Request, files: Annotated[list[UploadFile], File(min_length=1)]
+    request: Request, form: Annotated[UploadForm, Form(media_type="multipart/form-data")]
 ) -> dict[str, Any]:
-    """Upload recordings (maintainer), ingested as ``chaintwin ingest`` would."""
+    """Upload recordings (maintainer), ingested as ``chaintwin ingest`` would.
+
+    Each file's answer says whether it was ``stored``, ``already_stored`` or
+    ``refused``, with its ``recording_id`` (null when refused) and the
+    ``reason`` of a refusal. A request without a valid token is refused
+    before its body is read; one larger than the upload limit as soon as it
+    passes it (413), whether it declared its length or not; a part that is
+    not a file named ``files`` 422.
+    """
     p = who(request, "maintainer", changes=True)
-    web = _web(request)
-    named = await read_uploads(web, files)
-    done = await run_in_threadpool(ingest_uploads, web, named, p.name)
+    done = await take_uploads(request, form.files, p.name, frozenset())
     return {"files": [f.model_dump() for f in done]}
 
 

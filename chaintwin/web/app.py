@@ -12,7 +12,6 @@ a page answers a missing login with a redirect to ``/login``.
 from __future__ import annotations
 
 import os
-from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,7 +19,6 @@ from typing import Any
 import jinja2
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import (
     FileResponse,
     HTMLResponse,
@@ -31,13 +29,13 @@ from fastapi.responses import (
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
 from starlette.exceptions import HTTPException as StarletteHTTPException
-from starlette.types import ASGIApp, Receive, Scope, Send
 
 from chaintwin import __version__
 from chaintwin.errors import ChaintwinError
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.store.access import secret
 from chaintwin.store.store import Store
+from chaintwin.web.guard import LOGIN_ATTEMPTS, Guard, LoginAttempts
 from chaintwin.web.security import ApiError, Principal, principal_of
 
 __all__ = ["WebState", "create_app", "freeze_heap"]
@@ -62,38 +60,6 @@ class WebState:
         return principal_of(request, self.store, self.session_key)
 
 
-class UploadLimit:
-    """Refuse an oversized upload from its declared length, before its body is read.
-
-    Parameters
-    ----------
-    app : ASGI app
-        The application it wraps.
-    limit : callable
-        The largest upload request, bytes.
-    refuse : callable
-        The response to an oversized one (413).
-    """
-
-    PATHS = ("/api/v1/recordings", "/upload")
-
-    def __init__(
-        self, app: ASGIApp, limit: Callable[[], int], refuse: Callable[..., Awaitable[Response]]
-    ) -> None:
-        self.app = app
-        self.limit = limit
-        self.refuse = refuse
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] == "http" and scope["method"] == "POST" and scope["path"] in self.PATHS:
-            length = dict(scope["headers"]).get(b"content-length", b"")
-            if length.isdigit() and int(length) > self.limit():
-                response = await self.refuse(Request(scope, receive))
-                await response(scope, receive, send)
-                return
-        await self.app(scope, receive, send)
-
-
 def _static_dirs() -> dict[str, Path]:
     import plotly  # type: ignore[import-untyped]
     import swagger_ui_bundle  # type: ignore[import-untyped]
@@ -105,12 +71,35 @@ def _static_dirs() -> dict[str, Path]:
     }
 
 
-def _error(status: int, code: str, message: str) -> JSONResponse:
-    return JSONResponse({"error": {"code": code, "message": message}}, status_code=status)
+def _error(
+    status: int, code: str, message: str, headers: dict[str, str] | None = None
+) -> JSONResponse:
+    return JSONResponse(
+        {"error": {"code": code, "message": message}}, status_code=status, headers=headers
+    )
 
 
 def _is_api(request: Request) -> bool:
     return request.url.path.startswith("/api/")
+
+
+_DOCS_PAGE = """<!doctype html>
+<html lang="en">
+<head>
+<meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1">
+<link rel="stylesheet" href="/static/swagger/swagger-ui.css">
+<link rel="icon" href="/static/swagger/favicon-32x32.png">
+<title>chaintwin API</title>
+</head>
+<body>
+<div id="swagger-ui"></div>
+<script src="/static/swagger/swagger-ui-bundle.js"></script>
+<script src="/static/app/swagger-init.js"></script>
+</body>
+</html>
+"""
+"""Swagger UI at ``/docs``, started from a static file (the CSP allows no inline script)."""
 
 
 def create_app(
@@ -120,6 +109,7 @@ def create_app(
     max_upload_mb: float = 20.0,
     secure_cookies: bool = False,
     live: Any = None,
+    login_attempts: int = LOGIN_ATTEMPTS,
 ) -> FastAPI:
     """The web application over ``store``.
 
@@ -134,10 +124,14 @@ def create_app(
     max_upload_mb : float
         Largest upload request, MB (413 beyond).
     secure_cookies : bool
-        Mark the session cookie ``Secure`` (behind TLS).
+        Mark the session cookie ``Secure`` (served over TLS); behind a trusted
+        proxy (``serve --forwarded-allow-ips``) it is marked so whenever the
+        proxy says the request came over https.
     live : LiveService, optional
         The live service of this process (:mod:`chaintwin.live.service`):
         its sources in the health endpoint, its metrics at ``/metrics``.
+    login_attempts : int
+        Login attempts a client may make a minute (429 with ``Retry-After`` beyond).
     """
     from chaintwin.web import alarm_pages, alarms_api, api, pages
 
@@ -165,18 +159,27 @@ def create_app(
         state.extra["live"] = live
     app.state.web = state
 
-    async def too_large(request: Request) -> Response:
-        message = (
-            f"the upload is larger than {state.max_upload_bytes / (1024 * 1024):g} MB; "
-            "send fewer files at once"
-        )
+    async def refuse(
+        request: Request, status: int, code: str, message: str, headers: dict[str, str]
+    ) -> Response:
+        """The guard's refusals: the API's JSON error; a page's error page or the login."""
         if _is_api(request):
-            return _error(413, "too_large", message)
-        return pages.error_page(request, 413, message)
+            return _error(status, code, message, headers)
+        if status == 401:
+            return RedirectResponse("/login", status_code=303)
+        page = pages.error_page(request, status, message)
+        page.headers.update(headers)
+        return page
 
     # a pure ASGI middleware, not @app.middleware: that one's wrapper cancels a
     # streaming response (the event stream) as soon as its first chunk is sent
-    app.add_middleware(UploadLimit, limit=lambda: state.max_upload_bytes, refuse=too_large)
+    app.add_middleware(
+        Guard,
+        principal=state.principal,
+        upload_limit=lambda: state.max_upload_bytes,
+        refuse=refuse,
+        logins=LoginAttempts(attempts=login_attempts),
+    )
     from chaintwin.web.trace import SlowTrace, slow_ms, watch_connections
 
     threshold = slow_ms()
@@ -207,9 +210,12 @@ def create_app(
         code = {404: "not_found", 405: "method_not_allowed", 413: "too_large"}.get(
             exc.status_code, "http_error"
         )
+        headers = dict(exc.headers or {})  # 405: Allow
         if not _is_api(request):
-            return pages.error_page(request, exc.status_code, str(exc.detail))
-        return _error(exc.status_code, code, str(exc.detail))
+            page = pages.error_page(request, exc.status_code, str(exc.detail))
+            page.headers.update(headers)
+            return page
+        return _error(exc.status_code, code, str(exc.detail), headers)
 
     @app.exception_handler(RequestValidationError)
     async def invalid(request: Request, exc: RequestValidationError) -> Response:
@@ -226,13 +232,7 @@ def create_app(
 
     @app.get("/docs", include_in_schema=False)
     async def docs() -> HTMLResponse:
-        return get_swagger_ui_html(
-            openapi_url="/openapi.json",
-            title="chaintwin API",
-            swagger_js_url="/static/swagger/swagger-ui-bundle.js",
-            swagger_css_url="/static/swagger/swagger-ui.css",
-            swagger_favicon_url="/static/swagger/favicon-32x32.png",
-        )
+        return HTMLResponse(_DOCS_PAGE)
 
     @app.get("/metrics", include_in_schema=False)
     def metrics(request: Request) -> Response:

@@ -12,7 +12,6 @@ from datetime import datetime
 from typing import Annotated, Any
 
 from fastapi import APIRouter, File, Form, Request, UploadFile
-from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
 from chaintwin import __version__
@@ -27,8 +26,9 @@ from chaintwin.store.access import (
     role_at_least,
     verify_token,
 )
-from chaintwin.web.api import acknowledge_as, ingest_uploads, maintenance_as, read_uploads
-from chaintwin.web.security import COOKIE, SESSION_SECONDS, Principal, make_session_cookie, require
+from chaintwin.web.api import acknowledge_as, maintenance_as, take_uploads
+from chaintwin.web.security import COOKIE, SESSION_SECONDS, Principal, require
+from chaintwin.web.sessions import end_session, open_session
 
 __all__ = ["error_page", "router"]
 
@@ -81,7 +81,7 @@ def login(request: Request, token: Annotated[str, Form()]) -> Response:
         return _render(
             request, "login.html.j2", None, 401, message="unknown, revoked or expired token"
         )
-    value, _nonce = make_session_cookie(web.session_key, info.name)
+    value, _nonce = open_session(web.store, web.session_key, info.name)
     audit(web.store, info.name, "login", {"role": info.role})
     out = RedirectResponse("/", status_code=303)
     out.set_cookie(
@@ -90,7 +90,8 @@ def login(request: Request, token: Annotated[str, Form()]) -> Response:
         max_age=SESSION_SECONDS,
         httponly=True,
         samesite="strict",
-        secure=web.secure_cookies,
+        # over TLS, or behind a trusted proxy that says the request came over https
+        secure=web.secure_cookies or request.url.scheme == "https",
         path="/",
     )
     return out
@@ -98,10 +99,15 @@ def login(request: Request, token: Annotated[str, Form()]) -> Response:
 
 @router.post("/logout")
 def logout(request: Request, csrf: Annotated[str, Form()] = "") -> Response:
-    """End the session (clears the cookie)."""
-    principal = _web(request).principal(request)
+    """End the session: its row deleted (the cookie stops working anywhere), the cookie cleared."""
+    web = _web(request)
+    principal = web.principal(request)
     if principal is not None:
         require(principal, "viewer", changes=True, csrf=csrf)
+        cookie = request.cookies.get(COOKIE)
+        if principal.via == "cookie" and cookie:
+            end_session(web.store, web.session_key, cookie)
+            audit(web.store, principal.name, "logout", {})
     out = RedirectResponse("/login", status_code=303)
     out.delete_cookie(COOKIE, path="/")
     return out
@@ -191,9 +197,7 @@ async def upload_files(
 ) -> HTMLResponse:
     """Ingest the uploaded files and show what became of each."""
     p = require(_web(request).principal(request), "maintainer", changes=True, csrf=csrf)
-    web = _web(request)
-    named = await read_uploads(web, files)
-    done = await run_in_threadpool(ingest_uploads, web, named, p.name)
+    done = await take_uploads(request, files, p.name, frozenset({"csrf"}))
     return _render(request, "upload.html.j2", p, done=done)
 
 

@@ -2,45 +2,44 @@
 
 * An API call sends ``Authorization: Bearer <token>``; the token is checked
   against the store (keyed SHA-256, :mod:`chaintwin.store.access`).
-* A browser logs in once with its token: the server sets an HttpOnly,
-  SameSite=Strict cookie holding the token's *name*, an expiry and a CSRF
-  nonce, signed with the store's session key (HMAC-SHA256). Every request
-  checks that the named token is still active, so revoking a token ends its
-  sessions at once. A request that changes something with the cookie must
-  carry the nonce (form field ``csrf`` or header ``X-CSRF-Token``); bearer
-  calls need none (a browser never sends them on its own).
+* A browser logs in once with its token: the server opens a session (a row
+  of the store, :mod:`chaintwin.web.sessions`) and sets an HttpOnly,
+  SameSite=Strict cookie holding the session's id, signed with the store's
+  session key (HMAC-SHA256). Every request checks that the session and its
+  token are still active, so logging out or revoking the token ends the
+  session at once. A request that changes something with the cookie must
+  carry the session's CSRF nonce (form field ``csrf`` or header
+  ``X-CSRF-Token``); bearer calls need none (a browser never sends them on
+  its own).
+* The guard (:mod:`chaintwin.web.guard`) finds the principal before a body is
+  read and keeps it in the request's scope (:data:`PRINCIPAL`); the handlers
+  read it from there.
 """
 
 from __future__ import annotations
 
-import base64
-import hashlib
 import hmac
-import json
-import secrets
-import time
 from dataclasses import dataclass
 
 from fastapi import Request
 
-from chaintwin.store.access import role_at_least, token_by_name, verify_token
+from chaintwin.store.access import role_at_least, verify_token
 from chaintwin.store.store import Store
+from chaintwin.web.sessions import SESSION_SECONDS, session_of
 
 __all__ = [
     "COOKIE",
+    "PRINCIPAL",
     "SESSION_SECONDS",
     "ApiError",
     "Principal",
-    "make_session_cookie",
+    "principal_from",
     "principal_of",
     "require",
 ]
 
 COOKIE = "chaintwin_session"
 """Name of the session cookie."""
-
-SESSION_SECONDS = 12 * 3600
-"""A browser session lasts a shift (12 h), or until its token is revoked."""
 
 
 class ApiError(Exception):
@@ -63,50 +62,38 @@ class Principal:
     csrf: str | None = None
 
 
-def _sign(key: bytes, payload: bytes) -> str:
-    return hmac.new(key, payload, hashlib.sha256).hexdigest()
+PRINCIPAL = "chaintwin.principal"
+"""The key of the request's principal in its ASGI scope (set once found)."""
 
 
-def make_session_cookie(key: bytes, name: str) -> tuple[str, str]:
-    """A signed session cookie value for the token ``name``, and its CSRF nonce."""
-    nonce = secrets.token_urlsafe(24)
-    body = json.dumps({"n": name, "e": int(time.time()) + SESSION_SECONDS, "c": nonce})
-    payload = base64.urlsafe_b64encode(body.encode())
-    return payload.decode() + "." + _sign(key, payload), nonce
-
-
-def _read_cookie(key: bytes, value: str) -> tuple[str, str] | None:
-    """``(token name, nonce)`` of a valid, unexpired cookie, else None."""
-    payload, _, mac = value.partition(".")
-    if not mac or not hmac.compare_digest(_sign(key, payload.encode()), mac):
-        return None
-    try:
-        data = json.loads(base64.urlsafe_b64decode(payload.encode()))
-        name, expires, nonce = str(data["n"]), int(data["e"]), str(data["c"])
-    except (ValueError, KeyError, TypeError):
-        return None
-    if expires < time.time():
-        return None
-    return name, nonce
-
-
-def principal_of(request: Request, store: Store, session_key: bytes) -> Principal | None:
-    """The principal of a request, or None (no or an unknown token, no valid cookie)."""
-    header = request.headers.get("authorization", "")
-    if header:
-        scheme, _, token = header.partition(" ")
+def principal_from(
+    authorization: str, cookie: str | None, store: Store, session_key: bytes
+) -> Principal | None:
+    """The principal of a request's ``Authorization`` header or session cookie, or None."""
+    if authorization:
+        scheme, _, token = authorization.partition(" ")
         if scheme.lower() != "bearer" or not token:
             return None
         info = verify_token(store, token.strip())
         return None if info is None else Principal(info.name, info.role, "bearer")
-    cookie = request.cookies.get(COOKIE)
     if cookie:
-        read = _read_cookie(session_key, cookie)
-        if read is None:
-            return None
-        info = token_by_name(store, read[0])
-        return None if info is None else Principal(info.name, info.role, "cookie", read[1])
+        found = session_of(store, session_key, cookie)
+        return None if found is None else Principal(found.name, found.role, "cookie", found.csrf)
     return None
+
+
+def principal_of(request: Request, store: Store, session_key: bytes) -> Principal | None:
+    """The principal of a request, or None (no or an unknown token, no valid session).
+
+    Found once per request and kept in its scope (the guard may have found it already).
+    """
+    if PRINCIPAL not in request.scope:
+        request.scope[PRINCIPAL] = principal_from(
+            request.headers.get("authorization", ""), request.cookies.get(COOKIE), store,
+            session_key,
+        )  # fmt: skip
+    found: Principal | None = request.scope[PRINCIPAL]
+    return found
 
 
 def require(

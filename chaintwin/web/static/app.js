@@ -290,6 +290,15 @@ window.chaintwin = (function () {
   // The alarm list: its rows again from the server (rendered and escaped there) on each
   // update, unless a maintainer is typing a reason into one of them.
   function alarmsPage() {
+    // each conveyor form posts to its conveyor's address (no inline handler: the CSP
+    // allows none)
+    ["maintenance", "out-of-service", "in-service"].forEach((id) => {
+      const form = document.getElementById(id);
+      if (!form) return;
+      form.addEventListener("submit", () => {
+        form.action = "/conveyors/" + encodeURIComponent(form.conveyor.value) + "/" + id;
+      });
+    });
     const body = document.querySelector("table.alarms tbody");
     live(async () => {
       const typing = Array.from(body.querySelectorAll("input:not([type=hidden])")).some((i) => i.value);
@@ -304,4 +313,10 @@ window.chaintwin = (function () {
   }
 
   return { fleetPage, conveyorPage, alarmsPage, updates: 0 };
+})();
+
+// The page names what it runs on the script element (data-page): no inline script.
+(function () {
+  const page = document.currentScript && document.currentScript.dataset.page;
+  if (page) window.chaintwin[page + "Page"]();
 })();

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import errno
+import json
 import os
 import shutil
 import sqlite3
 import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -151,3 +154,76 @@ def test_a_store_on_a_read_only_file_system_is_exported_and_reported(
     assert main(["token", "create", "--name", "x", "--db", url]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1, err
+
+
+# ---------------------------------------------------------------- outputs
+def _run(argv: list[str], **kw: object) -> subprocess.Popen[bytes]:
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    return subprocess.Popen(
+        [sys.executable, "-m", "chaintwin", *argv],
+        stderr=subprocess.PIPE,
+        env=env,
+        **kw,  # type: ignore[call-overload]
+    )
+
+
+def test_output_to_a_full_disk_is_one_line_and_exit_1(tmp_path: Path) -> None:
+    url = f"sqlite:///{_store(tmp_path / 'plant.db')}"
+    for argv in (
+        ["export", "--db", url, "--format", "json"],
+        ["inspect", "--json", str(RECORDING)],
+    ):
+        with open("/dev/full", "wb") as full:
+            proc = _run(argv, stdout=full)
+            _, err = proc.communicate(timeout=300)
+        text = err.decode().strip()
+        assert proc.returncode == 1, (argv[0], text)
+        assert len(text.splitlines()) == 1 and "No space left on device" in text, text
+
+
+def test_a_closed_pipe_ends_the_command_quietly(tmp_path: Path) -> None:
+    url = f"sqlite:///{_store(tmp_path / 'plant.db')}"
+    proc = _run(["export", "--db", url, "--format", "json"], stdout=subprocess.PIPE)
+    assert proc.stdout is not None
+    proc.stdout.close()  # the reader is gone before anything is written (`| head -0`)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode in (0, 141), err.decode()
+    assert err.decode() == ""
+
+
+class _FullDisk:
+    """A standard output on a full disk."""
+
+    def write(self, _text: str) -> int:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    def flush(self) -> None:
+        pass
+
+
+def test_a_full_disk_met_inside_a_command_is_one_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    url = f"sqlite:///{_store(tmp_path / 'plant.db')}"
+    capsys.readouterr()
+    monkeypatch.setattr(sys, "stdout", _FullDisk())
+    assert main(["export", "--db", url, "--format", "csv"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("chaintwin: error: cannot write the output: No space left on device")
+    assert len(err.splitlines()) == 1
+
+
+def test_store_strings_are_printed_without_their_control_characters(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from chaintwin.cli.common import print_json
+    from chaintwin.cli.store_cmd import _csv
+
+    hostile = "belt\x1b]0;owned\x07\x9b2J\r"
+    text = _csv([{"conveyor": hostile, "file": hostile, "features": {}}])
+    assert not any(c in text for c in "\x1b\x07\x9b\r")
+    assert "belt\ufffd]0;owned\ufffd\ufffd2J\ufffd" in text
+    print_json({"conveyor": hostile})
+    out = capsys.readouterr().out
+    assert not any(c in out for c in "\x1b\x07\x9b\r")
+    assert json.loads(out) == {"conveyor": hostile}  # escaped, not lost

@@ -11,11 +11,20 @@ import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from conftest import EXAMPLES, REFERENCE_PROFILE
+from hypothesis import given
+from hypothesis import strategies as st
+from test_loader_fuzz import FUZZ, JSON_VALUE, _paths, mutated
 
 from chaintwin.cli.app import main
+from chaintwin.diagnose.alarms import close_quiet_alarms, judge
+from chaintwin.diagnose.impacts import background_hits_per_m
+from chaintwin.diagnose.monitor_state import MonitorState, deviations, read_health
+from chaintwin.diagnose.state import STATE_FORMAT, STATE_VERSION
+from chaintwin.errors import StoreError
 from chaintwin.read.profile import load_profile
 from chaintwin.store.store import Store
 
@@ -227,3 +236,214 @@ def test_store_strings_are_printed_without_their_control_characters(
     out = capsys.readouterr().out
     assert not any(c in out for c in "\x1b\x07\x9b\r")
     assert json.loads(out) == {"conveyor": hostile}  # escaped, not lost
+
+
+# ---------------------------------------------------------------- bounded numbers
+FIXTURE_STORE = Path(__file__).parent / "fixtures" / "store-c909904.sqlite"
+
+
+def _fixture_state() -> dict[str, Any]:
+    """A real health model (baselines, windows, alarms, history) from the fixture store."""
+    con = sqlite3.connect(f"file:{FIXTURE_STORE}?mode=ro", uri=True)
+    try:
+        (text,) = con.execute("SELECT state FROM monitor_states ORDER BY conveyor_id").fetchone()
+    finally:
+        con.close()
+    state: dict[str, Any] = json.loads(text)
+    return state
+
+
+STATE = _fixture_state()
+
+
+def test_a_huge_integer_in_a_profile_calibration_or_state_is_one_line_naming_its_field(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    huge = "9" * 5000
+    profile = tmp_path / "huge.yaml"
+    profile.write_text(
+        REFERENCE_PROFILE.read_text().replace("  teeth: 10", f"  teeth: {huge}"), encoding="utf-8"
+    )
+    calibration = tmp_path / "cal.json"
+    calibration.write_text(
+        json.dumps({"format": "chaintwin-calibration", "format_version": "HUGE"}).replace(
+            '"HUGE"', huge
+        )
+    )
+    state = tmp_path / "state.json"
+    state.write_text(
+        json.dumps(
+            {"format": STATE_FORMAT, "format_version": 1, "conveyors": {"a": {"x": [1, "HUGE"]}}}
+        ).replace('"HUGE"', "-" + huge)
+    )
+    cases = {
+        "sprocket.teeth": ["monitor", str(RECORDING), "--profile", str(profile)],
+        "format_version": [
+            *("monitor", str(RECORDING), "--profile", str(REFERENCE_PROFILE)),
+            *("--calibration", str(calibration)),
+        ],
+        "conveyors.a.x.1": [
+            *("monitor", str(RECORDING), "--profile", str(REFERENCE_PROFILE)),
+            *("--state", str(state)),
+        ],
+    }
+    for field, argv in cases.items():
+        capsys.readouterr()
+        assert main(argv) == 2, field
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1, err
+        assert f"field '{field}': an integer of about 500" in err, err
+        assert "at most 19 digits" in err
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "field"),
+    [
+        ("baseline_rows", "x", "baseline_rows"),
+        ("windows", {"comb_rotor": "abc"}, "windows.comb_rotor"),
+        ("window_times", {"comb_rotor": [1]}, "window_times.comb_rotor.0"),
+        ("belt_last", [0.1, "0.2"], "belt_last.1"),
+        ("settings", {"baseline_n": 10**30, "x": 3, "y": 10, "z_limit": 5.0}, "baseline_n"),
+        ("history", [{"file": "a.csv", "features": {"tlf": "high"}}], "history.0.features.tlf"),
+    ],
+)
+def test_a_tampered_state_field_is_refused_in_one_line_naming_it(
+    key: str, value: Any, field: str
+) -> None:
+    tampered = json.loads(json.dumps(STATE))
+    tampered[key] = value
+    with pytest.raises(StoreError) as caught:
+        MonitorState.from_dict(tampered, source="state.json")
+    message = str(caught.value)
+    assert "\n" not in message and message.startswith("state.json: monitoring state of")
+    assert field in message, message
+
+
+def test_a_tampered_state_file_is_refused_by_monitor_before_any_recording(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    entry = json.loads(json.dumps(STATE)) | {"windows": {"comb_rotor": "abc"}}
+    entry["conveyor"] = PROFILE.id
+    state = tmp_path / "state.json"
+    state.write_text(
+        json.dumps(
+            {
+                "format": STATE_FORMAT,
+                "format_version": STATE_VERSION,
+                "conveyors": {PROFILE.id: entry},
+            }
+        )
+    )
+    before = state.read_bytes()
+    capsys.readouterr()
+    argv = ["monitor", str(RECORDING), "--profile", str(REFERENCE_PROFILE), "--state", str(state)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "field 'windows.comb_rotor'" in err, err
+    assert state.read_bytes() == before
+
+
+STATE_PATHS = _paths(STATE)
+
+
+@FUZZ
+@given(st.sampled_from(STATE_PATHS), JSON_VALUE)
+def test_a_tampered_state_is_refused_in_one_line_or_works_everywhere_it_is_used(
+    path: list[Any], value: Any
+) -> None:
+    """Fuzz-ish: any value anywhere in a real state; what is accepted must be usable."""
+    tampered = mutated(STATE, path, value)
+    try:
+        state = MonitorState.from_dict(tampered, source="state.json")
+    except StoreError as exc:
+        assert "\n" not in str(exc)
+        return
+    read_health(state, bands=True)
+    deviations(state)
+    background_hits_per_m(state.baseline_rows + state.late_rows)
+    close_quiet_alarms(state.alarms, state.windows, state.settings.y, None)
+    if state.baselines and state.baseline_rows:
+        values = {k: v for k, v in state.baseline_rows[-1].items() if v is not None}
+        judge(state.baselines, values, state.windows, state.window_times, state.settings, None)
+
+
+# ---------------------------------------------------------------- dates
+OUT_OF_SPAN = ["0001-01-01T00:00:00", "9999-12-31T23:59:59-05:00", "1969-12-31T23:59:59+00:00"]
+
+
+def _monitored_store(tmp_path: Path) -> tuple[str, str]:
+    """A store with a health model (the fixture store, upgraded): its URL and a conveyor."""
+    path = tmp_path / "monitored.db"
+    shutil.copy(FIXTURE_STORE, path)
+    url = f"sqlite:///{path}"
+    assert main(["db", "upgrade", "--db", url]) == 0
+    store = Store(url)
+    try:
+        conveyor = store.conveyors()[0]
+    finally:
+        store.close()
+    return url, conveyor
+
+
+def test_maintenance_dated_outside_1970_2200_is_refused_by_the_api_with_422(
+    tmp_path: Path,
+) -> None:
+    import httpx
+    from test_web import start_server
+
+    from chaintwin.store.access import create_token
+    from chaintwin.web.app import create_app
+
+    url, conveyor = _monitored_store(tmp_path)
+    store = Store(url)
+    base, server, thread = start_server(create_app(store, {}))
+    try:
+        token = create_token(store, "fitter", "maintainer")
+        path = f"/api/v1/conveyors/{conveyor}/maintenance"
+        headers = {"Authorization": f"Bearer {token}"}
+        with httpx.Client(base_url=base, headers=headers, timeout=30) as client:
+            for at in OUT_OF_SPAN:
+                body = {"kind": "cleaning", "why": "rails cleaned", "at": at}
+                response = client.post(path, json=body)
+                assert response.status_code == 422, (at, response.text)
+                error = response.json()["error"]
+                assert error["code"] == "invalid"
+                assert "outside 1970-01-01..2200-01-01" in error["message"], error
+            body = {"kind": "cleaning", "why": "rails cleaned", "at": "2199-12-31T00:00:00Z"}
+            response = client.post(path, json=body)
+            assert response.status_code == 200, response.text
+    finally:
+        server.should_exit = True
+        thread.join(10)
+        store.close()
+    # the report reads every stored date
+    out = tmp_path / "report"
+    assert main(["report", "--all", "--db", url, "--out", str(out)]) == 0
+
+
+def test_dates_outside_1970_2200_are_refused_by_cli_options(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    url, conveyor = _monitored_store(tmp_path)
+    for at in OUT_OF_SPAN:
+        argv = [
+            *("maintenance", "--conveyor", conveyor, "--kind", "cleaning", "--by", "me"),
+            *("--at", at, "--db", url),
+        ]
+        capsys.readouterr()
+        assert main(argv) == 2, at
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "--at" in err and "outside 1970" in err, err
+        argv = [
+            *("simulate", "--profile", str(REFERENCE_PROFILE), "--recorded-at", at),
+            *("--out", str(tmp_path / "sim.csv")),
+        ]
+        assert main(argv) == 2, at
+        err = capsys.readouterr().err.strip()
+        assert "--recorded-at" in err and "outside 1970" in err, err
+    assert not (tmp_path / "sim.csv").exists()
+    argv = [
+        *("maintenance", "--conveyor", conveyor, "--kind", "cleaning", "--by", "me"),
+        *("--at", "2026-11-21T10:15:00Z", "--db", url),
+    ]
+    assert main(argv) == 0

@@ -23,7 +23,7 @@ from chaintwin.cli.common import (
 )
 from chaintwin.diagnose.monitor import ConveyorMonitor
 from chaintwin.diagnose.monitor_state import MonitorState
-from chaintwin.diagnose.records import RecordingResult, SettingsGiven
+from chaintwin.diagnose.records import RecordingResult, SettingsGiven, date_out_of_span
 from chaintwin.diagnose.session import resume, undated
 from chaintwin.diagnose.state import (
     MAINTENANCE_KINDS,
@@ -371,8 +371,12 @@ def _parse_at(text: str | None) -> datetime | None:
     if text is None:
         return None
     try:
-        return datetime.fromisoformat(text)
+        at = datetime.fromisoformat(text)
     except ValueError:
         raise StoreError(
             f"--at '{text}' is not an ISO 8601 time (e.g. 2026-11-21T10:15:00Z)"
         ) from None
+    refused = date_out_of_span(at)
+    if refused is not None:
+        raise StoreError(f"--at {refused}")
+    return at

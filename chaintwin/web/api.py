@@ -21,10 +21,11 @@ import orjson
 from fastapi import APIRouter, File, Header, Query, Request, Response, UploadFile
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
-from pydantic import BaseModel, Field
+from pydantic import AfterValidator, BaseModel, Field
 
 from chaintwin import __version__
 from chaintwin.diagnose.monitor_state import health_index
+from chaintwin.diagnose.records import date_in_span
 from chaintwin.diagnose.state import acknowledge_alarm, add_maintenance
 from chaintwin.errors import ChaintwinError, StoreError
 from chaintwin.store.access import (
@@ -120,7 +121,7 @@ class MaintenanceBody(BaseModel):
 
     kind: str = Field(min_length=1, max_length=20)
     why: str = Field(min_length=1, max_length=2000)
-    at: datetime | None = None
+    at: Annotated[datetime | None, AfterValidator(date_in_span)] = None
 
 
 class TokenBody(BaseModel):

@@ -244,7 +244,7 @@ FIXTURE_STORE = Path(__file__).parent / "fixtures" / "store-c909904.sqlite"
 
 def _fixture_state() -> dict[str, Any]:
     """A real health model (baselines, windows, alarms, history) from the fixture store."""
-    con = sqlite3.connect(f"file:{FIXTURE_STORE}?mode=ro", uri=True)
+    con = sqlite3.connect(f"file:{FIXTURE_STORE}?immutable=1", uri=True)  # leaves no -wal
     try:
         (text,) = con.execute("SELECT state FROM monitor_states ORDER BY conveyor_id").fetchone()
     finally:

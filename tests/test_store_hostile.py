@@ -447,3 +447,19 @@ def test_dates_outside_1970_2200_are_refused_by_cli_options(
         *("--at", "2026-11-21T10:15:00Z", "--db", url),
     ]
     assert main(argv) == 0
+
+
+def test_export_to_a_full_tmpfs_is_one_line_and_exit_1(
+    tmp_path: Path, read_only_mount: Path
+) -> None:
+    """A small file system that fills part-way through (the fixture's export is larger)."""
+    url, _conveyor = _monitored_store(tmp_path)
+    subprocess.run(["mount", "-o", "remount,size=16k", str(read_only_mount)], check=True)
+    target = read_only_mount / "results.json"
+    with open(target, "wb") as out:
+        proc = _run(["export", "--db", url, "--format", "json"], stdout=out)
+        _, err = proc.communicate(timeout=300)
+    text = err.decode().strip()
+    assert proc.returncode == 1, text
+    assert len(text.splitlines()) == 1 and "No space left on device" in text, text
+    assert 0 < target.stat().st_size <= 16 * 1024

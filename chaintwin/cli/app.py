@@ -11,12 +11,14 @@ ends the command quietly, as Unix tools do.
 
 from __future__ import annotations
 
+import contextlib
 import errno
+import io
 import os
 import signal
 import sys
 import threading
-from typing import Annotated
+from typing import Annotated, Any, BinaryIO, TextIO, cast
 
 import typer
 
@@ -116,6 +118,8 @@ def main(argv: list[str] | None = None) -> int:
     previous = None
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGTERM, _terminate)
+    stdout = sys.stdout
+    sys.stdout = _whole_writes(stdout)
     try:
         app(args=argv, prog_name="chaintwin")  # standalone: always ends in SystemExit
     except SystemExit as exc:
@@ -147,6 +151,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt as exc:
         return _stopped(exc)
     finally:
+        if sys.stdout is not stdout:
+            with contextlib.suppress(OSError, ValueError):
+                sys.stdout.flush()
+            sys.stdout = stdout
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
     return 0
@@ -186,6 +194,62 @@ def _output_failed(exc: OSError) -> int:
         file=sys.stderr,
     )
     return EXIT_FAILURE
+
+
+class _WholeWrites(io.BufferedIOBase):
+    """A byte stream that passes each write on until all of it is taken.
+
+    Python's text layer ignores a short write of its byte buffer: on a file
+    system that fills part-way through a large write (an export of 44 kB
+    into 16 kB left), the rest was dropped without an error and the command
+    exited 0. Here the next write of the rest raises the file system's
+    error (``ENOSPC``), which :func:`main` reports.
+    """
+
+    def __init__(self, inner: BinaryIO) -> None:
+        super().__init__()
+        self._inner = inner
+
+    def write(self, data: Any) -> int:
+        view = memoryview(data).cast("B")
+        size = len(view)
+        while view:
+            taken = self._inner.write(view)
+            if not taken:
+                raise OSError(errno.EIO, "the output takes no more data")
+            view = view[taken:]
+        return size
+
+    def flush(self) -> None:
+        self._inner.flush()
+
+    def fileno(self) -> int:
+        return self._inner.fileno()
+
+    def isatty(self) -> bool:
+        return self._inner.isatty()
+
+    def writable(self) -> bool:
+        return True
+
+
+def _whole_writes(stream: TextIO) -> TextIO:
+    """Standard output as :class:`_WholeWrites` writes it (a file's stream only)."""
+    inner = getattr(stream, "buffer", None)
+    try:
+        stream.fileno()
+    except (AttributeError, OSError, ValueError):
+        return stream  # not a file (captured): nothing is lost there
+    if inner is None or not isinstance(stream, io.TextIOWrapper):
+        return stream
+    stream.flush()
+    return io.TextIOWrapper(
+        cast(BinaryIO, _WholeWrites(inner)),  # a buffered byte stream, as the text layer needs
+        encoding=stream.encoding,
+        errors=stream.errors,
+        line_buffering=stream.line_buffering,
+        write_through=stream.write_through,
+    )
 
 
 def _drop_output() -> None:

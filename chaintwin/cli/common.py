@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import errno
 import itertools
 import json
 import re
@@ -34,7 +33,6 @@ __all__ = [
     "printable",
     "safe",
     "wants_json",
-    "write_output",
 ]
 
 EXIT_USAGE = 2
@@ -177,35 +175,7 @@ def print_json(data: Any) -> None:
     steer the terminal, and the data read back is the same.
     """
     text = json.dumps(_finite(data), indent=2, ensure_ascii=False)
-    write_output(_C1.sub(lambda m: f"\\u{ord(m.group()):04x}", text) + "\n")
-
-
-def write_output(text: str) -> None:
-    """Write text to standard output, all of it, or raise the error that stopped it.
-
-    Python's text layer ignores a short write: on a file system that fills
-    part-way through a large write, the rest was dropped without an error
-    (an export cut at 16 kB exited 0). The bytes are written here until
-    all are taken; the next write then raises the file system's error
-    (``ENOSPC``), which the command line reports.
-
-    Raises
-    ------
-    OSError
-        When the output cannot take it all (full disk, closed pipe).
-    """
-    stream = getattr(sys.stdout, "buffer", None)
-    if stream is None:  # not a file: nothing to lose
-        sys.stdout.write(text)
-        return
-    sys.stdout.flush()
-    data = memoryview(text.encode(sys.stdout.encoding or "utf-8", sys.stdout.errors or "strict"))
-    while data:
-        taken = stream.write(data)
-        if not taken:
-            raise OSError(errno.EIO, "the output takes no more data")
-        data = data[taken:]
-    stream.flush()
+    sys.stdout.write(_C1.sub(lambda m: f"\\u{ord(m.group()):04x}", text) + "\n")
 
 
 _C1 = re.compile(r"[\x7f-\x9f]")

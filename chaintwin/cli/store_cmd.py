@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import io
+import sys
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -18,7 +19,6 @@ from chaintwin.cli.common import (
     print_refused,
     printable,
     safe,
-    write_output,
 )
 from chaintwin.cli.monitor_cmd import load_profiles
 from chaintwin.diagnose.records import SettingsGiven
@@ -182,4 +182,4 @@ def register(app: typer.Typer) -> None:
         if fmt == "json":
             print_json(rows)
         else:
-            write_output(_csv(rows))
+            sys.stdout.write(_csv(rows))

@@ -132,7 +132,7 @@ def check_state_shape(data: Any, source: str) -> None:
         _STATE.validate_python(data)
     except ValidationError as exc:
         conveyor = data.get("conveyor") if isinstance(data, dict) else None
-        where = f"{source}: monitoring state of '{conveyor}'"
+        where = f"{source}: monitoring state of '{conveyor}' is damaged"
         raise StoreError(
             _format_validation_error(where, exc)
             + "; restore it from a backup or start a new state file"

@@ -24,6 +24,7 @@ __all__ = [
     "safe_url",
     "sqlite_path",
     "store_url",
+    "writable_place",
 ]
 
 DEFAULT_URL = "sqlite:///chaintwin.db"
@@ -159,15 +160,23 @@ def _unwritable_place(path: str) -> bool:
     lies beside it: its commits would be left out (``mode=ro`` then fails
     loudly instead).
     """
-    folder = os.path.dirname(os.path.abspath(path))
     if os.path.exists(path + "-wal"):
         return False
+    return not writable_place(os.path.dirname(os.path.abspath(path)))
+
+
+def writable_place(path: str) -> bool:
+    """Whether ``path`` (a file or folder) can be written: a writable file system and rights.
+
+    A store's file and its folder (where SQLite keeps its journal) must both
+    be, for a command that writes.
+    """
     try:
-        if os.statvfs(folder).f_flag & os.ST_RDONLY:
-            return True
+        if os.statvfs(path).f_flag & os.ST_RDONLY:
+            return False
     except OSError:
         return False
-    return not os.access(folder, os.W_OK)
+    return os.access(path, os.W_OK)
 
 
 def sqlite_path(url: str) -> str | None:

@@ -37,7 +37,7 @@ from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
 
 from . import migrate
-from .engine import _first_line, engine_for, safe_url, sqlite_path
+from .engine import _first_line, engine_for, safe_url, sqlite_path, writable_place
 from .recognise import recognise
 from .rows import Finished, Waiting, put_alarms_events
 from .samples import pack_samples, recording_meta, stored_recording
@@ -83,17 +83,6 @@ def _why(exc: DatabaseError) -> str:
 
 class StateConflict(Exception):
     """Another writer advanced a conveyor's health model first (not a user error)."""
-
-
-def _writable(path: str) -> bool:
-    """Whether a SQLite file and its folder (its journal's place) can be written."""
-    folder = os.path.dirname(os.path.abspath(path))
-    try:
-        if os.statvfs(folder).f_flag & os.ST_RDONLY:
-            return False
-    except OSError:
-        return False
-    return os.access(path, os.W_OK) and os.access(folder, os.W_OK)
 
 
 def _now() -> str:
@@ -163,7 +152,14 @@ class Store:
                 "it first",
                 field="url",
             )
-        if not read_only and path is not None and os.path.exists(path) and not _writable(path):
+        if (
+            not read_only
+            and path is not None
+            and os.path.exists(path)
+            and not (
+                writable_place(path) and writable_place(os.path.dirname(os.path.abspath(path)))
+            )
+        ):
             raise StoreError(
                 f"url {where}: the store cannot be written there (a read-only file, folder or "
                 "file system); `export` and `report` read it as it is; copy it to a writable "

@@ -121,7 +121,11 @@ class MaintenanceBody(BaseModel):
 
     kind: str = Field(min_length=1, max_length=20)
     why: str = Field(min_length=1, max_length=2000)
-    at: Annotated[datetime | None, AfterValidator(date_in_span)] = None
+    at: Annotated[
+        datetime | None,
+        AfterValidator(date_in_span),
+        Field(description="When it was done (default now), within 1970-01-01..2200-01-01."),
+    ] = None
 
 
 class TokenBody(BaseModel):

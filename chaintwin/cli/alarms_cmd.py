@@ -126,13 +126,7 @@ def _done(verb: str, a: Alarm) -> None:
 def _parse_until(text: str | None) -> Any:
     from chaintwin.cli.monitor_cmd import _parse_at
 
-    try:
-        return _parse_at(text)
-    except StoreError:
-        raise StoreError(
-            f"--until '{text}' is not an ISO 8601 time (e.g. 2026-11-21T18:00:00Z)",
-            field="until",
-        ) from None
+    return _parse_at(text, "--until")
 
 
 def register(app: typer.Typer) -> None:

@@ -168,8 +168,18 @@ def load_options(
 
 
 def print_json(data: Any) -> None:
-    """Print JSON to standard output (NaN/inf become null)."""
-    sys.stdout.write(json.dumps(_finite(data), indent=2, ensure_ascii=False) + "\n")
+    """Print JSON to standard output (NaN/inf become null).
+
+    Control characters in strings are written as JSON escapes (``\\u001b``),
+    the C1 ones too, which JSON leaves as they are: a file's text cannot
+    steer the terminal, and the data read back is the same.
+    """
+    text = json.dumps(_finite(data), indent=2, ensure_ascii=False)
+    sys.stdout.write(_C1.sub(lambda m: f"\\u{ord(m.group()):04x}", text) + "\n")
+
+
+_C1 = re.compile(r"[\x7f-\x9f]")
+"""DEL and the C1 controls: not escaped by JSON, yet some terminals obey them."""
 
 
 def _finite(obj: Any) -> Any:

@@ -34,14 +34,18 @@ def register(app: typer.Typer) -> None:
 
         Back up the store first (SQLite: copy the file while nothing writes to
         it; PostgreSQL: pg_dump). Running it again on an upgraded store
-        changes nothing.
+        changes nothing. A SQLite store is checked whole first (``PRAGMA
+        quick_check``, read-only): a damaged store, or another program's
+        database, is refused and left as it was.
         """
         from sqlalchemy.exc import OperationalError
 
         from chaintwin.store import migrate
         from chaintwin.store.engine import engine_for, hide_password, safe_url, store_url
+        from chaintwin.store.recognise import recognise
 
         given = store_url(url)
+        recognise(given, safe_url(given), check_all=True)  # refused before anything is written
         engine = engine_for(given)
         try:
             before, after = migrate.upgrade(engine, safe_url(given))

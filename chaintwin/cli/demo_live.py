@@ -25,6 +25,7 @@ from pathlib import Path
 
 from rich.console import Console
 
+from chaintwin.cli.common import safe
 from chaintwin.read.profile import load_profiles
 
 __all__ = ["LIVE_FAULTS", "run_live"]
@@ -68,9 +69,10 @@ def webhook_receiver(secret: bytes, console: Console) -> Iterator[str]:
             except ValueError:
                 doc = {}
             console.print(
-                f"[bold]webhook[/]: {doc.get('event')} {doc.get('conveyor')} "
-                f"{doc.get('feature')} (probable cause {doc.get('cause')}), signature "
-                f"{'valid' if valid else 'INVALID'}; {doc.get('link')}",
+                f"[bold]webhook[/]: {safe(str(doc.get('event')))} "
+                f"{safe(str(doc.get('conveyor')))} {safe(str(doc.get('feature')))} (probable "
+                f"cause {safe(str(doc.get('cause')))}), signature "
+                f"{'valid' if valid else 'INVALID'}; {safe(str(doc.get('link')))}",
                 highlight=False,
                 soft_wrap=True,
             )

@@ -11,6 +11,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
+from chaintwin.cli.common import safe
 from chaintwin.cli.simulate_cmd import FAULT_HELP, REALISM_SWITCHES, build_model, build_realism
 from chaintwin.errors import ConnectorError
 
@@ -161,8 +162,8 @@ def register(app: typer.Typer) -> None:
             security = ", Basic256Sha256 Sign/SignAndEncrypt" if certificate else ""
             login = f"users {', '.join(sorted(users))}" if users else "anonymous"
             console.print(
-                f"drive-sim {prof.id} on opc.tcp://{host}:{port} (security: None{security}; "
-                f"login: {login}): "
+                f"drive-sim {safe(prof.id)} on opc.tcp://{host}:{port} (security: None{security}; "
+                f"login: {safe(login)}): "
                 f"a scope every {interval:g} s; Ctrl-C or SIGTERM stops it"
             )
             await sim.run(stop, count=count, on_publish=said)

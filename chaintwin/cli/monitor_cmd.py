@@ -10,7 +10,6 @@ from typing import Annotated, Any, TypeVar
 
 import typer
 from rich.console import Console
-from rich.markup import escape
 from rich.table import Table
 
 from chaintwin.cli.common import (
@@ -20,10 +19,11 @@ from chaintwin.cli.common import (
     print_json,
     print_refused,
     print_warning,
+    safe,
 )
 from chaintwin.diagnose.monitor import ConveyorMonitor
 from chaintwin.diagnose.monitor_state import MonitorState
-from chaintwin.diagnose.records import RecordingResult, SettingsGiven
+from chaintwin.diagnose.records import RecordingResult, SettingsGiven, date_out_of_span
 from chaintwin.diagnose.session import resume, undated
 from chaintwin.diagnose.state import (
     MAINTENANCE_KINDS,
@@ -192,17 +192,17 @@ def _print_table(results: list[RecordingResult], monitors: list[ConveyorMonitor]
         table.add_column(col)
     for r in results:
         if r.error is not None:
-            table.add_row(escape(r.file), "", "[red]refused[/red]", "", "", "", "")
+            table.add_row(safe(r.file), "", "[red]refused[/red]", "", "", "", "")
             continue
         causes = ", ".join(f"{c['cause']} ({c['feature']} {_pct(c['change'])})" for c in r.causes)
         table.add_row(
-            escape(r.file),
-            r.conveyor,
+            safe(r.file),
+            safe(r.conveyor),
             r.status,
             "-" if r.payload_kg is None else f"{r.payload_kg:.1f}",
             "-" if r.tlf is None else f"{r.tlf:.3f}",
             "[red]ALARM[/red]" if r.alarm else "",
-            escape(causes),
+            safe(causes),
         )
     console.print(table)
     for r in results:
@@ -212,7 +212,7 @@ def _print_table(results: list[RecordingResult], monitors: list[ConveyorMonitor]
         s = mon.summary()
         base = s["baseline"]
         console.print(
-            f"[bold]{escape(s['conveyor'])}[/bold]: calibration {s['calibration']}, "
+            f"[bold]{safe(s['conveyor'])}[/bold]: calibration {s['calibration']}, "
             f"{s['recordings']} recordings, baseline "
             f"{'complete' if base['complete'] else 'learning'} ({base['recordings']})",
             highlight=False,
@@ -220,8 +220,8 @@ def _print_table(results: list[RecordingResult], monitors: list[ConveyorMonitor]
         for a in s["open_alarms"]:
             ack = " (acknowledged)" if a["acknowledged"] else ""
             console.print(
-                f"  [red]alarm {a['id']}[/red]{ack}: {a['cause']} - {a['feature']} "
-                f"{_pct(a['change'])} since {a['since']}",
+                f"  [red]alarm {safe(a['id'])}[/red]{ack}: {safe(a['cause'])} - "
+                f"{safe(a['feature'])} {_pct(a['change'])} since {safe(a['since'])}",
                 highlight=False,
             )
         for fc in s["forecasts"]:
@@ -233,7 +233,8 @@ def _print_table(results: list[RecordingResult], monitors: list[ConveyorMonitor]
                 )
                 continue
             console.print(
-                f"  forecast ({fc.get('model', 'line')}): {fc['feature']} ({fc['cause']}) crosses "
+                f"  forecast ({safe(fc.get('model', 'line'))}): {safe(fc['feature'])} "
+                f"({safe(fc['cause'])}) crosses "
                 f"{fc['limit']:.4g} about {fc['crosses_at'][:10]} (90 %: {fc['earliest'][:10]} "
                 f"to {(fc['latest'] or 'beyond a year')[:10]})",
                 highlight=False,
@@ -333,7 +334,7 @@ def register(app: typer.Typer) -> None:
             state, db, conveyor, lambda data: add_maintenance(data, conveyor, kind, by, why, when)
         )
         Console().print(
-            f"recorded maintenance {event.id} ({kind}) on {escape(conveyor)} at {event.at}; "
+            f"recorded maintenance {event.id} ({kind}) on {safe(conveyor)} at {event.at}; "
             "the baseline restarts with the recordings after it",
             highlight=False,
         )
@@ -349,7 +350,8 @@ def register(app: typer.Typer) -> None:
         """Acknowledge an alarm: someone has seen it; it stays open until it closes."""
         a = _edit(state, db, None, lambda data: acknowledge_alarm(data, alarm, by, why), alarm)
         Console().print(
-            f"acknowledged alarm {a.id} ({a.cause}, {a.feature}) on {a.conveyor}",
+            f"acknowledged alarm {safe(a.id)} ({safe(a.cause)}, {safe(a.feature)}) on "
+            f"{safe(a.conveyor)}",
             highlight=False,
         )
 
@@ -381,12 +383,18 @@ def _edit(
         store.close()
 
 
-def _parse_at(text: str | None) -> datetime | None:
+def _parse_at(text: str | None, option: str = "--at") -> datetime | None:
+    """A CLI option's ISO 8601 time, within the span of dates chaintwin accepts."""
     if text is None:
         return None
     try:
-        return datetime.fromisoformat(text)
+        at = datetime.fromisoformat(text)
     except ValueError:
         raise StoreError(
-            f"--at '{text}' is not an ISO 8601 time (e.g. 2026-11-21T10:15:00Z)"
+            f"{option} '{text}' is not an ISO 8601 time (e.g. 2026-11-21T10:15:00Z)",
+            field=option.lstrip("-"),
         ) from None
+    refused = date_out_of_span(at)
+    if refused is not None:
+        raise StoreError(f"{option} {refused}", field=option.lstrip("-"))
+    return at

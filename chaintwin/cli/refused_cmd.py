@@ -10,7 +10,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from chaintwin.cli.common import print_json, safe
+from chaintwin.cli.common import print_json, printable, safe
 from chaintwin.errors import StoreError
 
 __all__ = ["register", "retry_refusals"]
@@ -165,6 +165,6 @@ def register(app: typer.Typer) -> None:
             print("no refused files")
         for d in done:
             tail = f": {d['reason']}" if d["status"] in ("refused", "gone", "not_kept") else ""
-            print(f"{d['status']:<15} {d['path']}{tail}")
+            print(printable(f"{d['status']:<15} {d['path']}{tail}"))
 
     app.add_typer(group)

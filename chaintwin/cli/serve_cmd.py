@@ -12,7 +12,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from chaintwin.cli.common import print_json, safe
+from chaintwin.cli.common import print_json, printable, safe
 from chaintwin.errors import StoreError
 
 if TYPE_CHECKING:
@@ -245,7 +245,7 @@ def serve(
             following = ", ".join(followed) or "no folders or drives"
             where = "no web" if live.no_web else f"{scheme}://{host}:{port}/ (API docs at /docs)"
             print(
-                f"chaintwin serve: {safe_url(url)} at {where}; following {following}; "
+                f"chaintwin serve: {safe_url(url)} at {where}; following {printable(following)}; "
                 "Ctrl-C or SIGTERM stops it",
                 file=sys.stderr,
                 flush=True,

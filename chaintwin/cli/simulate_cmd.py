@@ -14,6 +14,7 @@ from rich.console import Console
 from rich.progress import Progress
 
 from chaintwin.cli.common import print_json
+from chaintwin.diagnose.records import date_out_of_span
 from chaintwin.errors import CalibrationError, ModelError, RecordingError
 from chaintwin.read.profile import ConveyorProfile, ModelSpec, load_profile
 from chaintwin.read.reader import read_recording
@@ -268,6 +269,9 @@ def register(app: typer.Typer) -> None:
                 when = datetime.fromisoformat(recorded_at)
             except ValueError:
                 raise ModelError(f"--recorded-at '{recorded_at}' is not an ISO 8601 time") from None
+            refused = date_out_of_span(when)
+            if refused is not None:
+                raise ModelError(f"--recorded-at {refused}")
         run = run_virtual(
             prof,
             payload_kg=payload,

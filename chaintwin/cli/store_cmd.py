@@ -12,7 +12,14 @@ import typer
 from rich.console import Console
 from rich.progress import Progress
 
-from chaintwin.cli.common import ColumnsOption, expand_recordings, print_json, print_refused, safe
+from chaintwin.cli.common import (
+    ColumnsOption,
+    expand_recordings,
+    print_json,
+    print_refused,
+    printable,
+    safe,
+)
 from chaintwin.cli.monitor_cmd import load_profiles
 from chaintwin.diagnose.records import SettingsGiven
 from chaintwin.errors import StoreError
@@ -73,7 +80,7 @@ def _csv(rows: list[dict[str, Any]]) -> str:
             else:
                 v = feats.get(col)
                 out.append("" if v is None else v)
-        w.writerow(out)
+        w.writerow([printable(c) if isinstance(c, str) else c for c in out])
     return buf.getvalue()
 
 

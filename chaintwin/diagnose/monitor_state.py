@@ -28,6 +28,7 @@ from .features import feature_spec
 from .health import FeatureBaseline
 from .records import Alarm, Event, MonitorSettings, as_number
 from .state import STATE_VERSION
+from .state_model import check_state_shape
 from .wear import usage_summary, wear_rates
 
 if TYPE_CHECKING:
@@ -142,8 +143,10 @@ class MonitorState:
         Raises
         ------
         StoreError
-            When the state is damaged (the message names ``source``).
+            When the state is damaged (the message names ``source`` and, for
+            a value of the wrong type or size, its field).
         """
+        check_state_shape(data, source)
         try:
             s = data["settings"]
             settings = MonitorSettings(

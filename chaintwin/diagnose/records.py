@@ -14,6 +14,8 @@ from typing import Any
 from chaintwin.errors import MonitorError
 
 __all__ = [
+    "EARLIEST_DATE",
+    "LATEST_DATE",
     "LIFECYCLES",
     "NOT_COUNTED",
     "Acknowledgement",
@@ -26,6 +28,8 @@ __all__ = [
     "SettingsGiven",
     "Shelving",
     "as_number",
+    "date_in_span",
+    "date_out_of_span",
     "finite_or_none",
     "iso_utc",
     "parse_time",
@@ -579,6 +583,46 @@ def finite_or_none(x: float | None) -> float | None:
 def iso_utc(t: datetime | None) -> str | None:
     """ISO 8601 in UTC, so that times from plants in other zones compare as strings."""
     return None if t is None else t.astimezone(UTC).isoformat()
+
+
+EARLIEST_DATE = datetime(1970, 1, 1, tzinfo=UTC)
+"""The earliest time a user may give (maintenance, recordings' times)."""
+
+LATEST_DATE = datetime(2200, 1, 1, tzinfo=UTC)
+"""The latest time a user may give: later ones are typing mistakes, and years
+past 9999 cannot be written in ISO 8601 once a time zone moves them."""
+
+
+def date_out_of_span(at: datetime) -> str | None:
+    """Why ``at`` is refused (outside :data:`EARLIEST_DATE`..:data:`LATEST_DATE`), or None.
+
+    A time without a time zone is taken as UTC.
+    """
+    when = at if at.tzinfo is not None else at.replace(tzinfo=UTC)
+    try:
+        inside = EARLIEST_DATE <= when <= LATEST_DATE
+    except OverflowError:  # year 1 or 9999 moved out of range by its time zone
+        inside = False
+    if inside:
+        return None
+    return (
+        f"{at.isoformat()} is outside {EARLIEST_DATE.date()}..{LATEST_DATE.date()}; "
+        "give a time in that span"
+    )
+
+
+def date_in_span(at: datetime | None) -> datetime | None:
+    """``at`` as it is, for a pydantic validator (an API body's time field).
+
+    Raises
+    ------
+    ValueError
+        Outside :data:`EARLIEST_DATE`..:data:`LATEST_DATE` (:func:`date_out_of_span`).
+    """
+    refused = None if at is None else date_out_of_span(at)
+    if refused is not None:
+        raise ValueError(refused)
+    return at
 
 
 def parse_time(text: str | None) -> datetime | None:

@@ -24,9 +24,10 @@ from typing import Any
 
 from chaintwin.errors import StoreError
 from chaintwin.read.files import read_limited, write_atomic
+from chaintwin.read.integers import json_loads, refuse_huge_integers
 from chaintwin.read.recording import RecordingWarning
 
-from .records import Acknowledgement, Alarm, Event, parse_time
+from .records import Acknowledgement, Alarm, Event, date_out_of_span, parse_time
 
 __all__ = [
     "MAINTENANCE_KINDS",
@@ -76,7 +77,7 @@ def load_state(path: str | Path, *, missing_ok: bool = True) -> dict[str, Any]:
         raise StoreError(f"{p}: no such state file; run `chaintwin monitor --state {p}` first")
     raw = read_limited(p, what="state", error=lambda src, msg: StoreError(f"{src}: {msg}"))
     try:
-        data = json.loads(raw.decode("utf-8"))
+        data = json_loads(raw.decode("utf-8"))
     except UnicodeDecodeError as exc:
         raise StoreError(f"{p}: cannot read the state ({exc})") from None
     except json.JSONDecodeError as exc:
@@ -86,6 +87,7 @@ def load_state(path: str | Path, *, missing_ok: bool = True) -> dict[str, Any]:
         ) from None
     except RecursionError:
         raise StoreError(f"{p}: nested too deeply to be a monitoring state") from None
+    refuse_huge_integers(data, str(p), StoreError, "monitoring state")
     if not isinstance(data, dict) or data.get("format") != STATE_FORMAT:
         raise StoreError(f"{p}: not a chaintwin monitoring state (no 'format: {STATE_FORMAT}')")
     if data.get("format_version") != STATE_VERSION:
@@ -156,6 +158,9 @@ def new_event(kind: str, by: str, why: str, at: datetime | None = None) -> Event
     if not by.strip():
         raise StoreError("say who did the maintenance (by)", field="by")
     when = at or datetime.now(UTC)
+    refused = date_out_of_span(when)
+    if refused is not None:
+        raise StoreError(f"the maintenance time (at) {refused}", field="at")
     if when.tzinfo is None:
         when = when.replace(tzinfo=UTC)
     when = when.astimezone(UTC)

@@ -56,6 +56,7 @@ from chaintwin.model.rigid import (
     incline_terms,
 )
 from chaintwin.read.files import read_limited, write_atomic
+from chaintwin.read.integers import json_loads, refuse_huge_integers
 from chaintwin.read.profile import ConveyorProfile, parse_profile
 from chaintwin.read.recording import RecordingWarning
 from chaintwin.units import RPM_TO_RAD_S
@@ -335,6 +336,7 @@ class Calibration:
         CalibrationError
             When the content is not a chaintwin calibration or was altered.
         """
+        refuse_huge_integers(data, source, CalibrationError, "calibration")
         if not isinstance(data, dict) or data.get("format") != CALIBRATION_FORMAT:
             raise CalibrationError(
                 f"{source}: not a chaintwin calibration file (no 'format: "
@@ -472,7 +474,7 @@ def load_calibration(path: str | Path) -> Calibration:
     source = str(path)
     raw = read_limited(path, what="calibration", error=lambda s, m: CalibrationError(f"{s}: {m}"))
     try:
-        data = json.loads(raw.decode("utf-8"))
+        data = json_loads(raw.decode("utf-8"))
     except UnicodeDecodeError as exc:
         raise CalibrationError(f"{source}: cannot read the calibration ({exc})") from None
     except json.JSONDecodeError as exc:

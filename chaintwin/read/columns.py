@@ -20,6 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from chaintwin.errors import ColumnMapError
 from chaintwin.read.files import read_limited, yaml_load
+from chaintwin.read.integers import refuse_huge_integers
 from chaintwin.units import CANONICAL_CHANNELS
 
 __all__ = ["ColumnMap", "ColumnTarget", "load_column_map"]
@@ -86,6 +87,7 @@ def load_column_map(path: str | Path) -> ColumnMap:
         raise ColumnMapError(f"{source}: not valid YAML; fix the syntax") from None
     except RecursionError:
         raise ColumnMapError(f"{source}: nested too deeply to be a column map") from None
+    refuse_huge_integers(data, source, ColumnMapError, "column map")
     if not isinstance(data, dict):
         raise ColumnMapError(
             f"{source}: a column map is a mapping with one key 'columns' (header → {{name, unit}})"

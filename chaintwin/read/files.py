@@ -30,6 +30,8 @@ import yaml
 
 from chaintwin.errors import ChaintwinError
 
+from .integers import HugeInteger, bounded
+
 __all__ = [
     "DEFAULT_MAX_FILE_MB",
     "MAX_FILE_MB_ENV",
@@ -285,6 +287,22 @@ _Loader.add_implicit_resolver(
 )
 
 
+def _bounded_yaml_int(loader: yaml.SafeLoader, node: yaml.ScalarNode) -> int | HugeInteger:
+    """A YAML integer; one beyond :data:`~.integers.MAX_INTEGER` as a :class:`HugeInteger`."""
+    text = str(node.value)
+    if len(text.replace("_", "").lstrip("+-0")) > 4000:  # past Python's int-to-text limit
+        return HugeInteger(len(text))
+    return bounded(yaml.SafeLoader.construct_yaml_int(loader, node), text)
+
+
+_Loader.add_constructor("tag:yaml.org,2002:int", _bounded_yaml_int)
+
+
 def yaml_load(text: str) -> Any:
-    """Parse YAML text with :class:`_Loader` (safe; numbers with any exponent)."""
+    """Parse YAML text with :class:`_Loader` (safe; numbers with any exponent).
+
+    An integer beyond :data:`~.integers.MAX_INTEGER` is read as a
+    :class:`~.integers.HugeInteger` (:func:`~.integers.refuse_huge_integers`
+    names its field).
+    """
     return yaml.load(text, Loader=_Loader)

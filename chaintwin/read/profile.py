@@ -64,6 +64,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from chaintwin.errors import ProfileError
 from chaintwin.read.files import read_limited, yaml_load
+from chaintwin.read.integers import refuse_huge_integers
 
 __all__ = [
     "MAX_ID_LENGTH",
@@ -432,6 +433,7 @@ def parse_profile(data: Any, source: str = "<profile>") -> ConveyorProfile:
     ProfileError
         With the field path and what to do.
     """
+    refuse_huge_integers(data, source, ProfileError, "profile")
     if not isinstance(data, dict):
         raise ProfileError(
             f"{source}: a profile must be a YAML mapping with id, belt, sprocket, gear "

@@ -21,12 +21,12 @@ __all__ = [
     "DEFAULT_URL",
     "QUICK_CHECK_MAX_MB",
     "WAL_AUTOCHECKPOINT_PAGES",
-    "check_sqlite_file",
     "engine_for",
     "hide_password",
     "safe_url",
     "sqlite_path",
     "store_url",
+    "writable_place",
 ]
 
 DEFAULT_URL = "sqlite:///chaintwin.db"
@@ -140,8 +140,10 @@ def engine_for(
     """The SQLAlchemy engine of a store URL (psycopg 3 for PostgreSQL; SQLite's pragmas).
 
     With ``read_only`` a SQLite file is opened read-only (``mode=ro``): a
-    command that only reads cannot change it, even by accident; PostgreSQL
-    sessions are set read-only. ``pool_size``: the connections the pool
+    command that only reads cannot change it, even by accident; on a
+    read-only file system (or in a folder this process cannot write, without
+    a write-ahead log) it is opened ``immutable=1``, as SQLite cannot take
+    its locks there; PostgreSQL sessions are set read-only. ``pool_size``: the connections the pool
     keeps open (SQLAlchemy's default 5), and ``max_overflow`` more it may
     open for a while, each closed when given back (default: as many as
     ``pool_size``); a file or server store only. ``sqlite_cache_kib``: each
@@ -159,7 +161,8 @@ def engine_for(
         target = "postgresql+psycopg://" + target[len("postgresql://") :]
     path = sqlite_path(url)
     if read_only and path is not None:
-        target = f"sqlite:///file:{quote(path)}?mode=ro&uri=true"
+        mode = "immutable=1" if _unwritable_place(path) else "mode=ro"
+        target = f"sqlite:///file:{quote(path)}?{mode}&uri=true"
     pooling: dict[str, int] = {}
     if pool_size is not None and (path is not None or url.startswith("postgresql")):
         overflow = pool_size if max_overflow is None else max_overflow
@@ -192,6 +195,35 @@ def engine_for(
 def _first_line(exc: BaseException) -> str:
     """An exception's message up to its first line break (a one-line error)."""
     return (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+
+
+def _unwritable_place(path: str) -> bool:
+    """Whether SQLite cannot take a read-only file's locks where it lies.
+
+    On a read-only file system, or in a folder this process cannot write to,
+    SQLite cannot create a WAL store's shared-memory file, and ``mode=ro``
+    fails ("unable to open database file"); no one can write the file
+    there, so reading it as immutable is exact. Not when a write-ahead log
+    lies beside it: its commits would be left out (``mode=ro`` then fails
+    loudly instead).
+    """
+    if os.path.exists(path + "-wal"):
+        return False
+    return not writable_place(os.path.dirname(os.path.abspath(path)))
+
+
+def writable_place(path: str) -> bool:
+    """Whether ``path`` (a file or folder) can be written: a writable file system and rights.
+
+    A store's file and its folder (where SQLite keeps its journal) must both
+    be, for a command that writes.
+    """
+    try:
+        if os.statvfs(path).f_flag & os.ST_RDONLY:
+            return False
+    except OSError:
+        return False
+    return os.access(path, os.W_OK)
 
 
 def sqlite_path(url: str) -> str | None:
@@ -254,24 +286,3 @@ under about 35 MB (SQLite removes it when the last connection closes)."""
 QUICK_CHECK_MAX_MB = 512
 """SQLite stores up to this size (MB) get ``PRAGMA quick_check`` when opened
 (about a second per 100 MB); larger ones the schema check only."""
-
-
-def check_sqlite_file(engine: Engine, path: str, where: str) -> None:
-    """Refuse a damaged SQLite file before anything reads or writes it.
-
-    Raises
-    ------
-    StoreError
-        When the integrity check finds damage.
-    """
-    if not os.path.exists(path) or os.path.getsize(path) > QUICK_CHECK_MAX_MB * 1_000_000:
-        return  # a new store, or one too large to check at every opening
-    with engine.connect() as connection:
-        rows = connection.exec_driver_sql("PRAGMA quick_check(3)").fetchall()
-    found = [str(r[0]) for r in rows]
-    if found != ["ok"]:
-        raise StoreError(
-            f"url {where}: the store is damaged ({'; '.join(found)[:200]}); nothing was "
-            "changed: restore it from a backup",
-            field="url",
-        )

@@ -48,6 +48,7 @@ __all__ = [
     "LEGACY_TABLES",
     "check",
     "head_from_scripts",
+    "require_head",
     "revision_of",
     "upgrade",
 ]
@@ -132,6 +133,11 @@ def check(engine: Engine, where: str) -> str | None:
     """
     with engine.connect() as connection:
         revision = revision_of(connection, where)
+    return require_head(revision, where)
+
+
+def require_head(revision: str | None, where: str) -> str | None:
+    """Refuse a revision other than :data:`HEAD_REVISION` (None: empty); as :func:`check`."""
     if revision is None or revision == HEAD_REVISION:
         return revision
     if revision in _order():

@@ -39,12 +39,13 @@ from chaintwin.read.recording import Recording
 from . import migrate
 from .engine import (
     _first_line,
-    check_sqlite_file,
     engine_for,
     hide_password,
     safe_url,
     sqlite_path,
+    writable_place,
 )
+from .recognise import recognise
 from .rows import Finished, Waiting, put_alarms_events
 from .samples import pack_samples, recording_meta, stored_recording
 from .schema import (
@@ -121,9 +122,11 @@ class Store:
         Each SQLite connection's page cache at most, KiB (SQLite's default
         2 000); ``serve`` keeps it small, its memory bounded.
 
-    A SQLite file is checked when it is opened (``PRAGMA quick_check`` up
-    to :data:`~.engine.QUICK_CHECK_MAX_MB`, the schema always): a damaged file or
-    another program's database is refused, changed in nothing.
+    The database is recognised through a read-only connection before it is
+    opened for writing (:func:`~.recognise.recognise`: SQLite's header and
+    ``PRAGMA quick_check`` up to :data:`~.engine.QUICK_CHECK_MAX_MB`, the
+    tables and schema revision always): a damaged file or another program's
+    database is refused, changed in nothing (not even switched to WAL).
 
     Raises
     ------
@@ -150,6 +153,28 @@ class Store:
                 "CHAINTWIN_DB), or ingest recordings into it first",
                 field="url",
             )
+        where = safe_url(self.url)
+        revision = migrate.require_head(recognise(url, where), where)  # nothing written yet
+        if revision is None and read_only:
+            raise StoreError(
+                f"url {where}: the database holds no chaintwin store; ingest recordings into "
+                "it first",
+                field="url",
+            )
+        if (
+            not read_only
+            and path is not None
+            and os.path.exists(path)
+            and not (
+                writable_place(path) and writable_place(os.path.dirname(os.path.abspath(path)))
+            )
+        ):
+            raise StoreError(
+                f"url {where}: the store cannot be written there (a read-only file, folder or "
+                "file system); `export` and `report` read it as it is; copy it to a writable "
+                "place to change it",
+                field="url",
+            )
         self.engine: Engine = engine_for(
             url,
             read_only=read_only,
@@ -157,17 +182,8 @@ class Store:
             max_overflow=max_overflow,
             sqlite_cache_kib=sqlite_cache_kib,
         )
-        where = safe_url(self.url)
         try:
-            if path is not None:
-                check_sqlite_file(self.engine, path, where)
-            if migrate.check(self.engine, where) is None:
-                if read_only:
-                    raise StoreError(
-                        f"url {where}: the database holds no chaintwin store; ingest "
-                        "recordings into it first",
-                        field="url",
-                    )
+            if revision is None:
                 migrate.upgrade(self.engine, where)  # a new store
         except OperationalError as exc:
             self.engine.dispose()

@@ -10,10 +10,10 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
-from typing import Any, TypeVar
+from typing import Annotated, Any, TypeVar
 
 from fastapi import APIRouter, Request
-from pydantic import BaseModel, Field
+from pydantic import AfterValidator, BaseModel, Field
 
 from chaintwin.diagnose.alarm_actions import (
     MAX_SHELVE_MINUTES,
@@ -24,6 +24,7 @@ from chaintwin.diagnose.alarm_actions import (
     unshelve_alarm,
 )
 from chaintwin.diagnose.alarm_kpis import KPI_DAYS, alarm_kpis
+from chaintwin.diagnose.records import date_in_span
 from chaintwin.errors import StoreError
 from chaintwin.store.access import audit
 from chaintwin.web.api import _ERRORS, _web, who
@@ -60,7 +61,11 @@ class OutOfServiceBody(BaseModel):
     """Why and until when a conveyor is out of service (no ``until``: until put back)."""
 
     why: str = Field(min_length=1, max_length=2000)
-    until: datetime | None = None
+    until: Annotated[
+        datetime | None,
+        AfterValidator(date_in_span),
+        Field(description="Until when (default: until put back), within 1970-01-01..2200-01-01."),
+    ] = None
 
 
 def _on_alarm(store: Any, alarm_id: str, edit: Callable[[dict[str, Any]], T]) -> T:

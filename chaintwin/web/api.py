@@ -22,11 +22,11 @@ import orjson
 from fastapi import APIRouter, Form, Header, Query, Request, Response, UploadFile
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
 from chaintwin import __version__
 from chaintwin.diagnose.monitor_state import health_index
-from chaintwin.diagnose.records import LIFECYCLES
+from chaintwin.diagnose.records import LIFECYCLES, date_in_span
 from chaintwin.diagnose.state import acknowledge_alarm, add_maintenance
 from chaintwin.errors import ChaintwinError, StoreError
 from chaintwin.store.access import (
@@ -122,7 +122,11 @@ class MaintenanceBody(BaseModel):
 
     kind: str = Field(min_length=1, max_length=20)
     why: str = Field(min_length=1, max_length=2000)
-    at: datetime | None = None
+    at: Annotated[
+        datetime | None,
+        AfterValidator(date_in_span),
+        Field(description="When it was done (default now), within 1970-01-01..2200-01-01."),
+    ] = None
 
 
 class TokenBody(BaseModel):

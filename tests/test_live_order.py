@@ -213,10 +213,11 @@ def test_a_shuffled_burst_gives_what_ingest_of_the_same_files_gives(
         (tmp_path / "profiles" / f"{cid}.yaml").write_text(
             (EXAMPLES / "profiles" / f"{cid}.yaml").read_text()
         )
+    # the order window: longer than it takes to notice the whole burst
     args = [
         "--db", live_url, "--no-web", "--watch", str(watched),
         "--profiles", str(tmp_path / "profiles"),
-        "--settle-s", "0.3", "--order-window-s", "8",
+        "--settle-s", "0.3", "--order-window-s", str(max(8.0, n / 50)),
     ]  # fmt: skip
     service = Service(args, tmp_path / "serve.log")
     try:

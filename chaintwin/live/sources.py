@@ -433,15 +433,18 @@ class Ingestor:
         return self._stored_profiles | self.profiles
 
     def _ends_in_motion(self, path: str) -> bool:
-        """Whether a recording file ends in motion (False when it cannot be read: the
-        ingest then says why)."""
-        from chaintwin.read.reader import read_metadata
-        from chaintwin.validate.checks import load_recording
+        """Whether a recording file ends in motion: its last movement phase, as
+        validation segments it (:func:`~chaintwin.validate.phases.segment`; the
+        ``incomplete_cycle`` warning). False when it cannot be read: the ingest
+        then says why."""
+        from chaintwin.read.reader import parse_metadata, parse_recording, read_bytes
+        from chaintwin.validate.phases import segment
 
         try:
-            conveyor = read_metadata(path).conveyor
+            raw = read_bytes(path)
+            conveyor = parse_metadata(raw, path).conveyor
             profile = None if conveyor is None else self.profiles_for().get(conveyor)
-            phases = load_recording(path, profile=profile).phases
+            phases = segment(parse_recording(raw, path, profile=profile))
         except (ChaintwinError, OSError, ValueError):
             return False
         return bool(phases) and phases[-1].moving

@@ -226,7 +226,7 @@ def test_a_shuffled_burst_gives_what_ingest_of_the_same_files_gives(
         rng = random.Random(7)
         shuffled = list(made)
         rng.shuffle(shuffled)
-        wait_for(lambda: any("following" in x for x in service.lines()), 60, "start", service)
+        wait_for(lambda: any("following" in x for x in service.lines()), 300, "start", service)
         for k, f in enumerate(shuffled):
             f.rename(watched / f"{rng.getrandbits(32):08x}-{k:04d}.csv")
         store = Store(live_url)

@@ -97,7 +97,7 @@ def test_a_writer_pausing_longer_than_the_settle_time_gets_its_file_stored_once_
     part, rest = halves(complete)
     service = Service(args, tmp_path / "serve.log")
     try:
-        wait_for(lambda: any("following" in x for x in service.lines()), 60, "start", service)
+        wait_for(lambda: any("following" in x for x in service.lines()), 300, "start", service)
         target = watched / complete.name
         with target.open("wb") as f:
             f.write(part)

@@ -302,8 +302,9 @@ class Ingestor:
         await self.queue.put(job)
 
     def depth(self) -> int:
-        """The recordings waiting: held in the order window, queued, and the one in hand."""
-        return len(self.window) + self.queue.qsize() + (1 if self.busy else 0)
+        """The recordings waiting to be ingested: queued, and the one in hand (not those
+        held in the order window, which wait by design: ``len(window)``)."""
+        return self.queue.qsize() + (1 if self.busy else 0)
 
     async def _let_through(self, stop: asyncio.Event) -> None:
         """Move the held files to the queue as their window ends, until ``stop``."""

@@ -16,7 +16,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 from test_live import Service, count, stored, wait_for
 
-from chaintwin.live.sources import Ingestor, Job
+from chaintwin.live.sources import PARTIAL_WAIT_S, Ingestor, Job
 from chaintwin.read.profile import load_profile
 from chaintwin.simulate.fleet import generate
 from chaintwin.store.schema import RecordingRow
@@ -51,7 +51,7 @@ def test_a_file_ending_in_motion_waits_then_is_stored_as_it_is(
     partial.write_bytes(part)
     assert load_recording(partial, profile=PROFILE).phases[-1].moving  # ends in motion
     store = Store(f"sqlite:///{tmp_path / 'p.db'}")
-    ingestor = Ingestor(store, {PROFILE.id: PROFILE})
+    ingestor = Ingestor(store, {PROFILE.id: PROFILE}, partial_wait_s=PARTIAL_WAIT_S)
     try:
         first = ingestor.ingest_one(Job(str(partial), "folder:x"))
         assert first.status == "deferred" and first.reason == "ends in motion"
@@ -72,7 +72,7 @@ def test_a_file_ending_in_motion_waits_then_is_stored_as_it_is(
 
 def test_a_whole_file_is_not_held(complete: Path, tmp_path: Path) -> None:
     store = Store(f"sqlite:///{tmp_path / 'w.db'}")
-    ingestor = Ingestor(store, {PROFILE.id: PROFILE})
+    ingestor = Ingestor(store, {PROFILE.id: PROFILE}, partial_wait_s=PARTIAL_WAIT_S)
     try:
         out = ingestor.ingest_one(Job(str(complete), "folder:x"))
         assert out.status in ("stored", "waiting") and out.retry_in_s is None
@@ -118,3 +118,22 @@ def test_a_writer_pausing_longer_than_the_settle_time_gets_its_file_stored_once_
     finally:
         if service.proc.poll() is None:
             service.kill()
+
+
+def test_refused_retry_reads_a_file_ending_in_motion_at_once(
+    complete: Path, tmp_path: Path
+) -> None:
+    """Outside the live service (``chaintwin refused retry``) nothing waits: the ingestor
+    is made without a wait, and the file is stored as it is."""
+    part, _rest = halves(complete)
+    partial = tmp_path / complete.name
+    partial.write_bytes(part)
+    store = Store(f"sqlite:///{tmp_path / 'r.db'}")
+    ingestor = Ingestor(store, {PROFILE.id: PROFILE})
+    try:
+        assert ingestor.partial_wait_s == 0.0
+        out = ingestor.ingest_one(Job(str(partial), "folder:x"))
+        assert out.status in ("stored", "waiting")
+    finally:
+        ingestor.close()
+        store.close()

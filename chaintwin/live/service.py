@@ -51,7 +51,7 @@ from .ledger import (
     update_source,
 )
 from .metrics import Metrics
-from .sources import DriveStatusLike, Ingestor, Job, Outcome, Submit
+from .sources import PARTIAL_WAIT_S, DriveStatusLike, Ingestor, Job, Outcome, Submit
 from .watch import FolderSource
 
 if TYPE_CHECKING:
@@ -218,7 +218,12 @@ class LiveService:
             options.holder or f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:6]}"
         )
         self.ingestor = Ingestor(
-            store, profiles, settings, self._outcome, order_window_s=options.order_window_s
+            store,
+            profiles,
+            settings,
+            self._outcome,
+            order_window_s=options.order_window_s,
+            partial_wait_s=PARTIAL_WAIT_S,
         )
         self.metrics = Metrics(store, self._queue_depth)
         self.sources: list[Source] = []

@@ -253,6 +253,10 @@ class Ingestor:
         order (:class:`ReorderWindow`), s; 0 takes them as they come. A
         drive's recordings (:meth:`submit`) are not held: a drive gives its
         scopes in order.
+    partial_wait_s : float
+        A file that ends in motion waits this long after its last change for
+        the rest of it (:data:`PARTIAL_WAIT_S` in the live service), s; 0
+        reads it at once (``chaintwin refused retry``).
     """
 
     PROFILES_REFRESH_S = 30.0
@@ -266,6 +270,7 @@ class Ingestor:
         on_outcome: Callable[[Job, Outcome], None] | None = None,
         *,
         order_window_s: float = 0.0,
+        partial_wait_s: float = 0.0,
     ) -> None:
         self.store = store
         self.profiles = dict(profiles)
@@ -273,7 +278,7 @@ class Ingestor:
         self.on_outcome = on_outcome
         self.queue: asyncio.Queue[Job] = asyncio.Queue()
         self.window = ReorderWindow(order_window_s)
-        self.partial_wait_s = PARTIAL_WAIT_S
+        self.partial_wait_s = partial_wait_s
         """A file ending in motion waits this long after its last change (0: never), s."""
         # path -> (content hash, monotonic s): when a file's content was first found
         # ending in motion (in the worker thread only)

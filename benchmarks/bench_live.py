@@ -185,6 +185,7 @@ def run(args: argparse.Namespace, work: Path) -> None:
         [
             sys.executable, "-m", "chaintwin", "serve", "--db", url, "--no-web",
             "--watch", str(drop), "--settle-s", str(args.settle_s),
+            "--order-window-s", "0",  # the pipeline's latency, without the order window
             "--notify-url", f"http://127.0.0.1:{hook.server_address[1]}/hook",
             "--notify-secret-file", str(work / "notify.key"),
         ],

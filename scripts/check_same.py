@@ -165,17 +165,23 @@ def record(out: Path, data: Path, workers: int | None) -> None:
         (str(Path(r["file"]).relative_to(data)), r["error"]) for r in summ["refusals"]
     )
     dump["summary"] = summ
-    text = json.dumps(dump, sort_keys=True, indent=1, allow_nan=True)
-    text = text.replace(str(data) + "/", "")  # paths relative to the data folder
-    # alarm ids are random: name them by their place in the store's list
-    for k, alarm_id in enumerate(dump["alarm_ids"]):
-        text = text.replace(f'"{alarm_id}"', f'"alarm-{k + 1}"')
-    out.write_text(text)
+    out.write_text(dump_text(dump, data))
     print(
         f"{out}: {len(files)} recordings, {summary.processed} processed, {summary.refused} "
         f"refused, {summary.warnings} warnings, {len(dump['alarms'])} alarms; ingest "
         f"{seconds:.1f} s with workers={workers}"
     )
+
+
+def dump_text(dump: dict[str, Any], data: Path) -> str:
+    """A dump (:func:`_dump` with ``inputs`` and ``summary``) as the JSON ``compare`` reads:
+    paths relative to the data folder, alarm ids named by their place in the list."""
+    text = json.dumps(dump, sort_keys=True, indent=1, allow_nan=True)
+    text = text.replace(str(data) + "/", "")  # paths relative to the data folder
+    # alarm ids are random: name them by their place in the store's list
+    for k, alarm_id in enumerate(dump["alarm_ids"]):
+        text = text.replace(f'"{alarm_id}"', f'"alarm-{k + 1}"')
+    return text
 
 
 def _dump(store: Store, data: Path) -> dict[str, Any]:

@@ -81,9 +81,11 @@ def calibrated(url: str, fleet: Path) -> None:
 
 
 class Service:
-    """``chaintwin serve`` as a subprocess."""
+    """``chaintwin serve`` as a subprocess (a short order window unless one is given)."""
 
     def __init__(self, args: list[str], log: Path) -> None:
+        if "--order-window-s" not in args:
+            args = [*args, "--order-window-s", "0.5"]
         env = dict(os.environ, PYTHONPATH=str(ROOT), OPENBLAS_NUM_THREADS="1")
         env.pop("PYTHONMALLOC", None)  # the service's own default
         self.log = log
@@ -723,6 +725,8 @@ def test_drives_hook_counts_recordings_connections_and_missed_scopes(
         (["--notify-url", "http://x/h", "--notify-secret-file", "EMPTY"], "the file is empty"),
         (["--watch", "NOWHERE"], "no such folder"),
         (["--settle-s", "-1"], "--settle-s -1.0 must be zero or more"),
+        (["--order-window-s", "-1"], "--order-window-s -1.0 must be from 0 (no ordering)"),
+        (["--order-window-s", "nan"], "--order-window-s nan must be from 0"),
         (["--opcua", "NOWHERE"], "cannot be read (No such file or directory)"),
     ],
 )

@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import hashlib
 import json
+import logging
 import re
 import socket
 import threading
@@ -275,6 +276,7 @@ def test_a_quiet_drive_keeps_its_subscription_and_a_new_scope_arrives_at_once(
     import logging
 
     caplog.set_level(logging.WARNING, logger="asyncua")
+    caplog.set_level(logging.DEBUG, logger="chaintwin.live.opcua")  # asyncua's, one line each
     time.sleep(2.5)  # longer than asyncua's stale check (1 s) and than a scope's interval
     assert not [r for r in caplog.records if "stale" in r.getMessage()]
     state = follower.status.drives[CONVEYOR]
@@ -351,6 +353,73 @@ def test_drive_that_disconnects_mid_read_is_reconnected(
     nxt = ua_loop.run(sim.publish_next())
     wait_until("the next scope", lambda: key_of(nxt) in follower.received())
     assert state.missed == missed and state.last_error is None
+
+
+class _Collect(logging.Handler):
+    """The records that reach the root logger's handlers (what a service's log shows:
+    pytest's own capture also listens on loggers that do not propagate)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.DEBUG)
+        self.records: list[logging.LogRecord] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append(record)
+
+
+@pytest.fixture
+def root_log() -> Iterator[_Collect]:
+    root = logging.getLogger()
+    handler, level = _Collect(), root.level
+    root.addHandler(handler)
+    root.setLevel(logging.DEBUG)
+    yield handler
+    root.removeHandler(handler)
+    root.setLevel(level)
+
+
+def test_a_lost_drive_logs_one_line_without_traceback_and_reconnects_with_backoff(
+    ua_loop: Loop, sim: DriveSim, follower: Follower, root_log: _Collect
+) -> None:
+    """The drive goes away for a while: one warning line (no asyncua traceback, no line
+    per failed attempt), the attempts spaced by the capped exponential backoff, and
+    the drive followed again once it is back."""
+    state = follower.status.drives[CONVEYOR]
+    connects = state.connects
+    root_log.records.clear()
+    sim.drop_connections()
+    ua_loop.run(sim.stop())
+    wait_until("the loss", lambda: not state.connected)
+    # attempts after 0.1, 0.2, 0.4, 0.4 ... s (initial_s 0.1, max_s 0.4): several fail
+    wait_until(
+        "a few failed attempts",
+        lambda: len([r for r in root_log.records if "attempt" in r.getMessage()]) >= 4,
+    )
+    ua_loop.run(sim.start())
+    wait_until("the reconnection", lambda: state.connected and state.connects == connects + 1)
+    nxt = ua_loop.run(sim.publish_next())
+    wait_until("the next scope", lambda: key_of(nxt) in follower.received())
+    records = list(root_log.records)
+    assert not [r for r in records if r.exc_info], "a traceback was logged"
+    assert not [r for r in records if r.name.startswith("asyncua")]
+    # asyncua's own account of the loss is there, one debug line
+    crashed = [r.getMessage() for r in records if "Publish iteration crashed" in r.getMessage()]
+    assert all(r.endswith("(ConnectionError: Connection is closed)") for r in crashed), crashed
+    shown = [r for r in records if r.levelno >= logging.INFO]
+    warnings = [r.getMessage() for r in shown if r.levelno >= logging.WARNING]
+    assert len(warnings) == 1, warnings
+    assert warnings[0].startswith(f"drive {CONVEYOR} ({sim.endpoint}): ")
+    assert "\n" not in warnings[0]
+    assert [r.getMessage() for r in shown if "connected" in r.getMessage()] == [
+        f"drive {CONVEYOR} connected ({sim.endpoint})"
+    ]
+    # the attempts were spaced by the doubling delay, capped at max_s
+    delays = [
+        float(m.group(1))
+        for r in records
+        if (m := re.search(r"next attempt in ([0-9.]+) s", r.getMessage()))
+    ]
+    assert delays[:3] == [0.1, 0.2, 0.4] and set(delays[3:]) == {0.4}, delays
 
 
 def test_a_scope_that_cannot_be_used_is_refused_and_said_why(ua_loop: Loop, sim: DriveSim) -> None:

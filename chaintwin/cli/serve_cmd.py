@@ -91,6 +91,7 @@ class LiveArgs:
 
     watch: list[Path] = field(default_factory=list)
     settle_s: float = 2.0
+    order_window_s: float = 60.0
     poll: bool = False
     no_web: bool = False
     notify_urls: list[str] = field(default_factory=list)
@@ -170,6 +171,10 @@ def serve(
         _check_proxies(forwarded_allow_ips)
     if live.settle_s < 0:
         raise StoreError(f"--settle-s {live.settle_s} must be zero or more")
+    if not 0 <= live.order_window_s <= 86_400:
+        raise StoreError(
+            f"--order-window-s {live.order_window_s} must be from 0 (no ordering) to 86400 s"
+        )
     if live.lease_s <= 0:
         raise StoreError(f"--lease-s {live.lease_s} must be positive")
     if live.keep_samples_days is not None and live.keep_samples_days <= 0:
@@ -202,6 +207,7 @@ def serve(
     scheme = "https" if ssl_certfile is not None else "http"
     options = LiveOptions(
         settle_s=live.settle_s,
+        order_window_s=live.order_window_s,
         poll=live.poll,
         notify_urls=live.notify_urls,
         notify_secret=secret,
@@ -378,6 +384,14 @@ def register(app: typer.Typer) -> None:
                 "--settle-s", help="A file is read once unchanged (size, mtime) this long, s."
             ),
         ] = 2.0,
+        order_window_s: Annotated[
+            float,
+            typer.Option(
+                "--order-window-s",
+                help="The files found in the folders are held this long and taken in "
+                "recorded order, s (0: as found). Adds this much latency.",
+            ),
+        ] = 60.0,
         poll: Annotated[
             bool, typer.Option("--poll", help="Poll the folders (network shares).")
         ] = False,
@@ -467,6 +481,7 @@ def register(app: typer.Typer) -> None:
         live = LiveArgs(
             watch=list(watch or []),
             settle_s=settle_s,
+            order_window_s=order_window_s,
             poll=poll,
             no_web=no_web,
             notify_urls=list(notify_url or []),

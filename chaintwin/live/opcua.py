@@ -463,6 +463,36 @@ def _one_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
 
 
+class _OneLine(logging.Handler):
+    """asyncua's records as one debug line each on the service's logger.
+
+    asyncua logs a lost connection with tracebacks of its own (e.g. "Publish
+    iteration crashed; retrying in 1s" with a ``ConnectionError``) and
+    warnings while a session is torn down; the follower says what happened
+    in one line of its own, so these are kept for debugging only, without
+    their tracebacks (the exception's one-line reason instead).
+    """
+
+    def emit(self, record: logging.LogRecord) -> None:
+        """Log ``record`` again as one debug line on ``chaintwin.live``."""
+        try:
+            text = record.getMessage().strip().splitlines()
+            message = text[0] if text else ""
+            if record.exc_info and record.exc_info[1] is not None:
+                message += f" ({_one_line(record.exc_info[1])})"
+            log.debug("asyncua %s: %s", record.name, message, extra={"asyncua": record.levelname})
+        except Exception:  # a logging handler never raises
+            self.handleError(record)
+
+
+def _quiet_asyncua() -> None:
+    """Route asyncua's loggers through :class:`_OneLine` (once per process)."""
+    logger = logging.getLogger("asyncua")
+    if not any(isinstance(h, _OneLine) for h in logger.handlers):
+        logger.addHandler(_OneLine())
+    logger.propagate = False
+
+
 # ---------------------------------------------------------------- following drives
 async def follow_drives(
     config: OpcuaConfig, submit: Submit, stop: asyncio.Event, status: DriveStatus
@@ -556,7 +586,17 @@ class _Follower:
         self._up = False
 
     async def run(self, stop: asyncio.Event) -> None:
+        """Follow the drive until ``stop``: sessions, and between them the backoff.
+
+        The first failure of an outage (the drive lost, or not reached at
+        start) is one warning line; the failed attempts after it, until a
+        session is up again, are logged at debug level (the health endpoint
+        shows the last error). The delay between attempts doubles from
+        ``reconnect.initial_s`` up to ``reconnect.max_s``.
+        """
+        _quiet_asyncua()
         delay = self.reconnect.initial_s
+        said = False  # the current outage has been logged
         while not stop.is_set():
             try:
                 await self._session(stop)
@@ -565,16 +605,29 @@ class _Follower:
             except Exception as exc:  # any failure of one drive: log, back off, retry
                 reason = _one_line(exc)
                 self.state.last_error = reason
-                if self._up:  # it was connected: start the backoff again
+                if self._up:  # it was connected: a new outage, the backoff starts again
                     delay = self.reconnect.initial_s
-                log.warning(
-                    "drive %s (%s): %s; reconnecting in %.1f s",
-                    self.drive.conveyor,
-                    self.drive.endpoint,
-                    reason,
-                    delay,
-                    extra={"source": f"opcua:{self.drive.conveyor}", "reason": reason},
-                )
+                    said = False
+                extra = {"source": f"opcua:{self.drive.conveyor}", "reason": reason}
+                if not said:
+                    log.warning(
+                        "drive %s (%s): %s; reconnecting with backoff, next attempt in %.1f s",
+                        self.drive.conveyor,
+                        self.drive.endpoint,
+                        reason,
+                        delay,
+                        extra=extra,
+                    )
+                    said = True
+                else:
+                    log.debug(
+                        "drive %s (%s): attempt failed (%s); next attempt in %.1f s",
+                        self.drive.conveyor,
+                        self.drive.endpoint,
+                        reason,
+                        delay,
+                        extra=extra,
+                    )
             finally:
                 self.state.connected = False
             if stop.is_set():

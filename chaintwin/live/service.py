@@ -51,7 +51,7 @@ from .ledger import (
     update_source,
 )
 from .metrics import Metrics
-from .sources import DriveStatusLike, Ingestor, Job, Outcome, Submit
+from .sources import PARTIAL_WAIT_S, DriveStatusLike, Ingestor, Job, Outcome, Submit
 from .watch import FolderSource
 
 if TYPE_CHECKING:
@@ -139,6 +139,9 @@ class LiveOptions:
     """The live service's settings (``chaintwin serve``'s options)."""
 
     settle_s: float = 2.0
+    order_window_s: float = 60.0
+    """A file found in a folder is held this long, then taken in recorded order with
+    the others held, s (:class:`~.sources.Ingestor`; 0: taken as found)."""
     poll: bool = False
     notify_urls: list[str] = field(default_factory=list)
     notify_secret: bytes | None = None
@@ -214,7 +217,14 @@ class LiveService:
         self.holder = (
             options.holder or f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:6]}"
         )
-        self.ingestor = Ingestor(store, profiles, settings, self._outcome)
+        self.ingestor = Ingestor(
+            store,
+            profiles,
+            settings,
+            self._outcome,
+            order_window_s=options.order_window_s,
+            partial_wait_s=PARTIAL_WAIT_S,
+        )
         self.metrics = Metrics(store, self._queue_depth)
         self.sources: list[Source] = []
         self.folders: dict[str, FolderSource] = {}
@@ -309,7 +319,7 @@ class LiveService:
 
     # ---------------------------------------------------------------- outcomes
     def _queue_depth(self) -> float:
-        return float(self.ingestor.queue.qsize() + (1 if self.ingestor.busy else 0))
+        return float(self.ingestor.depth())
 
     def _outcome(self, job: Job, outcome: Outcome) -> None:
         kind = job.source.split(":", 1)[0]
@@ -327,6 +337,10 @@ class LiveService:
             refused += 1
         elif outcome.status == "already_stored":
             self.metrics.duplicates.labels(kind).inc()
+        elif outcome.status == "deferred":
+            folder = self.folders.get(job.source)
+            if folder is not None and outcome.retry_in_s is not None:
+                folder.defer(job.path, outcome.retry_in_s)  # handed again then, or when changed
         elif outcome.status == "failed":
             folder = self.folders.get(job.source)
             if folder is not None:

@@ -9,22 +9,37 @@ time through the same pipeline as ``chaintwin ingest``
 loop: read, validate, weigh, monitor, store. The store keeps each content
 once; a refused file is recorded with its one-line reason
 (:func:`~.ledger.record_refusal`) and not read again until its content changes.
+
+Files are taken in recorded order, as ``chaintwin ingest`` takes a batch:
+each file is held for the order window (``order_window_s``) after it is
+found complete, and the files held are let through in recorded order
+(:class:`ReorderWindow`). A file recorded before one already let through is
+still stored, with the monitor's ``out_of_order`` warning.
+
+A file that ends in motion (mid-cycle) when it is found complete may be a
+file whose writer paused longer than the settle time: it waits
+(:data:`PARTIAL_WAIT_S` after its last change) for the rest of it; the
+watched folder hands it again when it changes, or when that time is up
+(it is then stored as it is, with its ``incomplete_cycle`` warning).
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hashlib
+import heapq
 import itertools
 import logging
 import os
 import re
 import tempfile
 import time
+from collections import deque
 from collections.abc import Awaitable, Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from datetime import datetime
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Literal, Protocol
 
@@ -43,6 +58,7 @@ __all__ = [
     "Ingestor",
     "Job",
     "Outcome",
+    "ReorderWindow",
     "Submit",
     "stored_name",
 ]
@@ -93,7 +109,10 @@ def stored_name(source_key: str) -> str:
     return source_key
 
 
-Status = Literal["stored", "waiting", "already_stored", "refused", "gone", "failed"]
+Status = Literal["stored", "waiting", "already_stored", "refused", "gone", "failed", "deferred"]
+
+PARTIAL_WAIT_S = 60.0
+"""How long a file that ends in motion waits for the rest of it after its last change, s."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -105,7 +124,9 @@ class Outcome:
     same content was stored before), ``refused`` (``reason`` says why, in
     the CLI's words), ``gone`` (the file vanished before it was read),
     ``failed`` (the store could not be written: not the recording's fault,
-    it is tried again later).
+    it is tried again later), ``deferred`` (a file that ends in motion,
+    changed less than :data:`PARTIAL_WAIT_S` ago: not read yet, to be handed
+    again in ``retry_in_s`` or when it changes).
     """
 
     status: Status
@@ -115,6 +136,8 @@ class Outcome:
     """Time from the recording being complete to its result stored, s."""
     cause: str | None = None
     """A refusal's cause: ``profile`` or ``recording`` (see :func:`~.ledger.record_refusal`)."""
+    retry_in_s: float | None = None
+    """``deferred``: hand the file again at the latest this long from now, s."""
 
 
 @dataclass
@@ -138,6 +161,79 @@ class Job:
 
 _SAFE = re.compile(r"[^A-Za-z0-9._-]+")
 
+OrderKey = tuple[str, str, int]
+"""A held file's place: (recorded time in UTC, ISO 8601; path; arrival number)."""
+
+
+def recorded_key(path: str) -> str | None:
+    """A file's recorded time in UTC (ISO 8601) for ordering, or None when it has none.
+
+    None also when its metadata cannot be read: the ingest then says why
+    (one line, in the refusals), so nothing is said here.
+    """
+    from chaintwin.read.reader import read_metadata
+
+    try:
+        when = read_metadata(path).recorded_at
+    except (ChaintwinError, OSError):
+        return None
+    return None if when is None else when.astimezone(UTC).isoformat()
+
+
+class ReorderWindow:
+    """Files held for a time window and let through in recorded order.
+
+    Each file is held ``window_s`` from when it is added. When the earliest
+    added of those still held has waited that long, it is let through with
+    every held file recorded before it, in recorded order (ties by path,
+    then by arrival). So files that arrive within the window of each other
+    come out in recorded order, each after at most ``window_s``; a file that
+    arrives after one recorded later was let through comes out in its turn
+    (the monitor then flags it ``out_of_order``). Files without a recorded
+    time are not held.
+
+    Parameters
+    ----------
+    window_s : float
+        How long a file is held, s.
+    """
+
+    def __init__(self, window_s: float) -> None:
+        self.window_s = window_s
+        self._heap: list[tuple[OrderKey, Job]] = []
+        self._due: deque[tuple[float, OrderKey]] = deque()  # by arrival: deadlines ascend
+        self._serial = itertools.count()
+
+    def __len__(self) -> int:
+        return len(self._heap)
+
+    def add(self, job: Job, recorded: str, now: float) -> None:
+        """Hold a job whose file was recorded at ``recorded`` (UTC ISO 8601); ``now``
+        monotonic s."""
+        key = (recorded, job.path, next(self._serial))
+        heapq.heappush(self._heap, (key, job))
+        self._due.append((now + self.window_s, key))
+
+    def next_due(self) -> float | None:
+        """When the next file is let through (monotonic s), None when none is held."""
+        return self._due[0][0] if self._due else None
+
+    def release(self, now: float) -> list[Job]:
+        """The jobs to let through at ``now`` (monotonic s), in recorded order."""
+        out: list[Job] = []
+        while self._due and self._due[0][0] <= now:
+            _deadline, key = self._due.popleft()
+            while self._heap and self._heap[0][0] <= key:
+                out.append(heapq.heappop(self._heap)[1])
+        return out
+
+    def drain(self) -> list[Job]:
+        """Every job held, in recorded order (emptied)."""
+        out = [job for _key, job in sorted(self._heap)]
+        self._heap.clear()
+        self._due.clear()
+        return out
+
 
 class Ingestor:
     """One queue of recordings, ingested one at a time in a worker thread.
@@ -154,6 +250,15 @@ class Ingestor:
     on_outcome : callable, optional
         Called in the event loop with each job and its outcome (metrics, the
         sources' counts, waking the notifier).
+    order_window_s : float
+        Files (:meth:`put_file`) are held this long and taken in recorded
+        order (:class:`ReorderWindow`), s; 0 takes them as they come. A
+        drive's recordings (:meth:`submit`) are not held: a drive gives its
+        scopes in order.
+    partial_wait_s : float
+        A file that ends in motion waits this long after its last change for
+        the rest of it (:data:`PARTIAL_WAIT_S` in the live service), s; 0
+        reads it at once (``chaintwin refused retry``).
     """
 
     PROFILES_REFRESH_S = 30.0
@@ -165,12 +270,22 @@ class Ingestor:
         profiles: Mapping[str, ConveyorProfile],
         settings: MonitorSettings | None = None,
         on_outcome: Callable[[Job, Outcome], None] | None = None,
+        *,
+        order_window_s: float = 0.0,
+        partial_wait_s: float = 0.0,
     ) -> None:
         self.store = store
         self.profiles = dict(profiles)
         self.settings = settings or MonitorSettings()
         self.on_outcome = on_outcome
         self.queue: asyncio.Queue[Job] = asyncio.Queue()
+        self.window = ReorderWindow(order_window_s)
+        self.partial_wait_s = partial_wait_s
+        """A file ending in motion waits this long after its last change (0: never), s."""
+        # path -> (content hash, monotonic s): when a file's content was first found
+        # ending in motion (in the worker thread only)
+        self._partial: dict[str, tuple[str, float]] = {}
+        self._held = asyncio.Event()  # a file was added to the window
         self.busy = False
         self._stored_profiles: dict[str, ConveyorProfile] = {}
         self._profiles_at = -1e9
@@ -182,8 +297,36 @@ class Ingestor:
 
     # ---------------------------------------------------------------- sources' side
     async def put_file(self, path: str, source: str, ready_at: float | None = None) -> None:
-        """Queue a complete file (the caller does not wait for it)."""
-        await self.queue.put(Job(path, source, ready_at or time.monotonic()))
+        """Queue a complete file (the caller does not wait for it): held in the order
+        window first, unless the window is 0 or the file has no recorded time."""
+        job = Job(path, source, ready_at or time.monotonic())
+        if self.window.window_s > 0:
+            recorded = await asyncio.to_thread(recorded_key, path)
+            if recorded is not None:
+                self.window.add(job, recorded, time.monotonic())
+                self._held.set()
+                return
+        await self.queue.put(job)
+
+    def depth(self) -> int:
+        """The recordings waiting to be ingested: queued, and the one in hand (not those
+        held in the order window, which wait by design: ``len(window)``)."""
+        return self.queue.qsize() + (1 if self.busy else 0)
+
+    async def _let_through(self, stop: asyncio.Event) -> None:
+        """Move the held files to the queue as their window ends, until ``stop``."""
+        while not stop.is_set():
+            due = self.window.next_due()
+            self._held.clear()
+            waits = {asyncio.ensure_future(stop.wait()), asyncio.ensure_future(self._held.wait())}
+            timeout = None if due is None else max(0.0, due - time.monotonic())
+            _done, rest = await asyncio.wait(
+                waits, timeout=timeout, return_when=asyncio.FIRST_COMPLETED
+            )
+            for w in rest:
+                w.cancel()
+            for job in self.window.release(time.monotonic()):
+                self.queue.put_nowait(job)
 
     async def submit(self, recording: Recording, source_key: str) -> None:
         """:data:`Submit`: ingest a recording a live source read; wait until it is stored.
@@ -221,6 +364,17 @@ class Ingestor:
     # ---------------------------------------------------------------- the worker
     async def run(self, stop: asyncio.Event) -> None:
         """Ingest queued recordings until ``stop``; the recording in hand is finished first."""
+        releaser = asyncio.create_task(self._let_through(stop))
+        try:
+            await self._work(stop)
+        finally:
+            releaser.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await releaser
+            # the files held stay on disk: caught up by the folder's scan at the next start
+            self.window.drain()
+
+    async def _work(self, stop: asyncio.Event) -> None:
         while not stop.is_set():
             getter = asyncio.ensure_future(self.queue.get())
             stopper = asyncio.ensure_future(stop.wait())
@@ -286,6 +440,40 @@ class Ingestor:
             self._profiles_at = time.monotonic()
         return self._stored_profiles | self.profiles
 
+    def _ends_in_motion(self, path: str) -> bool:
+        """Whether a recording file ends in motion: its last movement phase, as
+        validation segments it (:func:`~chaintwin.validate.phases.segment`; the
+        ``incomplete_cycle`` warning). False when it cannot be read: the ingest
+        then says why."""
+        from chaintwin.read.reader import parse_metadata, parse_recording, read_bytes
+        from chaintwin.validate.phases import segment
+
+        try:
+            raw = read_bytes(path)
+            conveyor = parse_metadata(raw, path).conveyor
+            profile = None if conveyor is None else self.profiles_for().get(conveyor)
+            phases = segment(parse_recording(raw, path, profile=profile))
+        except (ChaintwinError, OSError, ValueError):
+            return False
+        return bool(phases) and phases[-1].moving
+
+    def _wait_for_rest(self, job: Job, sha: str) -> float | None:
+        """How much longer a file that ends in motion waits for the rest of it, s, or
+        None to read it now (complete, not a folder's file, or waited long enough)."""
+        if job.spooled or self.partial_wait_s <= 0 or not self._ends_in_motion(job.path):
+            self._partial.pop(job.path, None)
+            return None
+        now = time.monotonic()
+        seen_sha, since = self._partial.get(job.path, (None, now))
+        if seen_sha != sha:  # changed since: its wait starts again
+            since = now
+        left = self.partial_wait_s - (now - since)
+        if left <= 0:
+            self._partial.pop(job.path, None)
+            return None
+        self._partial[job.path] = (sha, since)
+        return left
+
     def ingest_one(self, job: Job) -> Outcome:
         """Ingest one file as ``chaintwin ingest`` would (in a worker thread)."""
         from chaintwin.store.ingest import ingest
@@ -307,6 +495,15 @@ class Ingestor:
                 return Outcome("already_stored", sha)
             if is_refused(self.store, sha):
                 return Outcome("refused", sha, "refused before (unchanged since)")
+            left = self._wait_for_rest(job, sha)
+            if left is not None:
+                log.info(
+                    "%s ends in motion: waiting up to %.0f s for the rest of it",
+                    job.name,
+                    left,
+                    extra={"source": job.source, "file": job.name, "status": "deferred"},
+                )
+                return Outcome("deferred", sha, "ends in motion", retry_in_s=left)
             summary = ingest(
                 [job.path],
                 self.profiles_for(),

@@ -9,7 +9,9 @@ time have stayed the same for the settle time (counted from its last
 modification on a local file system, from when it was first seen when
 polling a share, whose clock may differ); names ending in ``.part``
 or ``.tmp`` are ignored until renamed, and only ``*.csv`` files are taken
-(as ``chaintwin ingest DIR`` takes them).
+(as ``chaintwin ingest DIR`` takes them). A file the ingest defers (it ends
+in motion: its writer may have paused) is handed again when it changes, or
+after the time asked (:meth:`FolderSource.defer`).
 """
 
 from __future__ import annotations
@@ -99,10 +101,23 @@ class FolderSource:
         # again unless changed
         self.handed: OrderedDict[str, tuple[int, int]] = OrderedDict()
         self.changed = asyncio.Event()  # a file was added to the candidates
+        # path -> (size, mtime_ns, monotonic s): deferred files, not handed again before
+        # that time unless they change
+        self.deferred: dict[str, tuple[int, int, float]] = {}
 
     def forget(self, path: str) -> None:
         """Let a file be handed again at the next scan (its ingest failed)."""
         self.handed.pop(path, None)
+
+    def defer(self, path: str, seconds: float) -> None:
+        """Hand a file again once it has changed and settled, or in ``seconds`` as it is."""
+        try:
+            st = os.stat(path)
+        except OSError:  # gone
+            return
+        self.handed.pop(path, None)
+        self.deferred[path] = (st.st_size, st.st_mtime_ns, time.monotonic() + seconds)
+        self._add([path])
 
     def _remember(self, path: str, key: tuple[int, int]) -> None:
         """Note a file handed over; forget the oldest beyond :data:`MAX_REMEMBERED`."""
@@ -169,6 +184,14 @@ class FolderSource:
                 age = 0.0 if self.poll else max(0.0, time.time() - st.st_mtime_ns / 1e9)
                 since = now - min(age, self.settle_s)
                 self.pending[path] = (*key, since)
+            held = self.deferred.get(path)
+            if held is not None and held[:2] != key:
+                del self.deferred[path]  # changed since: settles as any file
+            elif held is not None and now < held[2]:
+                due = min(due if due is not None else math.inf, held[2])
+                continue
+            elif held is not None:
+                del self.deferred[path]  # waited long enough: handed as it is
             if now - since >= self.settle_s:
                 del self.pending[path]
                 if self.handed.get(path) != key:

@@ -19,7 +19,7 @@ from sqlalchemy.exc import DatabaseError, OperationalError
 from chaintwin.errors import StoreError
 
 from . import migrate
-from .engine import QUICK_CHECK_MAX_MB, _first_line, engine_for, sqlite_path
+from .engine import QUICK_CHECK_MAX_MB, _first_line, engine_for, hide_password, sqlite_path
 
 __all__ = ["SQLITE_HEADER", "recognise"]
 
@@ -78,14 +78,16 @@ def recognise(url: str, where: str, *, check_all: bool = False) -> str | None:
             return migrate.revision_of(connection, where)
     except OperationalError as exc:
         raise StoreError(
-            f"url {where}: cannot open the store ({_first_line(exc.orig or exc)}); check the "
+            f"url {where}: cannot open the store "
+            f"({hide_password(_first_line(exc.orig or exc), url)}); check the "
             "path or server",
             field="url",
         ) from None
     except DatabaseError as exc:
         raise StoreError(
             f"url {where}: the file is not a usable SQLite database "
-            f"({_first_line(exc.orig or exc)}); nothing was changed: restore the store from "
+            f"({hide_password(_first_line(exc.orig or exc), url)}); nothing was changed: "
+            "restore the store from "
             "a backup",
             field="url",
         ) from None

@@ -133,19 +133,30 @@ class Conveyor:
 REALISM = Realism(setpoint_noise=True)
 """Every realism effect of the virtual conveyor, the set point's noise included."""
 
+INCLINE_DEG = (-15.0, 12.0)
+"""The design distribution's incline in the conveying direction, degrees."""
+
 RICHER = ("back_efficiency", "stribeck_speed_m_s", "unlisted_inertia_kgm2")
 """Plant effects beyond the identification model (``--without`` switches one off)."""
 
 
-def draw_conveyor(rng: np.random.Generator, k: int, without: tuple[str, ...] = ()) -> Conveyor:
+def draw_conveyor(
+    rng: np.random.Generator,
+    k: int,
+    without: tuple[str, ...] = (),
+    incline_deg: tuple[float, float] = INCLINE_DEG,
+) -> Conveyor:
     """One conveyor from the design distribution (see the module docstring).
 
     ``without`` names effects of :data:`RICHER` (or ``export``: no SI
-    exports) left out; the draws are the same either way.
+    exports) left out; the draws are the same either way. ``incline_deg``
+    is the range of the incline in the conveying direction, degrees
+    (negative: conveying downhill); another range draws the same number
+    of values, so the other draws stay as they are.
     """
     length = rng.uniform(1.5, 25.0)
     mass_per_m = rng.uniform(1.5, 10.0)
-    incline = rng.uniform(-15.0, 12.0)
+    incline = rng.uniform(*incline_deg)
     teeth = int(rng.integers(8, 17))
     pitch_d = rng.uniform(0.05, 0.25)
     ratio = float(np.exp(rng.uniform(math.log(15.0), math.log(120.0))))
@@ -641,7 +652,7 @@ def main(argv: list[str] | None = None) -> int:
         help="weighing: draw the conveyors this many times (seeds SEED, SEED+1, ...), pooled",
     )
     parser.add_argument(
-        "--markdown", type=Path, default=None, help="weighing: also write the summary as markdown"
+        "--markdown", type=Path, default=None, help="also write the summary (table) as markdown"
     )
     parser.add_argument(
         "--without",
@@ -653,6 +664,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, default=None, help="fidelity-WHAT.json by default")
     parser.add_argument("--per-fault", type=int, default=8, help="monitoring: conveyors per fault")
     parser.add_argument("--healthy", type=int, default=12, help="monitoring: healthy sequences")
+    parser.add_argument(
+        "--declined",
+        type=int,
+        default=6,
+        help="monitoring: healthy sequences on conveyors conveying downhill (-15 to -5 degrees)",
+    )
+    parser.add_argument(
+        "--seed-list",
+        type=int,
+        nargs="+",
+        default=None,
+        help="monitoring: run each of these seeds (default: --seed) and pool the tables",
+    )
     parser.add_argument("--recordings", type=int, default=200, help="monitoring: per sequence")
     parser.add_argument("--workers", type=int, default=2, help="monitoring: processes")
     parser.add_argument(
@@ -662,10 +686,12 @@ def main(argv: list[str] | None = None) -> int:
     args.json = args.json or Path(f"fidelity-{args.what}.json")
     if args.what == "monitoring":
         sys.path.insert(0, str(Path(__file__).resolve().parent))
-        from fidelity_monitoring import run_monitoring
+        from fidelity_monitoring import run_seeds
 
-        result = run_monitoring(args, draw_conveyor, calibration_runs)
+        result = run_seeds(args, draw_conveyor, calibration_runs)
         args.json.write_text(json.dumps(json_ready(result), indent=1, allow_nan=False))
+        if args.markdown is not None:
+            args.markdown.write_text(result["markdown"])
         return 0
     started = time.perf_counter()
     _header(args)

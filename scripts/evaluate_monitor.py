@@ -8,7 +8,7 @@ its final severity, and healthy ones. Each series is monitored from its
 recordings (read back from the files, as ``chaintwin monitor`` does) and the
 script prints, per series: onset, first alarm, severity at first alarm,
 cause given, false alarms (alarm recordings before the onset, or any on a
-healthy series).
+healthy series) and the alarms (one per probable cause) opened there.
 
 Usage::
 
@@ -113,6 +113,12 @@ def run_series(
         if r.alarm
         and (name not in EXPECTED or (onset_at is not None and (r.recorded_at or "") < onset_at))
     )
+    # grouped alarms (one per conveyor and probable cause) opened where there is no fault
+    false_groups = sum(
+        1
+        for a in mon.alarms
+        if name not in EXPECTED or (onset_at is not None and (a.opened_at or "") < onset_at)
+    )
     events_noted = sum(1 for r in results if any(c["cause"] == "payload_event" for c in r.causes))
     events_true = sum(1 for t in truth if t.get("payload_event_s"))
     sev = None
@@ -138,6 +144,7 @@ def run_series(
         "cause": cause,
         "expected": EXPECTED.get(name),
         "false_alarms": false_alarms,
+        "false_alarm_groups": false_groups,
         "events_noted": events_noted,
         "events_true": events_true,
         "recordings": len(results),
@@ -175,7 +182,7 @@ def main() -> None:
     )
     print(
         f"{'series':12s} {'onset':>11s} {'first alarm':>11s} {'severity':>8s} "
-        f"{'cause':>12s} {'right':>5s} {'false':>5s} {'ms/rec':>6s}"
+        f"{'cause':>12s} {'right':>5s} {'false':>5s} {'groups':>6s} {'ms/rec':>6s}"
     )
     right = 0
     alarmed = 0
@@ -189,13 +196,14 @@ def main() -> None:
         print(
             f"{r['series']:12s} {day(r['onset']):>11s} {day(r['first_alarm']):>11s} {sev:>8s} "
             f"{r['cause'] or '-':>12s} {ok:>5s} {r['false_alarms']:>5d} "
-            f"{r['ms_per_recording']:6.1f}"
+            f"{r['false_alarm_groups']:>6d} {r['ms_per_recording']:6.1f}"
         )
     faults = sum(1 for r in rows if r["expected"] is not None)
     healthy_false = sum(int(r["false_alarms"]) for r in rows if r["expected"] is None)
+    healthy_groups = sum(int(r["false_alarm_groups"]) for r in rows if r["expected"] is None)
     print(
         f"alarmed {alarmed} of {faults} fault series, cause right for {right}; "
-        f"false alarms on healthy series: {healthy_false}"
+        f"false alarms on healthy series: {healthy_false} recordings, {healthy_groups} alarms"
     )
     for r in rows:
         if r["events_true"] or r["events_noted"]:

@@ -96,6 +96,12 @@ END_SEVERITY = {
 DRIFT = 0.10
 """Amplitude of the slow gear-loss drift, 1."""
 
+DECLINED_DEG = (-15.0, -5.0)
+"""Incline of the declined healthy conveyors in the conveying direction, degrees."""
+
+HEALTHY_KINDS = ("healthy", "declined")
+"""Sequences without a fault: drawn conveyors, and conveyors conveying downhill."""
+
 LAMBDAS = (0.5, 0.8)
 """Where the remaining life is judged: this share of the way from the onset to the alarm."""
 
@@ -134,6 +140,9 @@ def _sequence(task: dict[str, Any]) -> dict[str, Any]:
     first_feature: str | None = None
     false_alarms = 0
     false_by: dict[str, int] = {}
+    false_recordings: list[dict[str, Any]] = []
+    index_at: dict[str, int] = {}
+    scales: list[float] = []
     events_true = events_noted = 0
     friction: list[tuple[int, float | None, float | None]] = []
     errors: list[tuple[int, float, float]] = []
@@ -149,6 +158,7 @@ def _sequence(task: dict[str, Any]) -> dict[str, Any]:
         faults = [Fault(fault, severity)] if fault is not None and severity > 0 else []
         payload = float(rng.uniform(0.1, 0.4)) * conv.max_payload_kg
         scale = 1.0 + DRIFT * math.sin(2.0 * math.pi * k / n * 1.5 + phase)
+        scales.append(scale)
         run = run_virtual(
             profile,
             payload_kg=payload,
@@ -166,6 +176,7 @@ def _sequence(task: dict[str, Any]) -> dict[str, Any]:
         events_true += run.truth["payload_event_s"] is not None
         for r in monitor.process(inspect_recording(run.recording, profile=profile)):
             idx = int(r.file.rsplit("-", 1)[1])
+            index_at[r.recorded_at or ""] = idx
             baselines_at[idx] = dict(monitor.baselines or {})
             if r.alarm and not healthy and idx >= onset and first_alarm is None:
                 first_alarm = idx
@@ -176,6 +187,21 @@ def _sequence(task: dict[str, Any]) -> dict[str, Any]:
                 for c in r.causes:
                     key = f"{c['cause']}:{c['feature']}"
                     false_by[key] = false_by.get(key, 0) + 1
+                false_recordings.append(
+                    {
+                        "recording": idx,
+                        "causes": [
+                            {"cause": c["cause"], "feature": c["feature"], "change": c["change"]}
+                            for c in r.causes
+                        ],
+                        "loss_scale": scales[idx],
+                        "payload_kg": payload_truth(run.truth) if idx == k else None,
+                        "payload_event": run.truth["payload_event_s"] is not None
+                        if idx == k
+                        else None,
+                        "status": r.status,
+                    }
+                )
             events_noted += any(c["cause"] == "payload_event" for c in r.causes)
             if r.status == "monitored":
                 feats = r.features or {}
@@ -190,6 +216,12 @@ def _sequence(task: dict[str, Any]) -> dict[str, Any]:
                 else:
                     promise_z.append(errors[-1][2])
     z_after = _friction_z(monitor, friction, onset)
+    # grouped alarms (one per cause) opened where there is no fault
+    false_groups = [
+        {"cause": a.cause, "feature": a.feature, "opened": index_at.get(a.opened_at or "")}
+        for a in monitor.alarms
+        if healthy or index_at.get(a.opened_at or "", n) < onset
+    ]
     life = _remaining_life(monitor, baselines_at, onset, first_alarm, first_feature)
     return {
         "fault": fault,
@@ -203,6 +235,10 @@ def _sequence(task: dict[str, Any]) -> dict[str, Any]:
         "right": fault is not None and first_cause == EXPECTED.get(fault),
         "false_alarms": false_alarms,
         "false_alarm_causes": false_by,
+        "false_alarm_groups": len(false_groups),
+        "false_groups": false_groups,
+        "false_recordings": false_recordings,
+        "incline_deg": conv.design.get("incline_deg"),
         "events_true": events_true,
         "events_noted": events_noted,
         "friction_z_max_after_onset": z_after,
@@ -378,32 +414,43 @@ def run_monitoring(
     n = args.recordings
     lo, hi = round(0.4 * n), round(0.6 * n)
     tasks: list[dict[str, Any]] = []
-    plan = [f for f in FAULT_TYPES for _ in range(args.per_fault)] + [None] * args.healthy
+    plan: list[str] = [f for f in FAULT_TYPES for _ in range(args.per_fault)]
+    plan += ["healthy"] * args.healthy + ["declined"] * getattr(args, "declined", 0)
     only = set(getattr(args, "only", None) or [])
-    for k, fault in enumerate(plan):
-        conv = draw_conveyor(rng, 100 + k)
-        onset = int(rng.integers(lo, hi + 1)) if fault is not None else 0
-        if only and (fault or "healthy") not in only:
+    for k, series in enumerate(plan):
+        healthy = series in HEALTHY_KINDS
+        if series == "declined":
+            conv = draw_conveyor(rng, 100 + k, incline_deg=DECLINED_DEG)
+        else:
+            conv = draw_conveyor(rng, 100 + k)
+        onset = int(rng.integers(lo, hi + 1)) if not healthy else 0
+        if only and series not in only:
             continue  # drawn all the same: the others stay the whole run's
         seed = args.seed + 5000 + 17 * k
         tasks.append(
             {
                 "conveyor": conv,
-                "fault": fault or "payload_event",
-                "healthy": fault is None,
+                "fault": "payload_event" if healthy else series,
+                "series": series,
+                "healthy": healthy,
                 "recordings": n,
                 "onset": onset,
                 "seed": seed + 1,
                 "calibration": calibration_runs(conv, seed)["several_loads"],
             }
         )
-    with ProcessPoolExecutor(max(1, args.workers)) as ex:
-        rows = list(ex.map(_run_task, tasks))
+    if args.workers <= 1:  # in this process
+        rows = [_run_task(task) for task in tasks]
+    else:
+        with ProcessPoolExecutor(args.workers) as ex:
+            rows = list(ex.map(_run_task, tasks))
     seconds = time.perf_counter() - started
-    table = _table(rows)
-    _print(table, rows, args, seconds)
+    rows = [r | {"seed": args.seed} for r in rows]
+    found = table(rows)
+    _print(found, rows, args, seconds)
     return {
-        "table": table,
+        "seed": args.seed,
+        "table": found,
         "weighing": promise_summary(rows),
         "remaining_life": life_summary(rows),
         "sequences": rows,
@@ -411,27 +458,76 @@ def run_monitoring(
     }
 
 
+def run_seeds(
+    args: Any,
+    draw_conveyor: Callable[..., Any],
+    calibration_runs: Callable[..., dict[str, list[Any]]],
+) -> dict[str, Any]:
+    """:func:`run_monitoring` for each seed of ``args.seed_list`` (or ``args.seed``), pooled.
+
+    The result holds each seed's run under ``runs`` and the table over all
+    of them under ``table`` (with one seed: that seed's run, as before, plus
+    ``runs`` and ``markdown``).
+    """
+    seeds = list(getattr(args, "seed_list", None) or [args.seed])
+    runs = []
+    for seed in seeds:
+        args.seed = seed
+        runs.append(run_monitoring(args, draw_conveyor, calibration_runs))
+        print()
+    rows = [r for run in runs for r in run["sequences"]]
+    pooled = table(rows)
+    title = (
+        f"Monitoring over seeds {', '.join(str(s) for s in seeds)}: {args.per_fault} conveyors "
+        f"per fault type, {args.healthy} healthy, {getattr(args, 'declined', 0)} declined, "
+        f"{args.recordings} recordings each"
+    )
+    if len(seeds) > 1:
+        print(f"pooled: {title}")
+        print_table(pooled)
+    out: dict[str, Any] = dict(runs[0]) if len(seeds) == 1 else {"seeds": seeds}
+    out.update(
+        table=pooled,
+        runs=[{k: v for k, v in run.items() if k != "sequences"} for run in runs],
+        sequences=rows,
+        markdown=markdown(pooled, title),
+        seconds=sum(float(run["seconds"]) for run in runs),
+    )
+    return out
+
+
 def _run_task(task: dict[str, Any]) -> dict[str, Any]:
     row = _sequence(task)
+    row["series"] = task["series"]
     if task["healthy"]:  # payload events only: any alarm is a false one
         row.update(fault=None, right=False, onset=None)
     return row
 
 
-def _table(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+def table(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per fault type and kind of healthy sequence: the evaluation's table.
+
+    ``false_alarms`` counts alarm recordings where there is no fault (before
+    the onset; on a healthy sequence every one), ``false_alarm_groups`` the
+    alarms (one per probable cause) opened there, ``false_sequences`` the
+    sequences with any.
+    """
     out = []
-    for fault in (*FAULT_TYPES, None):
-        mine = [r for r in rows if r["fault"] == fault and "error" not in r]
+    for series in (*FAULT_TYPES, *HEALTHY_KINDS):
+        everyone = [r for r in rows if r.get("series", r["fault"] or "healthy") == series]
+        mine = [r for r in everyone if "error" not in r]
         delays = [r["delay"] for r in mine if r.get("delay") is not None]
         out.append(
             {
-                "fault": fault or "healthy",
+                "fault": series,
                 "sequences": len(mine),
-                "not_run": sum(1 for r in rows if r["fault"] == fault and "error" in r),
+                "not_run": len(everyone) - len(mine),
                 "alarmed": sum(1 for r in mine if r.get("first_alarm") is not None),
                 "right": sum(1 for r in mine if r.get("right")),
                 "median_delay": float(np.median(delays)) if delays else None,
                 "false_alarms": sum(int(r["false_alarms"]) for r in mine),
+                "false_alarm_groups": sum(int(r.get("false_alarm_groups", 0)) for r in mine),
+                "false_sequences": sum(1 for r in mine if r["false_alarms"]),
                 "events_true": sum(int(r["events_true"]) for r in mine),
                 "events_noted": sum(int(r["events_noted"]) for r in mine),
             }
@@ -469,28 +565,86 @@ def _print_promise(rows: list[dict[str, Any]]) -> None:
     )
 
 
+def print_false(rows: list[dict[str, Any]]) -> None:
+    """Every sequence with alarm recordings where there is no fault, and what alarmed."""
+    print("alarms where there is no fault (recording: cause:feature change; loss scale, payload):")
+    for r in rows:
+        if "error" in r or not r["false_alarms"]:
+            continue
+        print(
+            f"  seed {r.get('seed')} {r['conveyor']} {r.get('series')} "
+            f"({r['sample_time_ms']:.0f} ms, incline {_fmt(r.get('incline_deg'))} deg, onset "
+            f"{r['onset']}): {r['false_alarms']} recordings, {r['false_alarm_groups']} alarms "
+            f"({', '.join(_group(g) for g in r['false_groups'])})"
+        )
+        for x in r["false_recordings"]:
+            causes = ", ".join(
+                f"{c['cause']}:{c['feature']} {_fmt(c['change'], '+.2f')}" for c in x["causes"]
+            )
+            print(
+                f"    {x['recording']:3d}: {causes}; loss x{x['loss_scale']:.3f}, "
+                f"payload {_fmt(x['payload_kg'])} kg"
+                + (" (payload event)" if x["payload_event"] else "")
+            )
+
+
+def _group(g: dict[str, Any]) -> str:
+    return f"{g['cause']}:{g['feature']} opened at {g['opened']}"
+
+
+def markdown(found: list[dict[str, Any]], title: str) -> str:
+    """The table as markdown (the user guide's "How good monitoring is")."""
+    lines = [
+        title,
+        "",
+        "| fault | sequences | alarmed | cause right | median delay | alarm recordings "
+        "where no fault | alarms where no fault |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    for t in found:
+        healthy = t["fault"] in HEALTHY_KINDS
+        lines.append(
+            f"| {t['fault'].replace('_', ' ')} | {t['sequences']} | "
+            f"{'-' if healthy else t['alarmed']} | {'-' if healthy else t['right']} | "
+            f"{'-' if healthy else _fmt(t['median_delay'])} | {t['false_alarms']} "
+            f"({t['false_sequences']} seq.) | {t['false_alarm_groups']} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
 def _fmt(x: float | None, spec: str = ".1f") -> str:
     return "-" if x is None else format(x, spec)
 
 
-def _print(table: list[dict[str, Any]], rows: list[dict[str, Any]], args: Any, s: float) -> None:
+def print_table(found: list[dict[str, Any]]) -> None:
+    """The table: ``false`` alarm recordings and ``groups`` alarms where there is no fault."""
     print(
-        f"monitoring over random conveyors (seed {args.seed}): {args.per_fault} per fault type, "
-        f"{args.healthy} healthy, {args.recordings} recordings each, every realism effect on, "
-        f"loss drift +-{DRIFT:.0%}"
+        f"{'fault':14s} {'seq':>4s} {'alarmed':>8s} {'right':>6s} {'delay':>6s} {'false':>6s} "
+        f"{'groups':>6s}"
     )
-    print(f"{'fault':14s} {'seq':>4s} {'alarmed':>8s} {'right':>6s} {'delay':>6s} {'false':>6s}")
-    for t in table:
+    for t in found:
         print(
             f"{t['fault']:14s} {t['sequences']:4d} {t['alarmed']:8d} {t['right']:6d} "
-            f"{_fmt(t['median_delay']):>6s} {t['false_alarms']:6d}"
+            f"{_fmt(t['median_delay']):>6s} {t['false_alarms']:6d} {t['false_alarm_groups']:6d}"
             + (f"  (not run: {t['not_run']})" if t["not_run"] else "")
         )
-    healthy = table[-1]
+
+
+def _print(found: list[dict[str, Any]], rows: list[dict[str, Any]], args: Any, s: float) -> None:
     print(
-        f"healthy sequences: {healthy['events_true']} recordings with a payload event, "
-        f"{healthy['events_noted']} recordings noted as payload_event"
+        f"monitoring over random conveyors (seed {args.seed}): {args.per_fault} per fault type, "
+        f"{args.healthy} healthy, {getattr(args, 'declined', 0)} healthy declined "
+        f"({DECLINED_DEG[0]:.0f} to {DECLINED_DEG[1]:.0f} deg), {args.recordings} recordings "
+        f"each, every realism effect on, loss drift +-{DRIFT:.0%}"
     )
+    print_table(found)
+    for t in found:
+        if t["fault"] in HEALTHY_KINDS and t["sequences"]:
+            print(
+                f"{t['fault']} sequences: {t['events_true']} recordings with a payload event, "
+                f"{t['events_noted']} recordings noted as payload_event"
+            )
+    print_false(rows)
     obstacle = [r for r in rows if r["fault"] == "rail_obstacle" and "error" not in r]
     if obstacle:
         print(

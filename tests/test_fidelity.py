@@ -143,3 +143,70 @@ def test_the_monitoring_evaluation_counts_the_weighing_s_promise_by_hand() -> No
     assert (pooled["within_1u"], pooled["within_2u"], pooled["within_3u"]) == (2, 2, 3)
     assert pooled["beyond_5u"] == 1 and pooled["conveyors_beyond_5u"] == ["a"]
     assert (pooled["largest_z"], pooled["largest_z_conveyor"]) == (6.0, "a")
+
+
+def _monitoring() -> ModuleType:
+    path = SCRIPT.parent / "fidelity_monitoring.py"
+    spec = importlib.util.spec_from_file_location("fidelity_monitoring", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_a_declined_conveyor_is_drawn_downhill_with_the_other_draws_unchanged() -> None:
+    script = _script()
+    usual = script.draw_conveyor(np.random.default_rng(5), 3)
+    declined = script.draw_conveyor(np.random.default_rng(5), 3, incline_deg=(-15.0, -5.0))
+    assert -15.0 <= declined.design["incline_deg"] <= -5.0
+    same = ("length_m", "mass_per_m_kg", "teeth", "ratio", "mu", "direction", "sample_time_ms")
+    assert {k: declined.design[k] for k in same} == {k: usual.design[k] for k in same}
+    # the incline in motor terms carries the conveying direction's sign
+    assert declined.profile.belt.incline_deg == pytest.approx(
+        declined.design["incline_deg"] * declined.direction
+    )
+
+
+def test_the_monitoring_table_counts_alarms_where_there_is_no_fault_both_ways() -> None:
+    """Two friction sequences (delays 4 and 10, one right; one with 3 alarm
+    recordings in 2 alarms before its onset), a healthy one with 5 recordings
+    in 1 alarm, a declined one quiet and a declined one not run."""
+    module = _monitoring()
+
+    def row(series: str, **kw: object) -> dict[str, object]:
+        base: dict[str, object] = {
+            "series": series,
+            "fault": None if series in module.HEALTHY_KINDS else series,
+            "first_alarm": None,
+            "delay": None,
+            "right": False,
+            "false_alarms": 0,
+            "false_alarm_groups": 0,
+            "events_true": 0,
+            "events_noted": 0,
+        }
+        return base | kw
+
+    rows = [
+        row("friction", first_alarm=104, delay=4, right=True),
+        row("friction", first_alarm=110, delay=10, false_alarms=3, false_alarm_groups=2),
+        row("healthy", false_alarms=5, false_alarm_groups=1, events_true=4, events_noted=2),
+        row("declined"),
+        {"series": "declined", "fault": None, "error": "calibration: failed"},
+    ]
+    found = {t["fault"]: t for t in module.table(rows)}
+    friction = found["friction"]
+    assert (friction["sequences"], friction["alarmed"], friction["right"]) == (2, 2, 1)
+    assert friction["median_delay"] == 7.0
+    assert (friction["false_alarms"], friction["false_alarm_groups"]) == (3, 2)
+    assert friction["false_sequences"] == 1
+    healthy = found["healthy"]
+    assert (healthy["false_alarms"], healthy["false_alarm_groups"]) == (5, 1)
+    assert (healthy["events_true"], healthy["events_noted"]) == (4, 2)
+    declined = found["declined"]
+    assert (declined["sequences"], declined["not_run"], declined["false_alarms"]) == (1, 1, 0)
+    assert found["bearing"]["sequences"] == 0 and found["bearing"]["median_delay"] is None
+    text = module.markdown(module.table(rows), "title")
+    assert "| friction | 2 | 2 | 1 | 7.0 | 3 (1 seq.) | 2 |" in text
+    assert "| healthy | 1 | - | - | - | 5 (1 seq.) | 1 |" in text
+    assert "| declined | 1 | - | - | - | 0 (0 seq.) | 0 |" in text

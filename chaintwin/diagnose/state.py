@@ -24,7 +24,6 @@ from typing import Any
 
 from chaintwin.errors import StoreError
 from chaintwin.read.files import read_limited, write_atomic
-from chaintwin.read.recording import RecordingWarning
 
 from .records import Acknowledgement, Alarm, Event, parse_time
 
@@ -275,6 +274,8 @@ def apply_events(
     applied and closes the open alarms; the caller restarts its baseline
     when any note comes back.
     """
+    from chaintwin.read.recording import RecordingWarning  # NumPy: not for `--help`
+
     notes: list[dict[str, str]] = []
     if when is None:
         return notes

@@ -98,6 +98,10 @@ def register(app: typer.Typer) -> None:
         """
         import logging
 
+        from chaintwin.extras import require_extra
+
+        require_extra("live", "asyncua", needed_by="chaintwin drive-sim")
+
         from chaintwin.live.drive_sim import DriveSim, Published
         from chaintwin.read.profile import load_profile
         from chaintwin.simulate.faults import parse_faults

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from chaintwin.cli.demo_cmd import examples_dir
 from chaintwin.extras import EXTRA_MODULES, EXTRAS
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -91,12 +92,30 @@ sys.exit(main(sys.argv[2:]))
             "postgres",
             "a PostgreSQL store",
         ),
+        (
+            "distributed",
+            [
+                "ingest",
+                "{examples}/recordings",
+                "--profiles",
+                "{examples}/profiles",
+                "--db",
+                "sqlite:///{tmp}/plant.db",
+                "--scheduler",
+                "tcp://127.0.0.1:1",
+            ],
+            "dask",
+            "a Dask scheduler (tcp://127.0.0.1:1)",
+        ),
     ],
 )
 def test_a_missing_extra_is_named_in_one_line_with_exit_2(
     tmp_path: Path, blocked: str, args: list[str], extra: str, needed_by: str
 ) -> None:
-    done = _run(_BLOCKED_RUNNER, blocked, *(a.format(tmp=tmp_path) for a in args))
+    examples = examples_dir()
+    done = _run(
+        _BLOCKED_RUNNER, blocked, *(a.format(tmp=tmp_path, examples=examples) for a in args)
+    )
     assert done.returncode == 2, done.stderr
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1, done.stderr

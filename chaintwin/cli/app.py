@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import importlib
 import io
 import os
 import signal
@@ -34,7 +35,7 @@ from chaintwin.cli.common import (
 from chaintwin.errors import ChaintwinError
 from chaintwin.read.files import MAX_FILE_MB_ENV
 
-__all__ = ["EXIT_ALARM", "EXIT_FAILURE", "EXIT_USAGE", "app", "main"]
+__all__ = ["COMMAND_MODULES", "EXIT_ALARM", "EXIT_FAILURE", "EXIT_USAGE", "app", "main"]
 
 
 app = typer.Typer(
@@ -64,39 +65,36 @@ def _options(
         os.environ[MAX_FILE_MB_ENV] = repr(max_file_mb)
 
 
-def _register() -> None:
-    # imported here so that `chaintwin --help` stays fast and modules stay small
-    from chaintwin.cli import (
-        alarms_cmd,
-        db_cmd,
-        demo_cmd,
-        drive_sim_cmd,
-        identify_cmd,
-        inspect_cmd,
-        monitor_cmd,
-        refused_cmd,
-        report_cmd,
-        serve_cmd,
-        simulate_cmd,
-        spectrum_cmd,
-        store_cmd,
-        verify_cmd,
-    )
+COMMAND_MODULES: tuple[str, ...] = (
+    "chaintwin.cli.inspect_cmd",
+    "chaintwin.cli.simulate_cmd",
+    "chaintwin.cli.identify_cmd",
+    "chaintwin.cli.demo_cmd",
+    "chaintwin.cli.spectrum_cmd",
+    "chaintwin.cli.monitor_cmd",
+    "chaintwin.cli.alarms_cmd",
+    "chaintwin.cli.store_cmd",
+    "chaintwin.cli.report_cmd",
+    "chaintwin.cli.db_cmd",
+    "chaintwin.cli.serve_cmd",
+    "chaintwin.cli.drive_sim_cmd",
+    "chaintwin.cli.refused_cmd",
+    "chaintwin.cli.verify_cmd",
+)
+"""The modules whose ``register(app)`` adds their commands, in the order ``--help`` lists them.
 
-    inspect_cmd.register(app)
-    simulate_cmd.register(app)
-    identify_cmd.register(app)
-    demo_cmd.register(app)
-    spectrum_cmd.register(app)
-    monitor_cmd.register(app)
-    alarms_cmd.register(app)
-    store_cmd.register(app)
-    report_cmd.register(app)
-    db_cmd.register(app)
-    serve_cmd.register(app)
-    drive_sim_cmd.register(app)
-    refused_cmd.register(app)
-    verify_cmd.register(app)
+A new command is one line here. Its module stays light at the top: the
+standard library, typer, rich, :mod:`chaintwin.cli.common`,
+:mod:`chaintwin.errors` and small modules of constants only; what the
+command runs (NumPy, SciPy, SQLAlchemy, FastAPI, ...) it imports inside the
+command's function, and an optional part it checks first with
+:func:`chaintwin.extras.require_extra`.
+"""
+
+
+def _register() -> None:
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(app)
 
 
 _register()

@@ -8,15 +8,18 @@ import re
 import sys
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.console import Console
 from rich.markup import escape
 
 from chaintwin.errors import ChaintwinError, RecordingError
-from chaintwin.read.columns import ColumnMap, load_column_map
-from chaintwin.read.profile import ConveyorProfile, load_profile
+
+if TYPE_CHECKING:
+    from chaintwin.read.columns import ColumnMap
+    from chaintwin.read.profile import ConveyorProfile
+
 
 __all__ = [
     "EXIT_ALARM",
@@ -162,6 +165,9 @@ def load_options(
     profile: Path | None, columns: Path | None
 ) -> tuple[ConveyorProfile | None, ColumnMap | None]:
     """Load the optional ``--profile`` and ``--columns`` files."""
+    from chaintwin.read.columns import load_column_map
+    from chaintwin.read.profile import load_profile
+
     prof = load_profile(profile) if profile is not None else None
     cmap = load_column_map(columns) if columns is not None else None
     return prof, cmap

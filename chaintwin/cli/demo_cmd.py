@@ -5,7 +5,7 @@ from __future__ import annotations
 import shutil
 from importlib.resources import as_file, files
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.console import Console
@@ -13,7 +13,10 @@ from rich.table import Table
 
 from chaintwin import __version__
 from chaintwin.errors import StoreError
-from chaintwin.read.profile import load_profiles
+
+if TYPE_CHECKING:
+    pass
+
 
 __all__ = ["examples_dir", "register"]
 
@@ -79,6 +82,7 @@ def run_demo(out: Path, *, days: int, per_day: int, workers: int | None, console
     from rich.progress import Progress
 
     from chaintwin.identify.calibrating import calibrate
+    from chaintwin.read.profile import load_profiles
     from chaintwin.report.data import conveyor_data
     from chaintwin.report.html import write_folder
     from chaintwin.simulate.faults import parse_fault

@@ -26,7 +26,6 @@ from pathlib import Path
 from rich.console import Console
 
 from chaintwin.cli.common import safe
-from chaintwin.read.profile import load_profiles
 
 __all__ = ["LIVE_FAULTS", "run_live"]
 
@@ -98,6 +97,7 @@ def simulated_drives(ids: list[str], console: Console) -> Iterator[dict[str, str
     """
     from chaintwin.cli.demo_cmd import examples_dir
     from chaintwin.live.drive_sim import DriveSim
+    from chaintwin.read.profile import load_profiles
     from chaintwin.simulate.faults import parse_fault
 
     profiles = load_profiles(examples_dir() / "profiles")
@@ -145,6 +145,9 @@ def run_live(out: Path, *, port: int, console: Console) -> None:
     ``out`` holds the batch demo's store (``plant.db``); the OPC UA
     configuration and the webhook's secret are written beside it.
     """
+    from chaintwin.extras import require_extra
+
+    require_extra("live", "asyncua", "watchfiles", "httpx", needed_by="chaintwin demo --live")
     from chaintwin.cli.demo_cmd import DEMO_PLANT, demo_token, examples_dir
     from chaintwin.cli.serve_cmd import LiveArgs, serve
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import signal
 from pathlib import Path
@@ -97,7 +96,12 @@ def register(app: typer.Typer) -> None:
         --opcua` reads by default (docs/opcua.md); faults as for `generate`,
         their onset counted in scopes. Ctrl-C or SIGTERM stops it (exit 0).
         """
+        import asyncio
         import logging
+
+        from chaintwin.extras import require_extra
+
+        require_extra("live", "asyncua", needed_by="chaintwin drive-sim")
 
         from chaintwin.live.drive_sim import DriveSim, Published
         from chaintwin.read.profile import load_profile

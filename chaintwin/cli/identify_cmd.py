@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.console import Console
@@ -20,23 +20,15 @@ from chaintwin.cli.common import (
     safe,
 )
 from chaintwin.errors import CalibrationError, ChaintwinError, EstimationError, RecordingError
-from chaintwin.identify.calibrating import calibrate
-from chaintwin.identify.calibration import Calibration, load_calibration
-from chaintwin.identify.losses import loss_verdict
-from chaintwin.identify.methods import (
-    DEFAULT_HOLD_FIRST,
-    METHODS,
-    identify_oe,
-    identify_rls,
-    in_time_order,
-)
-from chaintwin.identify.tracking import DEFAULT_FORGETTING
-from chaintwin.read.columns import ColumnMap, load_column_map
-from chaintwin.read.profile import ConveyorProfile, load_profile
-from chaintwin.read.recording import Recording
-from chaintwin.validate.checks import Inspection, load_recording
-from chaintwin.weigh.drift import LOSS_DRIFT_REL, LossDrift
-from chaintwin.weigh.weigh import weigh
+from chaintwin.identify.defaults import DEFAULT_FORGETTING, DEFAULT_HOLD_FIRST, LOSS_DRIFT_REL
+
+if TYPE_CHECKING:
+    from chaintwin.identify.calibration import Calibration
+    from chaintwin.read.columns import ColumnMap
+    from chaintwin.read.profile import ConveyorProfile
+    from chaintwin.read.recording import Recording
+    from chaintwin.validate.checks import Inspection
+
 
 __all__ = ["identify_dict", "register"]
 
@@ -55,6 +47,8 @@ def _inspect(file: str, profile: ConveyorProfile, column_map: ColumnMap | None) 
         When it cannot be read, or is a recording of another conveyor (profiles
         are matched to recordings by id).
     """
+    from chaintwin.validate.checks import load_recording
+
     ins = load_recording(file, profile=profile, column_map=column_map)
     rec = ins.recording
     conveyor = rec.metadata.conveyor
@@ -109,6 +103,8 @@ def _save(cal: Calibration, out: Path) -> None:
 
 def identify_dict(cal: Calibration) -> dict[str, Any]:
     """The ``identify --json`` object of a calibration's parameters."""
+    from chaintwin.identify.losses import loss_verdict
+
     p = cal.parameters
 
     def pair(name: str, key: str) -> tuple[float | None, float | None]:
@@ -198,6 +194,11 @@ def register(app: typer.Typer) -> None:
         friction and the constant loss BmA cannot be separated (a warning says
         what was assumed). Exit code 2 when a file was refused.
         """
+        from chaintwin.identify.calibrating import calibrate
+        from chaintwin.identify.methods import METHODS, identify_oe, identify_rls, in_time_order
+        from chaintwin.read.columns import load_column_map
+        from chaintwin.read.profile import load_profile
+
         if method not in METHODS:
             raise EstimationError(f"--method: '{method}' is not one of {', '.join(METHODS)}")
         prof = load_profile(profile)
@@ -290,6 +291,10 @@ def register(app: typer.Typer) -> None:
         several speeds, and says how well the payload sensitivity is known and
         which run would improve it.
         """
+        from chaintwin.identify.calibrating import calibrate
+        from chaintwin.read.columns import load_column_map
+        from chaintwin.read.profile import load_profile
+
         if out is None and db is None:
             raise CalibrationError("give --out FILE, --db URL or both: where the calibration goes")
         prof = load_profile(profile)
@@ -365,6 +370,11 @@ def register(app: typer.Typer) -> None:
         `unweighable` with its reason (exit code 0). Exit code 2 after the
         others are done when a file was refused.
         """
+        from chaintwin.identify.calibration import load_calibration
+        from chaintwin.read.columns import load_column_map
+        from chaintwin.weigh.drift import LossDrift
+        from chaintwin.weigh.weigh import weigh
+
         cal = load_calibration(calibration)
         drift = LossDrift(0.0, loss_drift)
         cmap = load_column_map(columns) if columns is not None else None

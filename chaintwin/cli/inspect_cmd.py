@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.console import Console
@@ -20,9 +20,12 @@ from chaintwin.cli.common import (
     safe,
 )
 from chaintwin.errors import RecordingError
-from chaintwin.read.columns import ColumnMap
-from chaintwin.read.profile import ConveyorProfile
-from chaintwin.validate.checks import Inspection, load_recording, tray_mass_kg
+
+if TYPE_CHECKING:
+    from chaintwin.read.columns import ColumnMap
+    from chaintwin.read.profile import ConveyorProfile
+    from chaintwin.validate.checks import Inspection
+
 
 __all__ = ["inspect_files", "inspection_to_dict", "register"]
 
@@ -33,6 +36,8 @@ def inspection_to_dict(
     file: str, ins: Inspection, profile: ConveyorProfile | None
 ) -> dict[str, Any]:
     """Return the ``inspect --json`` object of one accepted recording."""
+    from chaintwin.validate.checks import tray_mass_kg
+
     rec = ins.recording
     meta = rec.metadata
     return {
@@ -55,6 +60,8 @@ def inspect_files(
     files: list[str], profile: ConveyorProfile | None, column_map: ColumnMap | None
 ) -> list[dict[str, Any]]:
     """Inspect every file; a refused file gives ``{file, error}`` and the rest go on."""
+    from chaintwin.validate.checks import load_recording
+
     results: list[dict[str, Any]] = []
     for f in files:
         try:

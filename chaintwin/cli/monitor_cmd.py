@@ -6,7 +6,7 @@ import dataclasses
 from collections.abc import Callable, Sequence
 from datetime import datetime
 from pathlib import Path
-from typing import Annotated, Any, TypeVar
+from typing import TYPE_CHECKING, Annotated, Any, TypeVar
 
 import typer
 from rich.console import Console
@@ -21,29 +21,22 @@ from chaintwin.cli.common import (
     print_warning,
     safe,
 )
-from chaintwin.diagnose.monitor import ConveyorMonitor
-from chaintwin.diagnose.monitor_state import MonitorState
-from chaintwin.diagnose.records import RecordingResult, SettingsGiven, date_out_of_span
-from chaintwin.diagnose.session import resume, undated
-from chaintwin.diagnose.state import (
-    MAINTENANCE_KINDS,
-    acknowledge_alarm,
-    add_maintenance,
-    load_state,
-    save_state,
-)
+from chaintwin.diagnose.state import MAINTENANCE_KINDS
+
+if TYPE_CHECKING:
+    from chaintwin.diagnose.monitor import ConveyorMonitor
+    from chaintwin.diagnose.records import RecordingResult, SettingsGiven
+    from chaintwin.identify.calibration import Calibration
+    from chaintwin.read.batch import order_recordings
+    from chaintwin.read.columns import ColumnMap
+    from chaintwin.read.profile import ConveyorProfile
+
 from chaintwin.errors import (
     ChaintwinError,
     MonitorError,
     ProfileError,
     StoreError,
 )
-from chaintwin.identify.calibration import Calibration, load_calibration
-from chaintwin.read.batch import group_by_conveyor, order_recordings
-from chaintwin.read.columns import ColumnMap, load_column_map
-from chaintwin.read.profile import ConveyorProfile, load_profile
-from chaintwin.read.profile import load_profiles as read_profiles
-from chaintwin.validate.checks import load_recording
 
 T = TypeVar("T")
 
@@ -80,6 +73,9 @@ def load_profiles(profile: Path | None, profiles: Path | None) -> dict[str, Conv
     ProfileError
         When neither or both are given, a folder holds none, or two share an id.
     """
+    from chaintwin.read.profile import load_profile
+    from chaintwin.read.profile import load_profiles as read_profiles
+
     if (profile is None) == (profiles is None):
         raise ProfileError("give either --profile FILE (one conveyor) or --profiles DIR")
     if profile is not None:
@@ -119,6 +115,12 @@ def run_monitor(
     (list of RecordingResult, list of ConveyorMonitor)
         Results in processing order (refused files first), and the monitors.
     """
+    from chaintwin.diagnose.monitor import ConveyorMonitor
+    from chaintwin.diagnose.records import RecordingResult
+    from chaintwin.diagnose.session import resume, undated
+    from chaintwin.read.batch import group_by_conveyor, order_recordings
+    from chaintwin.validate.checks import load_recording
+
     cal_by_id: dict[str, Calibration] = {}
     for cal in calibrations:
         cid = cal.profile.id
@@ -176,6 +178,8 @@ def standing_alarm(state: dict[str, Any] | None, monitors: list[ConveyorMonitor]
     alarm is still active); shelved alarms and those of a conveyor out of
     service do not.
     """
+    from chaintwin.diagnose.monitor_state import MonitorState
+
     alarms = [a for m in monitors for a in m.open_alarms()]
     ran = {m.profile.id for m in monitors}
     if state is not None:  # the conveyors of the state this run did not monitor
@@ -290,6 +294,11 @@ def register(app: typer.Typer) -> None:
         nor of a conveyor out of service),
         else 2 when a file was refused (after the others are done).
         """
+        from chaintwin.diagnose.records import SettingsGiven
+        from chaintwin.diagnose.state import load_state, save_state
+        from chaintwin.identify.calibration import load_calibration
+        from chaintwin.read.columns import load_column_map
+
         profs = load_profiles(profile, profiles)
         cals = [load_calibration(c) for c in calibration or []]
         x, y = _parse_rule(alarm_rule) if alarm_rule is not None else (None, None)
@@ -329,6 +338,8 @@ def register(app: typer.Typer) -> None:
         db: Annotated[str | None, typer.Option("--db", help=_EDIT_DB_HELP)] = None,
     ) -> None:
         """Record a maintenance event: the conveyor's baseline restarts after it."""
+        from chaintwin.diagnose.state import add_maintenance
+
         when = _parse_at(at)
         event = _edit(
             state, db, conveyor, lambda data: add_maintenance(data, conveyor, kind, by, why, when)
@@ -348,6 +359,8 @@ def register(app: typer.Typer) -> None:
         db: Annotated[str | None, typer.Option("--db", help=_EDIT_DB_HELP)] = None,
     ) -> None:
         """Acknowledge an alarm: someone has seen it; it stays open until it closes."""
+        from chaintwin.diagnose.state import acknowledge_alarm
+
         a = _edit(state, db, None, lambda data: acknowledge_alarm(data, alarm, by, why), alarm)
         Console().print(
             f"acknowledged alarm {safe(a.id)} ({safe(a.cause)}, {safe(a.feature)}) on "
@@ -364,6 +377,8 @@ def _edit(
     alarm: str | None = None,
 ) -> T:
     """Apply a change to a state file, or to the health model in a results store."""
+    from chaintwin.diagnose.state import load_state, save_state
+
     if state is not None and db is not None:
         raise StoreError("give either --state (a state file) or --db (a results store), not both")
     if state is not None:
@@ -394,6 +409,8 @@ def _parse_at(text: str | None, option: str = "--at") -> datetime | None:
             f"{option} '{text}' is not an ISO 8601 time (e.g. 2026-11-21T10:15:00Z)",
             field=option.lstrip("-"),
         ) from None
+    from chaintwin.diagnose.records import date_out_of_span
+
     refused = date_out_of_span(at)
     if refused is not None:
         raise StoreError(f"{option} {refused}", field=option.lstrip("-"))

@@ -150,6 +150,16 @@ def serve(
     """
     import asyncio
 
+    from chaintwin.extras import require_extra
+
+    live = live or LiveArgs()
+    require_extra("web", needed_by="chaintwin serve")
+    if live.watch:
+        require_extra("live", "watchfiles", needed_by="--watch")
+    if live.opcua is not None:
+        require_extra("live", "asyncua", needed_by="--opcua")
+    if live.notify_urls or live.notify_secret_file or live.notify_mail_to or live.notify_smtp:
+        require_extra("live", "httpx", needed_by="the alarm notifications")
     from chaintwin.cli.monitor_cmd import load_profiles
     from chaintwin.live.logs import setup_logging
     from chaintwin.live.service import LiveOptions, LiveService
@@ -157,7 +167,6 @@ def serve(
     from chaintwin.web.app import create_app
     from chaintwin.web.connections import server_config
 
-    live = live or LiveArgs()
     drives = None
     if live.opcua is not None:
         from chaintwin.live.opcua import load_opcua_config

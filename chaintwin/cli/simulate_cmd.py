@@ -6,24 +6,24 @@ import math
 from dataclasses import replace
 from datetime import datetime
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
-from pydantic import ValidationError
+
+from chaintwin.simulate.faults import FAULT_NAMES
+
+if TYPE_CHECKING:
+    from chaintwin.read.profile import ConveyorProfile, ModelSpec
+    from chaintwin.simulate import setpoints as sp
+    from chaintwin.simulate.fleet import GenerateSummary
+    from chaintwin.simulate.virtual import Realism
+
 from rich.console import Console
 from rich.progress import Progress
 
 from chaintwin.cli.common import print_json
 from chaintwin.diagnose.records import date_out_of_span
 from chaintwin.errors import CalibrationError, ModelError, RecordingError
-from chaintwin.read.profile import ConveyorProfile, ModelSpec, load_profile
-from chaintwin.read.reader import read_recording
-from chaintwin.read.writer import write_recording
-from chaintwin.simulate import setpoints as sp
-from chaintwin.simulate.faults import FAULT_NAMES, parse_faults
-from chaintwin.simulate.fleet import GenerateSummary, generate
-from chaintwin.simulate.plant import calibrated_model
-from chaintwin.simulate.virtual import Realism, default_setpoints, run_virtual
 from chaintwin.units import RPM_TO_RAD_S
 
 __all__ = ["build_model", "build_realism", "register"]
@@ -52,6 +52,11 @@ def build_model(
     CalibrationError
         When the calibration file cannot be used, or belongs to another conveyor.
     """
+    from pydantic import ValidationError
+
+    from chaintwin.read.profile import ModelSpec
+    from chaintwin.simulate.plant import calibrated_model
+
     model = profile.model or ModelSpec()
     if calibration is not None:
         from chaintwin.identify.calibration import load_calibration
@@ -85,6 +90,8 @@ def build_model(
 
 def _generate_or_refuse(out: Path, *args: Any, **kwargs: Any) -> GenerateSummary:
     """Run :func:`generate`, turning file-system errors into a one-line refusal."""
+    from chaintwin.simulate.fleet import generate
+
     try:
         return generate(*args, **kwargs)
     except OSError as exc:
@@ -96,6 +103,8 @@ def _generate_or_refuse(out: Path, *args: Any, **kwargs: Any) -> GenerateSummary
 
 def build_realism(ideal: bool, without: list[str]) -> Realism:
     """Realism switches from ``--ideal`` and ``--without NAME`` options."""
+    from chaintwin.simulate.virtual import Realism
+
     realism = Realism.off() if ideal else Realism()
     for name in without:
         if name not in REALISM_SWITCHES:
@@ -107,6 +116,9 @@ def build_realism(ideal: bool, without: list[str]) -> Realism:
 def _move(
     kind: str, profile: ConveyorProfile, speed_rpm: float | None, direction: int, duration: float
 ) -> sp.Setpoints:
+    from chaintwin.simulate import setpoints as sp
+    from chaintwin.simulate.virtual import default_setpoints
+
     if kind == "trapezoid":
         return default_setpoints(
             profile, duration_s=duration, speed_rpm=speed_rpm, direction=direction
@@ -232,6 +244,13 @@ def register(app: typer.Typer) -> None:
         identified friction and losses), else the profile's model: section,
         else typical values (friction 0.23, the reference losses).
         """
+        from chaintwin.read.profile import load_profile
+        from chaintwin.read.reader import read_recording
+        from chaintwin.read.writer import write_recording
+        from chaintwin.simulate import setpoints as sp
+        from chaintwin.simulate.faults import parse_faults
+        from chaintwin.simulate.virtual import run_virtual
+
         prof = _with_incline(load_profile(profile), incline_deg)
         model = build_model(
             prof,
@@ -343,6 +362,9 @@ def register(app: typer.Typer) -> None:
         Beside them: truth.jsonl (payload, every fault's severity per file) and,
         unless --no-calibration, calibration/ recordings with a known payload_kg.
         """
+        from chaintwin.read.profile import load_profile
+        from chaintwin.simulate.faults import parse_faults
+
         prof = load_profile(profile)
         model = build_model(prof, {}, calibration)
         faults = parse_faults(fault or [])

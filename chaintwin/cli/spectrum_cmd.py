@@ -4,27 +4,19 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.console import Console
 from rich.table import Table
 
 from chaintwin.cli.common import ColumnsOption, load_options, print_json, print_warning, safe
-from chaintwin.diagnose.lines import band_amplitude
-from chaintwin.diagnose.peaks import strongest_peaks
-from chaintwin.diagnose.spectra import MIN_SPEED_RPM, Spectrum, order_spectrum, welch_spectrum
+
+if TYPE_CHECKING:
+    from chaintwin.diagnose.spectra import Spectrum
+    from chaintwin.read.profile import ConveyorProfile
+
 from chaintwin.errors import EstimationError, RecordingError
-from chaintwin.model.frequencies import (
-    apparent_order,
-    characteristic_lines,
-    fold_frequency,
-    lateral_modes_note,
-    line_orders,
-)
-from chaintwin.read.profile import ConveyorProfile
-from chaintwin.report.spectrum_plot import plot_spectrum
-from chaintwin.validate.checks import load_recording
 
 __all__ = ["line_rows", "register", "spectrum_dict"]
 
@@ -67,6 +59,15 @@ def line_rows(
     EstimationError
         When the motor turns slower than 1 rpm on the analysed part.
     """
+    from chaintwin.diagnose.lines import band_amplitude
+    from chaintwin.diagnose.spectra import MIN_SPEED_RPM
+    from chaintwin.model.frequencies import (
+        apparent_order,
+        characteristic_lines,
+        fold_frequency,
+        line_orders,
+    )
+
     if profile is None:
         return []
     if spectrum.speed_rpm < MIN_SPEED_RPM:
@@ -130,6 +131,8 @@ def spectrum_dict(file: str, spectrum: Spectrum, rows: list[dict[str, Any]]) -> 
     from :func:`line_rows`; the peaks leave out the lowest bins, which hold
     trend leakage.
     """
+    from chaintwin.diagnose.peaks import strongest_peaks
+
     peaks = strongest_peaks(spectrum, top=PEAKS, min_x=LOW_BINS * spectrum.resolution)
     return {
         "file": file,
@@ -202,6 +205,11 @@ def register(app: typer.Typer) -> None:
         scopes have no anti-alias filter); with --orders an order spectrum of
         the run above 30 % of peak speed. Amplitudes in Nm.
         """
+        from chaintwin.diagnose.spectra import order_spectrum, welch_spectrum
+        from chaintwin.model.frequencies import lateral_modes_note
+        from chaintwin.report.spectrum_plot import plot_spectrum
+        from chaintwin.validate.checks import load_recording
+
         prof, cmap = load_options(profile, columns)
         rec = load_recording(str(file), profile=prof, column_map=cmap).recording
         conveyor = rec.metadata.conveyor

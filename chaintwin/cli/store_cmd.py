@@ -6,7 +6,7 @@ import csv
 import io
 import sys
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.console import Console
@@ -21,9 +21,11 @@ from chaintwin.cli.common import (
     safe,
 )
 from chaintwin.cli.monitor_cmd import load_profiles
-from chaintwin.diagnose.records import SettingsGiven
+
+if TYPE_CHECKING:
+    pass
+
 from chaintwin.errors import StoreError
-from chaintwin.read.columns import load_column_map
 
 __all__ = ["EXPORT_COLUMNS", "register"]
 
@@ -105,6 +107,8 @@ def register(app: typer.Typer) -> None:
         Idempotent: a recording already stored is skipped. Refused files never
         stop the batch; the exit code is 0 when the batch ran.
         """
+        from chaintwin.diagnose.records import SettingsGiven
+        from chaintwin.read.columns import load_column_map
         from chaintwin.store.engine import safe_url, store_url
         from chaintwin.store.ingest import ingest
         from chaintwin.store.store import Store

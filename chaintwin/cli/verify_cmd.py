@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.console import Console
@@ -20,10 +20,10 @@ from chaintwin.cli.common import (
 )
 from chaintwin.cli.identify_cmd import _inspect
 from chaintwin.errors import CalibrationError, ChaintwinError, EstimationError
-from chaintwin.identify.calibration import load_calibration
-from chaintwin.identify.verification import RESIDUALS, Residual, verify_recording
-from chaintwin.read.columns import load_column_map
-from chaintwin.read.profile import load_profile
+
+if TYPE_CHECKING:
+    from chaintwin.identify.verification import Residual
+
 
 __all__ = ["register", "verify_rows"]
 
@@ -87,6 +87,11 @@ def register(app: typer.Typer) -> None:
         mean, standard deviation and largest absolute value over the movement
         and per phase (%). Exit code 2 when a file was refused.
         """
+        from chaintwin.identify.calibration import load_calibration
+        from chaintwin.identify.verification import RESIDUALS, verify_recording
+        from chaintwin.read.columns import load_column_map
+        from chaintwin.read.profile import load_profile
+
         if residual not in RESIDUALS:
             raise EstimationError(f"--residual: '{residual}' is not one of {', '.join(RESIDUALS)}")
         mode: Residual = "inverse" if residual == "inverse" else "closed-loop"

@@ -25,7 +25,6 @@ from typing import Any
 from chaintwin.errors import StoreError
 from chaintwin.read.files import read_limited, write_atomic
 from chaintwin.read.integers import json_loads, refuse_huge_integers
-from chaintwin.read.recording import RecordingWarning
 
 from .records import Acknowledgement, Alarm, Event, date_out_of_span, parse_time
 
@@ -280,6 +279,8 @@ def apply_events(
     applied and closes the open alarms; the caller restarts its baseline
     when any note comes back.
     """
+    from chaintwin.read.recording import RecordingWarning  # NumPy: not for `--help`
+
     notes: list[dict[str, str]] = []
     if when is None:
         return notes

@@ -28,6 +28,7 @@ import numpy as np
 from chaintwin.errors import ConvergenceWarning, EstimationError
 from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.calibration import Calibration, identification_profile
+from chaintwin.identify.defaults import DEFAULT_HOLD_FIRST
 from chaintwin.identify.output_error import OutputErrorFit
 from chaintwin.identify.regression import RigidModelRegression, speed_clusters
 from chaintwin.identify.tracking import DEFAULT_FORGETTING, TrackPoint, track_losses
@@ -47,9 +48,6 @@ __all__ = [
 Method = Literal["ls", "rls", "oe"]
 METHODS: tuple[Method, ...] = ("ls", "rls", "oe")
 """The identification methods of ``chaintwin identify --method``."""
-
-DEFAULT_HOLD_FIRST = 20
-"""Recordings whose batch fit gives the parameters RLS holds (J_d, μ, BmC)."""
 
 MIN_LOAD_SPREAD_KG = 5.0
 """Loads must differ by this much for the output-error fit to fit BmA."""

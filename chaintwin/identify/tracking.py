@@ -40,6 +40,7 @@ import numpy as np
 
 from chaintwin._types import FloatArray
 from chaintwin.errors import EstimationError
+from chaintwin.identify.defaults import DEFAULT_FORGETTING
 from chaintwin.identify.regression import design_matrix
 from chaintwin.identify.rls import RecursiveLeastSquares
 from chaintwin.model.rigid import PARAMETER_NAMES, RigidParameters, motoring_mask
@@ -55,8 +56,6 @@ __all__ = [
     "track_losses",
 ]
 
-DEFAULT_FORGETTING = 0.98
-"""Forgetting factor of :func:`track_losses` (docs/methods/rls.md: the trade-off)."""
 
 DEFAULT_TRACKED: tuple[str, ...] = ("BmA", "BmB")
 """What :func:`track_losses` tracks: the constant and viscous gear losses. J_d and μ

@@ -157,6 +157,10 @@ def engine_for(
         When the URL is not a usable database URL.
     """
     target = url
+    if url.startswith("postgresql"):
+        from chaintwin.extras import require_extra
+
+        require_extra("postgres", "psycopg", needed_by="a PostgreSQL store")
     if target.startswith("postgresql://"):
         target = "postgresql+psycopg://" + target[len("postgresql://") :]
     path = sqlite_path(url)

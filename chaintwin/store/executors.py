@@ -205,6 +205,9 @@ def executor(workers: int | None, scheduler: str | None) -> Iterator[Executor]:
                 raise
             ex.shutdown(wait=True)
             return
+        from chaintwin.extras import require_extra
+
+        require_extra("dask", "distributed", needed_by=f"a Dask scheduler ({scheduler})")
         from distributed import Client
 
         try:

@@ -2,7 +2,7 @@
 
 :func:`create_app` builds the FastAPI application; ``chaintwin serve`` runs
 it under uvicorn. Everything it loads in a browser comes from the package
-(Plotly's and Swagger UI's JavaScript under ``/static``), nothing from the
+(Plotly's, Swagger UI's and ReDoc's JavaScript under ``/static``), nothing from the
 network.
 
 Every error of the API has one shape, ``{"error": {"code", "message"}}``;
@@ -19,6 +19,7 @@ from typing import Any
 import jinja2
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
+from fastapi.openapi.docs import get_redoc_html
 from fastapi.responses import (
     FileResponse,
     HTMLResponse,
@@ -61,12 +62,12 @@ class WebState:
 
 
 def _static_dirs() -> dict[str, Path]:
+    import fastapi_offline  # Swagger UI 5 (reads OpenAPI 3.1) and ReDoc, as files
     import plotly  # type: ignore[import-untyped]
-    import swagger_ui_bundle  # type: ignore[import-untyped]
 
     return {
         "plotly": Path(plotly.__file__).parent / "package_data",
-        "swagger": Path(swagger_ui_bundle.swagger_ui_path),
+        "swagger": Path(fastapi_offline.__file__).parent / "static",
         "app": _HERE / "static",
     }
 
@@ -89,7 +90,7 @@ _DOCS_PAGE = """<!doctype html>
 <meta charset="utf-8">
 <meta name="viewport" content="width=device-width, initial-scale=1">
 <link rel="stylesheet" href="/static/swagger/swagger-ui.css">
-<link rel="icon" href="/static/swagger/favicon-32x32.png">
+<link rel="icon" href="/static/swagger/favicon.png">
 <title>chaintwin API</title>
 </head>
 <body>
@@ -228,11 +229,28 @@ def create_app(
 
     @app.get("/favicon.ico", include_in_schema=False)
     async def favicon() -> FileResponse:
-        return FileResponse(_static_dirs()["swagger"] / "favicon-32x32.png")
+        return FileResponse(_static_dirs()["swagger"] / "favicon.png")
 
     @app.get("/docs", include_in_schema=False)
     async def docs() -> HTMLResponse:
         return HTMLResponse(_DOCS_PAGE)
+
+    @app.get("/redoc", include_in_schema=False)
+    async def redoc() -> HTMLResponse:
+        page = get_redoc_html(
+            openapi_url="/openapi.json",
+            title="chaintwin API",
+            redoc_js_url="/static/swagger/redoc.standalone.js",
+            redoc_favicon_url="/static/swagger/favicon.png",
+            with_google_fonts=False,
+        )
+        # ReDoc always asks its vendor's site for a logo: the page's own images only
+        page.headers["Content-Security-Policy"] = (
+            "default-src 'self'; script-src 'self' 'unsafe-inline' blob:; "
+            "style-src 'self' 'unsafe-inline'; img-src 'self' data:; worker-src 'self' blob:; "
+            "frame-ancestors 'none'"
+        )
+        return page
 
     @app.get("/metrics", include_in_schema=False)
     def metrics(request: Request) -> Response:

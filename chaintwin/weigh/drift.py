@@ -17,18 +17,9 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from chaintwin.identify.defaults import LOSS_DRIFT_HALF_RANGE, LOSS_DRIFT_REL
+
 __all__ = ["LOSS_DRIFT_HALF_RANGE", "LOSS_DRIFT_REL", "LossDrift"]
-
-LOSS_DRIFT_HALF_RANGE = 0.10
-"""How far the losses drift from the calibration's with oil temperature, each
-way, 1: within ±10 %. Two recordings may then see losses up to 20 % of the
-calibration's apart (the condition features' drift allowance,
-:mod:`chaintwin.diagnose.features`)."""
-
-LOSS_DRIFT_REL = 0.06
-"""Standard uncertainty of the losses relative to the calibration's when
-nothing is known of today's, 1: a drift uniform within ±:data:`LOSS_DRIFT_HALF_RANGE`
-has a standard deviation of 5.8 %."""
 
 
 @dataclass(frozen=True, slots=True)

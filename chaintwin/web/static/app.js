@@ -15,7 +15,6 @@ window.chaintwin = (function () {
   }
 
   function health(row) {
-    if (row.open_alarms.length) return "alarm";
     return row.health;
   }
 
@@ -111,6 +110,7 @@ window.chaintwin = (function () {
 
   function fillRow(tr, row) {
     tr.querySelector(".health").textContent = health(row);
+    tr.querySelector(".health").title = `NE 107 ${row.ne107}`;
     const index = tr.querySelector(".index");
     index.textContent = text(row.health_index, 2);
     index.title = row.worst_feature || "";

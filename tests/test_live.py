@@ -432,6 +432,8 @@ def test_alarm_notifications_reach_a_failing_receiver_once_per_id_signed(
         "cause": first.cause,
         "time": first.opened_at or first.since,
         "link": f"https://twin.example/conveyors/{PROFILE.id}",
+        "health": "alarm",  # the verdict as the opening left it
+        "ne107": "failure",
     }
     with Session(store.engine) as s:
         deliveries = list(s.scalars(select(DeliveryRow)))
@@ -454,7 +456,7 @@ def test_serve_refuses_an_old_store_naming_db_upgrade_then_upgraded_it_runs(
     capsys.readouterr()
     engine = engine_for(db)
     with engine.connect() as c:
-        assert migrate.revision_of(c) == "0006" == migrate.HEAD_REVISION
+        assert migrate.revision_of(c) == "0007" == migrate.HEAD_REVISION
         # the new tables, empty: an upgraded store does not notify its past alarms
         for table in ("refused_files", "outbox", "outbox_deliveries", "live_sources", "leases"):
             assert c.execute(text(f"SELECT COUNT(*) FROM {table}")).scalar() == 0

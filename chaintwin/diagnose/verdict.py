@@ -41,10 +41,14 @@ standing alarm's opening. None where no time is known (``no_data``).
 from __future__ import annotations
 
 import math
-import statistics
+import warnings
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
+
+import numpy as np
+
+from chaintwin._types import FloatArray
 
 from .features import feature_spec
 from .monitor_state import HEALTH_RECENT, MonitorState
@@ -55,7 +59,9 @@ __all__ = [
     "NE107",
     "NE107_OF",
     "WATCH_INDEX",
+    "DeviationSeries",
     "Verdict",
+    "deviation_series",
     "verdict",
 ]
 
@@ -187,17 +193,68 @@ def _earliest(times: list[str | None]) -> str | None:
     return min(parsed, key=lambda tp: tp[1])[0] if parsed else None
 
 
-def deviation_series(
-    state: MonitorState, recent: int = HEALTH_RECENT
-) -> list[tuple[str | None, dict[str, float]]]:
-    """Per recording judged against the current baseline: its time and each feature's deviation.
+@dataclass(frozen=True, slots=True)
+class DeviationSeries:
+    """Each feature's normalised deviation at every recording judged against the current baseline.
 
-    Each feature's deviation at a recording is the median over the latest
-    ``recent`` recordings up to it of ``(value − e(p)) / (L(p) − e(p))`` (see
-    :func:`~chaintwin.diagnose.monitor_state.deviations`, the last entry's).
+    Attributes
+    ----------
+    times : list of str or None
+        The recordings' times (ISO), oldest first.
+    names : list of str
+        The monitored features (a baseline and a probable cause).
+    values : ndarray, shape (len(times), len(names))
+        At each recording, each feature's median over the latest ``recent``
+        recordings up to it of ``(value − e(p)) / (L(p) − e(p))``
+        (dimensionless: 0 at the baseline, 1 at the alarm limit; NaN where
+        none is known yet).
+    """
+
+    times: list[str | None]
+    names: list[str]
+    values: FloatArray
+
+    def latest(self) -> dict[str, float]:
+        """Each feature's deviation at the latest recording (features without one left out)."""
+        if not self.times:
+            return {}
+        row = self.values[-1]
+        return {n: float(v) for n, v in zip(self.names, row, strict=True) if math.isfinite(v)}
+
+    def worst(self) -> FloatArray:
+        """The largest deviation at each recording (NaN where no feature has one)."""
+        if not self.names or not self.times:
+            return np.full(len(self.times), np.nan)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows: NaN
+            return np.asarray(np.nanmax(self.values, axis=1), dtype=float)
+
+
+def _nanmedian_rows(windows: FloatArray) -> FloatArray:
+    """The median of each row's finite values (NaN for a row without one)."""
+    ordered = np.sort(windows, axis=1)  # NaN last
+    count = np.isfinite(ordered).sum(axis=1)
+    lo = np.clip((count - 1) // 2, 0, None)
+    hi = np.clip(count // 2, 0, None)
+    a = np.take_along_axis(ordered, lo[:, None], axis=1)[:, 0]
+    b = np.take_along_axis(ordered, np.minimum(hi, windows.shape[1] - 1)[:, None], axis=1)[:, 0]
+    return np.where(count > 0, (a + b) / 2.0, np.nan)
+
+
+def deviation_series(state: MonitorState, recent: int = HEALTH_RECENT) -> DeviationSeries:
+    """Each monitored feature's normalised deviation at every recording since the baseline.
+
+    For each feature with a baseline and a probable cause, at each recording
+    judged against the current baseline (status ``monitored``, recorded from
+    the baseline on): the median over the latest ``recent`` such recordings
+    that hold the feature (non-finite values left out of the median) of
+    ``(value − e(p)) / (L(p) − e(p))``, with ``e(p)`` the baseline's line and
+    ``L(p)`` the alarm limit at the recording's payload ``p``. The last row
+    is the conveyor's current deviation per feature, the same number as the
+    report's feature health index.
     """
     if not state.baselines:
-        return []
+        return DeviationSeries([], [], np.empty((0, 0)))
     since = state.baseline_since or ""
     rows = [
         h
@@ -205,33 +262,33 @@ def deviation_series(
         if h.get("status") == "monitored" and (h.get("recorded_at") or "") >= since
     ]
     z_limit = state.settings.z_limit
-    per_feature: dict[str, list[float | None]] = {}
+    feats = [h.get("features") or {} for h in rows]
+    names: list[str] = []
+    columns: list[FloatArray] = []
     for name, fb in state.baselines.items():
         spec = feature_spec(name)
         if spec.cause is None:
             continue
-        vals: list[float | None] = []
-        for h in rows:
-            feats = h.get("features") or {}
-            if name not in feats:
-                vals.append(None)
-                continue
-            v = as_number(feats.get(name))
-            p = as_number(feats.get(spec.regressor))
-            e = fb.expected(p)
-            span = fb.limit(z_limit, spec.min_rel, payload_kg=p) - e  # NaN p: mean payload
-            vals.append((v - e) / span if span > 0.0 else math.nan)
-        per_feature[name] = vals
-    out: list[tuple[str | None, dict[str, float]]] = []
-    for k, h in enumerate(rows):
-        devs: dict[str, float] = {}
-        for name, vals in per_feature.items():
-            present = [v for v in vals[: k + 1] if v is not None]
-            latest = [v for v in present[-recent:] if math.isfinite(v)]
-            if latest:
-                devs[name] = float(statistics.median(latest))
-        out.append((h.get("recorded_at"), devs))
-    return out
+        present = np.asarray([name in f for f in feats], dtype=bool)
+        held = [f for f in feats if name in f]
+        v = np.asarray([as_number(f[name]) for f in held], dtype=float)
+        p = np.asarray([as_number(f.get(spec.regressor)) for f in held], dtype=float)
+        e = fb.expected_at(p)  # NaN p: the mean payload
+        span = fb.margin_at(e, z_limit, spec.min_rel)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            vals = np.where(span > 0.0, (v - e) / span, np.nan)
+        column = np.full(len(rows), np.nan)
+        if vals.size:
+            padded = np.concatenate([np.full(recent - 1, np.nan), vals])
+            windows = np.lib.stride_tricks.sliding_window_view(padded, recent)
+            medians = _nanmedian_rows(windows)
+            upto = np.cumsum(present)  # present values up to each recording
+            have = upto > 0
+            column[have] = medians[upto[have] - 1]
+        names.append(name)
+        columns.append(column)
+    values = np.column_stack(columns) if columns else np.empty((len(rows), 0))
+    return DeviationSeries([h.get("recorded_at") for h in rows], names, values)
 
 
 def _worst(devs: dict[str, float]) -> tuple[float | None, str | None]:
@@ -268,7 +325,7 @@ def verdict(state: MonitorState | None, now: datetime | None = None) -> Verdict:
     lifecycles = [(a, a.lifecycle(now)) for a in state.alarms]
     standing = [a for a, life in lifecycles if life not in ("closed", "shelved", "out_of_service")]
     series = deviation_series(state)
-    deviation, worst = _worst(series[-1][1]) if series else (None, None)
+    deviation, worst = _worst(series.latest())
     if standing:
         first = _earliest([a.since for a in standing])
         index = max(1.0, deviation) if deviation is not None else 1.0
@@ -284,7 +341,7 @@ def verdict(state: MonitorState | None, now: datetime | None = None) -> Verdict:
     # judged against a complete baseline from here on
     floor = _latest(
         [
-            next((t for t, _d in series), None),
+            series.times[0] if series.times else None,
             *[a.closed_at for a in state.alarms],
             *[e.at for e in state.events],
             None if window is None else window.get("until"),
@@ -295,11 +352,12 @@ def verdict(state: MonitorState | None, now: datetime | None = None) -> Verdict:
         since = _latest([a.shelved.at for a in shelved if a.shelved is not None])
         return _make("shelved", since, None, deviation, deviation, worst)
     watch = deviation is not None and deviation >= WATCH_INDEX
+    worst_at = series.worst()
+    watching = np.where(np.isfinite(worst_at), worst_at >= WATCH_INDEX, False)
+    changed = np.flatnonzero(watching != watch)
     start: str | None = None
-    for t, devs in reversed(series):
-        d, _n = _worst(devs)
-        if (d is not None and d >= WATCH_INDEX) != watch:
-            break
-        start = t
+    if series.times:
+        run = int(changed[-1]) + 1 if changed.size else 0  # where the current run began
+        start = series.times[run] if run < len(series.times) else None
     since = _latest([start, floor])
     return _make("watch" if watch else "ok", since, None, deviation, deviation, worst)

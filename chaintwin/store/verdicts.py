@@ -26,7 +26,9 @@ __all__ = ["VerdictCache", "conveyor_verdict"]
 
 
 def conveyor_verdict(store: Store, conveyor: str) -> Verdict:
-    """A conveyor's verdict from its stored health model (``no_data`` without a readable one)."""
+    """A conveyor's verdict from its stored health model (``no_data`` without a readable one,
+    or with one made with another version of its profile, as
+    :func:`~chaintwin.report.data.conveyor_data` reads it)."""
     with Session(store.engine) as s:
         row = s.get(MonitorStateRow, conveyor)
         data = None if row is None else dict(row.state)
@@ -36,6 +38,9 @@ def conveyor_verdict(store: Store, conveyor: str) -> Verdict:
         state = MonitorState.from_dict(data, source=f"conveyor {conveyor}")
     except (ChaintwinError, KeyError, TypeError, ValueError):
         return verdict(None)  # a damaged model: the conveyor's page says why
+    profile = store.profile(conveyor)
+    if profile is None or state.profile_sha256 != profile.content_hash():
+        return verdict(None)  # made with another profile: the page says so, as it reads it
     return verdict(state)
 
 

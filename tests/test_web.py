@@ -782,6 +782,18 @@ def test_in_a_browser_log_in_see_charts_acknowledge_and_a_viewer_refused(
             viewer.goto(served.base + "/alarms")
             assert "acknowledged by maintainer-1" in viewer.inner_text("table.alarms tbody")
             viewer.evaluate("window.notReloaded = true")
+            # so does the verdict on the conveyor's page: relearning at once, not at the
+            # next recording
+            convo = browser.new_page()
+            convo.on("console", lambda m: broken.append(m.text) if m.type == "error" else None)
+            convo.goto(served.base + "/login")
+            convo.fill("#token", served.tokens["viewer"])
+            convo.click("form.login button")
+            convo.wait_for_url(served.base + "/")
+            convo.goto(served.base + f"/conveyors/{quote(PROFILE.id)}")
+            assert convo.inner_text("strong.health") in ("alarm", "acknowledged")
+            assert convo.inner_text("strong.ne107") == "failure"
+            convo.evaluate("window.notReloaded = true")
             body = {"kind": "cleaning", "why": "rails cleaned"}
             done = served.client("maintainer").post(
                 f"/api/v1/conveyors/{PROFILE.id}/maintenance", json=body
@@ -792,6 +804,12 @@ def test_in_a_browser_log_in_see_charts_acknowledge_and_a_viewer_refused(
                 timeout=15000,
             )
             assert viewer.evaluate("window.notReloaded === true")
+            convo.wait_for_function(
+                "document.querySelector('strong.health').innerText === 'relearning'",
+                timeout=15000,
+            )
+            assert convo.inner_text("strong.ne107") == "check_function"
+            assert convo.evaluate("window.notReloaded === true")
             browser.close()
     finally:
         served.close()

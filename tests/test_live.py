@@ -434,6 +434,8 @@ def test_alarm_notifications_reach_a_failing_receiver_once_per_id_signed(
         "cause": first.cause,
         "time": first.opened_at or first.since,
         "link": f"https://twin.example/conveyors/{PROFILE.id}",
+        "health": "alarm",  # the verdict as the opening left it
+        "ne107": "failure",
     }
     with Session(store.engine) as s:
         deliveries = list(s.scalars(select(DeliveryRow)))

@@ -679,6 +679,11 @@ def test_cli_monitor_state_fail_on_alarm_and_acknowledge(
     assert code == EXIT_ALARM
     alarms = out["conveyors"][0]["open_alarms"]
     assert alarms and alarms[0]["cause"] == "friction"
+    # the verdict, as every view says it: an unacknowledged alarm, since it opened
+    conveyor = out["conveyors"][0]
+    assert conveyor["health"] == "alarm" and conveyor["ne107"] == "failure"
+    assert conveyor["health_since"] == conveyor["ne107_since"] == min(a["since"] for a in alarms)
+    assert conveyor["health_index"] >= 1.0
     assert any(r["alarm"] for r in out["recordings"])
     # the alarmed feature's forecast stays while its alarm is open: crossed, since when
     (friction,) = [f for f in out["conveyors"][0]["forecasts"] if f["feature"] == "friction"]

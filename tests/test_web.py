@@ -152,6 +152,8 @@ def test_reading_the_api_needs_a_token_and_pages_through_results(served: Served)
     (row,) = viewer.get("/api/v1/conveyors").json()
     assert row["id"] == PROFILE.id
     assert row["health"] == "alarm" and row["open_alarms"][0]["cause"] == "friction"
+    assert row["ne107"] == "failure"
+    assert row["health_since"] == min(a["since"] for a in row["open_alarms"])
     assert row["last_recorded_at"] and row["payload_kg"] is not None
     detail = viewer.get(f"/api/v1/conveyors/{PROFILE.id}").json()
     assert detail["calibration"]["case"] == "several_loads"
@@ -163,6 +165,10 @@ def test_reading_the_api_needs_a_token_and_pages_through_results(served: Served)
     assert row["health_index"] == pytest.approx(max(1.0, row["deviation"]))
     assert detail["deviation"] == pytest.approx(row["deviation"], rel=1e-9)
     assert detail["health_index"] == pytest.approx(row["health_index"], rel=1e-9)
+    # the verdict is the same in both; status is the latest result's in both
+    verdict = ("health", "health_since", "ne107", "ne107_since", "worst_feature")
+    assert {k: detail[k] for k in verdict} == {k: row[k] for k in verdict}
+    assert detail["status"] == row["status"] == "monitored"
     _error(viewer.get("/api/v1/conveyors/nope"), 404, "not_found")
 
     # cursor pagination, newest first, every result once
@@ -532,22 +538,14 @@ def test_trends_carry_the_monitors_forecast_with_its_band(rising: Served) -> Non
     assert other["forecast"] is None
     # no alarm: the fleet's health index is the worst feature's deviation, below 1
     (row,) = viewer.get("/api/v1/conveyors").json()
-    assert row["open_alarms"] == [] and row["health"] == "ok"
+    assert row["open_alarms"] == [] and row["health"] == (
+        "watch" if row["health_index"] >= 0.7 else "ok"
+    )
+    assert row["ne107"] == ("maintenance_required" if row["health"] == "watch" else "normal")
     assert row["health_index"] == row["deviation"] == pytest.approx(detail["deviation"])
     worst = viewer.get(f"{base}/trends", params={"feature": row["worst_feature"]}).json()
     assert worst["health_index"] == pytest.approx(row["health_index"], rel=1e-9)
     assert 0.3 < row["health_index"] < 1.0  # friction on its way up
-
-
-def test_the_health_index_of_a_conveyor() -> None:
-    from chaintwin.diagnose.monitor_state import health_index
-
-    assert health_index(None, 0) is None  # learning
-    assert health_index(0.3, 0) == 0.3
-    assert health_index(-0.2, 0) == -0.2  # below the baseline
-    assert health_index(0.3, 2) == 1.0  # an open alarm: at least 1
-    assert health_index(None, 1) == 1.0
-    assert health_index(2.5, 1) == 2.5
 
 
 def test_the_spectrum_waterfall_of_the_latest_recordings(served: Served) -> None:
@@ -838,6 +836,18 @@ def test_in_a_browser_log_in_see_charts_acknowledge_and_a_viewer_refused(
             viewer.goto(served.base + "/alarms")
             assert "acknowledged by maintainer-1" in viewer.inner_text("table.alarms tbody")
             viewer.evaluate("window.notReloaded = true")
+            # so does the verdict on the conveyor's page: relearning at once, not at the
+            # next recording
+            convo = browser.new_page()
+            convo.on("console", lambda m: broken.append(m.text) if m.type == "error" else None)
+            convo.goto(served.base + "/login")
+            convo.fill("#token", served.tokens["viewer"])
+            convo.click("form.login button")
+            convo.wait_for_url(served.base + "/")
+            convo.goto(served.base + f"/conveyors/{quote(PROFILE.id)}")
+            assert convo.inner_text("strong.health") in ("alarm", "acknowledged")
+            assert convo.inner_text("strong.ne107") == "failure"
+            convo.evaluate("window.notReloaded = true")
             body = {"kind": "cleaning", "why": "rails cleaned"}
             done = served.client("maintainer").post(
                 f"/api/v1/conveyors/{PROFILE.id}/maintenance", json=body
@@ -845,6 +855,9 @@ def test_in_a_browser_log_in_see_charts_acknowledge_and_a_viewer_refused(
             assert done.is_success
             expect(viewer.locator("table.alarms tbody")).to_contain_text("closed", timeout=15000)
             assert viewer.evaluate("window.notReloaded === true")
+            expect(convo.locator("strong.health")).to_have_text("relearning", timeout=15000)
+            assert convo.inner_text("strong.ne107") == "check_function"
+            assert convo.evaluate("window.notReloaded === true")
             # the API docs' Swagger UI starts under the same CSP (no inline script)
             viewer.on("console", lambda m: broken.append(m.text) if m.type == "error" else None)
             viewer.goto(served.base + "/docs")
@@ -901,7 +914,7 @@ def test_a_conveyors_page_with_more_results_than_its_bound_shows_the_same(
     bounded = browser.get(f"/conveyors/{PROFILE.id}").text
     assert bounded == whole
     assert f"{len(data.results)} recordings" in bounded
-    assert f"<strong>{data.status}</strong>" in bounded
+    assert f'<strong class="health">{data.status}</strong>' in bounded
     assert all(f"since {a.since}" in bounded for a in data.open_alarms())
     found = re.search(r"data-features='([^']*)'", bounded)
     assert found is not None

@@ -167,12 +167,12 @@ def run_demo(out: Path, *, days: int, per_day: int, workers: int | None, console
         for col, justify in (
             ("conveyor", "left"),
             ("rec.", "right"),
-            ("status", "left"),
+            ("health (NE 107)", "left"),
             ("open alarm: cause (since)", "left"),
             ("payload kg", "right"),
             ("weights right", "right"),
             ("TLF", "right"),
-            ("health", "right"),
+            ("health index", "right"),
         ):
             table.add_column(col, justify=justify, no_wrap=col == "conveyor")  # type: ignore[arg-type]
         open_alarms = 0
@@ -183,12 +183,12 @@ def run_demo(out: Path, *, days: int, per_day: int, workers: int | None, console
             table.add_row(
                 cid,
                 str(len(d.results)),
-                d.status,
+                f"{d.verdict.health} ({d.verdict.ne107})",
                 "; ".join(f"{a.cause} ({(a.since or '')[5:10]})" for a in opened) or "-",
                 f"{d.recent_payload():.1f}",
                 _weights_right(d.results, out / "recordings" / cid / "truth.jsonl"),
                 f"{d.recent_tlf():.2f}",
-                f"{d.health_index:.2f}",
+                "-" if d.verdict.health_index is None else f"{d.verdict.health_index:.2f}",
             )
         console.print(table)
     finally:

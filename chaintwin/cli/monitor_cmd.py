@@ -221,6 +221,12 @@ def _print_table(results: list[RecordingResult], monitors: list[ConveyorMonitor]
             f"{'complete' if base['complete'] else 'learning'} ({base['recordings']})",
             highlight=False,
         )
+        since = f" since {s['health_since'][:16]}" if s["health_since"] else ""
+        console.print(
+            f"  health {s['health']}{since} (NE 107 {s['ne107']}), health index "
+            f"{'-' if s['health_index'] is None else format(s['health_index'], '.2f')}",
+            highlight=False,
+        )
         for a in s["open_alarms"]:
             ack = " (acknowledged)" if a["acknowledged"] else ""
             console.print(

@@ -159,20 +159,30 @@ class FeatureBaseline:
     curve: tuple[tuple[float, ...], tuple[float, ...]] | None = None
 
     def expected(self, payload_kg: float) -> float:
-        """The healthy value at a payload."""
-        p = payload_kg if math.isfinite(payload_kg) else self.mean_payload_kg
+        """The healthy value at a payload (feature units; NaN payload: the mean payload)."""
+        return float(self.expected_at(np.asarray([payload_kg], dtype=float))[0])
+
+    def expected_at(self, payloads_kg: FloatArray) -> FloatArray:
+        """:meth:`expected` at each of many payloads (kg; NaN: the mean payload)."""
+        p = np.where(np.isfinite(payloads_kg), payloads_kg, self.mean_payload_kg)
         if self.curve is not None:
-            return float(np.interp(p, self.curve[0], self.curve[1]))
+            return np.asarray(np.interp(p, self.curve[0], self.curve[1]), dtype=float)
         if self.payload_range_kg is not None:
             lo, hi = self.payload_range_kg
-            p = min(max(p, lo), hi)
-        return self.intercept + self.slope * p
+            p = np.minimum(np.maximum(p, lo), hi)
+        return np.asarray(self.intercept + self.slope * p, dtype=float)
+
+    def margin_at(self, expected: FloatArray, z_limit: float, min_rel: float) -> FloatArray:
+        """How far above each expected value the limit lies (feature units): :meth:`limit` less
+        :meth:`expected`."""
+        top = -math.inf if self.top_residual is None else self.top_residual
+        out = np.maximum(np.maximum(z_limit * self.scale, min_rel * np.abs(expected)), top)
+        return np.asarray(out, dtype=float)
 
     def limit(self, z_limit: float, min_rel: float, payload_kg: float | None = None) -> float:
         """The value above which a recording exceeds (at the mean payload by default)."""
         e = self.expected(self.mean_payload_kg if payload_kg is None else payload_kg)
-        top = -math.inf if self.top_residual is None else self.top_residual
-        return e + max(z_limit * self.scale, min_rel * abs(e), top)
+        return e + float(self.margin_at(np.asarray([e]), z_limit, min_rel)[0])
 
     def lower_limit(self, z_limit: float, min_rel: float, payload_kg: float | None = None) -> float:
         """The value below which a two-sided feature exceeds (at the mean payload by default)."""

@@ -12,8 +12,6 @@ store's ``monitor_states`` table.
 from __future__ import annotations
 
 import dataclasses
-import math
-import statistics
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -24,9 +22,8 @@ from chaintwin.read.recording import Recording, RecordingWarning
 
 from . import baseline
 from .alarms import group_by_cause
-from .features import feature_spec
 from .health import FeatureBaseline
-from .records import Alarm, Event, MonitorSettings, as_number
+from .records import Alarm, Event, MonitorSettings
 from .state import STATE_VERSION
 from .state_model import check_state_shape
 from .wear import usage_summary, wear_rates
@@ -41,8 +38,6 @@ __all__ = [
     "PendingFile",
     "StoredHealth",
     "StoredSpectrum",
-    "deviations",
-    "health_index",
     "read_health",
     "restore",
     "state_of",
@@ -338,76 +333,12 @@ def read_health(state: MonitorState, *, bands: bool = False) -> StoredHealth:
 
 def summary_of(mon: ConveyorMonitor) -> dict[str, Any]:
     """The conveyor's summary for ``monitor --json`` (``conveyors``): :func:`read_health`
-    of its state."""
-    return read_health(state_of(mon)).summary
+    of its state, with its verdict (:meth:`~chaintwin.diagnose.verdict.Verdict.to_dict`)."""
+    from .verdict import verdict
+
+    state = state_of(mon)
+    return read_health(state).summary | verdict(state).to_dict()
 
 
 HEALTH_RECENT = 10
 """Recordings a feature's deviation looks at (the latest judged against the baseline)."""
-
-
-def deviations(state: MonitorState, recent: int = HEALTH_RECENT) -> dict[str, float]:
-    """Each monitored feature's normalised deviation from its baseline.
-
-    For each feature with a baseline and a probable cause, the median over
-    the latest ``recent`` recordings judged against the current baseline
-    (status ``monitored``, recorded from the baseline on) of
-
-    ``(value − e(p)) / (L(p) − e(p))``
-
-    with ``e(p)`` the baseline's line and ``L(p)`` the alarm limit at the
-    recording's payload ``p``: 0 at the baseline, 1 at the alarm limit,
-    negative below the baseline. The same number as the report's feature
-    health index (:meth:`chaintwin.report.data.FeatureTrend.health_index`).
-    Features without such a recording are left out; empty before a baseline.
-    """
-    if not state.baselines:
-        return {}
-    since = state.baseline_since or ""
-    rows = [
-        h
-        for h in state.history
-        if h.get("status") == "monitored" and (h.get("recorded_at") or "") >= since
-    ]
-    z_limit = state.settings.z_limit
-    out: dict[str, float] = {}
-    for name, fb in state.baselines.items():
-        spec = feature_spec(name)
-        if spec.cause is None:
-            continue
-        vals = []
-        for h in rows:
-            feats = h.get("features") or {}
-            if name not in feats:
-                continue
-            v = as_number(feats.get(name))
-            p = as_number(feats.get(spec.regressor))
-            e = fb.expected(p)
-            span = fb.limit(z_limit, spec.min_rel, payload_kg=p) - e  # NaN p: mean payload
-            vals.append((v - e) / span if span > 0.0 else math.nan)
-        latest = [v for v in vals[-recent:] if math.isfinite(v)]
-        if latest:
-            out[name] = float(statistics.median(latest))
-    return out
-
-
-def health_index(deviation: float | None, open_alarms: int) -> float | None:
-    """A conveyor's health index: its largest deviation, at least 1 with an open alarm.
-
-    Parameters
-    ----------
-    deviation : float or None
-        The largest normalised deviation of its features (:func:`deviations`;
-        None before a baseline).
-    open_alarms : int
-        Its open alarms, acknowledged or not.
-
-    Returns
-    -------
-    float or None
-        0 at the baseline, 1 at an alarm limit (or with an alarm open),
-        above 1 past it; None while learning without an alarm. Higher is worse.
-    """
-    if open_alarms > 0:
-        return max(1.0, deviation) if deviation is not None else 1.0
-    return deviation

@@ -9,6 +9,7 @@ which the notifier sends like any other.
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 from datetime import UTC, datetime, timedelta
 
@@ -18,6 +19,7 @@ from chaintwin.diagnose.records import parse_time
 from chaintwin.errors import ChaintwinError
 from chaintwin.store.rows import notify_alarm
 from chaintwin.store.store import Store
+from chaintwin.store.verdicts import conveyor_verdict
 
 __all__ = ["ESCALATE_EVERY_S", "escalate_due", "escalate_forever"]
 
@@ -49,7 +51,14 @@ def escalate_due(store: Store, after_min: float, now: datetime | None = None) ->
     with Session(store.engine) as s, s.begin():
         for alarm in due:
             before = len(s.new)
-            notify_alarm(s, alarm.conveyor, alarm, "escalated", at.isoformat())
+            notify_alarm(
+                s,
+                alarm.conveyor,
+                alarm,
+                "escalated",
+                at.isoformat(),
+                functools.partial(conveyor_verdict, store, alarm.conveyor),
+            )
             if len(s.new) > before:
                 done.append(alarm.id)
     return done

@@ -13,6 +13,10 @@ metric                                         what
 ``chaintwin_ingest_queue_depth``               recordings waiting to be ingested (the one
                                                in hand included)
 ``chaintwin_open_alarms``                      open alarms in the store
+``chaintwin_conveyor_health``                  1 per conveyor with its verdict's ``health``
+                                               and ``ne107`` as labels
+``chaintwin_conveyor_health_index``            each conveyor's health index (0 baseline,
+                                               1 alarm limit; left out while none)
 ``chaintwin_opcua_connections_up``             drives connected over OPC UA
 ``chaintwin_opcua_missed_scopes_total``        scopes the drives overwrote before they were
                                                read (counter gaps), by conveyor
@@ -39,6 +43,7 @@ from sqlalchemy.orm import Session
 
 from chaintwin.store.schema import AlarmRow
 from chaintwin.store.store import Store
+from chaintwin.store.verdicts import VerdictCache
 
 from .sources import DriveStatusLike
 
@@ -52,7 +57,8 @@ CONTENT_TYPE = "text/plain; version=0.0.4; charset=utf-8"
 
 
 class _Scraped(Collector):
-    """Gauges read when scraped: the store's open alarms, the drives' connections."""
+    """Gauges read when scraped: the store's open alarms, the conveyors' verdicts, the drives'
+    connections."""
 
     def __init__(self, metrics: Metrics) -> None:
         self.metrics = metrics
@@ -66,6 +72,22 @@ class _Scraped(Collector):
             )
         alarms.add_metric([], float(n or 0))
         yield alarms
+        health = GaugeMetricFamily(
+            "chaintwin_conveyor_health",
+            "Each conveyor's verdict: 1, with its health and NE 107 category as labels.",
+            labels=["conveyor", "health", "ne107"],
+        )
+        index = GaugeMetricFamily(
+            "chaintwin_conveyor_health_index",
+            "Each conveyor's health index: 0 at its baseline, 1 at an alarm limit.",
+            labels=["conveyor"],
+        )
+        for conveyor, v in sorted(m.verdicts.verdicts(m.store).items()):
+            health.add_metric([conveyor, v.health, v.ne107], 1.0)
+            if v.health_index is not None:
+                index.add_metric([conveyor], v.health_index)
+        yield health
+        yield index
         up = GaugeMetricFamily("chaintwin_opcua_connections_up", "Drives connected over OPC UA.")
         missed = CounterMetricFamily(
             "chaintwin_opcua_missed_scopes",
@@ -103,6 +125,7 @@ class Metrics:
         self.registry = CollectorRegistry()
         self.drive_status: DriveStatusLike | None = None
         self.outbox_pending: Callable[[], int] | None = None
+        self.verdicts = VerdictCache()
         r = self.registry
         self.ingested = Counter(
             "chaintwin_recordings_ingested",

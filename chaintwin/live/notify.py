@@ -9,17 +9,20 @@ maintenance event). The :class:`Notifier` POSTs each row to each receiver as
 
     {"id": "3f2a9c1e0b7d4a55-opened", "event": "opened", "alarm_id": "3f2a9c1e0b7d4a55",
      "conveyor": "white-belt-01", "feature": "friction_nm", "cause": "friction",
-     "time": "2026-01-07T13:11:27+00:00", "link": "https://twin.plant/conveyors/white-belt-01"}
+     "time": "2026-01-07T13:11:27+00:00", "link": "https://twin.plant/conveyors/white-belt-01",
+     "health": "alarm", "ne107": "failure"}
 
-with the header ``X-Chaintwin-Signature: sha256=<hex HMAC-SHA256 of the raw
-body>`` keyed by the secret of ``--notify-secret-file``. A delivery is done
-when the receiver answers 2xx; otherwise it is tried again with backoff
-(1 s, 2 s, 4 s, ... up to :data:`MAX_BACKOFF_S`), through restarts (the
-attempts are in the store's ``outbox_deliveries``), for up to
-:data:`MAX_AGE_S`. A notification may arrive more than once (a kill between
-the receiver's answer and the store's note of it): ``id`` is the same
-every time, so the receiver drops repeats. Each receiver gets the
-notifications in the order they were made.
+(``health`` and ``ne107``: the conveyor's verdict as the change left it,
+:func:`chaintwin.diagnose.verdict.verdict`; left out of notifications kept
+before they were told) with the header ``X-Chaintwin-Signature: sha256=<hex
+HMAC-SHA256 of the raw body>`` keyed by the secret of
+``--notify-secret-file``. A delivery is done when the receiver answers 2xx;
+otherwise it is tried again with backoff (1 s, 2 s, 4 s, ... up to
+:data:`MAX_BACKOFF_S`), through restarts (the attempts are in the store's
+``outbox_deliveries``), for up to :data:`MAX_AGE_S`. A notification may
+arrive more than once (a kill between the receiver's answer and the store's
+note of it): ``id`` is the same every time, so the receiver drops repeats.
+Each receiver gets the notifications in the order they were made.
 
 E-mail is a second channel (:class:`MailSettings`, ``--notify-smtp``): the
 same outbox, one delivery per recipient (``mailto:<address>``), each
@@ -137,6 +140,8 @@ def document(row: OutboxRow, public_url: str) -> bytes:
         "time": row.at,
         "link": link,
     }
+    if row.health is not None:  # the conveyor's verdict as the change left it
+        doc |= {"health": row.health, "ne107": row.ne107}
     return json.dumps(doc, separators=(",", ":")).encode()
 
 

@@ -27,8 +27,10 @@ from chaintwin._types import FloatArray
 from chaintwin.diagnose.baseline import regressor_of
 from chaintwin.diagnose.features import FeatureSpec, feature_spec
 from chaintwin.diagnose.health import FeatureBaseline
-from chaintwin.diagnose.monitor_state import read_health
+from chaintwin.diagnose.monitor_state import MonitorState, read_health
 from chaintwin.diagnose.records import Alarm, Event
+from chaintwin.diagnose.verdict import Verdict
+from chaintwin.diagnose.verdict import verdict as verdict_of
 from chaintwin.errors import ChaintwinError, StoreError
 from chaintwin.identify.calibration import Calibration
 from chaintwin.model.rigid import model_torque, motoring_mask
@@ -42,7 +44,6 @@ __all__ = [
     "ConveyorData",
     "FeatureTrend",
     "conveyor_data",
-    "health_status",
 ]
 
 WATERFALL_RECORDINGS = 40
@@ -50,15 +51,6 @@ WATERFALL_RECORDINGS = 40
 
 RECENT = 10
 """Recordings the health index and the fleet's TLF figure look at (the latest)."""
-
-WATCH_INDEX = 0.7
-"""A health index from here (0 = baseline, 1 = alarm limit) puts a conveyor on watch."""
-
-WATCH_DAYS = 30.0
-"""A forecast crossing within this many days of the latest recording puts it on watch."""
-
-STATUS_ORDER = ("alarm", "acknowledged", "watch", "ok", "learning")
-"""Statuses from worst to best (fleet ranking)."""
 
 
 @dataclass
@@ -130,6 +122,8 @@ class ConveyorData:
     """How many results the store holds for the conveyor (None: ``results`` are all of them)."""
     represents: list[int] | None = None
     """With ``max_points``: how many stored results each of ``results`` stands for."""
+    verdict: Verdict = field(default_factory=lambda: verdict_of(None))
+    """The conveyor's verdict (:func:`~chaintwin.diagnose.verdict.verdict`)."""
 
     @property
     def recordings(self) -> int:
@@ -157,8 +151,8 @@ class ConveyorData:
 
     @property
     def status(self) -> str:
-        """``alarm``, ``acknowledged``, ``watch``, ``ok`` or ``learning``."""
-        return health_status(self)
+        """The verdict's ``health`` (:data:`~chaintwin.diagnose.verdict.HEALTH`)."""
+        return self.verdict.health
 
     @property
     def health_index(self) -> float:
@@ -209,25 +203,6 @@ class ConveyorData:
     def open_alarms(self) -> list[Alarm]:
         """Open alarms, acknowledged ones included."""
         return [a for a in self.alarms if a.is_open]
-
-
-def health_status(data: ConveyorData) -> str:
-    """A conveyor's status for the fleet page (see :data:`STATUS_ORDER`)."""
-    opened = data.open_alarms()
-    if any(a.acknowledged is None for a in opened):
-        return "alarm"
-    if opened:
-        return "acknowledged"
-    if not data.summary.get("baseline", {}).get("complete"):
-        return "learning"
-    if data.health_index >= WATCH_INDEX:
-        return "watch"
-    last = next((t for t in reversed(data.times) if t is not None), None)
-    for fc in data.forecasts:
-        when = datetime.fromisoformat(fc["crosses_at"])
-        if last is not None and (when - last).total_seconds() < WATCH_DAYS * 86400.0:
-            return "watch"
-    return "ok"
 
 
 def _time(text: str | None) -> datetime | None:
@@ -399,6 +374,7 @@ def conveyor_data(
     z_limit = 5.0
     calibration = store.calibration(conveyor)
     baseline_since = None
+    judged: MonitorState | None = None
     if state is not None and state.profile_sha256 != profile.content_hash():
         notes.append("health model not readable: it was made with another version of the profile")
     elif state is not None:
@@ -415,6 +391,7 @@ def conveyor_data(
             baselines = health.baselines
             z_limit = health.z_limit
             baseline_since = health.baseline_since
+            judged = state
     data = ConveyorData(
         profile=profile,
         results=results,
@@ -429,6 +406,7 @@ def conveyor_data(
         notes=notes,
         total=total,
         represents=represents,
+        verdict=verdict_of(judged),
     )
     if not latest and waterfall <= 0:
         return data

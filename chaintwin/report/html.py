@@ -26,6 +26,7 @@ from jinja2 import Environment, PackageLoader, StrictUndefined
 from chaintwin import __version__
 from chaintwin.diagnose.alarm_kpis import KPI_DAYS, alarm_kpis
 from chaintwin.diagnose.residuals import residual_analysis
+from chaintwin.diagnose.verdict import HEALTH
 from chaintwin.errors import ChaintwinError, StoreError
 from chaintwin.identify.verification import verify_recording
 from chaintwin.read.files import write_atomic
@@ -34,7 +35,7 @@ from chaintwin.store.store import Store
 from chaintwin.weigh.tlf import PUBLISHED_TLF, PUBLISHED_TLF_NOTE
 
 from . import figures
-from .data import RECENT, STATUS_ORDER, ConveyorData, conveyor_data
+from .data import RECENT, ConveyorData, conveyor_data
 
 __all__ = [
     "CONVEYOR_SECTIONS",
@@ -125,12 +126,20 @@ def _status_text(d: ConveyorData) -> str:
         causes = sorted({a.cause for a in opened})
         return f"open alarm on {', '.join(causes)}"
     status = d.status
-    if status == "learning":
-        return "baseline still being learned"
+    if status in ("learning", "relearning"):
+        return "baseline still being learned" + (
+            " after maintenance" if status == "relearning" else ""
+        )
+    if status == "out_of_service":
+        return "out of service: its recordings are not judged"
+    if status == "no_data":
+        return "no recording judged yet"
+    if status == "shelved":
+        return "its open alarms are shelved"
     if status == "watch":
         worst = d.worst_feature
         name = worst.name if worst else "a feature"
-        return f"no alarm; {name} is near its limit or forecast to cross it"
+        return f"no alarm; {name} is near its limit (health index at least 0.7)"
     return "no alarm, every feature inside its limits"
 
 
@@ -301,7 +310,7 @@ def _fleet_row(d: ConveyorData, links: Mapping[str, str] | None) -> FleetRow:
         link=None if links is None else links.get(d.profile.id),
         status=d.status,
         alarms=alarms or "-",
-        health=d.health_index,
+        health=math.nan if d.verdict.health_index is None else d.verdict.health_index,
         worst=worst.name if worst else "-",
         forecast=_forecast_text(fc[0]) if fc else "-",
         recordings=len(d.results),
@@ -336,7 +345,7 @@ def fleet_page(
     if not data:
         raise StoreError(f"{safe_url(store.url)}: the store holds no conveyor yet")
     rows = [_fleet_row(d, links) for d in data]
-    rows.sort(key=lambda r: (STATUS_ORDER.index(r.status), -_rank(r.health), r.id))
+    rows.sort(key=lambda r: (HEALTH.index(r.status), -_rank(r.health), r.id))
     by_tlf = sorted(rows, key=lambda r: (-_rank(r.tlf), r.id))
     latest = [t for d in data for t in d.times if t is not None]
     until = (max(latest) + timedelta(seconds=1)) if latest else datetime.now(UTC)

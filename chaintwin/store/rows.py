@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import functools
 import hashlib
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
@@ -10,8 +12,10 @@ from typing import Any
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from chaintwin.diagnose.monitor_state import MonitorState
 from chaintwin.diagnose.records import Alarm, Event, RecordingResult
 from chaintwin.diagnose.state import json_ready
+from chaintwin.diagnose.verdict import Verdict, verdict
 from chaintwin.read.recording import Recording
 
 from .schema import AlarmAliasRow, AlarmRow, EventRow, OutboxRow
@@ -42,13 +46,21 @@ class Finished:
 
 
 def notify_alarm(
-    s: Session, conveyor: str, alarm: Alarm, event: str, at: str | None = None
+    s: Session,
+    conveyor: str,
+    alarm: Alarm,
+    event: str,
+    at: str | None = None,
+    verdict: Callable[[], Verdict] | None = None,
 ) -> None:
     """Put a notification of an alarm's change in the outbox (once per alarm and event).
 
     ``event`` is ``opened``, ``acknowledged``, ``shelved``, ``closed`` or
     ``escalated``; ``at`` is when it happened (default: when it opened or
     closed). A shelving is told once per shelf (its start in the id).
+    ``verdict`` gives the conveyor's verdict as the change leaves it (its
+    ``health`` and ``ne107`` go with the notification), called only when a
+    notification is written.
     Written in the transaction that changes the alarm's row: a notification
     exists exactly when its change was stored (the live service sends it).
     """
@@ -59,6 +71,7 @@ def notify_alarm(
         return
     if at is None:
         at = alarm.closed_at if event == "closed" else (alarm.opened_at or alarm.since)
+    told = None if verdict is None else verdict()
     s.add(
         OutboxRow(
             id=key,
@@ -69,31 +82,49 @@ def notify_alarm(
             cause=alarm.cause,
             at=at,
             created_at=datetime.now(UTC).isoformat(),
+            health=None if told is None else told.health,
+            ne107=None if told is None else told.ne107,
         )
     )
 
 
-def _notify_changes(s: Session, conveyor: str, alarm: Alarm, before: AlarmRow | None) -> None:
+def _notify_changes(
+    s: Session,
+    conveyor: str,
+    alarm: Alarm,
+    before: AlarmRow | None,
+    verdict: Callable[[], Verdict] | None,
+) -> None:
     """The notifications of an alarm's changes since its stored row ``before``."""
     if before is None:
-        notify_alarm(s, conveyor, alarm, "opened")
+        notify_alarm(s, conveyor, alarm, "opened", verdict=verdict)
     was: dict[str, Any] = dict(before.content) if before is not None else {}
     if alarm.acknowledged is not None and not was.get("acknowledged"):
-        notify_alarm(s, conveyor, alarm, "acknowledged", alarm.acknowledged.at)
+        notify_alarm(s, conveyor, alarm, "acknowledged", alarm.acknowledged.at, verdict)
     shelf = alarm.shelved
     if shelf is not None and (was.get("shelved") or {}).get("at") != shelf.at:
-        notify_alarm(s, conveyor, alarm, "shelved", shelf.at)
+        notify_alarm(s, conveyor, alarm, "shelved", shelf.at, verdict)
     if alarm.status == "closed" and (before is None or before.status != "closed"):
-        notify_alarm(s, conveyor, alarm, "closed")
+        notify_alarm(s, conveyor, alarm, "closed", verdict=verdict)
 
 
-def put_alarms_events(s: Session, conveyor: str, alarms: list[Alarm], events: list[Event]) -> None:
+def put_alarms_events(
+    s: Session,
+    conveyor: str,
+    alarms: list[Alarm],
+    events: list[Event],
+    state: Callable[[], MonitorState] | None = None,
+) -> None:
     """Bring the alarm and event rows of a conveyor up to its health model.
+
+    ``state`` gives that health model: the notifications carry its verdict
+    (worked out once, and only when a notification is written).
 
     An alarm that opens, is acknowledged or shelved, or closes puts a
     notification in the outbox (:func:`notify_alarm`). An alarm grouped into another (its id in the
     other's ``merged``) leaves the table; its id stays an alias of the other.
     """
+    told = None if state is None else functools.cache(lambda: verdict(state()))
     rows = {r.id: r for r in s.scalars(select(AlarmRow).where(AlarmRow.conveyor_id == conveyor))}
     for alarm in alarms:
         for old in alarm.merged:
@@ -103,7 +134,7 @@ def put_alarms_events(s: Session, conveyor: str, alarms: list[Alarm], events: li
             if s.get(AlarmAliasRow, old) is None:
                 s.add(AlarmAliasRow(old_id=old, alarm_id=alarm.id))
     for alarm in alarms:
-        _notify_changes(s, conveyor, alarm, rows.get(alarm.id))
+        _notify_changes(s, conveyor, alarm, rows.get(alarm.id), told)
         values = {
             "conveyor_id": conveyor,
             "feature": alarm.feature,

@@ -280,6 +280,10 @@ class OutboxRow(Base):
     at: Mapped[str | None] = mapped_column(String(40), nullable=True)
     """When the alarm opened or closed (recording time, ISO 8601)."""
     created_at: Mapped[str] = mapped_column(String(40), index=True)
+    health: Mapped[str | None] = mapped_column(String(20), nullable=True)
+    """The conveyor's verdict when the alarm changed (None: kept before it was told)."""
+    ne107: Mapped[str | None] = mapped_column(String(30), nullable=True)
+    """That verdict's NAMUR NE 107 category."""
 
 
 class DeliveryRow(Base):

@@ -432,7 +432,7 @@ class Store:
                             for item in items
                         ],
                     )
-                put_alarms_events(s, conveyor, monitor.alarms, monitor.events)
+                put_alarms_events(s, conveyor, monitor.alarms, monitor.events, monitor.to_state)
         except IntegrityError:
             # one of the recordings was stored by another writer in the meantime
             raise StateConflict(conveyor) from None
@@ -623,7 +623,7 @@ class Store:
             typed = MonitorState.from_dict(
                 state, source=f"{safe_url(self.url)} conveyor {conveyor}"
             )
-            put_alarms_events(s, conveyor, typed.alarms, typed.events)
+            put_alarms_events(s, conveyor, typed.alarms, typed.events, lambda: typed)
             return out
 
     def alarm_conveyor(self, alarm_id: str) -> str:

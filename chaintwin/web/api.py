@@ -25,7 +25,6 @@ from fastapi.responses import StreamingResponse
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
 from chaintwin import __version__
-from chaintwin.diagnose.monitor_state import health_index
 from chaintwin.diagnose.records import LIFECYCLES, date_in_span
 from chaintwin.diagnose.state import acknowledge_alarm, add_maintenance
 from chaintwin.errors import ChaintwinError, StoreError
@@ -302,13 +301,16 @@ def conveyors(
     request: Request,
     if_none_match: Annotated[str | None, Header(max_length=2000)] = None,
 ) -> Response:
-    """Each conveyor: health, open alarms, latest payload and TLF, last recording time.
+    """Each conveyor: its verdict, open alarms, latest payload and TLF, last recording time.
 
-    ``health_index``: the largest normalised deviation of its monitored
-    features from their baseline (``deviation``, of ``worst_feature``: 0 at
-    the baseline, 1 at the alarm limit, the median of the latest 10
-    recordings), at least 1 while an alarm is open; null while learning.
-    Higher is worse.
+    ``health``, ``health_since``, ``ne107`` and ``ne107_since``: the verdict
+    (:func:`chaintwin.diagnose.verdict.verdict`, the same in every view);
+    ``status``: the latest result's status. ``health_index``: the largest
+    normalised deviation of its monitored features from their baseline
+    (``deviation``, of ``worst_feature``: 0 at the baseline, 1 at the alarm
+    limit, the median of the latest 10 recordings), at least 1 with a
+    standing alarm; null while no baseline judges its recordings. Higher is
+    worse.
 
     The response's ``ETag`` changes exactly when the store's results,
     health models, conveyors or open alarms do: a poll sending it back as
@@ -455,7 +457,12 @@ def spectrum_waterfall(
 
 @router.get("/conveyors/{conveyor_id:path}")
 def conveyor(request: Request, conveyor_id: str) -> dict[str, Any]:
-    """Profile, calibration summary, baselines and health of one conveyor."""
+    """Profile, calibration summary, baselines and verdict of one conveyor.
+
+    ``health``, ``health_since``, ``ne107``, ``ne107_since``, ``health_index``,
+    ``deviation`` and ``worst_feature`` are those of ``/conveyors``;
+    ``status`` is the latest result's status.
+    """
     who(request, "viewer")
     data = _conveyor(request, conveyor_id)
     cal = data.calibration
@@ -479,16 +486,21 @@ def conveyor(request: Request, conveyor_id: str) -> dict[str, Any]:
         "baseline_since": data.baseline_since,
         "summary": data.summary,
         "forecasts": data.forecasts,
-        "health_index": health_index(
-            _finite(float(data.health_index)), sum(a.counts() for a in data.open_alarms())
-        ),
-        "deviation": _finite(float(data.health_index)),
-        "status": data.status,
+        **data.verdict.to_dict(),
+        "status": _latest_status(data.results),
         "features": [t.name for t in data.trends],
         "open_alarms": [a.to_dict() for a in data.open_alarms()],
         "recordings": data.recordings,
         "notes": data.notes,
     }
+
+
+def _latest_status(results: list[dict[str, Any]]) -> str | None:
+    """The latest (not refused) result's ``status``, as ``/conveyors`` gives it; None: none."""
+    for r in reversed(results):
+        if r.get("status") not in (None, "refused"):
+            return str(r["status"])
+    return None
 
 
 @router.get("/alarms")

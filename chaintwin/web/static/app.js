@@ -15,7 +15,6 @@ window.chaintwin = (function () {
   }
 
   function health(row) {
-    if (row.open_alarms.length) return "alarm";
     return row.health;
   }
 
@@ -111,6 +110,7 @@ window.chaintwin = (function () {
 
   function fillRow(tr, row) {
     tr.querySelector(".health").textContent = health(row);
+    tr.querySelector(".health").title = `NE 107 ${row.ne107}`;
     const index = tr.querySelector(".index");
     index.textContent = text(row.health_index, 2);
     index.title = row.worst_feature || "";
@@ -215,6 +215,19 @@ window.chaintwin = (function () {
       margin: { t: 40 }, shapes, height: 260, showlegend: false }, { responsive: true });
   }
 
+  // the verdict line of a conveyor's page, from the fleet's rows (cheap: one snapshot)
+  async function showVerdict(conveyor) {
+    const rows = await api("/api/v1/conveyors");
+    const row = rows && rows.find((r) => r.id === conveyor);
+    if (!row) return;
+    const since = (at) => (at ? ` since ${at.slice(0, 16)}` : "");
+    const set = (sel, value) => { const el = document.querySelector(sel); if (el) el.textContent = value; };
+    set("strong.health", row.health);
+    set(".health-since", since(row.health_since));
+    set("strong.ne107", row.ne107);
+    set(".ne107-since", since(row.ne107_since));
+  }
+
   async function conveyorPage() {
     const holder = document.getElementById("trends");
     const conveyor = holder.dataset.conveyor;
@@ -224,16 +237,21 @@ window.chaintwin = (function () {
       return p && p.items.length ? p.items[0].recording_id : null;
     };
     let shown = await newest();
-    await drawConveyor(holder, conveyor, features);
+    // listen before drawing: the verdict follows a change made while the trends are drawn
+    let drawing = drawConveyor(holder, conveyor, features);
     // redraw when a new recording of this conveyor is stored (no full reload)
     live(async () => {
+      await showVerdict(conveyor);
+      await drawing;
       const now = await newest();
       if (now !== shown) {
         shown = now;
         holder.replaceChildren();
-        await drawConveyor(holder, conveyor, features);
+        drawing = drawConveyor(holder, conveyor, features);
+        await drawing;
       }
     });
+    await drawing;
   }
 
   async function waterfallChart(conveyor) {

@@ -51,6 +51,7 @@ from .ledger import (
     update_source,
 )
 from .metrics import Metrics
+from .refit import Refitter
 from .sources import DriveStatusLike, Ingestor, Job, Outcome, Submit
 from .watch import FolderSource
 
@@ -215,6 +216,8 @@ class LiveService:
             options.holder or f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:6]}"
         )
         self.ingestor = Ingestor(store, profiles, settings, self._outcome)
+        self.refitter = Refitter(store)
+        self.ingestor.refitter = self.refitter
         self.metrics = Metrics(store, self._queue_depth)
         self.sources: list[Source] = []
         self.folders: dict[str, FolderSource] = {}
@@ -656,6 +659,7 @@ class LiveService:
 
         configure()  # glibc: large blocks handed back when freed, two heaps at most
         tasks: list[asyncio.Task[Any]] = [asyncio.create_task(self.ingestor.run(self.stop))]
+        tasks.append(asyncio.create_task(self.refitter.run(self.stop)))
         tasks += [asyncio.create_task(self._hold(s)) for s in self.sources]
         if self.options.notify_urls or self.options.mail is not None:
             from .notify import Notifier

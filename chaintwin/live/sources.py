@@ -34,6 +34,7 @@ from chaintwin.read.recording import Recording
 from chaintwin.store.store import Store
 
 from .ledger import is_refused, record_refusal
+from .refit import Refitter
 
 __all__ = [
     "DriveStateLike",
@@ -168,6 +169,9 @@ class Ingestor:
         self.profiles = dict(profiles)
         self.settings = settings or MonitorSettings()
         self.on_outcome = on_outcome
+        self.refitter: Refitter | None = None
+        """Refits the forecasts of the conveyors ingested, in the background
+        (None: each ingest refits its conveyor itself)."""
         self.queue: asyncio.Queue[Job] = asyncio.Queue()
         self.busy = False
         self._stored_profiles: dict[str, ConveyorProfile] = {}
@@ -306,7 +310,10 @@ class Ingestor:
                 settings=self.settings,
                 workers=1,
                 names={job.path: job.name} if job.spooled else None,
+                refit=self.refitter is None,
             )
+            if self.refitter is not None:
+                self.refitter.mark(summary.stored_for)
             seconds = time.monotonic() - job.ready_at
             if summary.refusals:
                 reason = summary.refusals[0]["error"]

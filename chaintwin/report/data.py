@@ -34,6 +34,7 @@ from chaintwin.identify.calibration import Calibration
 from chaintwin.model.rigid import model_torque, motoring_mask
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
+from chaintwin.store.derived import read_derived, refit
 from chaintwin.store.store import Store
 
 __all__ = [
@@ -342,6 +343,7 @@ def conveyor_data(
     forecast_bands: bool = False,
     max_points: int | None = None,
     latest: bool = True,
+    stored_forecasts: bool = False,
 ) -> ConveyorData:
     """Gather a conveyor's page from the store.
 
@@ -365,6 +367,12 @@ def conveyor_data(
     latest : bool
         Rebuild the latest recording from its samples (``latest``,
         ``latest_result``); the web pages do not show it.
+    stored_forecasts : bool
+        Take the forecasts and wear rates as stored after ingest
+        (:mod:`chaintwin.store.derived`) even when newer recordings came
+        since (the web pages: ``summary["forecasts_as_of"]`` says how far
+        behind); False: fit them here when they are behind (the reports;
+        nothing is written to the store).
 
     Raises
     ------
@@ -404,13 +412,27 @@ def conveyor_data(
     elif state is not None:
         # read what the store holds; the monitor is not rebuilt for a page
         try:
-            health = read_health(state, bands=forecast_bands)
+            # forecasts are fitted after ingest, not per page: the pages read them
+            # (a conveyor never refitted, in a store written before, is refitted
+            # once here); a report takes them current, fitted here when behind
+            derived = read_derived(store, conveyor)
+            if not stored_forecasts and (derived is None or not derived.as_of(state)["current"]):
+                derived = None
+            elif derived is None:
+                derived = refit(store, conveyor, state)
+            health = read_health(
+                state,
+                bands=forecast_bands,
+                derived=None if derived is None else derived.content,
+            )
             if health.calibration is not None:
                 calibration = health.calibration
         except (ChaintwinError, KeyError, TypeError, ValueError) as exc:
             notes.append(f"health model not readable: {exc!r}")
         else:
             summary = health.summary
+            if derived is not None:
+                summary["forecasts_as_of"] = derived.as_of(state)
             forecasts = summary["forecasts"]
             baselines = health.baselines
             z_limit = health.z_limit

@@ -52,7 +52,7 @@ __all__ = [
     "upgrade",
 ]
 
-HEAD_REVISION = "0006"
+HEAD_REVISION = "0007"
 """The revision of the tables this chaintwin reads and writes."""
 
 BASELINE_REVISION = "0001"

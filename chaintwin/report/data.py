@@ -371,8 +371,8 @@ def conveyor_data(
         Take the forecasts and wear rates as stored after ingest
         (:mod:`chaintwin.store.derived`) even when newer recordings came
         since (the web pages: ``summary["forecasts_as_of"]`` says how far
-        behind); False: fit them here when they are behind (the reports;
-        nothing is written to the store).
+        behind); False: fit them here, as the monitor says them (the
+        reports; nothing is written to the store).
 
     Raises
     ------
@@ -414,11 +414,9 @@ def conveyor_data(
         try:
             # forecasts are fitted after ingest, not per page: the pages read them
             # (a conveyor never refitted, in a store written before, is refitted
-            # once here); a report takes them current, fitted here when behind
-            derived = read_derived(store, conveyor)
-            if not stored_forecasts and (derived is None or not derived.as_of(state)["current"]):
-                derived = None
-            elif derived is None:
+            # once here); a report fits them here, as the monitor says them
+            derived = read_derived(store, conveyor) if stored_forecasts else None
+            if stored_forecasts and derived is None:
                 derived = refit(store, conveyor, state)
             health = read_health(
                 state,

@@ -12,6 +12,8 @@ store's ``monitor_states`` table.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -38,6 +40,8 @@ __all__ = [
     "PendingFile",
     "StoredHealth",
     "StoredSpectrum",
+    "derived_inputs",
+    "derived_of",
     "read_health",
     "restore",
     "state_of",
@@ -301,14 +305,64 @@ class StoredHealth:
     calibration: Calibration | None
 
 
-def read_health(state: MonitorState, *, bands: bool = False) -> StoredHealth:
+def derived_inputs(state: MonitorState) -> str:
+    """SHA-256 of what a state's forecasts and wear rates are computed from.
+
+    The baselines, the baseline's start, the z limit and the result history
+    (its length and newest result): equal fingerprints give equal
+    :func:`derived_of`.
+    """
+    history = state.history
+    parts = {
+        "baselines": None
+        if state.baselines is None
+        else {k: v.to_dict() for k, v in sorted(state.baselines.items())},
+        "since": state.baseline_since,
+        "z_limit": state.settings.z_limit,
+        "results": len(history),
+        "newest": history[-1] if history else None,
+    }
+    text = json.dumps(parts, sort_keys=True, default=str, allow_nan=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def derived_of(state: MonitorState) -> dict[str, Any]:
+    """What is costly to compute from a state: forecasts (with their bands) and wear rates.
+
+    Returns
+    -------
+    dict
+        ``forecasts`` (:func:`.baseline.forecasts` with ``bands``) and
+        ``wear`` (:func:`.wear.wear_rates`), JSON-ready.
+    """
+    baselines = state.baselines or {}
+    since = state.baseline_since or ""
+    z_limit = state.settings.z_limit
+    return {
+        "forecasts": baseline.forecasts(baselines, state.history, since, z_limit, bands=True)
+        if baselines
+        else [],
+        "wear": wear_rates(baselines, state.history, since) if baselines else [],
+    }
+
+
+def read_health(
+    state: MonitorState, *, bands: bool = False, derived: dict[str, Any] | None = None
+) -> StoredHealth:
     """A saved state's health: summary, baselines and forecasts, without rebuilding the monitor.
 
     ``bands``: the forecasts carry their ``band`` (path and interval ahead, for plotting).
+    ``derived``: :func:`derived_of` as computed before (stored after ingest);
+    None: computed here (the forecasts' fits: seconds on a long history).
     """
     baselines = state.baselines or {}
-    z_limit = state.settings.z_limit
     since = state.baseline_since
+    if derived is None:
+        derived = derived_of(state)
+    forecasts = [dict(f) for f in derived["forecasts"]]
+    if not bands:
+        for f in forecasts:
+            f.pop("band", None)
     summary = {
         "conveyor": state.conveyor,
         "calibration": state.calibration_source,
@@ -320,15 +374,13 @@ def read_health(state: MonitorState, *, bands: bool = False) -> StoredHealth:
             "outliers": {k: v.outliers for k, v in baselines.items() if v.outliers},
         },
         "open_alarms": [a.to_dict() for a in state.alarms if a.is_open],
-        "forecasts": baseline.forecasts(baselines, state.history, since or "", z_limit, bands=bands)
-        if baselines
-        else [],
+        "forecasts": forecasts,
         "events": [e.to_dict() for e in state.events],
         "notes": state.notes,
         "usage": usage_summary(state.history),
-        "wear": wear_rates(baselines, state.history, since or "") if baselines else [],
+        "wear": derived["wear"],
     }
-    return StoredHealth(summary, baselines, z_limit, since, state.calibration)
+    return StoredHealth(summary, baselines, state.settings.z_limit, since, state.calibration)
 
 
 def summary_of(mon: ConveyorMonitor) -> dict[str, Any]:

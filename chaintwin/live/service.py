@@ -51,6 +51,7 @@ from .ledger import (
     update_source,
 )
 from .metrics import Metrics
+from .refit import Refitter
 from .sources import PARTIAL_WAIT_S, DriveStatusLike, Ingestor, Job, Outcome, Submit
 from .watch import FolderSource
 
@@ -225,6 +226,8 @@ class LiveService:
             order_window_s=options.order_window_s,
             partial_wait_s=PARTIAL_WAIT_S,
         )
+        self.refitter = Refitter(store)
+        self.ingestor.refitter = self.refitter
         self.metrics = Metrics(store, self._queue_depth)
         self.sources: list[Source] = []
         self.folders: dict[str, FolderSource] = {}
@@ -670,6 +673,7 @@ class LiveService:
 
         configure()  # glibc: large blocks handed back when freed, two heaps at most
         tasks: list[asyncio.Task[Any]] = [asyncio.create_task(self.ingestor.run(self.stop))]
+        tasks.append(asyncio.create_task(self.refitter.run(self.stop)))
         tasks += [asyncio.create_task(self._hold(s)) for s in self.sources]
         if self.options.notify_urls or self.options.mail is not None:
             from .notify import Notifier

@@ -51,6 +51,7 @@ from chaintwin.read.recording import Recording
 from chaintwin.store.store import Store
 
 from .ledger import is_refused, record_refusal
+from .refit import Refitter
 
 __all__ = [
     "DriveStateLike",
@@ -278,6 +279,9 @@ class Ingestor:
         self.profiles = dict(profiles)
         self.settings = settings or MonitorSettings()
         self.on_outcome = on_outcome
+        self.refitter: Refitter | None = None
+        """Refits the forecasts of the conveyors ingested, in the background
+        (None: each ingest refits its conveyor itself)."""
         self.queue: asyncio.Queue[Job] = asyncio.Queue()
         self.window = ReorderWindow(order_window_s)
         self.partial_wait_s = partial_wait_s
@@ -511,7 +515,10 @@ class Ingestor:
                 settings=self.settings,
                 workers=1,
                 names={job.path: job.name} if job.spooled else None,
+                refit=self.refitter is None,
             )
+            if self.refitter is not None:
+                self.refitter.mark(summary.stored_for)
             seconds = time.monotonic() - job.ready_at
             if summary.refusals:
                 reason = summary.refusals[0]["error"]

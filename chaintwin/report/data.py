@@ -36,6 +36,7 @@ from chaintwin.identify.calibration import Calibration
 from chaintwin.model.rigid import model_torque, motoring_mask
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
+from chaintwin.store.derived import read_derived, refit
 from chaintwin.store.store import Store
 
 __all__ = [
@@ -317,6 +318,7 @@ def conveyor_data(
     forecast_bands: bool = False,
     max_points: int | None = None,
     latest: bool = True,
+    stored_forecasts: bool = False,
 ) -> ConveyorData:
     """Gather a conveyor's page from the store.
 
@@ -340,6 +342,12 @@ def conveyor_data(
     latest : bool
         Rebuild the latest recording from its samples (``latest``,
         ``latest_result``); the web pages do not show it.
+    stored_forecasts : bool
+        Take the forecasts and wear rates as stored after ingest
+        (:mod:`chaintwin.store.derived`) even when newer recordings came
+        since (the web pages: ``summary["forecasts_as_of"]`` says how far
+        behind); False: fit them here, as the monitor says them (the
+        reports; nothing is written to the store).
 
     Raises
     ------
@@ -380,13 +388,25 @@ def conveyor_data(
     elif state is not None:
         # read what the store holds; the monitor is not rebuilt for a page
         try:
-            health = read_health(state, bands=forecast_bands)
+            # forecasts are fitted after ingest, not per page: the pages read them
+            # (a conveyor never refitted, in a store written before, is refitted
+            # once here); a report fits them here, as the monitor says them
+            derived = read_derived(store, conveyor) if stored_forecasts else None
+            if stored_forecasts and derived is None:
+                derived = refit(store, conveyor, state)
+            health = read_health(
+                state,
+                bands=forecast_bands,
+                derived=None if derived is None else derived.content,
+            )
             if health.calibration is not None:
                 calibration = health.calibration
         except (ChaintwinError, KeyError, TypeError, ValueError) as exc:
             notes.append(f"health model not readable: {exc!r}")
         else:
             summary = health.summary
+            if derived is not None:
+                summary["forecasts_as_of"] = derived.as_of(state)
             forecasts = summary["forecasts"]
             baselines = health.baselines
             z_limit = health.z_limit

@@ -76,6 +76,8 @@ class IngestSummary:
     profile_refused: set[str] = field(default_factory=set)
     """Files (as named in ``refusals``) refused because the store monitors their
     conveyor with another profile: a matter of the profile, not of the file."""
+    stored_for: set[str] = field(default_factory=set)
+    """Conveyors whose health model this ingest changed (their forecasts to refit)."""
 
     def to_dict(self) -> dict[str, Any]:
         """The ``ingest --json`` object."""
@@ -124,8 +126,10 @@ class _Conveyor:
         settings: MonitorSettings,
         summary: IngestSummary,
         group: int,
+        refit: bool = True,
     ) -> None:
         self.store = store
+        self.refit = refit
         self.profile = profile
         self.settings = settings
         self.summary = summary
@@ -223,6 +227,7 @@ class _Conveyor:
                 self._again()
                 continue
             break
+        self.summary.stored_for.add(self.profile.id)
         for fin in self.finished:
             res = fin.result
             if res.error is not None:
@@ -278,9 +283,13 @@ class _Conveyor:
             self._process(item)
 
     def close(self) -> None:
-        """Store what is left; count the alarms this ingest opened."""
+        """Store what is left; count the alarms this ingest opened; refit the forecasts."""
         self.flush()
         self.summary.new_alarms += len({a.id for a in self.monitor.alarms} - self.opened)
+        if self.refit:
+            from .derived import refit
+
+            refit(self.store, self.profile.id)
 
 
 SCAN_CHUNK = 128
@@ -574,6 +583,7 @@ def ingest(
     progress: Callable[[int, int], None] | None = None,
     commit_group: int = COMMIT_GROUP,
     names: Mapping[str, str] | None = None,
+    refit: bool = True,
 ) -> IngestSummary:
     """Run the whole pipeline over recordings into the store.
 
@@ -602,6 +612,11 @@ def ingest(
         (the store's ``file`` column, the results' ``file``, the refusals);
         default the path itself. The live service names a drive's recording,
         spooled to a temporary file, ``opcua://<conveyor>/<counter>``.
+    refit : bool
+        Refit each ingested conveyor's forecasts and wear rates once its
+        recordings are stored (:func:`~chaintwin.store.derived.refit`), so
+        that pages read them current. False: the caller refits (the live
+        service, in the background).
 
     Returns
     -------
@@ -631,7 +646,7 @@ def ingest(
                 profiles,
                 store,
                 _window(ex, workers, total),
-                lambda prof: _Conveyor(store, prof, settings, summary, max(1, commit_group)),
+                lambda prof: _Conveyor(store, prof, settings, summary, max(1, commit_group), refit),
                 column_map,
                 summary,
                 tick,

@@ -17,6 +17,10 @@ table              what a row holds
                    object), with its main numbers as columns for queries
 ``monitor_states`` the health model of a conveyor (baseline, belt map, alarm
                    windows): :meth:`ConveyorMonitor.to_state` as JSON
+``derived_health`` what is computed from a conveyor's health model after ingest
+                   (trend forecasts with their bands, wear rates), with the
+                   fingerprint of the model's inputs it was computed from, so
+                   that pages read it rather than refit it
 ``alarms``         alarms with their life: opened, acknowledged, closed
 ``alarm_aliases``  alarm ids that now name another alarm (alarms of one cause
                    grouped into one): old id, the alarm's id
@@ -173,6 +177,19 @@ class MonitorStateRow(Base):
     version: Mapped[int] = mapped_column(Integer)
     """Raised by every write: a writer that read an older version lost a race
     with another ingest and processes its recording again on the newer state."""
+
+
+class DerivedHealthRow(Base):
+    """What was computed from a conveyor's health model after ingest (:mod:`.derived`)."""
+
+    __tablename__ = "derived_health"
+    conveyor_id: Mapped[str] = mapped_column(ForeignKey("conveyors.id"), primary_key=True)
+    inputs: Mapped[str] = mapped_column(String(64))
+    """SHA-256 of the health model's parts it was computed from (:func:`.derived.fingerprint`)."""
+    latest: Mapped[str | None] = mapped_column(String(40), nullable=True)
+    """recorded_at of the newest result it was computed from."""
+    computed_at: Mapped[str] = mapped_column(String(40))
+    content: Mapped[dict[str, Any]] = mapped_column(JSON)
 
 
 class AlarmRow(Base):

@@ -351,6 +351,7 @@ def _conveyor(
         forecast_bands=bands,
         max_points=PAGE_POINTS if max_points is None else max_points,
         latest=False,
+        stored_forecasts=True,
     )
 
 
@@ -372,30 +373,9 @@ def recordings(
     return fast_json({"items": page.items, "next_cursor": page.next_cursor})
 
 
-@router.get("/conveyors/{conveyor_id:path}/trends")
-def trends(
-    request: Request,
-    conveyor_id: str,
-    feature: str,
-    max_points: Annotated[int, Query(ge=20, le=100_000)] = TREND_POINTS,
-) -> dict[str, Any]:
-    """A feature's series with its baseline band and alarm markers.
-
-    At most ``max_points`` (20 to 100 000) results are read: the newest half in full, the
-    older history thinned to one result per stretch of equal length (each
-    point's ``represents`` says how many results it stands for: 1 for the
-    newest), so the cost hardly grows with the history; ``recordings``
-    counts them all (``represents`` counts refused results too). The alarm
-    markers come from the alarms, whole; ``health_index`` is that of the
-    newest results, as without a bound. Raise ``max_points`` to get every
-    result of a long history.
-    """
-    who(request, "viewer")
-    data = _conveyor(request, conveyor_id, bands=True, max_points=max_points)
-    trend = next((t for t in data.trends if t.name == feature), None)
-    if trend is None:
-        names = ", ".join(t.name for t in data.trends) or "none yet"
-        raise ApiError(404, "not_found", f"no feature '{feature}' (tracked: {names})")
+def _trend(data: Any, conveyor_id: str, trend: Any, max_points: int) -> dict[str, Any]:
+    """One feature's trend object (the ``trends`` endpoint's body for one ``feature``)."""
+    feature = trend.name
     points = []
     represents = data.represents or [1] * len(data.results)
     for k, v, ex in zip(trend.index, trend.values, trend.exceeded, strict=False):
@@ -428,6 +408,48 @@ def trends(
         "forecast": forecast,
         "recordings": data.recordings,
         "max_points": max_points,
+    }
+
+
+@router.get("/conveyors/{conveyor_id:path}/trends")
+def trends(
+    request: Request,
+    conveyor_id: str,
+    feature: Annotated[list[str] | None, Query()] = None,
+    max_points: Annotated[int, Query(ge=20, le=100_000)] = TREND_POINTS,
+) -> dict[str, Any]:
+    """Features' series with their baseline band and alarm markers.
+
+    One ``feature``: that feature's trend object. Several (``feature=a&feature=b``)
+    or none: ``{"conveyor", "trends": [...], "recordings", "max_points", "as_of"}``,
+    ``trends`` holding the trend object of each feature asked (of every
+    tracked feature without ``feature``), read in one pass over the results.
+    At most ``max_points`` (20 to 100 000) results are read: the newest half in full, the
+    older history thinned to one result per stretch of equal length (each
+    point's ``represents`` says how many results it stands for: 1 for the
+    newest), so the cost hardly grows with the history; ``recordings``
+    counts them all (``represents`` counts refused results too). The alarm
+    markers come from the alarms, whole; ``health_index`` is that of the
+    newest results, as without a bound. Raise ``max_points`` to get every
+    result of a long history. The forecasts are those computed after ingest
+    (``as_of``: when, and how many recordings they are behind).
+    """
+    who(request, "viewer")
+    data = _conveyor(request, conveyor_id, bands=True, max_points=max_points)
+    by_name = {t.name: t for t in data.trends}
+    asked = list(dict.fromkeys(feature)) if feature else list(by_name)
+    unknown = [f for f in asked if f not in by_name]
+    if unknown:
+        names = ", ".join(by_name) or "none yet"
+        raise ApiError(404, "not_found", f"no feature '{unknown[0]}' (tracked: {names})")
+    if feature is not None and len(feature) == 1:
+        return _trend(data, conveyor_id, by_name[asked[0]], max_points)
+    return {
+        "conveyor": conveyor_id,
+        "trends": [_trend(data, conveyor_id, by_name[f], max_points) for f in asked],
+        "recordings": data.recordings,
+        "max_points": max_points,
+        "as_of": data.summary.get("forecasts_as_of"),
     }
 
 

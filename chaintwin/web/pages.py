@@ -137,7 +137,14 @@ def conveyor_page(request: Request, conveyor_id: str) -> HTMLResponse:
         return error_page(request, 404, f"no conveyor '{conveyor_id}' in the store")
     # bounded: its status, health index and features need the newest results, and
     # the trends' charts fetch their own (bounded) series from the API
-    data = conveyor_data(store, conveyor_id, waterfall=0, max_points=PAGE_POINTS, latest=False)
+    data = conveyor_data(
+        store,
+        conveyor_id,
+        waterfall=0,
+        max_points=PAGE_POINTS,
+        latest=False,
+        stored_forecasts=True,
+    )
     return _render(request, "conveyor.html.j2", p, conveyor_id=conveyor_id, data=data)
 
 

@@ -169,16 +169,15 @@ window.chaintwin = (function () {
     live(refresh);
   }
 
-  async function trendChart(holder, conveyor, feature) {
-    const t = await api(`/api/v1/conveyors/${encodeURIComponent(conveyor)}/trends?feature=${encodeURIComponent(feature)}`);
-    const div = document.createElement("div");
-    div.className = "chart trend";
-    div.dataset.feature = feature;
-    holder.appendChild(div);
+  // One feature's trend drawn into its chart, in place (Plotly.react): a new
+  // recording updates the chart without clearing it.
+  function drawTrend(div, t) {
+    const feature = t.feature;
     if (!t.points.some((p) => p.value !== null)) {
       absent(div, `${feature}: no value to draw yet (${t.recordings} recording(s), none with this feature).`);
       return;
     }
+    present(div);
     const x = t.points.map((p) => p.recorded_at);
     const traces = [{ x, y: t.points.map((p) => p.value), mode: "lines+markers", name: feature,
       marker: { color: t.points.map((p) => (p.exceeded ? "#c0392b" : "#2c3e50")), size: 5 } }];
@@ -211,8 +210,27 @@ window.chaintwin = (function () {
       if (a.since) shapes.push({ type: "line", x0: a.since, x1: a.since, yref: "paper", y0: 0, y1: 1,
         line: { color: "#c0392b", width: 1 } });
     });
-    Plotly.newPlot(div, traces, { title: { text: `${feature} (${t.unit}) \u2192 ${t.cause || "tracked"}` },
-      margin: { t: 40 }, shapes, height: 260, showlegend: false }, { responsive: true });
+    Plotly.react(div, traces, { title: { text: `${feature} (${t.unit}) \u2192 ${t.cause || "tracked"}` },
+      margin: { t: 40 }, shapes, height: 260, showlegend: false, datarevision: t.recordings },
+      { responsive: true });
+  }
+
+  // Every trend of the conveyor in one request; each chart made once and then updated in place.
+  async function trendCharts(holder, conveyor, features) {
+    if (!features.length) return;
+    const all = await api(`/api/v1/conveyors/${encodeURIComponent(conveyor)}/trends`);
+    if (!all) return;
+    const charts = new Map(Array.from(holder.querySelectorAll("div.chart.trend")).map((d) => [d.dataset.feature, d]));
+    all.trends.forEach((t) => {
+      let div = charts.get(t.feature);
+      if (!div) {
+        div = document.createElement("div");
+        div.className = "chart trend";
+        div.dataset.feature = t.feature;
+        holder.appendChild(div);
+      }
+      drawTrend(div, t);
+    });
   }
 
   // the verdict line of a conveyor's page, from the fleet's rows (cheap: one snapshot)
@@ -239,14 +257,13 @@ window.chaintwin = (function () {
     let shown = await newest();
     // listen before drawing: the verdict follows a change made while the trends are drawn
     let drawing = drawConveyor(holder, conveyor, features);
-    // redraw when a new recording of this conveyor is stored (no full reload)
+    // update the charts in place when a new recording of this conveyor is stored
     live(async () => {
       await showVerdict(conveyor);
       await drawing;
       const now = await newest();
       if (now !== shown) {
         shown = now;
-        holder.replaceChildren();
         drawing = drawConveyor(holder, conveyor, features);
         await drawing;
       }
@@ -275,7 +292,7 @@ window.chaintwin = (function () {
   }
 
   async function drawConveyor(holder, conveyor, features) {
-    for (const f of features) await trendChart(holder, conveyor, f);
+    await trendCharts(holder, conveyor, features);
     await waterfallChart(conveyor);
     const page = await api(`/api/v1/conveyors/${encodeURIComponent(conveyor)}/recordings?limit=1000`);
     const payloads = page.items.map((r) => r.payload_kg).filter((p) => p !== null);
@@ -286,7 +303,7 @@ window.chaintwin = (function () {
         : "No recordings yet.");
     } else {
       present(histogram);
-      Plotly.newPlot(histogram, [{ type: "histogram", x: payloads }],
+      Plotly.react(histogram, [{ type: "histogram", x: payloads }],
         { margin: { t: 10 }, xaxis: { title: "payload kg" }, height: 260 }, { responsive: true });
       const unweighed = page.items.length - payloads.length;
       leftOut(histogram, unweighed
@@ -299,7 +316,7 @@ window.chaintwin = (function () {
       const traces = [{ x: s.time_s, y: s.torque_nm, name: "measured torque" }];
       if (s.model_torque_nm) traces.push({ x: s.time_s, y: s.model_torque_nm, name: "model torque" });
       traces.push({ x: s.time_s, y: s.speed_rpm, name: "speed rpm", yaxis: "y2" });
-      Plotly.newPlot("latest", traces, { margin: { t: 10 }, height: 320,
+      Plotly.react("latest", traces, { margin: { t: 10 }, height: 320,
         xaxis: { title: "s" }, yaxis: { title: "Nm" },
         yaxis2: { title: "rpm", overlaying: "y", side: "right" } }, { responsive: true });
     }

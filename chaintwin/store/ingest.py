@@ -21,7 +21,11 @@ weighed here, one by one.
 
 Refused files never stop the batch; a file already stored (same content) is
 counted as a duplicate and skipped; running ingest again after a crash or a
-kill finishes the job.
+kill finishes the job. The complete version of a stored partial file (same
+conveyor, name and recorded time; the stored one has ``incomplete_cycle``)
+is stored and the partial one marked superseded (:mod:`~.supersede`); the
+health model takes the partial one back before judging it
+(:meth:`~chaintwin.diagnose.monitor.ConveyorMonitor.forget`).
 """
 
 from __future__ import annotations
@@ -181,6 +185,9 @@ class _Conveyor:
     def _process(self, item: Prepared) -> None:
         rec = item.recording
         assert rec is not None
+        replaced = self.store.partials(self.profile.id, [rec])
+        if replaced:  # the complete version of a stored partial file: judged in its place
+            self.monitor.forget(replaced)
         features = item.features
         if features is not None and not _same(
             self.weighed_with.get(rec.source), self.monitor.calibration

@@ -6,6 +6,7 @@ and the health model read as if only the complete one had come.
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 from typing import Any
@@ -20,6 +21,7 @@ from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.calibration import Calibration
 from chaintwin.read.profile import load_profile
 from chaintwin.simulate.fleet import generate
+from chaintwin.store.queries import results_page, trend_rows
 from chaintwin.store.schema import RecordingRow
 from chaintwin.store.store import Store
 from chaintwin.validate import load_recording
@@ -57,10 +59,11 @@ def first_half(raw: bytes) -> bytes:
     return raw[: raw.index(b"\n", len(raw) // 2) + 1]
 
 
-def run(args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+def run(args: list[str], capsys: pytest.CaptureFixture[str]) -> str:
     code = main(args)
-    _out, err = capsys.readouterr()
+    out, err = capsys.readouterr()
     assert code == 0, err
+    return out
 
 
 def ingest(url: str, files: list[Path], profiles: Path, capsys: Any) -> None:
@@ -127,3 +130,15 @@ def test_the_complete_version_through_ingest_supersedes_the_stored_partial(
     assert state == expected_state
     assert len(state["baseline_rows"]) == 4  # the partial one is no part of the baseline
     assert [h["file"] for h in state["history"]] == [str(f) for f in files]
+
+    # the web API's pages and trends, and the export, likewise
+    store = Store(url, create=False)
+    try:
+        page = results_page(store, PROFILE.id)
+        assert [r["file"] for r in page.items] == [str(f) for f in reversed(files)]
+        trend = trend_rows(store, PROFILE.id, 100)
+        assert trend.results == expected and trend.total == 4
+    finally:
+        store.close()
+    exported = json.loads(run(["export", "--db", url, "--format", "json"], capsys))
+    assert [r["file"] for r in exported] == [str(f) for f in files]

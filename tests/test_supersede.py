@@ -142,3 +142,32 @@ def test_the_complete_version_through_ingest_supersedes_the_stored_partial(
         store.close()
     exported = json.loads(run(["export", "--db", url, "--format", "json"], capsys))
     assert [r["file"] for r in exported] == [str(f) for f in files]
+
+
+def test_a_partial_followed_by_later_recordings_is_superseded_with_a_warning(
+    fleet: Path, calibration: Calibration, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The rest of the partial file comes after a later recording was monitored: the
+    complete one is stored, flagged, and the later result is not rewritten."""
+    profiles = tmp_path / "profiles"
+    profiles.mkdir()
+    shutil.copy(REFERENCE_PROFILE, profiles)
+    drop = tmp_path / "drop"
+    shutil.copytree(fleet, drop, ignore=shutil.ignore_patterns("calibration"))
+    files = sorted(drop.glob("*.csv"))[:3]
+    whole = files[1].read_bytes()
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    calibrated(url, calibration)
+    files[1].write_bytes(first_half(whole))
+    ingest(url, files, profiles, capsys)
+    before = comparable(url)[0]
+    files[1].write_bytes(whole)
+    ingest(url, files[1:2], profiles, capsys)
+
+    results, state = comparable(url)
+    assert [r["file"] for r in results] == [str(files[k]) for k in (0, 2, 1)]
+    assert results[:2] == [before[0], before[2]]  # the later one as it was judged
+    codes = {w["code"] for w in results[2]["warnings"]}
+    assert {"supersedes_partial", "out_of_order"} <= codes
+    assert "incomplete_cycle" not in codes
+    assert [h["file"] for h in state["history"]] == [str(files[k]) for k in (0, 2, 1)]

@@ -45,7 +45,7 @@ from chaintwin.identify.calibration import Calibration
 from chaintwin.read.batch import RecordingFile, group_by_conveyor, order_recordings
 from chaintwin.read.columns import ColumnMap
 from chaintwin.read.profile import ConveyorProfile
-from chaintwin.read.recording import Recording
+from chaintwin.read.recording import Recording, RecordingWarning
 
 from .engine import safe_url
 from .executors import InlineExecutor, executor, lanes, shared, signals_deferred
@@ -109,6 +109,14 @@ COMMIT_GROUP = 64
 
 COMMIT_EVERY_S = 2.0
 """A group is stored at the latest this long after its first recording, s."""
+
+
+_PARTLY = RecordingWarning(
+    "supersedes_partial",
+    "replaces a partial recording of the same file and time stored earlier; recordings "
+    "monitored after that one were judged with it, and their results stay as they were",
+).to_dict()
+"""The warning of a complete recording whose partial version was not the latest monitored."""
 
 
 def _same(a: Calibration | None, b: Calibration | None) -> bool:
@@ -186,14 +194,16 @@ class _Conveyor:
         rec = item.recording
         assert rec is not None
         replaced = self.store.partials(self.profile.id, [rec])
-        if replaced:  # the complete version of a stored partial file: judged in its place
-            self.monitor.forget(replaced)
+        # the complete version of a stored partial file: judged in its place
+        partly = bool(replaced) and not self.monitor.forget(replaced)
         features = item.features
         if features is not None and not _same(
             self.weighed_with.get(rec.source), self.monitor.calibration
         ):
             features = None  # computed with another calibration: the monitor computes them
         for res in self.monitor.process(rec, self.digests[rec.source], features=features):
+            if partly and res.file == rec.source:
+                res.warnings.append(_PARTLY)
             if res.file in self.inputs:
                 done = self.inputs[res.file]
                 assert done.recording is not None

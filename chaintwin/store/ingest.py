@@ -154,6 +154,8 @@ class _Conveyor:
         # this run's recordings taken by monitoring but not yet stored (file -> input)
         self.inputs: dict[str, Prepared] = {}
         self.digests: dict[str, str] = {}
+        # file names of this run with a stored partial recording (Store.partial_files)
+        self.suspects: set[str] = set()
         # the calibration each recording's features were computed with
         self.weighed_with: dict[str, Calibration | None] = {}
         # recordings stored while they wait for a learned calibration (file -> recording, sha)
@@ -193,7 +195,9 @@ class _Conveyor:
     def _process(self, item: Prepared) -> None:
         rec = item.recording
         assert rec is not None
-        replaced = self.store.partials(self.profile.id, [rec])
+        replaced = (
+            self.store.partials(self.profile.id, [rec]) if rec.source in self.suspects else set()
+        )
         # the complete version of a stored partial file: judged in its place
         partly = bool(replaced) and not self.monitor.forget(replaced)
         features = item.features
@@ -394,6 +398,7 @@ class _Batch:
         self.ready: dict[str, tuple[Prepared, Calibration | None]] = {}
         self.untaken: dict[str, deque[str]] = {}  # recorded order, once all is scanned
         self.undated: set[str] = set()  # files without a recorded time
+        self.suspects: dict[str, set[str]] = {}  # names with a stored partial, by conveyor
 
     def run(self) -> None:
         """Scan, send, take and store everything.
@@ -477,6 +482,8 @@ class _Batch:
             order, missing = order_recordings([(item.path, item.recorded_at) for item in items])
             self.undated |= missing
             self.untaken[cid] = deque(order)
+            named = [self.names.get(f, f) for f in order]
+            self.suspects[cid] = self.store.partial_files(cid, named)
             self.unsent.extend((cid, f) for f in order if f in unsent)
         self.window.left = len(self.unsent)
 
@@ -547,6 +554,8 @@ class _Batch:
                 rec = replace(rec, source=self.names[f])
             if rec is not prepared.recording:
                 prepared = prepared._replace(recording=rec)
+            if rec.source in self.suspects.get(cid, ()):
+                conv.suspects.add(rec.source)  # may replace a stored partial recording
             conv.take(prepared, self.sha[f], cal)
         if not order:
             del self.untaken[cid]

@@ -313,8 +313,17 @@ class Store:
         if not keys:
             return set()
         with Session(self.engine) as s:
-            found = stored_partials(s, conveyor, keys)
-        return {sha for shas in found.values() for sha in shas}
+            found = stored_partials(s, conveyor, (f for f, _ in keys))
+        return {sha for key in keys for sha in found.get(key, [])}
+
+    def partial_files(self, conveyor: str, files: Iterable[str]) -> set[str]:
+        """Which of these file names a stored partial recording of the conveyor has.
+
+        One query per 500 names: an ingest asks this once per conveyor, and
+        :meth:`partials` (a query per recording) only for the names found.
+        """
+        with Session(self.engine) as s:
+            return {f for f, _at in stored_partials(s, conveyor, files)}
 
     def _stored(self, path: str) -> Recording:
         """A stored recording by its ``store:<sha256>`` path (the health model's loader)."""

@@ -50,8 +50,8 @@ def complete(recording: Recording) -> bool:
     return not recording.has_warning(PARTIAL)
 
 
-def stored_partials(s: Session, conveyor: str, keys: Iterable[Key]) -> dict[Key, list[str]]:
-    """The conveyor's stored partial recordings not yet superseded, by (file, recorded time).
+def stored_partials(s: Session, conveyor: str, files: Iterable[str]) -> dict[Key, list[str]]:
+    """The conveyor's stored partial recordings not yet superseded, of these file names.
 
     Parameters
     ----------
@@ -59,32 +59,30 @@ def stored_partials(s: Session, conveyor: str, keys: Iterable[Key]) -> dict[Key,
         An open session.
     conveyor : str
         The conveyor id.
-    keys : iterable of (str, str)
-        File names and recorded times (UTC, ISO 8601) to look for.
+    files : iterable of str
+        File names as stored (an index seek each, in chunks of 500).
 
     Returns
     -------
     dict
-        Content SHA-256 of the stored partial recordings, by key; keys with
-        none are left out.
+        Content SHA-256 of the stored partial recordings, by (file, recorded
+        time); recordings without a recorded time are left out (nothing can
+        match their time).
     """
-    wanted = set(keys)
+    wanted = sorted(set(files))
     out: dict[Key, list[str]] = {}
-    files = sorted({f for f, _ in wanted})
-    for k in range(0, len(files), 500):
+    for k in range(0, len(wanted), 500):
         q = select(
             RecordingRow.sha256, RecordingRow.file, RecordingRow.recorded_at, RecordingRow.warnings
         ).where(
             RecordingRow.conveyor_id == conveyor,
-            RecordingRow.file.in_(files[k : k + 500]),
+            RecordingRow.file.in_(wanted[k : k + 500]),
+            RecordingRow.recorded_at.is_not(None),
             STANDING,
         )
         for sha, file, at, warnings in s.execute(q):
-            key = (str(file), str(at))
-            if key in wanted and any(
-                isinstance(w, dict) and w.get("code") == PARTIAL for w in warnings or []
-            ):
-                out.setdefault(key, []).append(str(sha))
+            if any(isinstance(w, dict) and w.get("code") == PARTIAL for w in warnings or []):
+                out.setdefault((str(file), str(at)), []).append(str(sha))
     return out
 
 
@@ -110,7 +108,9 @@ def mark_superseded(
     """
     by_key = {key: (sha, rid) for key, sha, rid in new}
     marked: dict[str, int] = {}
-    for key, shas in stored_partials(s, conveyor, by_key).items():
+    for key, shas in stored_partials(s, conveyor, (f for f, _ in by_key)).items():
+        if key not in by_key:
+            continue
         sha, rid = by_key[key]
         for old in shas:
             if old != sha:

@@ -50,15 +50,15 @@ def complete(recording: Recording) -> bool:
     return not recording.has_warning(PARTIAL)
 
 
-def stored_partials(s: Session, conveyor: str, files: Iterable[str]) -> dict[Key, list[str]]:
+def stored_partials(s: Session, conveyor: str | None, files: Iterable[str]) -> dict[Key, list[str]]:
     """The conveyor's stored partial recordings not yet superseded, of these file names.
 
     Parameters
     ----------
     s : Session
         An open session.
-    conveyor : str
-        The conveyor id.
+    conveyor : str or None
+        The conveyor id (None: any conveyor).
     files : iterable of str
         File names as stored (an index seek each, in chunks of 500).
 
@@ -75,11 +75,12 @@ def stored_partials(s: Session, conveyor: str, files: Iterable[str]) -> dict[Key
         q = select(
             RecordingRow.sha256, RecordingRow.file, RecordingRow.recorded_at, RecordingRow.warnings
         ).where(
-            RecordingRow.conveyor_id == conveyor,
             RecordingRow.file.in_(wanted[k : k + 500]),
             RecordingRow.recorded_at.is_not(None),
             STANDING,
         )
+        if conveyor is not None:
+            q = q.where(RecordingRow.conveyor_id == conveyor)
         for sha, file, at, warnings in s.execute(q):
             if any(isinstance(w, dict) and w.get("code") == PARTIAL for w in warnings or []):
                 out.setdefault((str(file), str(at)), []).append(str(sha))

@@ -16,6 +16,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 from test_live import Service, count, stored, wait_for
 
+from chaintwin.live.ledger import known_paths
 from chaintwin.live.sources import PARTIAL_WAIT_S, Ingestor, Job
 from chaintwin.read.profile import load_profile
 from chaintwin.simulate.fleet import generate
@@ -137,3 +138,51 @@ def test_refused_retry_reads_a_file_ending_in_motion_at_once(
     finally:
         ingestor.close()
         store.close()
+
+
+def test_the_complete_version_of_a_stored_partial_file_supersedes_it(
+    complete: Path, tmp_path: Path
+) -> None:
+    """The partial file was stored (its wait ran out); the rest then came: the complete
+    one is stored, the partial one marked superseded, the health model as if only the
+    complete one had come."""
+    part, rest = halves(complete)
+    target = tmp_path / "drop" / complete.name
+    target.parent.mkdir()
+    target.write_bytes(part)
+    store = Store(f"sqlite:///{tmp_path / 'p.db'}")
+    alone = Store(f"sqlite:///{tmp_path / 'alone.db'}")
+    ingestor = Ingestor(store, {PROFILE.id: PROFILE}, partial_wait_s=0.0)
+    only = Ingestor(alone, {PROFILE.id: PROFILE}, partial_wait_s=0.0)
+    try:
+        first = ingestor.ingest_one(Job(str(target), "folder:x"))
+        assert first.status in ("stored", "waiting")
+        # a rescan reads a file stored only partially again (its rest may come)
+        assert known_paths(store, [str(target)]) == set()
+        target.write_bytes(part + rest)
+        then = ingestor.ingest_one(Job(str(target), "folder:x"))
+        assert then.status in ("stored", "waiting")
+        assert then.sha256 == hashlib.sha256(part + rest).hexdigest()
+        with Session(store.engine) as s:
+            rows = s.execute(
+                select(RecordingRow.id, RecordingRow.sha256, RecordingRow.superseded_by)
+            ).all()
+        by_sha = {sha: (rid, by) for rid, sha, by in rows}
+        assert len(rows) == 2  # nothing deleted
+        assert by_sha[first.sha256 or ""][1] == by_sha[then.sha256][0]
+        assert by_sha[then.sha256][1] is None
+        assert known_paths(store, [str(target)]) == {str(target)}
+        # the same file again (unchanged): already stored, nothing more superseded
+        assert ingestor.ingest_one(Job(str(target), "folder:x")).status == "already_stored"
+
+        assert only.ingest_one(Job(str(target), "folder:x")).status == then.status
+        mine, theirs = store.state(PROFILE.id), alone.state(PROFILE.id)
+        assert mine is not None and theirs is not None
+        assert [p["sha256"] for p in mine.to_dict()["pending"]] == [then.sha256]
+        assert mine.to_dict() == theirs.to_dict()
+        assert store.results() == alone.results()
+    finally:
+        ingestor.close()
+        only.close()
+        store.close()
+        alone.close()

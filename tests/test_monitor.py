@@ -14,7 +14,6 @@ import pytest
 from conftest import REFERENCE_PROFILE
 
 from chaintwin.cli.app import EXIT_ALARM, main
-from chaintwin.cli.monitor_cmd import order_recordings
 from chaintwin.diagnose import baseline
 from chaintwin.diagnose.baseline import at_mean_payload, payload_of
 from chaintwin.diagnose.causes import resolve_causes
@@ -36,6 +35,7 @@ from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.calibration import Calibration
 from chaintwin.identify.signatures import drift_bases, fit_condition
 from chaintwin.model.windows import window_integrals
+from chaintwin.read.batch import order_recordings
 from chaintwin.read.profile import load_profile
 from chaintwin.read.writer import write_recording
 from chaintwin.simulate.faults import Fault

@@ -22,8 +22,9 @@ from test_loader_fuzz import FUZZ, JSON_VALUE, _paths, mutated
 from chaintwin.cli.app import main
 from chaintwin.diagnose.alarms import close_quiet_alarms, judge
 from chaintwin.diagnose.impacts import background_hits_per_m
-from chaintwin.diagnose.monitor_state import MonitorState, deviations, read_health
+from chaintwin.diagnose.monitor_state import MonitorState, read_health
 from chaintwin.diagnose.state import STATE_FORMAT, STATE_VERSION
+from chaintwin.diagnose.verdict import verdict
 from chaintwin.errors import StoreError
 from chaintwin.read.profile import load_profile
 from chaintwin.store.store import Store
@@ -359,7 +360,7 @@ def test_a_tampered_state_is_refused_in_one_line_or_works_everywhere_it_is_used(
         assert "\n" not in str(exc)
         return
     read_health(state, bands=True)
-    deviations(state)
+    verdict(state)
     background_hits_per_m(state.baseline_rows + state.late_rows)
     close_quiet_alarms(state.alarms, state.windows, state.settings.y, None)
     if state.baselines and state.baseline_rows:

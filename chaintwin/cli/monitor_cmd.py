@@ -27,7 +27,6 @@ if TYPE_CHECKING:
     from chaintwin.diagnose.monitor import ConveyorMonitor
     from chaintwin.diagnose.records import RecordingResult, SettingsGiven
     from chaintwin.identify.calibration import Calibration
-    from chaintwin.read.batch import order_recordings
     from chaintwin.read.columns import ColumnMap
     from chaintwin.read.profile import ConveyorProfile
 
@@ -40,7 +39,7 @@ from chaintwin.errors import (
 
 T = TypeVar("T")
 
-__all__ = ["load_profiles", "order_recordings", "register", "run_monitor"]
+__all__ = ["load_profiles", "register", "run_monitor"]
 
 _PROFILE_HELP = "Profile of the one conveyor monitored."
 _PROFILES_HELP = "Folder of profiles (*.yaml); recordings are matched to them by conveyor id."

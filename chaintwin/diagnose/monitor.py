@@ -210,6 +210,68 @@ class ConveyorMonitor:
         self.window_times = {}
         self._usage_kg_m = None
 
+    def forget(self, sha256s: set[str]) -> bool:
+        """Take back recordings superseded by their complete version (a stored partial file).
+
+        Those waiting for a learned calibration leave the waiting list;
+        results leave :attr:`history` (pooled impacts, usage, trends,
+        duplicates). When the latest recording monitored is one of them, its
+        marks in the alarm windows and, while the baseline is still being
+        learned, its baseline row are taken back too, so that the next
+        recording is judged as if it had never come. What an earlier one
+        left there (and any alarm it opened) stays.
+
+        Parameters
+        ----------
+        sha256s : set of str
+            Content SHA-256 of the recordings to take back.
+
+        Returns
+        -------
+        bool
+            Whether all of them were taken back whole (each was the latest
+            monitored, in turn).
+        """
+        whole = True
+        keep = [k for k, (sha, _x) in enumerate(self.pending_meta) if sha not in sha256s]
+        if len(keep) < len(self.pending):  # waiting for a learned calibration: dropped
+            self.pending = [self.pending[k] for k in keep]
+            self.pending_files = [self.pending_files[k] for k in keep]
+            self.pending_meta = [self.pending_meta[k] for k in keep]
+        for sha in sha256s:
+            k = self.processed.get(sha)
+            if k is None:
+                continue
+            entry = self.history.pop(k)
+            if k == len(self.history):
+                self._unmark(entry)
+            else:
+                whole = False
+            self.processed = {h["sha256"]: n for n, h in enumerate(self.history) if h.get("sha256")}
+            self._usage_kg_m = None
+        return whole
+
+    def _unmark(self, entry: dict[str, Any]) -> None:
+        """Take the latest recording's marks out of the alarm windows and the baseline."""
+        at = entry.get("recorded_at")
+        if at is not None:
+            for name, times in self.window_times.items():
+                if times and times[-1] == at:
+                    times.pop()
+                    self.windows[name].pop()
+        codes = {w.get("code") for w in entry.get("warnings") or []}
+        if (
+            self.baselines is None
+            and entry.get("status") == "baseline"
+            and "baseline_learning" in codes
+            and self.baseline_rows
+        ):
+            self.baseline_rows.pop()
+            if self.baseline_spectra:
+                self.baseline_spectra.pop()
+            if not self.baseline_rows:
+                self.baseline_since = None
+
     # ---------------------------------------------------------- processing
     def process(
         self,

@@ -22,6 +22,7 @@ from sqlalchemy.orm import Session
 
 from chaintwin.store.schema import LeaseRow, LiveSourceRow, RecordingRow, RefusedFileRow
 from chaintwin.store.store import Store
+from chaintwin.store.supersede import STANDING, stored_partials
 
 __all__ = [
     "Refusal",
@@ -91,14 +92,20 @@ def known_paths(store: Store, paths: Collection[str], chunk: int = 500) -> set[s
 
     A watched folder remembers the files it handed over for a while only
     (:data:`~.watch.MAX_REMEMBERED`); its rescans ask the store about the
-    others, instead of reading and hashing every old file again.
+    others, instead of reading and hashing every old file again. A file
+    stored only as a partial recording (``incomplete_cycle``, not yet
+    superseded) is not known: its rest may still come, and is then read.
     """
     out: set[str] = set()
     todo = list(paths)
     with Session(store.engine) as s:
         for k in range(0, len(todo), chunk):
             part = todo[k : k + chunk]
-            out.update(s.scalars(select(RecordingRow.file).where(RecordingRow.file.in_(part))))
+            found = set(
+                s.scalars(select(RecordingRow.file).where(RecordingRow.file.in_(part), STANDING))
+            )
+            partial = {f for f, _at in stored_partials(s, None, found)}
+            out.update(found - partial)
             out.update(s.scalars(select(RefusedFileRow.path).where(RefusedFileRow.path.in_(part))))
     return out
 

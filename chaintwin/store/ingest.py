@@ -21,7 +21,11 @@ weighed here, one by one.
 
 Refused files never stop the batch; a file already stored (same content) is
 counted as a duplicate and skipped; running ingest again after a crash or a
-kill finishes the job.
+kill finishes the job. The complete version of a stored partial file (same
+conveyor, name and recorded time; the stored one has ``incomplete_cycle``)
+is stored and the partial one marked superseded (:mod:`~.supersede`); the
+health model takes the partial one back before judging it
+(:meth:`~chaintwin.diagnose.monitor.ConveyorMonitor.forget`).
 """
 
 from __future__ import annotations
@@ -41,7 +45,7 @@ from chaintwin.identify.calibration import Calibration
 from chaintwin.read.batch import RecordingFile, group_by_conveyor, order_recordings
 from chaintwin.read.columns import ColumnMap
 from chaintwin.read.profile import ConveyorProfile
-from chaintwin.read.recording import Recording
+from chaintwin.read.recording import Recording, RecordingWarning
 
 from .engine import safe_url
 from .executors import InlineExecutor, executor, lanes, shared, signals_deferred
@@ -109,6 +113,14 @@ COMMIT_EVERY_S = 2.0
 """A group is stored at the latest this long after its first recording, s."""
 
 
+_PARTLY = RecordingWarning(
+    "supersedes_partial",
+    "replaces a partial recording of the same file and time stored earlier; recordings "
+    "monitored after that one were judged with it, and their results stay as they were",
+).to_dict()
+"""The warning of a complete recording whose partial version was not the latest monitored."""
+
+
 def _same(a: Calibration | None, b: Calibration | None) -> bool:
     """Whether two calibrations are the same (the same object, or equal content)."""
     if a is b:
@@ -146,6 +158,8 @@ class _Conveyor:
         # this run's recordings taken by monitoring but not yet stored (file -> input)
         self.inputs: dict[str, Prepared] = {}
         self.digests: dict[str, str] = {}
+        # file names of this run with a stored partial recording (Store.partial_files)
+        self.suspects: set[str] = set()
         # the calibration each recording's features were computed with
         self.weighed_with: dict[str, Calibration | None] = {}
         # recordings stored while they wait for a learned calibration (file -> recording, sha)
@@ -185,12 +199,19 @@ class _Conveyor:
     def _process(self, item: Prepared) -> None:
         rec = item.recording
         assert rec is not None
+        replaced = (
+            self.store.partials(self.profile.id, [rec]) if rec.source in self.suspects else set()
+        )
+        # the complete version of a stored partial file: judged in its place
+        partly = bool(replaced) and not self.monitor.forget(replaced)
         features = item.features
         if features is not None and not _same(
             self.weighed_with.get(rec.source), self.monitor.calibration
         ):
             features = None  # computed with another calibration: the monitor computes them
         for res in self.monitor.process(rec, self.digests[rec.source], features=features):
+            if partly and res.file == rec.source:
+                res.warnings.append(_PARTLY)
             if res.file in self.inputs:
                 done = self.inputs[res.file]
                 assert done.recording is not None
@@ -386,6 +407,7 @@ class _Batch:
         self.ready: dict[str, tuple[Prepared, Calibration | None]] = {}
         self.untaken: dict[str, deque[str]] = {}  # recorded order, once all is scanned
         self.undated: set[str] = set()  # files without a recorded time
+        self.suspects: dict[str, set[str]] = {}  # names with a stored partial, by conveyor
 
     def run(self) -> None:
         """Scan, send, take and store everything.
@@ -469,6 +491,8 @@ class _Batch:
             order, missing = order_recordings([(item.path, item.recorded_at) for item in items])
             self.undated |= missing
             self.untaken[cid] = deque(order)
+            named = [self.names.get(f, f) for f in order]
+            self.suspects[cid] = self.store.partial_files(cid, named)
             self.unsent.extend((cid, f) for f in order if f in unsent)
         self.window.left = len(self.unsent)
 
@@ -539,6 +563,8 @@ class _Batch:
                 rec = replace(rec, source=self.names[f])
             if rec is not prepared.recording:
                 prepared = prepared._replace(recording=rec)
+            if rec.source in self.suspects.get(cid, ()):
+                conv.suspects.add(rec.source)  # may replace a stored partial recording
             conv.take(prepared, self.sha[f], cal)
         if not order:
             del self.untaken[cid]

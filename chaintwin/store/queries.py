@@ -26,6 +26,7 @@ from chaintwin.store.schema import (
     ResultRow,
 )
 from chaintwin.store.store import Store
+from chaintwin.store.supersede import STANDING, STANDING_RESULT
 
 __all__ = [
     "Page",
@@ -87,7 +88,7 @@ def results_page(
     base = (
         select(ResultRow, RecordingRow.sha256)
         .join(RecordingRow, RecordingRow.id == ResultRow.recording_id)
-        .where(ResultRow.conveyor_id == conveyor)
+        .where(ResultRow.conveyor_id == conveyor, STANDING)
     )
     at, row_id = _uncursor(cursor) if cursor is not None else (None, None)
     # the timed results by the (conveyor_id, recorded_at) index, newest first;
@@ -163,7 +164,11 @@ def fleet_rows(store: Store) -> list[dict[str, Any]]:
     """
     latest_id = (
         select(ResultRow.id)
-        .where(ResultRow.conveyor_id == ConveyorRow.id, ResultRow.status != "refused")
+        .where(
+            ResultRow.conveyor_id == ConveyorRow.id,
+            ResultRow.status != "refused",
+            STANDING_RESULT,
+        )
         .order_by(ResultRow.id.desc())
         .limit(1)
         .correlate(ConveyorRow)
@@ -306,7 +311,9 @@ def _not_refused(s: Session, store: Store, conveyor: str, newest_id: int) -> int
         return known[2]
     total = int(
         s.scalar(
-            select(func.count()).select_from(ResultRow).where(mine, ResultRow.status != "refused")
+            select(func.count())
+            .select_from(ResultRow)
+            .where(mine, ResultRow.status != "refused", STANDING_RESULT)
         )
         or 0
     )
@@ -357,7 +364,7 @@ def trend_rows(store: Store, conveyor: str, max_points: int) -> TrendRows:
     with Session(store.engine) as s:
         newest = s.execute(
             select(ResultRow.id, ResultRow.content)
-            .where(mine)
+            .where(mine, STANDING_RESULT)
             .order_by(ResultRow.id.desc())
             .limit(recent)
         ).all()
@@ -381,7 +388,7 @@ def trend_rows(store: Store, conveyor: str, max_points: int) -> TrendRows:
                 older = list(
                     s.execute(
                         select(ResultRow.id, ResultRow.content)
-                        .where(ResultRow.id.in_(list(counts)))
+                        .where(ResultRow.id.in_(list(counts)), STANDING_RESULT)
                         .order_by(ResultRow.id)
                     )
                 )

@@ -143,6 +143,9 @@ class RecordingRow(Base):
     meta: Mapped[dict[str, Any]] = mapped_column(JSON)
     warnings: Mapped[list[Any]] = mapped_column(JSON)
     samples: Mapped[bytes] = mapped_column(LargeBinary)
+    superseded_by: Mapped[int | None] = mapped_column(Integer, nullable=True, index=True)
+    """The id of the complete recording that replaced this partial one (same conveyor,
+    file name and recorded time); None while it stands. Revision 0008."""
 
 
 class ResultRow(Base):

@@ -58,6 +58,7 @@ from .schema import (
     RecordingRow,
     ResultRow,
 )
+from .supersede import STANDING, complete, mark_superseded, stored_partials
 
 __all__ = [
     "HISTORY_IN_STATE",
@@ -295,6 +296,35 @@ class Store:
         mon.settings = settings
         return mon, version
 
+    def partials(self, conveyor: str, recordings: Iterable[Recording]) -> set[str]:
+        """Content SHA-256 of the stored partial recordings these complete ones replace.
+
+        A stored recording with the ``incomplete_cycle`` warning, not yet
+        superseded, of the same conveyor, file name and recorded time as one
+        of ``recordings`` that holds a whole movement
+        (:mod:`~.supersede`). They are marked when the new ones are stored
+        (:meth:`commit_recordings`).
+        """
+        keys = [
+            (rec.source, at)
+            for rec in recordings
+            if (at := _iso_time(rec)) is not None and complete(rec)
+        ]
+        if not keys:
+            return set()
+        with Session(self.engine) as s:
+            found = stored_partials(s, conveyor, (f for f, _ in keys))
+        return {sha for key in keys for sha in found.get(key, [])}
+
+    def partial_files(self, conveyor: str, files: Iterable[str]) -> set[str]:
+        """Which of these file names a stored partial recording of the conveyor has.
+
+        One query per 500 names: an ingest asks this once per conveyor, and
+        :meth:`partials` (a query per recording) only for the names found.
+        """
+        with Session(self.engine) as s:
+            return {f for f, _at in stored_partials(s, conveyor, files)}
+
     def _stored(self, path: str) -> Recording:
         """A stored recording by its ``store:<sha256>`` path (the health model's loader)."""
         sha = path.removeprefix(_STORED)
@@ -413,6 +443,14 @@ class Store:
                         RecordingRow.sha256.in_([item.sha256 for item in new])
                     )
                     ids.update({str(sha): int(rid) for sha, rid in s.execute(q)})
+                    keyed = [
+                        ((item.recording.source, at), item.sha256, ids[item.sha256])
+                        for item in new
+                        if (at := _iso_time(item.recording)) is not None
+                        and complete(item.recording)
+                    ]
+                    if keyed:
+                        mark_superseded(s, conveyor, keyed)
                 if items:
                     stored_at = _now()
                     s.execute(
@@ -453,12 +491,14 @@ class Store:
         without one follows its predecessor in the batch), the same on every
         database. ``with_ids`` adds ``recording_id`` (the recording's content
         SHA-256, the key the store and the web API know it by) and
-        ``stored_at``.
+        ``stored_at``. A partial recording superseded by its complete
+        version is left out (:mod:`~.supersede`).
         """
         with Session(self.engine) as s:
             q = (
                 select(ResultRow, RecordingRow.sha256)
                 .join(RecordingRow, RecordingRow.id == ResultRow.recording_id)
+                .where(STANDING)
                 .order_by(ResultRow.conveyor_id, ResultRow.id)
             )
             if conveyor is not None:
@@ -540,7 +580,8 @@ class Store:
         """``(id, file, recorded_at)`` of a conveyor's monitored recordings, in the order monitored.
 
         Recordings refused by monitoring or still waiting for a learned
-        calibration are left out, and those whose samples retention dropped.
+        calibration are left out, and those whose samples retention dropped, and
+        partial ones superseded by their complete version.
         """
         with Session(self.engine) as s:
             q = (
@@ -550,6 +591,7 @@ class Store:
                     RecordingRow.conveyor_id == conveyor,
                     ResultRow.status != "refused",
                     RecordingRow.samples != b"",
+                    STANDING,
                 )
                 .order_by(ResultRow.id)
             )

@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 from conftest import EXAMPLES, REFERENCE_PROFILE
 
-from chaintwin.cli import spectrum_cmd
 from chaintwin.cli.app import main
 from chaintwin.diagnose.features import feature_spec, recording_features
 from chaintwin.identify.calibrating import calibrate
@@ -23,6 +22,7 @@ from chaintwin.model.frequencies import (
 )
 from chaintwin.read.profile import ConveyorProfile, load_profile
 from chaintwin.read.writer import write_recording
+from chaintwin.report import spectrum_plot
 from chaintwin.report.spectrum_plot import _label_groups
 from chaintwin.simulate import run_virtual
 from chaintwin.simulate.fleet import generate
@@ -79,14 +79,15 @@ def test_spectrum_draws_the_lateral_mode_and_refuses_unresolvable_amplitudes(
     run = run_virtual(WHITE, payload_kg=20.0, sample_time_s=0.006, seed=5)
     rec = write_recording(run.recording, tmp_path / "r.csv")
     drawn: dict[str, Any] = {}
-    original = spectrum_cmd.plot_spectrum
+    original = spectrum_plot.plot_spectrum
 
     def spy(spectrum: Any, path: Any, **kw: Any) -> Any:
         drawn.update(kw["lines"])
         drawn["_x_max"] = float(spectrum.x[-1])
         return original(spectrum, path, **kw)
 
-    monkeypatch.setattr(spectrum_cmd, "plot_spectrum", spy)
+    # the command imports the plot when it runs (a light --help): patch it at its home
+    monkeypatch.setattr(spectrum_plot, "plot_spectrum", spy)
     png = tmp_path / "s.png"
     code = main(["spectrum", str(rec), "--profile", str(prof_path), "--png", str(png), "--json"])
     assert code == 0

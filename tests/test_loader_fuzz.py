@@ -193,6 +193,22 @@ STATE_SHAPE = {
             "acknowledged": {"by": "x", "why": "y", "at": "2026-01-01T00:00:00+00:00"},
             "rule": "x_of_y",
             "kind": "statistical",
+            "lifecycle": "acknowledged",
+            "evidence": [
+                {
+                    "feature": "friction",
+                    "kind": "statistical",
+                    "value": None,
+                    "z": None,
+                    "since": None,
+                }
+            ],
+            "active": True,
+            "shelved_until": None,
+            "shelved": None,
+            "out_of_service": False,
+            "out_of_service_until": None,
+            "comments": [],
         }
     ],
     "events": [
@@ -209,15 +225,19 @@ STATE_SHAPE = {
     "history": [],
     "notes": [],
     "last_recorded_at": None,
+    "out_of_service": None,
 }
 
 
 def test_the_state_shape_is_a_valid_state() -> None:
     assert MonitorState.from_dict(STATE_SHAPE).to_dict() == STATE_SHAPE
-    # a state written before the residual setting and the alarms' rule existed
+    # a state written before the residual setting, the alarms' rule and their lifecycle
+    # existed
     old = json.loads(json.dumps(STATE_SHAPE))
     del old["settings"]["residual"]
-    for key in ("rule", "kind"):
+    del old["out_of_service"]
+    lifecycle = ("lifecycle", "evidence", "active", "shelved_until", "shelved")
+    for key in ("rule", "kind", *lifecycle, "out_of_service", "out_of_service_until", "comments"):
         del old["alarms"][0][key]
     assert MonitorState.from_dict(old).to_dict() == STATE_SHAPE
 

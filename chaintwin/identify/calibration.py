@@ -444,7 +444,9 @@ def _broken_invariant(cal: Calibration) -> str | None:
             f"the losses (BmA, BmB, BmC) make {loss:.4g} Nm at nominal speed, more than the "
             f"drive's torque limit {limit:.4g} Nm"
         )
-    if (np.diag(cov) < 0.0).any() or not np.allclose(cov, cov.T, rtol=1e-9, atol=0.0):
+    # symmetric to rounding: an inverse's entries near zero differ by ~1e-16 of the largest
+    scale = float(np.abs(cov).max()) if cov.size else 0.0
+    if (np.diag(cov) < 0.0).any() or not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-9 * scale):
         return "the parameter covariance is not a covariance (negative variance or asymmetric)"
     if not (math.isfinite(cal.inertia_gain) and cal.inertia_gain > 0.0):
         return f"the inertia signature's gain is {cal.inertia_gain:g}, not positive"

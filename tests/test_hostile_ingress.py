@@ -413,6 +413,8 @@ def test_parsing_the_largest_recording_holds_its_bytes_and_its_samples_only(
         "print(rec.samples, kb('VmHWM') - before)\n"
     )
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    # the default file limit (64 MB), whatever an earlier test's --max-file-mb left set
+    env.pop("CHAINTWIN_MAX_FILE_MB", None)
     out = subprocess.run(
         [sys.executable, "-c", script], capture_output=True, text=True, env=env, check=True
     ).stdout.split()

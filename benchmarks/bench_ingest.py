@@ -82,11 +82,7 @@ from pathlib import Path  # noqa: E402
 from chaintwin.diagnose.monitor import ConveyorMonitor  # noqa: E402
 from chaintwin.diagnose.records import MonitorSettings  # noqa: E402
 from chaintwin.identify.calibrating import calibrate  # noqa: E402
-from chaintwin.read.batch import group_by_conveyor  # noqa: E402
-from chaintwin.read.profile import load_profile  # noqa: E402
-from chaintwin.simulate.faults import Fault  # noqa: E402
-from chaintwin.simulate.fleet import generate  # noqa: E402
-from chaintwin.store.ingest import (  # noqa: E402
+from chaintwin.ingest.pipeline import (  # noqa: E402
     CHUNK,
     COMMIT_GROUP,
     SCAN_CHUNK,
@@ -96,6 +92,10 @@ from chaintwin.store.ingest import (  # noqa: E402
     prepare,
     prepare_many,
 )
+from chaintwin.read.batch import group_by_conveyor  # noqa: E402
+from chaintwin.read.profile import load_profile  # noqa: E402
+from chaintwin.simulate.faults import Fault  # noqa: E402
+from chaintwin.simulate.fleet import generate  # noqa: E402
 from chaintwin.store.store import Finished, Store  # noqa: E402
 from chaintwin.validate.checks import load_recording  # noqa: E402
 

@@ -55,10 +55,10 @@ from webhook_receiver import start_receiver
 
 from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.calibration import Calibration
+from chaintwin.ingest.pipeline import ingest
 from chaintwin.read.profile import ConveyorProfile, load_profile
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate
-from chaintwin.store.ingest import ingest
 from chaintwin.store.schema import OutboxRow, RecordingRow, ResultRow
 from chaintwin.store.store import Store
 from chaintwin.validate import load_recording

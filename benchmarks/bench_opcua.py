@@ -174,7 +174,7 @@ class Reference:
 
     def time(self, warm_up: bool) -> float:
         """The median time of ``rounds`` ingests of one recording, s."""
-        from chaintwin.store.ingest import ingest
+        from chaintwin.ingest.pipeline import ingest
 
         times = []
         for k in range(self.rounds + (1 if warm_up else 0)):
@@ -392,9 +392,9 @@ def reference_ingest(rounds: int) -> tuple[float, float]:
     import logging
 
     from chaintwin.identify.calibrating import calibrate
+    from chaintwin.ingest.pipeline import ingest
     from chaintwin.simulate.fleet import generate
     from chaintwin.store import Store
-    from chaintwin.store.ingest import ingest
     from chaintwin.validate import load_recording
 
     logging.getLogger("chaintwin").setLevel(logging.ERROR)

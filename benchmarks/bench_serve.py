@@ -66,15 +66,15 @@ from sqlalchemy import insert
 
 from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.identify.calibrating import calibrate
+from chaintwin.ingest.pipeline import ingest
 from chaintwin.read.profile import ConveyorProfile, load_profile
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate
-from chaintwin.store.access import create_token
-from chaintwin.store.ingest import ingest
 from chaintwin.store.schema import ConveyorRow
 from chaintwin.store.store import Store
-from chaintwin.store.throwaway import free_port, postgres_binaries, throwaway_postgres
+from chaintwin.testing.postgres import free_port, postgres_binaries, throwaway_postgres
 from chaintwin.validate import load_recording
+from chaintwin.web.access import create_token
 
 PROFILE = Path(__file__).resolve().parents[1] / "chaintwin/examples/profiles/white-belt-01.yaml"
 

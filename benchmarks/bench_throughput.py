@@ -69,12 +69,12 @@ from chaintwin.cli.demo_cmd import examples_dir  # noqa: E402
 from chaintwin.diagnose.records import MonitorSettings  # noqa: E402
 from chaintwin.identify.calibrating import calibrate  # noqa: E402
 from chaintwin.identify.calibration import Calibration  # noqa: E402
+from chaintwin.ingest.pipeline import ingest  # noqa: E402
 from chaintwin.read.profile import ConveyorProfile, load_profile  # noqa: E402
 from chaintwin.simulate.faults import Fault  # noqa: E402
 from chaintwin.simulate.fleet import generate  # noqa: E402
-from chaintwin.store.ingest import ingest  # noqa: E402
 from chaintwin.store.store import Store  # noqa: E402
-from chaintwin.store.throwaway import free_port, postgres_binaries, throwaway_postgres  # noqa: E402
+from chaintwin.testing.postgres import free_port, postgres_binaries, throwaway_postgres  # noqa: E402
 from chaintwin.validate.checks import load_recording  # noqa: E402
 
 PROFILE = examples_dir() / "profiles" / "white-belt-01.yaml"

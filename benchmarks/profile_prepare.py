@@ -5,7 +5,7 @@ recordings at 6 ms with a growing friction fault (as
 ``benchmarks/bench_monitor.py``), written by
 :func:`chaintwin.simulate.fleet.generate` into a temporary folder, and a
 calibration made from its calibration recordings (setup, not profiled).
-Then :func:`chaintwin.store.ingest.prepare` (read + validate + weigh +
+Then :func:`chaintwin.ingest.pipeline.prepare` (read + validate + weigh +
 features) runs over every recording ``ROUNDS`` times under ``cProfile``
 and the functions with the largest cumulative and own time are printed,
 with the plain median time per recording of each stage beside them.
@@ -30,10 +30,10 @@ from pathlib import Path  # noqa: E402
 
 from chaintwin.diagnose.features import recording_features  # noqa: E402
 from chaintwin.identify.calibrating import calibrate  # noqa: E402
+from chaintwin.ingest.pipeline import prepare  # noqa: E402
 from chaintwin.read.profile import load_profile  # noqa: E402
 from chaintwin.simulate.faults import Fault  # noqa: E402
 from chaintwin.simulate.fleet import generate  # noqa: E402
-from chaintwin.store.ingest import prepare  # noqa: E402
 from chaintwin.validate.checks import load_recording  # noqa: E402
 from chaintwin.weigh import weigh  # noqa: E402
 

@@ -56,10 +56,10 @@ import numpy as np  # noqa: E402
 
 from chaintwin.diagnose.records import MonitorSettings  # noqa: E402
 from chaintwin.identify.calibrating import calibrate  # noqa: E402
+from chaintwin.ingest.pipeline import ingest  # noqa: E402
 from chaintwin.read.profile import ConveyorProfile, load_profile  # noqa: E402
 from chaintwin.simulate.faults import Fault  # noqa: E402
 from chaintwin.simulate.fleet import generate  # noqa: E402
-from chaintwin.store.ingest import ingest  # noqa: E402
 from chaintwin.store.samples import load_samples  # noqa: E402
 from chaintwin.store.schema import RecordingRow  # noqa: E402
 from chaintwin.store.store import Store  # noqa: E402

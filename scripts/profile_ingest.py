@@ -34,10 +34,10 @@ from pathlib import Path  # noqa: E402
 from chaintwin.cli.demo_cmd import examples_dir  # noqa: E402
 from chaintwin.diagnose.records import MonitorSettings  # noqa: E402
 from chaintwin.identify.calibrating import calibrate  # noqa: E402
+from chaintwin.ingest.pipeline import ingest  # noqa: E402
 from chaintwin.read.profile import load_profile  # noqa: E402
 from chaintwin.simulate.faults import Fault  # noqa: E402
 from chaintwin.simulate.fleet import generate  # noqa: E402
-from chaintwin.store.ingest import ingest  # noqa: E402
 from chaintwin.store.store import Store  # noqa: E402
 from chaintwin.validate.checks import load_recording  # noqa: E402
 

@@ -13,7 +13,7 @@ import pytest
 from threadpoolctl import threadpool_limits
 
 from chaintwin.read.profile import ConveyorProfile, load_profile
-from chaintwin.store.throwaway import free_port, postgres_binaries, throwaway_postgres
+from chaintwin.testing.postgres import free_port, postgres_binaries, throwaway_postgres
 
 # One BLAS thread: the machine's cores are shared with the processes the tests start
 # (workers, servers), and a multi-threaded BLAS on small matrices only contends for them.

@@ -283,8 +283,8 @@ def test_cli_alarms_on_a_store_are_audited(
     """On a store (here the 0.1.0 fixture, upgraded), the commands change it and audit it."""
     import shutil
 
-    from chaintwin.store.access import audit_entries
     from chaintwin.store.store import Store
+    from chaintwin.web.access import audit_entries
 
     fixture = Path(__file__).parent / "fixtures" / "store-c909904.sqlite"
     shutil.copyfile(fixture, tmp_path / "plant.db")

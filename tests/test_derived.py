@@ -18,13 +18,13 @@ from chaintwin.diagnose.monitor_state import derived_of
 from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.diagnose.state import json_ready
 from chaintwin.identify.calibrating import calibrate
+from chaintwin.ingest.pipeline import ingest
 from chaintwin.live.refit import Refitter
 from chaintwin.read.writer import write_recording
 from chaintwin.report.data import conveyor_data
 from chaintwin.simulate.virtual import run_virtual
 from chaintwin.store import derived
 from chaintwin.store.derived import read_derived
-from chaintwin.store.ingest import ingest
 from chaintwin.store.store import Store
 from chaintwin.validate import load_recording
 

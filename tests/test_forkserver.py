@@ -32,11 +32,11 @@ SCRIPT = textwrap.dedent(
     def task(k):
         import sys
 
-        return os.getpid(), "chaintwin.store.worker" in sys.modules
+        return os.getpid(), "chaintwin.ingest.worker" in sys.modules
 
 
     if __name__ == "__main__":
-        from chaintwin.store import forkserver
+        from chaintwin.ingest import forkserver
 
         with ProcessPoolExecutor(2, mp_context=forkserver.context()) as ex:
             out = list(ex.map(task, range(8)))
@@ -70,7 +70,7 @@ def test_a_main_script_that_fails_in_the_fork_server_changes_nothing(tmp_path: P
     import json
     import os
 
-    from chaintwin.store.forkserver import MAIN_ENV, import_main
+    from chaintwin.ingest.forkserver import MAIN_ENV, import_main
 
     bodies = (
         "raise SystemExit(2)",
@@ -147,8 +147,8 @@ def test_the_ingest_pool_s_results_pipe_holds_a_whole_task_s_results(
     import fcntl
     import os
 
-    from chaintwin.store import forkserver
-    from chaintwin.store.ingest import executor
+    from chaintwin.ingest import forkserver
+    from chaintwin.ingest.pipeline import executor
 
     def pipe_size(ex: object) -> int:
         reader = ex._result_queue._reader  # type: ignore[attr-defined]
@@ -172,7 +172,7 @@ def test_the_ingest_pool_s_results_pipe_holds_a_whole_task_s_results(
 def test_the_fork_server_s_warm_up_runs_a_worker_s_whole_part() -> None:
     # in a new interpreter: importing the warm-up freezes the garbage collector
     done = subprocess.run(
-        [sys.executable, "-c", "import chaintwin.store.warm as w; print(w.warm_up())"],
+        [sys.executable, "-c", "import chaintwin.ingest.warm as w; print(w.warm_up())"],
         capture_output=True,
         text=True,
         check=True,

@@ -32,10 +32,10 @@ from conftest import REFERENCE_PROFILE
 from chaintwin.read.profile import load_profile
 from chaintwin.read.writer import write_recording
 from chaintwin.simulate.virtual import run_virtual
-from chaintwin.store.access import create_token
 from chaintwin.store.engine import hide_password, safe_url
 from chaintwin.store.store import Store
-from chaintwin.store.throwaway import free_port
+from chaintwin.testing.postgres import free_port
+from chaintwin.web.access import create_token
 
 PROFILE = load_profile(REFERENCE_PROFILE)
 UPLOAD_MB = 1

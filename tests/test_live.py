@@ -31,6 +31,7 @@ from chaintwin.cli.app import main
 from chaintwin.cli.serve_cmd import system_malloc_command
 from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.identify.calibrating import calibrate
+from chaintwin.ingest.pipeline import ingest
 from chaintwin.live.ledger import acquire_lease, release_lease
 from chaintwin.live.metrics import Metrics
 from chaintwin.live.notify import SIGNATURE_HEADER, Notifier
@@ -39,12 +40,11 @@ from chaintwin.read.profile import load_profile
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate
 from chaintwin.store import migrate
-from chaintwin.store.access import create_token
 from chaintwin.store.engine import engine_for
-from chaintwin.store.ingest import ingest
 from chaintwin.store.schema import DeliveryRow, LeaseRow, OutboxRow, RecordingRow, RefusedFileRow
 from chaintwin.store.store import Store
 from chaintwin.validate import load_recording
+from chaintwin.web.access import create_token
 
 PROFILE = load_profile(REFERENCE_PROFILE)
 PROFILES = EXAMPLES / "profiles"

@@ -32,11 +32,11 @@ from sqlalchemy.orm import Session
 from test_live import Service, wait_for
 
 from chaintwin.identify.calibrating import calibrate
+from chaintwin.ingest.pipeline import ingest
 from chaintwin.live.sources import Ingestor, Job, ReorderWindow
 from chaintwin.read.profile import ConveyorProfile, load_profile
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate
-from chaintwin.store.ingest import ingest
 from chaintwin.store.schema import OutboxRow, RecordingRow
 from chaintwin.store.store import Store
 from chaintwin.validate import load_recording

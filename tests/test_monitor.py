@@ -34,6 +34,7 @@ from chaintwin.errors import MonitorError, StoreError
 from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.calibration import Calibration
 from chaintwin.identify.signatures import drift_bases, fit_condition
+from chaintwin.ingest.worker import prepare
 from chaintwin.model.windows import window_integrals
 from chaintwin.read.batch import order_recordings
 from chaintwin.read.profile import load_profile
@@ -41,7 +42,6 @@ from chaintwin.read.writer import write_recording
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate
 from chaintwin.simulate.virtual import run_virtual
-from chaintwin.store.worker import prepare
 from chaintwin.validate import inspect_recording
 from chaintwin.validate.checks import load_recording
 
@@ -954,7 +954,7 @@ def test_monitor_and_ingest_resume_and_order_alike(
     tmp_path: Path, series: dict[str, Path], cal: Calibration, capsys: pytest.CaptureFixture[str]
 ) -> None:
     from chaintwin.diagnose.session import resume
-    from chaintwin.store.ingest import ingest
+    from chaintwin.ingest.pipeline import ingest
     from chaintwin.store.store import Store
 
     # a recording without a recorded time is marked so by both commands

@@ -513,8 +513,8 @@ def test_the_client_tells_the_drive_the_largest_message_it_takes() -> None:
 
 
 def test_a_scope_read_twice_is_stored_once(ua_loop: Loop, sim: DriveSim, tmp_path: Path) -> None:
+    from chaintwin.ingest.pipeline import ingest
     from chaintwin.store import Store
-    from chaintwin.store.ingest import ingest
 
     scope = ua_loop.run(sim.publish_next())
     reads: list[Recording] = []

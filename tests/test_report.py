@@ -168,8 +168,8 @@ def test_demo_runs_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert f"chaintwin serve --db sqlite:///{out / 'plant.db'}" in text.replace("\n", "")
     import re
 
-    from chaintwin.store.access import verify_token
     from chaintwin.store.store import Store
+    from chaintwin.web.access import verify_token
 
     found = re.search(r"ct_[A-Za-z0-9_-]{40,}", text)
     assert found is not None

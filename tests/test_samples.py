@@ -9,6 +9,7 @@ import pytest
 from conftest import EXAMPLES, REFERENCE_PROFILE
 
 from chaintwin.errors import StoreError
+from chaintwin.ingest.worker import prepare
 from chaintwin.read.profile import load_profile
 from chaintwin.store.samples import (
     SENT_UNPACKED,
@@ -16,7 +17,6 @@ from chaintwin.store.samples import (
     pack_channels,
     unpack_channels,
 )
-from chaintwin.store.worker import prepare
 from chaintwin.validate.checks import load_recording
 
 REC = EXAMPLES / "recordings" / "white-belt-01-40kg.csv"

@@ -22,10 +22,10 @@ from conftest import EXAMPLES, REFERENCE_PROFILE
 from chaintwin.cli.app import main
 from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.errors import StoreError
+from chaintwin.ingest.pipeline import ingest
 from chaintwin.read.profile import load_profile
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate
-from chaintwin.store.ingest import ingest
 from chaintwin.store.store import Store
 from chaintwin.validate.checks import load_recording
 
@@ -439,7 +439,7 @@ def test_json_columns_write_standard_json_and_read_earlier_nan(tmp_path: Path) -
 
 
 def test_guided_tasks_shrink_towards_the_end() -> None:
-    from chaintwin.store.ingest import _Window
+    from chaintwin.ingest.pipeline import _Window
 
     w = _Window(tasks=6, biggest=8, lanes=2, left=400)
     sizes = []
@@ -461,7 +461,7 @@ class _FakeClient:
         self.scattered: list[object] = []
 
     def get_executor(self, **kwargs: object) -> Any:
-        from chaintwin.store.executors import InlineExecutor
+        from chaintwin.ingest.executors import InlineExecutor
 
         assert kwargs == {"pure": False}  # tasks read files: never merged by their arguments
         return InlineExecutor()
@@ -477,8 +477,8 @@ class _FakeClient:
 
 def test_tasks_for_a_dask_cluster_follow_its_worker_threads() -> None:
     """Full tasks on a known cluster (not a few recordings each, as for 21 unknown lanes)."""
-    from chaintwin.store.executors import ClusterExecutor
-    from chaintwin.store.ingest import CHUNK, DASK_IN_FLIGHT, IN_FLIGHT_PER_WORKER, _window
+    from chaintwin.ingest.executors import ClusterExecutor
+    from chaintwin.ingest.pipeline import CHUNK, DASK_IN_FLIGHT, IN_FLIGHT_PER_WORKER, _window
 
     w = _window(ClusterExecutor(_FakeClient(2)), None, 400)
     assert (w.lanes, w.tasks, w.biggest) == (2, 2 * IN_FLIGHT_PER_WORKER, CHUNK)
@@ -490,7 +490,7 @@ def test_tasks_for_a_dask_cluster_follow_its_worker_threads() -> None:
 def test_what_tasks_share_goes_to_a_dask_cluster_once() -> None:
     import copy
 
-    from chaintwin.store.executors import ClusterExecutor, InlineExecutor, shared
+    from chaintwin.ingest.executors import ClusterExecutor, InlineExecutor, shared
 
     client = _FakeClient(2)
     ex = ClusterExecutor(client)
@@ -574,7 +574,7 @@ def test_a_fleet_ingest_on_workers_equals_each_conveyor_ingested_alone(tmp_path:
 def test_local_workers_run_with_a_short_thread_switch_interval() -> None:
     import sys
 
-    from chaintwin.store.executors import SWITCH_INTERVAL_S, executor
+    from chaintwin.ingest.executors import SWITCH_INTERVAL_S, executor
 
     before = sys.getswitchinterval()
     with executor(1, None):
@@ -614,7 +614,7 @@ def test_an_unexpected_failure_refuses_that_recording_and_the_batch_goes_on(
 ) -> None:
     """One recording whose analysis fails in an unforeseen way is refused with its reason;
     every other recording is stored (one worker: the pipeline runs in this process)."""
-    from chaintwin.store import worker
+    from chaintwin.ingest import worker
 
     url = f"sqlite:///{tmp_path / 'plant.db'}"
     _calibrate(plant, url)
@@ -753,7 +753,7 @@ def _stop(_signum: int, _frame: object) -> None:
 
 
 def _commit_during(how: str, done: list[str]) -> None:
-    from chaintwin.store.executors import signals_deferred
+    from chaintwin.ingest.executors import signals_deferred
 
     with signals_deferred():
         if how == "delivered":  # blocked until the block ends
@@ -803,7 +803,7 @@ def test_a_long_ingest_keeps_only_the_stored_history_in_memory(
     plant: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Memory stays flat over a long batch, and the results stay the same (issue 22)."""
-    import chaintwin.store.ingest as ingest_module
+    import chaintwin.ingest.pipeline as ingest_module
     from chaintwin.diagnose.monitor import ConveyorMonitor
 
     files = _recordings(plant)

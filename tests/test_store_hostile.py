@@ -392,7 +392,7 @@ def test_maintenance_dated_outside_1970_2200_is_refused_by_the_api_with_422(
     import httpx
     from test_web import start_server
 
-    from chaintwin.store.access import create_token
+    from chaintwin.web.access import create_token
     from chaintwin.web.app import create_app
 
     url, conveyor = _monitored_store(tmp_path)

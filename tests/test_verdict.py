@@ -29,16 +29,16 @@ from test_web import start_server
 from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.diagnose.verdict import HEALTH, NE107, NE107_OF, verdict
 from chaintwin.identify.calibrating import calibrate
+from chaintwin.ingest.pipeline import ingest
 from chaintwin.live.metrics import Metrics
 from chaintwin.read.profile import load_profile
 from chaintwin.report.data import conveyor_data
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate
-from chaintwin.store.access import create_token
-from chaintwin.store.ingest import ingest
 from chaintwin.store.store import Store
 from chaintwin.validate import load_recording
 from chaintwin.web import create_app
+from chaintwin.web.access import create_token
 
 PROFILE = load_profile(REFERENCE_PROFILE)
 CID = PROFILE.id

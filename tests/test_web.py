@@ -26,17 +26,17 @@ from conftest import REFERENCE_PROFILE
 from chaintwin.cli.app import main
 from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.identify.calibrating import calibrate
+from chaintwin.ingest.pipeline import ingest
 from chaintwin.read.profile import load_profile
 from chaintwin.read.writer import write_recording
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate
 from chaintwin.simulate.virtual import run_virtual
 from chaintwin.store import migrate
-from chaintwin.store.access import create_token
-from chaintwin.store.ingest import ingest
 from chaintwin.store.store import Store
 from chaintwin.validate import load_recording
 from chaintwin.web import create_app
+from chaintwin.web.access import create_token
 
 PROFILE = load_profile(REFERENCE_PROFILE)
 

@@ -55,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
         Arguments without the program name; default ``sys.argv[1:]``.
     """
     if starts_local_workers(sys.argv[1:] if argv is None else argv):
-        from chaintwin.store import forkserver
+        from chaintwin.ingest import forkserver
 
         forkserver.start()
     from chaintwin.cli.app import main as run

@@ -103,9 +103,9 @@ def _change(
 
     out = _edit(state, db, conveyor, edit, alarm)
     if state is None:
-        from chaintwin.store.access import audit
         from chaintwin.store.engine import store_url
         from chaintwin.store.store import Store
+        from chaintwin.web.access import audit
 
         store = Store(store_url(db), create=False)
         try:

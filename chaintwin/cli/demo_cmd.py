@@ -82,12 +82,12 @@ def run_demo(out: Path, *, days: int, per_day: int, workers: int | None, console
     from rich.progress import Progress
 
     from chaintwin.identify.calibrating import calibrate
+    from chaintwin.ingest.pipeline import ingest
     from chaintwin.read.profile import load_profiles
     from chaintwin.report.data import conveyor_data
     from chaintwin.report.html import write_folder
     from chaintwin.simulate.faults import parse_fault
     from chaintwin.simulate.fleet import generate
-    from chaintwin.store.ingest import ingest
     from chaintwin.store.store import Store
     from chaintwin.validate.checks import load_recording
 
@@ -213,8 +213,8 @@ def run_demo(out: Path, *, days: int, per_day: int, workers: int | None, console
 
 def demo_token(out: Path) -> str:
     """A new viewer token on the demo's store (a new one each run: tokens are shown once)."""
-    from chaintwin.store.access import create_token, list_tokens
     from chaintwin.store.store import Store
+    from chaintwin.web.access import create_token, list_tokens
 
     store = Store(f"sqlite:///{out / 'plant.db'}")
     try:

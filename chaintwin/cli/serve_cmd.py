@@ -529,9 +529,9 @@ def register(app: typer.Typer) -> None:
         as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     ) -> None:
         """Create a token and print it once (the store keeps only its hash)."""
-        from chaintwin.store.access import create_token
         from chaintwin.store.engine import store_url
         from chaintwin.store.store import Store
+        from chaintwin.web.access import create_token
 
         store = Store(store_url(db))
         try:
@@ -553,9 +553,9 @@ def register(app: typer.Typer) -> None:
         as_json: Annotated[bool, typer.Option("--json", help="Print one JSON list.")] = False,
     ) -> None:
         """List the tokens (names, roles, lifetimes; never the tokens)."""
-        from chaintwin.store.access import list_tokens
         from chaintwin.store.engine import store_url
         from chaintwin.store.store import Store
+        from chaintwin.web.access import list_tokens
 
         store = Store(store_url(db), create=False)
         try:
@@ -579,9 +579,9 @@ def register(app: typer.Typer) -> None:
         db: Annotated[str | None, typer.Option("--db", help=_DB_HELP)] = None,
     ) -> None:
         """Revoke a token: it and its browser sessions stop working at once."""
-        from chaintwin.store.access import revoke_token
         from chaintwin.store.engine import store_url
         from chaintwin.store.store import Store
+        from chaintwin.web.access import revoke_token
 
         store = Store(store_url(db), create=False)
         try:

@@ -108,9 +108,9 @@ def register(app: typer.Typer) -> None:
         stop the batch; the exit code is 0 when the batch ran.
         """
         from chaintwin.diagnose.records import SettingsGiven
+        from chaintwin.ingest.pipeline import ingest
         from chaintwin.read.columns import load_column_map
         from chaintwin.store.engine import safe_url, store_url
-        from chaintwin.store.ingest import ingest
         from chaintwin.store.store import Store
 
         profs = load_profiles(profile, profiles)

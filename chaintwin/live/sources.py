@@ -5,7 +5,7 @@ and hands them to the :class:`Ingestor`: a file by its path
 (:meth:`Ingestor.put_file`), a recording read from a drive through
 :data:`Submit` (:meth:`Ingestor.submit`). The ingestor runs them one at a
 time through the same pipeline as ``chaintwin ingest``
-(:func:`chaintwin.store.ingest.ingest`) in a worker thread, off the event
+(:func:`chaintwin.ingest.pipeline.ingest`) in a worker thread, off the event
 loop: read, validate, weigh, monitor, store. The store keeps each content
 once; a refused file is recorded with its one-line reason
 (:func:`~.ledger.record_refusal`) and not read again until its content changes.
@@ -480,7 +480,7 @@ class Ingestor:
 
     def ingest_one(self, job: Job) -> Outcome:
         """Ingest one file as ``chaintwin ingest`` would (in a worker thread)."""
-        from chaintwin.store.ingest import ingest
+        from chaintwin.ingest.pipeline import ingest
 
         try:
             try:

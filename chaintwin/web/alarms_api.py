@@ -26,7 +26,7 @@ from chaintwin.diagnose.alarm_actions import (
 from chaintwin.diagnose.alarm_kpis import KPI_DAYS, alarm_kpis
 from chaintwin.diagnose.records import date_in_span
 from chaintwin.errors import StoreError
-from chaintwin.store.access import audit
+from chaintwin.web.access import audit
 from chaintwin.web.api import _ERRORS, _web, who
 from chaintwin.web.security import ApiError
 

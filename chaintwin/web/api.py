@@ -28,16 +28,16 @@ from chaintwin import __version__
 from chaintwin.diagnose.records import LIFECYCLES, date_in_span
 from chaintwin.diagnose.state import acknowledge_alarm, add_maintenance
 from chaintwin.errors import ChaintwinError, StoreError
-from chaintwin.store.access import (
+from chaintwin.store.engine import safe_url
+from chaintwin.store.migrate import revision_of
+from chaintwin.store.queries import recording_by_hash, results_page, store_signature
+from chaintwin.web.access import (
     audit,
     audit_entries,
     create_token,
     list_tokens,
     revoke_token,
 )
-from chaintwin.store.engine import safe_url
-from chaintwin.store.migrate import revision_of
-from chaintwin.store.queries import recording_by_hash, results_page, store_signature
 from chaintwin.web.security import ApiError, Principal, require
 
 __all__ = ["router"]
@@ -623,7 +623,7 @@ _SAFE_NAME = re.compile(r"[^A-Za-z0-9._-]+")
 
 def ingest_uploads(web: Any, staged: list[Staged], who_name: str) -> list[UploadedFile]:
     """Store staged uploads exactly as ``chaintwin ingest`` would; what became of each."""
-    from chaintwin.store.ingest import ingest
+    from chaintwin.ingest.pipeline import ingest
 
     profiles = {cid: p for cid in web.store.conveyors() if (p := web.store.profile(cid))}
     live = web.extra.get("live")

@@ -34,8 +34,8 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from chaintwin import __version__
 from chaintwin.errors import ChaintwinError
 from chaintwin.read.profile import ConveyorProfile
-from chaintwin.store.access import secret
 from chaintwin.store.store import Store
+from chaintwin.web.access import secret
 from chaintwin.web.guard import LOGIN_ATTEMPTS, Guard, LoginAttempts
 from chaintwin.web.security import ApiError, Principal, principal_of
 

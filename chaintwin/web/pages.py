@@ -17,7 +17,7 @@ from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from chaintwin import __version__
 from chaintwin.diagnose.state import MAINTENANCE_KINDS
 from chaintwin.errors import ChaintwinError
-from chaintwin.store.access import (
+from chaintwin.web.access import (
     audit,
     audit_entries,
     create_token,

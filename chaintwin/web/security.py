@@ -1,7 +1,7 @@
 """Who is asking: bearer tokens, the browser's session cookie, CSRF, roles.
 
 * An API call sends ``Authorization: Bearer <token>``; the token is checked
-  against the store (keyed SHA-256, :mod:`chaintwin.store.access`).
+  against the store (keyed SHA-256, :mod:`chaintwin.web.access`).
 * A browser logs in once with its token: the server opens a session (a row
   of the store, :mod:`chaintwin.web.sessions`) and sets an HttpOnly,
   SameSite=Strict cookie holding the session's id, signed with the store's
@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 from fastapi import Request
 
-from chaintwin.store.access import role_at_least, verify_token
 from chaintwin.store.store import Store
+from chaintwin.web.access import role_at_least, verify_token
 from chaintwin.web.sessions import SESSION_SECONDS, session_of
 
 __all__ = [

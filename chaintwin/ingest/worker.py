@@ -1,6 +1,6 @@
 """The part of an ingest that runs in a worker process: read, validate and weigh.
 
-Kept apart from :mod:`chaintwin.store.ingest` so that a worker imports only
+Kept apart from :mod:`chaintwin.ingest.pipeline` so that a worker imports only
 the pipeline (reader, validation, weighing, features) and not the store
 (SQLAlchemy) or the health model (statsmodels): the fork server that starts
 local workers then holds about half the memory, and forks, and its workers
@@ -20,9 +20,8 @@ from chaintwin.identify.calibration import Calibration
 from chaintwin.read.columns import ColumnMap
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
+from chaintwin.store.samples import PackedChannels
 from chaintwin.validate.checks import load_recording
-
-from .samples import PackedChannels
 
 __all__ = ["Prepared", "prepare", "prepare_many"]
 

@@ -4,7 +4,7 @@ The fork server imports this module before it forks any worker
 (``multiprocessing``'s preload). Importing it
 
 * imports the script that started the ingest, as each worker would
-  otherwise do on its own (:func:`chaintwin.store.forkserver.import_main`);
+  otherwise do on its own (:func:`chaintwin.ingest.forkserver.import_main`);
 * imports the pipeline, calibrates from the two bundled calibration
   recordings and runs the whole worker part (read, validate, weigh,
   features) on one bundled example recording, so that numba's compiled
@@ -23,13 +23,13 @@ import gc
 import warnings
 from importlib import resources
 
-from chaintwin.store.forkserver import import_main, pin_threads
+from chaintwin.ingest.forkserver import import_main, pin_threads
 
 pin_threads()  # before numpy is loaded here: the workers inherit its BLAS
 
 from chaintwin.identify.calibrating import calibrate  # noqa: E402
+from chaintwin.ingest.worker import prepare  # noqa: E402
 from chaintwin.read.profile import load_profile  # noqa: E402
-from chaintwin.store.worker import prepare  # noqa: E402
 from chaintwin.validate.checks import load_recording  # noqa: E402
 
 __all__ = ["warm_up"]

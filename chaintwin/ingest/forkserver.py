@@ -4,7 +4,7 @@ Local workers are forked from a fork server (``multiprocessing``'s
 ``forkserver`` start method), not from the ingest's own process: a worker
 forked from it would inherit the store's open database connections and,
 outliving a killed ingest, hold its transaction open. The fork server
-imports :data:`PRELOAD` once and runs a warm-up (:mod:`chaintwin.store.warm`)
+imports :data:`PRELOAD` once and runs a warm-up (:mod:`chaintwin.ingest.warm`)
 before it forks, so that no worker pays for the imports or for loading
 numba's compiled code.
 
@@ -41,7 +41,7 @@ __all__ = [
     "start",
 ]
 
-PRELOAD = ("chaintwin.store.warm",)
+PRELOAD = ("chaintwin.ingest.warm",)
 """Module the fork server imports (and so runs) before it forks workers.
 
 It imports the main script (:func:`import_main`), then warms the pipeline

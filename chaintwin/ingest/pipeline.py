@@ -46,10 +46,10 @@ from chaintwin.read.batch import RecordingFile, group_by_conveyor, order_recordi
 from chaintwin.read.columns import ColumnMap
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording, RecordingWarning
+from chaintwin.store.engine import safe_url
+from chaintwin.store.store import HISTORY_IN_STATE, Finished, StateConflict, Store, Waiting
 
-from .engine import safe_url
 from .executors import InlineExecutor, executor, lanes, shared, signals_deferred
-from .store import HISTORY_IN_STATE, Finished, StateConflict, Store, Waiting
 from .worker import Prepared, prepare, prepare_many
 
 __all__ = [
@@ -308,7 +308,7 @@ class _Conveyor:
         self.flush()
         self.summary.new_alarms += len({a.id for a in self.monitor.alarms} - self.opened)
         if self.refit:
-            from .derived import refit
+            from chaintwin.store.derived import refit
 
             refit(self.store, self.profile.id)
 

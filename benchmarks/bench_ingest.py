@@ -79,9 +79,9 @@ import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+from chaintwin.calibrating.procedure import calibrate  # noqa: E402
 from chaintwin.diagnose.monitor import ConveyorMonitor  # noqa: E402
 from chaintwin.diagnose.records import MonitorSettings  # noqa: E402
-from chaintwin.identify.calibrating import calibrate  # noqa: E402
 from chaintwin.ingest.pipeline import (  # noqa: E402
     CHUNK,
     COMMIT_GROUP,

@@ -53,7 +53,7 @@ import psutil
 from sqlalchemy import select
 from webhook_receiver import start_receiver
 
-from chaintwin.identify.calibrating import calibrate
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.identify.calibration import Calibration
 from chaintwin.ingest.pipeline import ingest
 from chaintwin.read.profile import ConveyorProfile, load_profile

@@ -47,10 +47,10 @@ from collections.abc import Callable  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import TypeVar  # noqa: E402
 
+from chaintwin.calibrating.procedure import calibrate  # noqa: E402
 from chaintwin.diagnose.features import recording_features  # noqa: E402
 from chaintwin.diagnose.monitor import ConveyorMonitor  # noqa: E402
 from chaintwin.diagnose.records import MonitorSettings  # noqa: E402
-from chaintwin.identify.calibrating import calibrate  # noqa: E402
 from chaintwin.read.profile import load_profile  # noqa: E402
 from chaintwin.simulate.faults import Fault  # noqa: E402
 from chaintwin.simulate.fleet import generate  # noqa: E402

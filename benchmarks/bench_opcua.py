@@ -154,7 +154,7 @@ class Reference:
     in this process, timed (the chain's reference, measured in the same run)."""
 
     def __init__(self, work: Path, rounds: int) -> None:
-        from chaintwin.identify.calibrating import calibrate
+        from chaintwin.calibrating.procedure import calibrate
         from chaintwin.simulate.fleet import generate
         from chaintwin.store import Store
         from chaintwin.validate import load_recording
@@ -391,7 +391,7 @@ def reference_ingest(rounds: int) -> tuple[float, float]:
     """
     import logging
 
-    from chaintwin.identify.calibrating import calibrate
+    from chaintwin.calibrating.procedure import calibrate
     from chaintwin.ingest.pipeline import ingest
     from chaintwin.simulate.fleet import generate
     from chaintwin.store import Store

@@ -64,8 +64,8 @@ import httpx
 import orjson
 from sqlalchemy import insert
 
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.diagnose.records import MonitorSettings
-from chaintwin.identify.calibrating import calibrate
 from chaintwin.ingest.pipeline import ingest
 from chaintwin.read.profile import ConveyorProfile, load_profile
 from chaintwin.simulate.faults import Fault

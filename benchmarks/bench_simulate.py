@@ -33,7 +33,7 @@ import numpy as np  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 
 import chaintwin.examples  # noqa: E402
-from chaintwin.model.physics import G  # noqa: E402
+from chaintwin.physics import G  # noqa: E402
 from chaintwin.read.profile import load_profile  # noqa: E402
 from chaintwin.simulate import (  # noqa: E402
     PlantParameters,

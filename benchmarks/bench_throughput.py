@@ -65,9 +65,9 @@ from datetime import datetime, timedelta  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
+from chaintwin.calibrating.procedure import calibrate  # noqa: E402
 from chaintwin.cli.demo_cmd import examples_dir  # noqa: E402
 from chaintwin.diagnose.records import MonitorSettings  # noqa: E402
-from chaintwin.identify.calibrating import calibrate  # noqa: E402
 from chaintwin.identify.calibration import Calibration  # noqa: E402
 from chaintwin.ingest.pipeline import ingest  # noqa: E402
 from chaintwin.read.profile import ConveyorProfile, load_profile  # noqa: E402

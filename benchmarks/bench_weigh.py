@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from chaintwin.identify.calibrating import calibrate
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.identify.regression import RigidModelRegression
 from chaintwin.read.profile import ConveyorProfile, load_profile
 from chaintwin.read.recording import Recording

@@ -28,8 +28,8 @@ import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+from chaintwin.calibrating.procedure import calibrate  # noqa: E402
 from chaintwin.diagnose.features import recording_features  # noqa: E402
-from chaintwin.identify.calibrating import calibrate  # noqa: E402
 from chaintwin.ingest.pipeline import prepare  # noqa: E402
 from chaintwin.read.profile import load_profile  # noqa: E402
 from chaintwin.simulate.faults import Fault  # noqa: E402

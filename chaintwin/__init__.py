@@ -15,6 +15,7 @@ import importlib as _importlib
 import typing as _typing
 
 if _typing.TYPE_CHECKING:
+    from chaintwin.calibrating import calibrate
     from chaintwin.diagnose import ConveyorMonitor, MonitorSettings
     from chaintwin.errors import (
         CalibrationError,
@@ -37,7 +38,6 @@ if _typing.TYPE_CHECKING:
         RecursiveLeastSquares,
         RigidModelRegression,
         TorqueLagEstimator,
-        calibrate,
         load_calibration,
     )
     from chaintwin.model import RigidParameters, characteristic_table, model_torque
@@ -96,7 +96,7 @@ _LAZY: dict[str, str] = {
     "StoreError": "chaintwin.errors",
     "TorqueLagEstimator": "chaintwin.identify",
     "WeighResult": "chaintwin.weigh",
-    "calibrate": "chaintwin.identify",
+    "calibrate": "chaintwin.calibrating",
     "characteristic_table": "chaintwin.model",
     "format_recording": "chaintwin.read",
     "inspect_recording": "chaintwin.validate",
@@ -170,8 +170,8 @@ __all__ = [
 
 
 _SUBPACKAGES = frozenset(
-    {"cli", "diagnose", "errors", "identify", "model", "read", "report", "simulate", "store"}
-    | {"units", "validate", "weigh"}
+    {"calibrating", "cli", "diagnose", "errors", "identify", "ingest", "live", "model", "physics"}
+    | {"read", "report", "simulate", "store", "units", "validate", "web", "weigh"}
 )
 """Parts reachable as attributes (``chaintwin.read``) without importing them first."""
 

@@ -54,8 +54,8 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from chaintwin.calibrating.procedure import calibrate  # noqa: E402
 from chaintwin.diagnose.records import MonitorSettings  # noqa: E402
-from chaintwin.identify.calibrating import calibrate  # noqa: E402
 from chaintwin.ingest.pipeline import ingest  # noqa: E402
 from chaintwin.read.profile import ConveyorProfile, load_profile  # noqa: E402
 from chaintwin.simulate.faults import Fault  # noqa: E402

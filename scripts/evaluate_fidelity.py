@@ -78,11 +78,11 @@ from typing import Any
 
 import numpy as np
 
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.diagnose.state import json_ready
 from chaintwin.errors import ChaintwinError
-from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.calibration import Calibration
-from chaintwin.model.physics import loss_torque_nm, payload_sensitivity_nm_kg
+from chaintwin.physics import loss_torque_nm, payload_sensitivity_nm_kg
 from chaintwin.read.profile import ConveyorProfile, parse_profile
 from chaintwin.read.recording import Recording
 from chaintwin.read.writer import write_recording

@@ -25,9 +25,9 @@ import time
 from datetime import datetime
 from pathlib import Path
 
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.diagnose.monitor import ConveyorMonitor
 from chaintwin.diagnose.records import MonitorSettings
-from chaintwin.identify.calibrating import calibrate
 from chaintwin.read.profile import load_profile
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate

@@ -49,12 +49,12 @@ from typing import Any
 
 import numpy as np
 
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.diagnose import baseline
 from chaintwin.diagnose.health import FeatureBaseline
 from chaintwin.diagnose.monitor import ConveyorMonitor
 from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.errors import ChaintwinError
-from chaintwin.identify.calibrating import calibrate
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.virtual import default_setpoints, run_virtual
 from chaintwin.validate import inspect_recording

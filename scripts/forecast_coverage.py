@@ -33,12 +33,12 @@ from pathlib import Path
 
 import numpy as np
 
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.diagnose.baseline import at_mean_payload
 from chaintwin.diagnose.features import feature_spec
 from chaintwin.diagnose.forecasting import forecast_feature, forecast_path, resample_even
 from chaintwin.diagnose.monitor import ConveyorMonitor
 from chaintwin.diagnose.records import MonitorSettings
-from chaintwin.identify.calibrating import calibrate
 from chaintwin.read.profile import load_profile
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate

@@ -31,9 +31,9 @@ import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+from chaintwin.calibrating.procedure import calibrate  # noqa: E402
 from chaintwin.cli.demo_cmd import examples_dir  # noqa: E402
 from chaintwin.diagnose.records import MonitorSettings  # noqa: E402
-from chaintwin.identify.calibrating import calibrate  # noqa: E402
 from chaintwin.ingest.pipeline import ingest  # noqa: E402
 from chaintwin.read.profile import load_profile  # noqa: E402
 from chaintwin.simulate.faults import Fault  # noqa: E402

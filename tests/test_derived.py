@@ -13,11 +13,11 @@ from pathlib import Path
 import pytest
 from test_web import CHROMIUM, PROFILE, Served, _error, fleet, served
 
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.diagnose import monitor_state
 from chaintwin.diagnose.monitor_state import derived_of
 from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.diagnose.state import json_ready
-from chaintwin.identify.calibrating import calibrate
 from chaintwin.ingest.pipeline import ingest
 from chaintwin.live.refit import Refitter
 from chaintwin.read.writer import write_recording

@@ -82,7 +82,7 @@ def test_stick_slip_on_a_slow_plateau_is_found_and_kept_out_of_mu() -> None:
     fall with speed and puts μ 11 % off at ±0.2 %; the calibration finds the
     plateau, refits with losses linear in speed and widens μ by half the change.
     """
-    from chaintwin.identify.calibrating import calibrate, identification_profile
+    from chaintwin.calibrating.procedure import calibrate, identification_profile
     from chaintwin.identify.regression import RigidModelRegression
 
     ef = _script()

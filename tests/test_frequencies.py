@@ -258,8 +258,8 @@ def test_the_line_catalogue_is_the_one_source_of_the_features_lines() -> None:
     """Features, monitor and report read their lines from model.frequencies alone."""
     from conftest import EXAMPLES
 
+    from chaintwin.calibrating.procedure import calibrate
     from chaintwin.diagnose.features import recording_features
-    from chaintwin.identify.calibrating import calibrate
     from chaintwin.model.frequencies import (
         SHAFT_HARMONICS,
         known_line_orders,

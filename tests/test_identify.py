@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from conftest import REFERENCE_PROFILE
 
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.cli.app import main
 from chaintwin.errors import CalibrationError, EstimationError, NotFittedError
-from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.calibration import (
     Calibration,
     load_calibration,
@@ -154,7 +154,7 @@ def test_a_constant_loss_below_zero_is_refitted_without_it_by_hand() -> None:
     the difference of the two μ (0.11275) joins μ's uncertainty:
     sqrt(0.02² + 0.11275²) = 0.1145. A BmA only 0.3 standard errors below zero
     is kept as it is, refit not asked."""
-    from chaintwin.identify.calibrating import _constant_loss_check
+    from chaintwin.calibrating.procedure import _constant_loss_check
     from chaintwin.model.rigid import RigidParameters
 
     def params(mu: float, bma: float, sd_mu: float, sd_bma: float) -> RigidParameters:

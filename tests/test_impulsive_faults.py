@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from chaintwin import examples
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.diagnose.causes import (
     NOTE_CAUSES,
     impact_context,
@@ -16,7 +17,6 @@ from chaintwin.diagnose.causes import (
 )
 from chaintwin.diagnose.features import recording_features
 from chaintwin.errors import ModelError
-from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.calibration import Calibration
 from chaintwin.read.profile import ConveyorProfile, load_profile
 from chaintwin.simulate.faults import (

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from conftest import EXAMPLES, REFERENCE_PROFILE
 
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.cli.app import main
 from chaintwin.diagnose.features import feature_spec, recording_features
-from chaintwin.identify.calibrating import calibrate
 from chaintwin.model.frequencies import (
     characteristic_lines,
     lateral_mode_hz,

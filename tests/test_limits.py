@@ -8,12 +8,12 @@ from pathlib import Path
 import pytest
 from conftest import REFERENCE_PROFILE
 
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.diagnose.health import x_of_y
 from chaintwin.diagnose.limits import judge_limits
 from chaintwin.diagnose.monitor import ConveyorMonitor
 from chaintwin.diagnose.records import Alarm, MonitorSettings
 from chaintwin.errors import MonitorError, ProfileError
-from chaintwin.identify.calibrating import calibrate
 from chaintwin.read.profile import ConveyorProfile, LimitSpec, load_profile, parse_profile
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate

@@ -27,10 +27,10 @@ from conftest import EXAMPLES, REFERENCE_PROFILE, _free_port
 from sqlalchemy import func, select, text
 from sqlalchemy.orm import Session
 
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.cli.app import main
 from chaintwin.cli.serve_cmd import system_malloc_command
 from chaintwin.diagnose.records import MonitorSettings
-from chaintwin.identify.calibrating import calibrate
 from chaintwin.ingest.pipeline import ingest
 from chaintwin.live.ledger import acquire_lease, release_lease
 from chaintwin.live.metrics import Metrics

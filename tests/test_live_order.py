@@ -31,7 +31,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 from test_live import Service, wait_for
 
-from chaintwin.identify.calibrating import calibrate
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.ingest.pipeline import ingest
 from chaintwin.live.sources import Ingestor, Job, ReorderWindow
 from chaintwin.read.profile import ConveyorProfile, load_profile

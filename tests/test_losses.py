@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from conftest import REFERENCE_PROFILE
 
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.cli.app import main
-from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.losses import loss_verdict
 from chaintwin.model.rigid import PARAMETER_NAMES, RigidParameters
 from chaintwin.read.profile import load_profile

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from conftest import REFERENCE_PROFILE
 
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.cli.app import EXIT_ALARM, main
 from chaintwin.diagnose import baseline
 from chaintwin.diagnose.baseline import at_mean_payload, payload_of
@@ -31,7 +32,6 @@ from chaintwin.diagnose.state import (
     load_state,
 )
 from chaintwin.errors import MonitorError, StoreError
-from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.calibration import Calibration
 from chaintwin.identify.signatures import drift_bases, fit_condition
 from chaintwin.ingest.worker import prepare

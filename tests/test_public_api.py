@@ -66,7 +66,7 @@ def test_the_workflow_is_importable_from_the_top() -> None:
     # is the subpackage, its function is chaintwin.weigh.weigh
     for name in ("load_profile", "load_recording", "calibrate", "load_calibration"):
         assert callable(getattr(chaintwin, name)), name
-    assert chaintwin.calibrate is chaintwin.identify.calibrate
+    assert chaintwin.calibrate is chaintwin.calibrating.calibrate
     assert callable(chaintwin.weigh.weigh)
     assert chaintwin.WeighResult is chaintwin.weigh.WeighResult
     from chaintwin.diagnose.monitor import ConveyorMonitor

@@ -21,8 +21,8 @@ from chaintwin.diagnose.residuals import (
 )
 from chaintwin.errors import EstimationError
 from chaintwin.model.frequencies import _kinematic_ratio
-from chaintwin.model.physics import G
 from chaintwin.model.rigid import PARAMETER_NAMES, RigidParameters, model_torque
+from chaintwin.physics import G
 from chaintwin.read.profile import load_profile
 from chaintwin.read.recording import Metadata, Recording
 from chaintwin.simulate.virtual import Realism, run_virtual

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import chaintwin.examples
-from chaintwin.model import physics
+from chaintwin import physics
 from chaintwin.read.profile import ConveyorProfile, load_profile
 from chaintwin.simulate import PlantParameters, Setpoints, integrate_speed, simulate, trapezoid
 

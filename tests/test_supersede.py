@@ -16,8 +16,8 @@ from conftest import REFERENCE_PROFILE
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.cli import main
-from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.calibration import Calibration
 from chaintwin.read.profile import load_profile
 from chaintwin.simulate.fleet import generate

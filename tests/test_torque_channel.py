@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from conftest import REFERENCE_PROFILE
 
-from chaintwin.identify.calibrating import calibrate
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.identify.calibration import Calibration
 from chaintwin.identify.channels import TORQUE_CHANNELS, ChannelSpreads, choose_channel
 from chaintwin.read.profile import load_profile

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from conftest import REFERENCE_PROFILE
 
+from chaintwin.calibrating.methods import in_time_order
 from chaintwin.cli.app import main
 from chaintwin.errors import EstimationError
-from chaintwin.identify.methods import in_time_order
 from chaintwin.identify.regression import RigidModelRegression
 from chaintwin.identify.tracking import ParameterTracker, track_losses
 from chaintwin.read.profile import load_profile

@@ -26,9 +26,9 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from test_web import start_server
 
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.diagnose.verdict import HEALTH, NE107, NE107_OF, verdict
-from chaintwin.identify.calibrating import calibrate
 from chaintwin.ingest.pipeline import ingest
 from chaintwin.live.metrics import Metrics
 from chaintwin.read.profile import load_profile

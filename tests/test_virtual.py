@@ -253,7 +253,7 @@ def test_cli_simulate_and_generate(tmp_path: Path, capsys: pytest.CaptureFixture
 
 def test_cli_simulate_with_calibration(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """--calibration supplies friction and losses; command-line options still win."""
-    from chaintwin.identify.calibrating import calibrate
+    from chaintwin.calibrating.procedure import calibrate
     from chaintwin.read.profile import load_profile
 
     prof = load_profile(REFERENCE_PROFILE)

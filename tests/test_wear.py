@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from conftest import REFERENCE_PROFILE
 
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.diagnose.health import FeatureBaseline
 from chaintwin.diagnose.monitor import ConveyorMonitor
 from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.diagnose.wear import usage_summary, wear_rates
-from chaintwin.identify.calibrating import calibrate
 from chaintwin.read.profile import load_profile, parse_profile
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate

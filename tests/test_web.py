@@ -23,9 +23,9 @@ import pytest
 import uvicorn
 from conftest import REFERENCE_PROFILE
 
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.cli.app import main
 from chaintwin.diagnose.records import MonitorSettings
-from chaintwin.identify.calibrating import calibrate
 from chaintwin.ingest.pipeline import ingest
 from chaintwin.read.profile import load_profile
 from chaintwin.read.writer import write_recording

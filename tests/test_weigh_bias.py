@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from chaintwin.identify.calibrating import calibrate
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.identify.calibration import Calibration
 from chaintwin.read.profile import ConveyorProfile, parse_profile
 from chaintwin.simulate.virtual import run_virtual

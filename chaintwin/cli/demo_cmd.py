@@ -81,7 +81,7 @@ def run_demo(out: Path, *, days: int, per_day: int, workers: int | None, console
 
     from rich.progress import Progress
 
-    from chaintwin.identify.calibrating import calibrate
+    from chaintwin.calibrating.procedure import calibrate
     from chaintwin.ingest.pipeline import ingest
     from chaintwin.read.profile import load_profiles
     from chaintwin.report.data import conveyor_data

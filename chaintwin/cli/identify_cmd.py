@@ -194,8 +194,8 @@ def register(app: typer.Typer) -> None:
         friction and the constant loss BmA cannot be separated (a warning says
         what was assumed). Exit code 2 when a file was refused.
         """
-        from chaintwin.identify.calibrating import calibrate
-        from chaintwin.identify.methods import METHODS, identify_oe, identify_rls, in_time_order
+        from chaintwin.calibrating.methods import METHODS, identify_oe, identify_rls, in_time_order
+        from chaintwin.calibrating.procedure import calibrate
         from chaintwin.read.columns import load_column_map
         from chaintwin.read.profile import load_profile
 
@@ -291,7 +291,7 @@ def register(app: typer.Typer) -> None:
         several speeds, and says how well the payload sensitivity is known and
         which run would improve it.
         """
-        from chaintwin.identify.calibrating import calibrate
+        from chaintwin.calibrating.procedure import calibrate
         from chaintwin.read.columns import load_column_map
         from chaintwin.read.profile import load_profile
 

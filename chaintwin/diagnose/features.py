@@ -87,9 +87,9 @@ from chaintwin.model.frequencies import (
     known_line_orders,
     shaft_orders,
 )
-from chaintwin.model.physics import loss_torque_nm
 from chaintwin.model.rigid import RigidParameters, acceleration, model_torque, motoring_mask
 from chaintwin.model.windows import WindowIntegrals, window_integrals
+from chaintwin.physics import loss_torque_nm
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording, RecordingWarning
 from chaintwin.validate.checks import Inspection

@@ -10,7 +10,7 @@ payloads vary and are not known):
    data (the datasheet inertias, not the ``model:`` section) that gives an
    estimate of each payload, p_k = (J'_k − J_d)·(i/r)².
 2. The recordings are calibrated together with these payloads as if they
-   were known (:func:`~chaintwin.identify.calibrating.calibrate`): the
+   were known (:func:`~chaintwin.calibrating.procedure.calibrate`): the
    payloads' spread separates the rail friction from the constant loss.
 
 What this costs, compared with a calibration on known loads: a datasheet
@@ -27,8 +27,8 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.errors import EstimationError
-from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.calibration import Calibration, identification_profile
 from chaintwin.identify.regression import RigidModelRegression
 from chaintwin.read.profile import ConveyorProfile

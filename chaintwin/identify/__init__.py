@@ -2,7 +2,8 @@
 
 Estimators follow the scikit-learn contract (settings in ``__init__``,
 ``fit`` returns ``self``, fitted values end in ``_``). Identification never
-reads a profile's ``model:`` section.
+reads a profile's ``model:`` section. Calibrating a conveyor (the fit checked
+by weighing its recordings) is :mod:`chaintwin.calibrating`.
 """
 
 import typing as _typing
@@ -10,7 +11,6 @@ import typing as _typing
 from chaintwin._lazy import lazy_getattr
 
 if _typing.TYPE_CHECKING:
-    from chaintwin.identify.calibrating import calibrate
     from chaintwin.identify.calibration import (
         Calibration,
         identification_profile,
@@ -39,7 +39,6 @@ _LAZY: dict[str, str] = {
     "SignatureFit": "chaintwin.identify.signatures",
     "TorqueLagEstimator": "chaintwin.identify.torque_lag",
     "TorqueLagResult": "chaintwin.identify.torque_lag",
-    "calibrate": "chaintwin.identify.calibrating",
     "fit_signatures": "chaintwin.identify.signatures",
     "identification_profile": "chaintwin.identify.calibration",
     "identify_torque_lag": "chaintwin.identify.torque_lag",
@@ -59,7 +58,6 @@ __all__ = [
     "SignatureFit",
     "TorqueLagEstimator",
     "TorqueLagResult",
-    "calibrate",
     "fit_signatures",
     "identification_profile",
     "identify_torque_lag",

@@ -1,7 +1,7 @@
 """Calibration: a conveyor's parameters learned from known-load runs, and their file.
 
 This module holds the :class:`Calibration` record, its file format and the
-checks made when one is read; :func:`chaintwin.identify.calibrating.calibrate`
+checks made when one is read; :func:`chaintwin.calibrating.procedure.calibrate`
 makes one. It fits :class:`~chaintwin.identify.regression.RigidModelRegression`
 to recordings whose metadata holds ``payload_kg`` (an empty tray at least),
 identifies the torque lag where a recording at the controller cycle allows,
@@ -48,13 +48,13 @@ import numpy as np
 from chaintwin.errors import CalibrationError
 from chaintwin.identify.channels import TORQUE_CHANNELS, ChannelSpreads
 from chaintwin.identify.regression import speed_clusters
-from chaintwin.model.physics import payload_sensitivity_nm_kg
 from chaintwin.model.rigid import (
     PARAMETER_NAMES,
     RigidParameters,
     drive_inertia_at,
     incline_terms,
 )
+from chaintwin.physics import payload_sensitivity_nm_kg
 from chaintwin.read.files import read_limited, write_atomic
 from chaintwin.read.integers import json_loads, refuse_huge_integers
 from chaintwin.read.profile import ConveyorProfile, parse_profile
@@ -99,7 +99,7 @@ def identification_profile(profile: ConveyorProfile) -> ConveyorProfile:
 def sensitivity_nm_per_kg(profile: ConveyorProfile, mu: float) -> float:
     """Payload sensitivity while motoring: ``g·(μ·cosβ + sinβ)·r/(i·η)``, Nm/kg.
 
-    :func:`~chaintwin.model.physics.payload_sensitivity_nm_kg` with the
+    :func:`~chaintwin.physics.payload_sensitivity_nm_kg` with the
     profile's incline, chordal radius, gear ratio and efficiency.
     """
     return payload_sensitivity_nm_kg(

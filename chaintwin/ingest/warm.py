@@ -27,7 +27,7 @@ from chaintwin.ingest.forkserver import import_main, pin_threads
 
 pin_threads()  # before numpy is loaded here: the workers inherit its BLAS
 
-from chaintwin.identify.calibrating import calibrate  # noqa: E402
+from chaintwin.calibrating.procedure import calibrate  # noqa: E402
 from chaintwin.ingest.worker import prepare  # noqa: E402
 from chaintwin.read.profile import load_profile  # noqa: E402
 from chaintwin.validate.checks import load_recording  # noqa: E402

@@ -13,7 +13,17 @@ if _typing.TYPE_CHECKING:
         characteristic_table,
         fold_frequency,
     )
-    from chaintwin.model.physics import (
+    from chaintwin.model.rigid import (
+        PARAMETER_NAMES,
+        RigidParameters,
+        acceleration,
+        gear_input_torque_nm,
+        incline_terms,
+        model_torque,
+        motoring_mask,
+    )
+    from chaintwin.model.windows import WindowIntegrals, window_integrals
+    from chaintwin.physics import (
         G,
         belt_force_n,
         chordal_radius_m,
@@ -27,43 +37,33 @@ if _typing.TYPE_CHECKING:
         steady_torque_nm,
         two_mass_frequency_hz,
     )
-    from chaintwin.model.rigid import (
-        PARAMETER_NAMES,
-        RigidParameters,
-        acceleration,
-        gear_input_torque_nm,
-        incline_terms,
-        model_torque,
-        motoring_mask,
-    )
-    from chaintwin.model.windows import WindowIntegrals, window_integrals
 
 _LAZY: dict[str, str] = {
     "CharacteristicLine": "chaintwin.model.frequencies",
-    "G": "chaintwin.model.physics",
+    "G": "chaintwin.physics",
     "PARAMETER_NAMES": "chaintwin.model.rigid",
     "RigidParameters": "chaintwin.model.rigid",
     "WindowIntegrals": "chaintwin.model.windows",
     "acceleration": "chaintwin.model.rigid",
-    "belt_force_n": "chaintwin.model.physics",
+    "belt_force_n": "chaintwin.physics",
     "characteristic_lines": "chaintwin.model.frequencies",
     "characteristic_orders": "chaintwin.model.frequencies",
     "characteristic_table": "chaintwin.model.frequencies",
-    "chordal_radius_m": "chaintwin.model.physics",
+    "chordal_radius_m": "chaintwin.physics",
     "fold_frequency": "chaintwin.model.frequencies",
-    "gear_factor": "chaintwin.model.physics",
+    "gear_factor": "chaintwin.physics",
     "gear_input_torque_nm": "chaintwin.model.rigid",
     "incline_terms": "chaintwin.model.rigid",
-    "load_torque_nm": "chaintwin.model.physics",
-    "loss_torque_nm": "chaintwin.model.physics",
+    "load_torque_nm": "chaintwin.physics",
+    "loss_torque_nm": "chaintwin.physics",
     "model_torque": "chaintwin.model.rigid",
-    "motoring": "chaintwin.model.physics",
+    "motoring": "chaintwin.physics",
     "motoring_mask": "chaintwin.model.rigid",
-    "payload_sensitivity_nm_kg": "chaintwin.model.physics",
-    "polygon_radius_m": "chaintwin.model.physics",
-    "reflected_inertia_kgm2": "chaintwin.model.physics",
-    "steady_torque_nm": "chaintwin.model.physics",
-    "two_mass_frequency_hz": "chaintwin.model.physics",
+    "payload_sensitivity_nm_kg": "chaintwin.physics",
+    "polygon_radius_m": "chaintwin.physics",
+    "reflected_inertia_kgm2": "chaintwin.physics",
+    "steady_torque_nm": "chaintwin.physics",
+    "two_mass_frequency_hz": "chaintwin.physics",
     "window_integrals": "chaintwin.model.windows",
 }
 """Module of each public name (imported on first use, PEP 562)."""

@@ -25,7 +25,7 @@ this module, so each rule below exists once:
   motor torque alone would not do: in a deceleration it is negative (the
   drive brakes its own rotor) while the gear still pushes the belt against
   its friction. The simulator decides the same case from its state, ``(F +
-  M·a)·v ≥ 0`` (:func:`chaintwin.model.physics.motoring`): the two agree
+  M·a)·v ≥ 0`` (:func:`chaintwin.physics.motoring`): the two agree
   whenever the model holds, one needs the measured torque and the other the
   true force.
 * **Standstill**: where ``|ω|`` is below 2 % of the recording's peak
@@ -45,7 +45,7 @@ import numpy as np
 
 from chaintwin._types import FloatArray
 from chaintwin.errors import EstimationError
-from chaintwin.model.physics import (
+from chaintwin.physics import (
     belt_force_n,
     gear_factor,
     loss_torque_nm,
@@ -139,7 +139,7 @@ def incline_terms(profile: ConveyorProfile) -> tuple[float, float]:
 def drive_inertia_at(profile: ConveyorProfile, drive_inertia_kgm2: float, mass_kg: float) -> float:
     """Inertia at the motor shaft while motoring, ``J_d + m·r²/(i²·η)``, kg·m².
 
-    :func:`~chaintwin.model.physics.reflected_inertia_kgm2` with an identified
+    :func:`~chaintwin.physics.reflected_inertia_kgm2` with an identified
     drive inertia J_d (motor and gear together) in place of the profile's.
 
     Parameters

@@ -35,8 +35,8 @@ from numba import njit
 
 from chaintwin._types import FloatArray
 from chaintwin.errors import EstimationError
-from chaintwin.model.physics import gear_factor
 from chaintwin.model.rigid import motoring_mask
+from chaintwin.physics import gear_factor
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
 from chaintwin.validate.filters import gradient

@@ -62,6 +62,7 @@ from typing import Annotated, Any, ClassVar, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from chaintwin import physics
 from chaintwin.errors import ProfileError
 from chaintwin.read.files import read_limited, yaml_load
 from chaintwin.read.integers import refuse_huge_integers
@@ -280,10 +281,8 @@ class ConveyorProfile(_Spec):
         """Chordal mean radius r = R·sin(π/z)/(π/z), m (R when z is unknown).
 
         A chain advances r per sprocket radian on average
-        (:func:`chaintwin.model.physics.chordal_radius_m`).
+        (:func:`chaintwin.physics.chordal_radius_m`).
         """
-        from chaintwin.model import physics  # the formula's one place; model sits above read
-
         return physics.chordal_radius_m(self.pitch_radius_m, self.sprocket.teeth)
 
     @property
@@ -352,8 +351,6 @@ class ConveyorProfile(_Spec):
         motoring : bool
             True while power flows from the motor to the belt.
         """
-        from chaintwin.model import physics  # the formula's one place; model sits above read
-
         return physics.reflected_inertia_kgm2(
             motor_inertia_kgm2=self.motor.inertia_kgm2,
             gear_inertia_kgm2=self.gear.inertia_kgm2,

@@ -29,7 +29,7 @@ import numpy as np
 
 from chaintwin._types import FloatArray
 from chaintwin.errors import ModelError
-from chaintwin.model.physics import G
+from chaintwin.physics import G
 from chaintwin.simulate import _kernel as _k
 from chaintwin.simulate.plant import PlantParameters
 from chaintwin.simulate.setpoints import Setpoints

@@ -15,8 +15,8 @@ import math
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+from chaintwin import physics
 from chaintwin.errors import ModelError
-from chaintwin.model import physics
 from chaintwin.read.profile import ConveyorProfile, ModelSpec
 
 __all__ = ["DEFAULT_BELT_STIFFNESS_N_M", "PlantParameters", "calibrated_model"]
@@ -436,7 +436,7 @@ class PlantParameters:
         )
 
     def reflected_inertia_kgm2(self, *, motoring: bool = True) -> float:
-        """Rigid-model inertia at the motor, kg·m² (see :mod:`chaintwin.model.physics`)."""
+        """Rigid-model inertia at the motor, kg·m² (see :mod:`chaintwin.physics`)."""
         return physics.reflected_inertia_kgm2(
             motor_inertia_kgm2=self.motor_inertia_kgm2,
             gear_inertia_kgm2=self.gear_inertia_kgm2,

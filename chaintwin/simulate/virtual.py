@@ -44,7 +44,7 @@ from scipy.signal import lfilter
 
 from chaintwin._types import FloatArray
 from chaintwin.errors import ModelError
-from chaintwin.model.physics import G
+from chaintwin.physics import G
 from chaintwin.read.profile import ConveyorProfile, ModelSpec
 from chaintwin.read.recording import Metadata, Recording
 from chaintwin.simulate.engine import SimulationResult, simulate

@@ -41,8 +41,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from chaintwin.model.physics import gear_factor
 from chaintwin.model.rigid import RigidParameters, gear_input_torque_nm
+from chaintwin.physics import gear_factor
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.read.recording import Recording
 from chaintwin.units import G

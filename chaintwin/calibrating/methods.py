@@ -1,6 +1,6 @@
 """The three ways ``chaintwin identify`` can identify the rigid model.
 
-* ``ls``: windowed batch least squares (:func:`~chaintwin.identify.calibrating.calibrate`).
+* ``ls``: windowed batch least squares (:func:`~chaintwin.calibrating.procedure.calibrate`).
 * ``rls``: recursive least squares with directional forgetting over the
   recordings in time order (:func:`~chaintwin.identify.tracking.track_losses`):
   J_d, μ and BmC held at a batch fit of the first ``hold_first`` recordings,
@@ -25,8 +25,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+from chaintwin.calibrating.procedure import calibrate
 from chaintwin.errors import ConvergenceWarning, EstimationError
-from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.calibration import Calibration, identification_profile
 from chaintwin.identify.defaults import DEFAULT_HOLD_FIRST
 from chaintwin.identify.output_error import OutputErrorFit

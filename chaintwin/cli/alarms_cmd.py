@@ -99,9 +99,9 @@ def _change(
     alarm: str | None = None,
 ) -> T:
     """Apply a change to a state file or a store; audit it on a store."""
-    from chaintwin.cli.monitor_cmd import _edit
+    from chaintwin.cli.common import edit_state
 
-    out = _edit(state, db, conveyor, edit, alarm)
+    out = edit_state(state, db, conveyor, edit, alarm)
     if state is None:
         from chaintwin.store.engine import store_url
         from chaintwin.store.store import Store
@@ -124,9 +124,9 @@ def _done(verb: str, a: Alarm) -> None:
 
 
 def _parse_until(text: str | None) -> Any:
-    from chaintwin.cli.monitor_cmd import _parse_at
+    from chaintwin.cli.common import parse_at
 
-    return _parse_at(text, "--until")
+    return parse_at(text, "--until")
 
 
 def register(app: typer.Typer) -> None:

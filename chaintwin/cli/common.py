@@ -6,15 +6,16 @@ import itertools
 import json
 import re
 import sys
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
+from datetime import datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any, TypeVar
 
 import typer
 from rich.console import Console
 from rich.markup import escape
 
-from chaintwin.errors import ChaintwinError, RecordingError
+from chaintwin.errors import ChaintwinError, ProfileError, RecordingError, StoreError
 
 if TYPE_CHECKING:
     from chaintwin.read.columns import ColumnMap
@@ -26,10 +27,13 @@ __all__ = [
     "EXIT_USAGE",
     "OPTION_OF_FIELD",
     "ColumnsOption",
+    "edit_state",
     "error_message",
     "error_object",
     "expand_recordings",
     "load_options",
+    "load_profiles",
+    "parse_at",
     "print_json",
     "print_refused",
     "print_warning",
@@ -37,6 +41,8 @@ __all__ = [
     "safe",
     "wants_json",
 ]
+
+T = TypeVar("T")
 
 EXIT_USAGE = 2
 """Exit code for bad input or usage."""
@@ -171,6 +177,74 @@ def load_options(
     prof = load_profile(profile) if profile is not None else None
     cmap = load_column_map(columns) if columns is not None else None
     return prof, cmap
+
+
+def load_profiles(profile: Path | None, profiles: Path | None) -> dict[str, ConveyorProfile]:
+    """The profiles of ``--profile`` or ``--profiles``, by id (one loader: the library's).
+
+    Raises
+    ------
+    ProfileError
+        When neither or both are given, a folder holds none, or two share an id.
+    """
+    from chaintwin.read.profile import load_profile
+    from chaintwin.read.profile import load_profiles as read_profiles
+
+    if (profile is None) == (profiles is None):
+        raise ProfileError("give either --profile FILE (one conveyor) or --profiles DIR")
+    if profile is not None:
+        p = load_profile(profile)
+        return {p.id: p}
+    assert profiles is not None
+    return read_profiles(profiles)
+
+
+def edit_state(
+    state: Path | None,
+    db: str | None,
+    conveyor: str | None,
+    edit: Callable[[dict[str, Any]], T],
+    alarm: str | None = None,
+) -> T:
+    """Apply a change to a state file, or to the health model in a results store."""
+    from chaintwin.diagnose.state import load_state, save_state
+
+    if state is not None and db is not None:
+        raise StoreError("give either --state (a state file) or --db (a results store), not both")
+    if state is not None:
+        data = load_state(state, missing_ok=False)
+        out = edit(data)
+        save_state(state, data)
+        return out
+    from chaintwin.store.engine import store_url
+    from chaintwin.store.store import Store
+
+    store = Store(store_url(db), create=False)
+    try:
+        if conveyor is None:
+            conveyor = store.alarm_conveyor(alarm or "")
+        return store.edit_state(conveyor, edit)
+    finally:
+        store.close()
+
+
+def parse_at(text: str | None, option: str = "--at") -> datetime | None:
+    """A CLI option's ISO 8601 time, within the span of dates chaintwin accepts."""
+    if text is None:
+        return None
+    try:
+        at = datetime.fromisoformat(text)
+    except ValueError:
+        raise StoreError(
+            f"{option} '{text}' is not an ISO 8601 time (e.g. 2026-11-21T10:15:00Z)",
+            field=option.lstrip("-"),
+        ) from None
+    from chaintwin.diagnose.records import date_out_of_span
+
+    refused = date_out_of_span(at)
+    if refused is not None:
+        raise StoreError(f"{option} {refused}", field=option.lstrip("-"))
+    return at
 
 
 def print_json(data: Any) -> None:

@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Sequence
-from datetime import datetime
+from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, TypeVar
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.console import Console
@@ -15,7 +14,10 @@ from rich.table import Table
 from chaintwin.cli.common import (
     EXIT_ALARM,
     ColumnsOption,
+    edit_state,
     expand_recordings,
+    load_profiles,
+    parse_at,
     print_json,
     print_refused,
     print_warning,
@@ -33,13 +35,10 @@ if TYPE_CHECKING:
 from chaintwin.errors import (
     ChaintwinError,
     MonitorError,
-    ProfileError,
     StoreError,
 )
 
-T = TypeVar("T")
-
-__all__ = ["load_profiles", "register", "run_monitor"]
+__all__ = ["register", "run_monitor"]
 
 _PROFILE_HELP = "Profile of the one conveyor monitored."
 _PROFILES_HELP = "Folder of profiles (*.yaml); recordings are matched to them by conveyor id."
@@ -62,26 +61,6 @@ _FAIL_HELP = (
     "conveyor out of service aside)."
 )
 _FILES_HELP = "Recordings (files or folders), in any order: they are sorted by recorded_at."
-
-
-def load_profiles(profile: Path | None, profiles: Path | None) -> dict[str, ConveyorProfile]:
-    """The profiles of ``--profile`` or ``--profiles``, by id (one loader: the library's).
-
-    Raises
-    ------
-    ProfileError
-        When neither or both are given, a folder holds none, or two share an id.
-    """
-    from chaintwin.read.profile import load_profile
-    from chaintwin.read.profile import load_profiles as read_profiles
-
-    if (profile is None) == (profiles is None):
-        raise ProfileError("give either --profile FILE (one conveyor) or --profiles DIR")
-    if profile is not None:
-        p = load_profile(profile)
-        return {p.id: p}
-    assert profiles is not None
-    return read_profiles(profiles)
 
 
 def run_monitor(
@@ -345,8 +324,8 @@ def register(app: typer.Typer) -> None:
         """Record a maintenance event: the conveyor's baseline restarts after it."""
         from chaintwin.diagnose.state import add_maintenance
 
-        when = _parse_at(at)
-        event = _edit(
+        when = parse_at(at)
+        event = edit_state(
             state, db, conveyor, lambda data: add_maintenance(data, conveyor, kind, by, why, when)
         )
         Console().print(
@@ -366,57 +345,9 @@ def register(app: typer.Typer) -> None:
         """Acknowledge an alarm: someone has seen it; it stays open until it closes."""
         from chaintwin.diagnose.state import acknowledge_alarm
 
-        a = _edit(state, db, None, lambda data: acknowledge_alarm(data, alarm, by, why), alarm)
+        a = edit_state(state, db, None, lambda data: acknowledge_alarm(data, alarm, by, why), alarm)
         Console().print(
             f"acknowledged alarm {safe(a.id)} ({safe(a.cause)}, {safe(a.feature)}) on "
             f"{safe(a.conveyor)}",
             highlight=False,
         )
-
-
-def _edit(
-    state: Path | None,
-    db: str | None,
-    conveyor: str | None,
-    edit: Callable[[dict[str, Any]], T],
-    alarm: str | None = None,
-) -> T:
-    """Apply a change to a state file, or to the health model in a results store."""
-    from chaintwin.diagnose.state import load_state, save_state
-
-    if state is not None and db is not None:
-        raise StoreError("give either --state (a state file) or --db (a results store), not both")
-    if state is not None:
-        data = load_state(state, missing_ok=False)
-        out = edit(data)
-        save_state(state, data)
-        return out
-    from chaintwin.store.engine import store_url
-    from chaintwin.store.store import Store
-
-    store = Store(store_url(db), create=False)
-    try:
-        if conveyor is None:
-            conveyor = store.alarm_conveyor(alarm or "")
-        return store.edit_state(conveyor, edit)
-    finally:
-        store.close()
-
-
-def _parse_at(text: str | None, option: str = "--at") -> datetime | None:
-    """A CLI option's ISO 8601 time, within the span of dates chaintwin accepts."""
-    if text is None:
-        return None
-    try:
-        at = datetime.fromisoformat(text)
-    except ValueError:
-        raise StoreError(
-            f"{option} '{text}' is not an ISO 8601 time (e.g. 2026-11-21T10:15:00Z)",
-            field=option.lstrip("-"),
-        ) from None
-    from chaintwin.diagnose.records import date_out_of_span
-
-    refused = date_out_of_span(at)
-    if refused is not None:
-        raise StoreError(f"{option} {refused}", field=option.lstrip("-"))
-    return at

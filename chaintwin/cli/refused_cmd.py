@@ -148,7 +148,7 @@ def register(app: typer.Typer) -> None:
         A file refused again keeps its refusal with the new reason; one that
         is gone keeps its refusal.
         """
-        from chaintwin.cli.monitor_cmd import load_profiles
+        from chaintwin.cli.common import load_profiles
         from chaintwin.store.engine import store_url
         from chaintwin.store.store import Store
 

@@ -160,7 +160,7 @@ def serve(
         require_extra("live", "asyncua", needed_by="--opcua")
     if live.notify_urls or live.notify_secret_file or live.notify_mail_to or live.notify_smtp:
         require_extra("live", "httpx", needed_by="the alarm notifications")
-    from chaintwin.cli.monitor_cmd import load_profiles
+    from chaintwin.cli.common import load_profiles
     from chaintwin.live.logs import setup_logging
     from chaintwin.live.service import LiveOptions, LiveService
     from chaintwin.store.engine import safe_url, store_url

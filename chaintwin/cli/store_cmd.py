@@ -15,12 +15,12 @@ from rich.progress import Progress
 from chaintwin.cli.common import (
     ColumnsOption,
     expand_recordings,
+    load_profiles,
     print_json,
     print_refused,
     printable,
     safe,
 )
-from chaintwin.cli.monitor_cmd import load_profiles
 
 if TYPE_CHECKING:
     pass

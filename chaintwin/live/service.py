@@ -604,9 +604,8 @@ class LiveService:
         """Every :data:`~.memory.TRIM_EVERY_S`: glibc's free memory handed back to the
         system (:func:`~.memory.trim`); with ``CHAINTWIN_MEMORY_LOG=1`` the memory
         logged before and after (``memory`` in the JSON log)."""
-        from chaintwin.web.trace import trace_trim
-
         from .memory import TRIM_EVERY_S, trim, usage
+        from .tracing import trace_trim
 
         logging_on = os.environ.get("CHAINTWIN_MEMORY_LOG", "") not in ("", "0")
         while not self.stop.is_set():

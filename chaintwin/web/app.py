@@ -318,11 +318,11 @@ def app_from_environment() -> FastAPI:  # pragma: no cover - used by uvicorn --f
 
     Reads ``CHAINTWIN_DB`` and optionally ``CHAINTWIN_PROFILES``.
     """
-    from chaintwin.cli.monitor_cmd import load_profiles
+    from chaintwin.read.profile import load_profiles
     from chaintwin.store.engine import store_url
 
     folder = os.environ.get("CHAINTWIN_PROFILES")
-    profiles = load_profiles(None, Path(folder)) if folder else {}
+    profiles = load_profiles(folder) if folder else {}
     app = create_app(Store(store_url(None)), profiles)
     freeze_heap(app)
     return app

@@ -24,32 +24,17 @@ from __future__ import annotations
 
 import asyncio
 import gc
-import os
-import sys
 import threading
 import time
 from typing import Any
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from chaintwin.live.tracing import slow_ms, trace_line
+
 __all__ = ["SlowTrace", "slow_ms", "watch_connections"]
 
 _LAG_PERIOD_S = 0.010
-
-
-def slow_ms() -> float | None:
-    """The threshold of ``CHAINTWIN_TRACE_SLOW_MS`` (None: tracing off)."""
-    text = os.environ.get("CHAINTWIN_TRACE_SLOW_MS", "")
-    try:
-        value = float(text)
-    except ValueError:
-        return None
-    return value if value > 0 else None
-
-
-def _line(text: str) -> None:
-    sys.stderr.write(f"trace {time.time():.3f} {text}\n")
-    sys.stderr.flush()
 
 
 class _Clock:
@@ -77,7 +62,7 @@ class _Clock:
         gen = int(info.get("generation", -1))
         if gen == 2 or ms >= self.threshold / 4:
             tracked = len(gc.get_objects(generation=2)) if gen == 2 else -1
-            _line(
+            trace_line(
                 f"gc generation={gen} ms={ms:.1f} collected={info.get('collected')} "
                 f"old_objects={tracked} frozen={gc.get_freeze_count()}"
             )
@@ -91,7 +76,7 @@ class _Clock:
                 with self._lock:
                     self.lag_ms += late
             if late >= self.threshold / 4:
-                _line(f"loop late ms={late:.1f}")
+                trace_line(f"loop late ms={late:.1f}")
 
 
 class SlowTrace:
@@ -125,17 +110,11 @@ class SlowTrace:
             ms = 1e3 * (time.perf_counter() - t0)
             if ms >= self.threshold:
                 gc_ms, lag_ms = self.clock.gc_ms - gc0, self.clock.lag_ms - lag0
-                _line(
+                trace_line(
                     f"slow {scope['method']} {scope['path']} status={status} ms={ms:.1f} "
                     f"gc_ms={gc_ms:.1f} loop_late_ms={lag_ms:.1f} "
                     f"threads={threading.active_count()}"
                 )
-
-
-def trace_trim(seconds: float) -> None:
-    """Report a ``malloc_trim`` of ``seconds`` (when tracing)."""
-    if slow_ms() is not None:
-        _line(f"malloc_trim ms={1e3 * seconds:.1f}")
 
 
 def watch_connections(engine: Any) -> None:
@@ -153,4 +132,4 @@ def watch_connections(engine: Any) -> None:
         t0 = started.pop(id(record), None)
         ms = -1.0 if t0 is None else 1e3 * (time.perf_counter() - t0)
         status = engine.pool.status() if hasattr(engine.pool, "status") else ""
-        _line(f"db connect ms={ms:.1f} pool: {status}")
+        trace_line(f"db connect ms={ms:.1f} pool: {status}")

@@ -27,14 +27,15 @@ $(VENV)/.installed-dev: pyproject.toml | $(BIN)/python
 demo: $(VENV)/.installed-run
 	$(BIN)/chaintwin demo
 
-## test: formatter check, linter, type checker, tests and doctests (warnings as errors)
-## with a coverage floor; installs PostgreSQL and Chromium if missing (the store's and the
-## dashboard's tests use them)
+## test: formatter check, linter, type checker, the layers contract (docs/design.md),
+## tests and doctests (warnings as errors) with a coverage floor; installs PostgreSQL and
+## Chromium if missing (the store's and the dashboard's tests use them)
 test: $(VENV)/.installed-dev
 	bash scripts/ensure_test_tools.sh
 	$(BIN)/ruff format --check $(SOURCES)
 	$(BIN)/ruff check $(SOURCES)
 	$(BIN)/mypy chaintwin
+	$(BIN)/lint-imports --no-cache
 	$(BIN)/pytest -q --cov --cov-report=term:skip-covered
 
 format: $(VENV)/.installed-dev

@@ -1,8 +1,9 @@
 """chaintwin: a digital twin of gearmotor-driven chain belt conveyors.
 
-Built only on what the frequency inverter records. Data flows one way:
-read → validate → identify/weigh → diagnose → store → report; each stage is
-a subpackage with plain typed inputs and outputs.
+Built only on what the frequency inverter records. Each stage is a
+subpackage with plain typed inputs and outputs; a subpackage imports only
+those below it, in the order written in docs/design.md ("Layers") and
+checked by ``make test``.
 
 The names below are imported on first use (PEP 562), so that importing one
 part (``chaintwin.errors``, the command line's entry point, the worker side of

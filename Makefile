@@ -6,7 +6,7 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 SOURCES := chaintwin tests benchmarks scripts
 
-.PHONY: demo test check format bench clean
+.PHONY: demo test check format bench docs clean
 
 $(BIN)/python:
 	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "chaintwin needs Python >= 3.11"'
@@ -36,7 +36,12 @@ test: $(VENV)/.installed-dev
 	$(BIN)/ruff check $(SOURCES)
 	$(BIN)/mypy chaintwin
 	$(BIN)/lint-imports --no-cache
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
 	$(BIN)/pytest -q --cov --cov-report=term:skip-covered
+
+## docs: the documentation site in site/ (mkdocs.yml; `$(BIN)/mkdocs serve` to read it live)
+docs: $(VENV)/.installed-dev
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
 
 format: $(VENV)/.installed-dev
 	$(BIN)/ruff format $(SOURCES)
@@ -55,4 +60,4 @@ bench: $(VENV)/.installed-dev
 	$(BIN)/python benchmarks/bench_opcua.py
 
 clean:
-	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache .hypothesis
+	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache .hypothesis site

@@ -53,9 +53,9 @@ class ChaintwinError(Exception):
 
     Parameters
     ----------
-    message : str
-        What is wrong and what to do; when ``field`` is given it mentions the
-        field by that name.
+    *args : object
+        The message: what is wrong and what to do; when ``field`` is given it
+        mentions the field by that name.
     field : str, optional
         The setting or argument the error is about, by its name in the
         library (a keyword argument, a profile or calibration key).

@@ -102,6 +102,12 @@ def _now() -> str:
 class Store:
     """A results store.
 
+    The database is recognised through a read-only connection before it is
+    opened for writing (:func:`~.recognise.recognise`: SQLite's header and
+    ``PRAGMA quick_check`` up to :data:`~.engine.QUICK_CHECK_MAX_MB`, the
+    tables and schema revision always): a damaged file or another program's
+    database is refused, changed in nothing (not even switched to WAL).
+
     Parameters
     ----------
     url : str
@@ -122,12 +128,6 @@ class Store:
     sqlite_cache_kib : int, optional
         Each SQLite connection's page cache at most, KiB (SQLite's default
         2 000); ``serve`` keeps it small, its memory bounded.
-
-    The database is recognised through a read-only connection before it is
-    opened for writing (:func:`~.recognise.recognise`: SQLite's header and
-    ``PRAGMA quick_check`` up to :data:`~.engine.QUICK_CHECK_MAX_MB`, the
-    tables and schema revision always): a damaged file or another program's
-    database is refused, changed in nothing (not even switched to WAL).
 
     Raises
     ------

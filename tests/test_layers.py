@@ -56,7 +56,6 @@ def test_every_part_of_the_package_is_in_a_layer() -> None:
     package = ROOT / "chaintwin"
     parts = {p.name for p in package.iterdir() if (p / "__init__.py").is_file()}
     parts |= {p.stem for p in package.glob("*.py") if p.stem not in ("__init__", "__main__")}
-    parts -= {"examples"}  # data files only
     assert parts == listed
 
 

@@ -50,7 +50,10 @@ def _cell(value: Any) -> str:
     else:
         text = str(value)
     text = " ".join(text.split())
-    return text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;").replace("|", "\\|")
+    if not (len(text) > 1 and text.startswith("`") and text.endswith("`")):
+        # a code span shows < and & as they are; elsewhere they are HTML
+        text = text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+    return text.replace("|", "\\|")
 
 
 def _table(header: list[str], rows: list[list[Any]]) -> list[str]:

@@ -30,8 +30,10 @@ def test_error_tree_has_one_root() -> None:
 
 
 SUBPACKAGES = (
+    "calibrating",
     "diagnose",
     "identify",
+    "ingest",
     "model",
     "read",
     "report",

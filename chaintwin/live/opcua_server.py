@@ -25,6 +25,7 @@ import contextlib
 import hmac
 import logging
 import socket
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -270,6 +271,8 @@ class ResultsServer:
     users: TokenUsers | None = None
     on_update: Callable[[str], None] | None = None
     """Called with a conveyor id after its values were written (tests, benchmarks)."""
+    ready: threading.Event = field(default_factory=threading.Event)
+    """Set once the server listens (other threads may wait on it)."""
     _known: dict[str, _Known] = field(default_factory=dict)
     _nodes: set[str] = field(default_factory=set)
     _stamp: tuple[Any, ...] | None = None
@@ -603,6 +606,7 @@ class ResultsServer:
                 "give a free port"
             ) from None
         log.info("OPC UA server at %s (%s)", self.endpoint, self.security)
+        self.ready.set()
         try:
             while not stop.is_set():
                 with contextlib.suppress(asyncio.TimeoutError):
@@ -616,6 +620,7 @@ class ResultsServer:
                 except Exception as exc:  # SQLAlchemy's: the store away for a moment
                     log.error("OPC UA server: cannot read the store (%s)", exc)
         finally:
+            self.ready.clear()
             await server.stop()
 
 

@@ -483,3 +483,94 @@ def test_serve_refuses_a_bad_opcua_endpoint_naming_the_option(
     )  # fmt: skip
     err = capsys.readouterr().err
     assert code == 2 and "--opcua-security sign" in err
+
+
+def _wait_for_line(log: Path, text: str, proc: Any, seconds: float = 120.0) -> bool:
+    """Whether ``text`` appears in the log before the process ends (or ``seconds`` pass)."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        if text in log.read_text(errors="replace"):
+            return True
+        if proc.poll() is not None:
+            return text in log.read_text(errors="replace")
+        time.sleep(0.2)
+    return False
+
+
+def test_serve_runs_one_opcua_server_per_store_and_another_takes_over(
+    plant: Plant, tmp_path: Path
+) -> None:
+    """Two ``serve`` processes on one store: one serves OPC UA (the lease); when it stops
+    the other takes over. ``--opcua-security none`` with anonymous access, as asked for."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=str(root), OPENBLAS_NUM_THREADS="1")
+    ports = [_free_port(), _free_port()]
+    procs, logs = [], []
+    for k, port in enumerate(ports):
+        log = tmp_path / f"serve-{k}.log"
+        logs.append(log)
+        with log.open("wb") as err:
+            procs.append(
+                subprocess.Popen(
+                    [
+                        sys.executable,
+                        "-m",
+                        "chaintwin",
+                        "serve",
+                        "--db",
+                        plant.url,
+                        "--no-web",
+                        "--lease-s",
+                        "3",
+                        "--opcua-endpoint",
+                        f"opc.tcp://127.0.0.1:{port}",
+                        "--opcua-security",
+                        "none",
+                        "--opcua-allow-anonymous",
+                    ],
+                    stdout=subprocess.DEVNULL,
+                    stderr=err,
+                    env=env,
+                    cwd=tmp_path,
+                )
+            )
+
+    async def conveyor_id(port: int) -> str:
+        async with Client(f"opc.tcp://127.0.0.1:{port}", timeout=10) as client:
+            ns = await client.get_namespace_index(NAMESPACE_URI)
+            node = client.get_node(_nid(ns, node_id(PROFILE.id, "Identification/ConveyorId")))
+            return str(await node.read_value())
+
+    try:
+        up = [
+            _wait_for_line(log, "OPC UA server at", p, 0.1)
+            for log, p in zip(logs, procs, strict=True)
+        ]
+        while not any(up):
+            up = [
+                _wait_for_line(log, "OPC UA server at", p, 1)
+                for log, p in zip(logs, procs, strict=True)
+            ]
+            assert all(p.poll() is None for p in procs), [log.read_text() for log in logs]
+        first = up.index(True)
+        other = 1 - first
+        assert asyncio.run(conveyor_id(ports[first])) == PROFILE.id
+        assert "OPC UA server at" not in logs[other].read_text()  # it stands by
+        procs[first].send_signal(signal.SIGTERM)
+        assert procs[first].wait(60) == 0
+        assert _wait_for_line(logs[other], "OPC UA server at", procs[other])
+        assert asyncio.run(conveyor_id(ports[other])) == PROFILE.id
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+                try:
+                    p.wait(60)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+                    p.wait(10)

@@ -146,7 +146,9 @@ class TokenUsers(UserManager):
         certificate: Any = None,
     ) -> User | None:
         """The session's user, or None (refused)."""
-        if username is None and password is None and certificate is None:
+        # ``certificate`` is the secure channel's client certificate (the server offers
+        # no certificate user tokens): a session without user name and password is anonymous
+        if not username and not password:
             if self.anonymous:
                 return User(role=UserRole.User, name="anonymous")
             self.refused += 1

@@ -210,6 +210,24 @@ def test_unit_ids_are_the_unece_codes_as_opc_ua_packs_them() -> None:
     assert UNITS["deg"].unit_id == (ord("D") << 8) | ord("D")
 
 
+def test_an_empty_trust_list_trusts_no_one_and_a_new_certificate_counts_at_once(
+    plant: Plant, tmp_path: Path
+) -> None:
+    from asyncua.crypto.uacrypto import load_certificate
+
+    from chaintwin.live.opcua_server import CertificateFolder
+
+    folder = CertificateFolder(tmp_path / "pki")
+    folder.make()
+    server = ResultsServer(plant.store, "opc.tcp://127.0.0.1:4840", cert_dir=folder.root)
+    assert asyncio.run(server._load_trust(folder)) is None  # nothing trusted, no error
+    cert_path, _key, _uri = _certificate(tmp_path, "panel")
+    cert = asyncio.run(load_certificate(cert_path))
+    shutil.copy(cert_path, folder.trusted / "panel.der")
+    trust = asyncio.run(server._load_trust(folder))
+    assert trust is not None and trust.is_trusted(cert)
+
+
 # ------------------------------------------------------------------ a real client
 def test_browse_read_values_units_and_health(plant: Plant, running: Running) -> None:
     row = next(r for r in fleet_rows(plant.store) if r["id"] == PROFILE.id)

@@ -34,6 +34,7 @@ from typing import Any, cast
 from urllib.parse import urlparse
 
 from asyncua import ua
+from asyncua.common.utils import ServiceError
 from asyncua.crypto.permission_rules import User, UserRole
 from asyncua.server.server import Server
 from asyncua.server.user_managers import UserManager
@@ -364,43 +365,50 @@ class ResultsServer:
                 f"--opcua-cert-dir {folder.root}: cannot make or read the server's certificate "
                 f"({exc}); remove own/ to have a new one made"
             ) from None
-        await self._load_trust(folder)
-        validator = CertificateValidator(
-            CertificateValidatorOptions.TRUSTED_VALIDATION
-            | CertificateValidatorOptions.PEER_CLIENT,
-        )
+        checks = CertificateValidator(
+            CertificateValidatorOptions.EXT_VALIDATION | CertificateValidatorOptions.PEER_CLIENT
+        )  # time, application URI, key usage: the trust list is checked below
 
         async def validate(cert: Any, app: ua.ApplicationDescription) -> None:
-            await self._load_trust(folder)  # a certificate moved to trusted/ counts at once
-            validator._trust_store = self._trust
             try:
-                await validator.validate(cert, app)
-            except Exception:
+                await checks.validate(cert, app)
+                trust = await self._load_trust(folder)  # a certificate just trusted counts
+                if trust is None or not trust.is_trusted(cert):
+                    raise ServiceError(StatusCodes.BadCertificateUntrusted)
+            except ServiceError as exc:
                 _reject(folder, cert)
                 log.warning(
-                    "OPC UA client certificate of %s refused (not in %s; copied to %s)",
+                    "OPC UA client certificate of %s refused (%s); copied to %s: move it to %s "
+                    "to trust it",
                     app.ApplicationUri,
-                    folder.trusted,
+                    ua.StatusCode(ua.UInt32(exc.code)).name,
                     folder.rejected,
+                    folder.trusted,
                 )
                 raise
 
         server.set_certificate_validator(validate)
 
-    async def _load_trust(self, folder: CertificateFolder) -> None:
+    async def _load_trust(self, folder: CertificateFolder) -> Any:
+        """The trust list of ``trusted/certs``, read again when the folder changed (None:
+        it holds no certificate, and none is trusted)."""
         from asyncua.crypto.truststore import TrustStore
 
         try:
-            mtime = max(
-                [folder.trusted.stat().st_mtime]
-                + [p.stat().st_mtime for p in folder.trusted.iterdir()]
-            )
+            files = [p for p in folder.trusted.iterdir() if p.is_file()]
+            mtime = max([folder.trusted.stat().st_mtime] + [p.stat().st_mtime for p in files])
         except OSError:
-            mtime = -1.0
-        if self._trust is None or mtime != self._trust_mtime:
-            store = TrustStore([folder.trusted], [])
-            await store.load()
-            self._trust, self._trust_mtime = store, mtime
+            files, mtime = [], -1.0
+        if mtime != self._trust_mtime:
+            trust = None
+            if files:
+                trust = TrustStore([folder.trusted], [])
+                try:
+                    await trust.load()
+                except ValueError:  # no certificate could be read
+                    trust = None
+            self._trust, self._trust_mtime = trust, mtime
+        return self._trust
 
     async def _add(self, items: list[ua.AddNodesItem]) -> None:
         assert self.server is not None

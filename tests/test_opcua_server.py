@@ -515,6 +515,7 @@ def _wait_for_line(log: Path, text: str, proc: Any, seconds: float = 120.0) -> b
     return False
 
 
+@pytest.mark.slow
 def test_serve_runs_one_opcua_server_per_store_and_another_takes_over(
     plant: Plant, tmp_path: Path
 ) -> None:

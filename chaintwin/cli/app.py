@@ -80,6 +80,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "chaintwin.cli.drive_sim_cmd",
     "chaintwin.cli.refused_cmd",
     "chaintwin.cli.verify_cmd",
+    "chaintwin.cli.opcua_cmd",
 )
 """The modules whose ``register(app)`` adds their commands, in the order ``--help`` lists them.
 

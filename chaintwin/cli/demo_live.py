@@ -6,6 +6,7 @@ an asyncua server on a port of its own) that publishes a scope every few
 seconds; ``white-belt-01``, healthy in the batch, now develops a rail
 friction rise within a minute. The live service (``chaintwin serve
 --opcua``) follows the drives into the same store with the dashboard on,
+serves the results over OPC UA (``--opcua-endpoint``, a user printed)
 and sends its alarm notifications, signed, to a small webhook receiver
 running beside it that checks each signature and prints what arrived.
 """
@@ -139,6 +140,33 @@ def simulated_drives(ids: list[str], console: Console) -> Iterator[dict[str, str
         loop.close()
 
 
+OPCUA_PORT = 4840
+"""The OPC UA server's port in the demo (OPC UA's registered port), when free."""
+
+
+def _port_or_free(port: int) -> int:
+    """``port`` when it is free on 127.0.0.1, else one that is."""
+    with socket.socket() as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return _free_port()
+    return port
+
+
+def _opcua_user(out: Path) -> tuple[str, str]:
+    """A new viewer token for OPC UA clients on the demo's store: (user name, password)."""
+    from chaintwin.store.access import create_token, list_tokens
+    from chaintwin.store.store import Store
+
+    store = Store(f"sqlite:///{out / 'plant.db'}")
+    try:
+        name = f"demo-opcua-{len(list_tokens(store)) + 1}"
+        return name, create_token(store, name, "viewer")
+    finally:
+        store.close()
+
+
 def run_live(out: Path, *, port: int, console: Console) -> None:
     """Follow the demo's conveyors as live drives into the demo's store until Ctrl-C.
 
@@ -157,6 +185,9 @@ def run_live(out: Path, *, port: int, console: Console) -> None:
     secret_file.write_bytes(secret + b"\n")
     db = f"sqlite:///{out / 'plant.db'}"
     token = demo_token(out)
+    opcua_user, opcua_token = _opcua_user(out)
+    opcua_endpoint = f"opc.tcp://127.0.0.1:{_port_or_free(OPCUA_PORT)}"
+    pki = out / "opcua-pki"
     with webhook_receiver(secret, console) as hook, simulated_drives(ids, console) as endpoints:
         config = out / "drives.yaml"
         config.write_text(
@@ -168,7 +199,16 @@ def run_live(out: Path, *, port: int, console: Console) -> None:
             f"[bold]live[/]: drives publish a scope every {INTERVAL_S:g} s "
             f"({', '.join(f'{c}: {LIVE_FAULTS[c][0]}' for c in ids)}); the service follows "
             f"them ({config}) into {db} and notifies {hook}.\nOpen http://127.0.0.1:{port}/ "
-            f"and log in with this viewer token:\n{token}\nCtrl-C stops everything.",
+            f"and log in with this viewer token:\n{token}\n",
+            highlight=False,
+            soft_wrap=True,
+        )
+        console.print(
+            f"[bold]OPC UA[/]: the results at {opcua_endpoint} (Basic256Sha256, sign and "
+            f"encrypt); user [bold]{opcua_user}[/], password:\n{opcua_token}\nA client's "
+            f"certificate is refused the first time and kept in {pki / 'rejected' / 'certs'}: "
+            f"move it to {pki / 'trusted' / 'certs'} and connect again. Browse Objects > "
+            "Conveyors (docs/opcua-server.md).\nCtrl-C stops everything.",
             highlight=False,
             soft_wrap=True,
         )
@@ -184,5 +224,7 @@ def run_live(out: Path, *, port: int, console: Console) -> None:
                 notify_secret_file=secret_file,
                 public_url=f"http://127.0.0.1:{port}",
                 settle_s=0.0,
+                opcua_endpoint=opcua_endpoint,
+                opcua_cert_dir=pki,
             ),
         )

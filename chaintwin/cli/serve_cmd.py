@@ -6,7 +6,7 @@ import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.console import Console
@@ -108,6 +108,14 @@ class LiveArgs:
     notify_smtp_login_file: Path | None = None
     escalate_after_min: float | None = None
     """Notify again (``escalated``) of an alarm unacknowledged this many minutes after it opened."""
+    opcua_endpoint: str | None = None
+    """``opc.tcp://HOST:PORT`` of the OPC UA server of the results (None: no server)."""
+    opcua_security: str = "basic256sha256"
+    """``basic256sha256`` (sign and encrypt) or ``none``."""
+    opcua_cert_dir: Path | None = None
+    """The OPC UA server's certificate and trust lists (default ``opcua-pki``)."""
+    opcua_allow_anonymous: bool = False
+    """Let OPC UA sessions in without a user."""
 
 
 def system_malloc_command(
@@ -158,6 +166,9 @@ def serve(
         require_extra("live", "watchfiles", needed_by="--watch")
     if live.opcua is not None:
         require_extra("live", "asyncua", needed_by="--opcua")
+    if live.opcua_endpoint is not None:
+        require_extra("live", "asyncua", needed_by="--opcua-endpoint")
+        _check_opcua_server(live)
     if live.notify_urls or live.notify_secret_file or live.notify_mail_to or live.notify_smtp:
         require_extra("live", "httpx", needed_by="the alarm notifications")
     from chaintwin.cli.common import load_profiles
@@ -234,6 +245,8 @@ def serve(
                 service.add_folder(folder)
             if drives is not None:
                 service.add_opcua(drives)
+            if live.opcua_endpoint is not None:
+                _add_results_server(service, store, live)
             config = None
             if not live.no_web:
                 app = create_app(
@@ -259,6 +272,8 @@ def serve(
                 followed += [f"{d.conveyor} at {d.endpoint}" for d in drives.drives]
             following = ", ".join(followed) or "no folders or drives"
             where = "no web" if live.no_web else f"{scheme}://{host}:{port}/ (API docs at /docs)"
+            if live.opcua_endpoint is not None:
+                where += f"; OPC UA at {live.opcua_endpoint} ({live.opcua_security})"
             print(
                 f"chaintwin serve: {safe_url(url)} at {where}; following {printable(following)}; "
                 "Ctrl-C or SIGTERM stops it",
@@ -279,6 +294,53 @@ def serve(
         asyncio.run(main())
     finally:
         store.close()
+
+
+def _check_opcua_server(live: LiveArgs) -> None:
+    """Refuse ``--opcua-*`` options the OPC UA server could not use, naming the option.
+
+    Raises
+    ------
+    ConnectorError
+        A bad endpoint or security; ``--opcua-cert-dir`` that is a file.
+    """
+    from chaintwin.errors import ConnectorError
+    from chaintwin.live.opcua_server import SECURITY, parse_endpoint
+
+    assert live.opcua_endpoint is not None
+    parse_endpoint(live.opcua_endpoint)
+    if live.opcua_security not in SECURITY:
+        raise ConnectorError(
+            f"--opcua-security {live.opcua_security}: give one of {', '.join(SECURITY)}"
+        )
+    if live.opcua_cert_dir is not None and live.opcua_cert_dir.is_file():
+        raise ConnectorError(
+            f"--opcua-cert-dir {live.opcua_cert_dir}: is a file; give a folder (made if missing)"
+        )
+
+
+def _add_results_server(service: Any, store: Store, live: LiveArgs) -> None:
+    """Run the OPC UA server of the results under the lease ``opcua-server``: with several
+    ``serve`` processes on one store, one of them serves it (another takes over when
+    that one stops)."""
+    from chaintwin.live.opcua_server import LEASE, ResultsServer
+    from chaintwin.live.service import Source
+
+    assert live.opcua_endpoint is not None
+    server = ResultsServer(
+        store,
+        live.opcua_endpoint,
+        security=live.opcua_security,
+        cert_dir=None
+        if live.opcua_security == "none"
+        else (live.opcua_cert_dir or Path(DEFAULT_OPCUA_CERT_DIR)),
+        anonymous=live.opcua_allow_anonymous,
+    )
+    service.sources.append(Source(LEASE, "opcua_server", server.run))
+
+
+DEFAULT_OPCUA_CERT_DIR = "opcua-pki"
+"""``--opcua-cert-dir`` when not given (in the current folder)."""
 
 
 def _check_proxies(given: str) -> None:
@@ -479,6 +541,35 @@ def register(app: typer.Typer) -> None:
                 "after it opened.",
             ),
         ] = None,
+        opcua_endpoint: Annotated[
+            str | None,
+            typer.Option(
+                "--opcua-endpoint",
+                help="Serve the results over OPC UA at opc.tcp://HOST:PORT (docs/opcua-server.md).",
+            ),
+        ] = None,
+        opcua_security: Annotated[
+            str,
+            typer.Option(
+                "--opcua-security",
+                help="basic256sha256 (sign and encrypt) or none (plain: only when asked for).",
+            ),
+        ] = "basic256sha256",
+        opcua_cert_dir: Annotated[
+            Path | None,
+            typer.Option(
+                "--opcua-cert-dir",
+                help="The OPC UA server's own certificate (made on first start) and trust "
+                "lists [opcua-pki].",
+            ),
+        ] = None,
+        opcua_allow_anonymous: Annotated[
+            bool,
+            typer.Option(
+                "--opcua-allow-anonymous",
+                help="Let OPC UA clients in without a user (default: a token is needed).",
+            ),
+        ] = False,
     ) -> None:
         """Serve the dashboard and the HTTP API over a results store; follow live sources.
 
@@ -506,6 +597,10 @@ def register(app: typer.Typer) -> None:
             notify_smtp_starttls=notify_smtp_starttls,
             notify_smtp_login_file=notify_smtp_login_file,
             escalate_after_min=escalate_after_min,
+            opcua_endpoint=opcua_endpoint,
+            opcua_security=opcua_security,
+            opcua_cert_dir=opcua_cert_dir,
+            opcua_allow_anonymous=opcua_allow_anonymous,
         )
         serve(
             db, profiles, host, port, max_upload_mb, ssl_certfile, ssl_keyfile, live,

@@ -153,12 +153,12 @@ def build_store(work: Path, conveyors: int, history: int, extra: int) -> tuple[s
     from sqlalchemy import select
     from sqlalchemy.orm import Session
 
+    from chaintwin.calibrating import calibrate
     from chaintwin.diagnose.records import MonitorSettings
-    from chaintwin.identify.calibrating import calibrate
+    from chaintwin.ingest import ingest
     from chaintwin.read.profile import load_profile
     from chaintwin.simulate.faults import Fault
     from chaintwin.simulate.fleet import generate
-    from chaintwin.store.ingest import ingest
     from chaintwin.store.schema import DerivedHealthRow, MonitorStateRow
     from chaintwin.store.store import Store
     from chaintwin.validate import load_recording
@@ -218,11 +218,11 @@ def run(args: argparse.Namespace, work: Path) -> None:
     from sqlalchemy import select
     from sqlalchemy.orm import Session
 
+    from chaintwin.ingest import ingest
     from chaintwin.read.profile import load_profile
-    from chaintwin.store.access import create_token
-    from chaintwin.store.ingest import ingest
     from chaintwin.store.schema import ResultRow
     from chaintwin.store.store import Store
+    from chaintwin.web.access import create_token
 
     url, held = build_store(work, args.conveyors, args.history, args.recordings)
     profile = load_profile(ROOT / "chaintwin" / "examples" / "profiles" / "white-belt-01.yaml")

@@ -26,8 +26,9 @@ from urllib.parse import unquote
 import pytest
 from conftest import REFERENCE_PROFILE, _free_port
 
+from chaintwin.calibrating import calibrate
 from chaintwin.diagnose.records import MonitorSettings
-from chaintwin.identify.calibrating import calibrate
+from chaintwin.ingest import ingest
 from chaintwin.live.opcua_nodes import (
     DEVICE_HEALTH,
     NAMESPACE_URI,
@@ -39,12 +40,11 @@ from chaintwin.live.opcua_nodes import (
 from chaintwin.read.profile import load_profile
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate
-from chaintwin.store.access import create_token, revoke_token
-from chaintwin.store.ingest import ingest
 from chaintwin.store.queries import fleet_rows
 from chaintwin.store.store import Store
 from chaintwin.store.verdicts import conveyor_verdict
 from chaintwin.validate import load_recording
+from chaintwin.web.access import create_token, revoke_token, verify_token
 
 pytest.importorskip("asyncua")
 
@@ -157,6 +157,7 @@ def running(plant: Plant, tmp_path_factory: pytest.TempPathFactory) -> Iterator[
         plant.store,
         endpoint,
         cert_dir=cert_dir,
+        token_check=verify_token,
         on_update=lambda c: updates.put((c, time.time())),
     )
     loop = Loop()

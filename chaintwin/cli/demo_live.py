@@ -156,8 +156,8 @@ def _port_or_free(port: int) -> int:
 
 def _opcua_user(out: Path) -> tuple[str, str]:
     """A new viewer token for OPC UA clients on the demo's store: (user name, password)."""
-    from chaintwin.store.access import create_token, list_tokens
     from chaintwin.store.store import Store
+    from chaintwin.web.access import create_token, list_tokens
 
     store = Store(f"sqlite:///{out / 'plant.db'}")
     try:

@@ -325,6 +325,7 @@ def _add_results_server(service: Any, store: Store, live: LiveArgs) -> None:
     that one stops)."""
     from chaintwin.live.opcua_server import LEASE, ResultsServer
     from chaintwin.live.service import Source
+    from chaintwin.web.access import verify_token
 
     assert live.opcua_endpoint is not None
     server = ResultsServer(
@@ -335,6 +336,7 @@ def _add_results_server(service: Any, store: Store, live: LiveArgs) -> None:
         if live.opcua_security == "none"
         else (live.opcua_cert_dir or Path(DEFAULT_OPCUA_CERT_DIR)),
         anonymous=live.opcua_allow_anonymous,
+        token_check=verify_token,
     )
     service.sources.append(Source(LEASE, "opcua_server", server.run))
 

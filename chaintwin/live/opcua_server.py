@@ -30,7 +30,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, Protocol, cast
 from urllib.parse import urlparse
 
 from asyncua import ua
@@ -44,7 +44,6 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from chaintwin.errors import ConnectorError, StoreError
-from chaintwin.store.access import verify_token
 from chaintwin.store.schema import (
     AlarmRow,
     ConveyorRow,
@@ -124,6 +123,24 @@ def parse_endpoint(endpoint: str) -> tuple[str, int]:
     return parsed.hostname, port
 
 
+class TokenInfoLike(Protocol):
+    """What the token check answers: the token's name and role."""
+
+    @property
+    def name(self) -> str:
+        """The token's name (the OPC UA user name)."""
+
+    @property
+    def role(self) -> str:
+        """The token's role (viewer, operator or admin)."""
+
+
+TokenCheck = Callable[[Store, str], TokenInfoLike | None]
+"""The active token matching a secret, or None: the web's token check
+(``chaintwin.web.access.verify_token``), handed in by whoever starts the server
+(the layers keep the live service below the web)."""
+
+
 class TokenUsers(UserManager):
     """The store's tokens as OPC UA users: user name = token name, password = the token.
 
@@ -133,8 +150,11 @@ class TokenUsers(UserManager):
     Anonymous sessions only with ``anonymous``.
     """
 
-    def __init__(self, store: Store, anonymous: bool = False) -> None:
+    def __init__(
+        self, store: Store, token_check: TokenCheck | None, anonymous: bool = False
+    ) -> None:
         self.store = store
+        self.token_check = token_check
         self.anonymous = anonymous
         self.refused = 0
         """Sessions refused so far."""
@@ -157,8 +177,11 @@ class TokenUsers(UserManager):
         if not username or not password:
             self.refused += 1
             return None
+        if self.token_check is None:  # a server without users (the nodeset export)
+            self.refused += 1
+            return None
         try:
-            info = verify_token(self.store, str(password))
+            info = self.token_check(self.store, str(password))
         except Exception as exc:  # the store is away: refused, and said why
             log.error("OPC UA login of %r: cannot check the token (%s)", username, exc)
             info = None
@@ -259,6 +282,9 @@ class ResultsServer:
         The certificate folder (:class:`CertificateFolder`).
     anonymous : bool
         Let sessions in without a user.
+    token_check : TokenCheck or None
+        How a user name and password are checked against the store's tokens
+        (None: no user gets in; anonymous sessions only with ``anonymous``).
     poll_s : float
         Seconds between two looks at the store.
     """
@@ -268,6 +294,7 @@ class ResultsServer:
     security: str = "basic256sha256"
     cert_dir: Path | None = None
     anonymous: bool = False
+    token_check: TokenCheck | None = None
     poll_s: float = POLL_S
     server: Server | None = None
     ns: int = 0
@@ -297,7 +324,7 @@ class ResultsServer:
     # ------------------------------------------------------------ set-up
     async def build(self) -> Server:
         """The asyncua server with its security and namespace, not yet listening."""
-        self.users = TokenUsers(self.store, self.anonymous)
+        self.users = TokenUsers(self.store, self.token_check, self.anonymous)
         server = Server(user_manager=self.users)
         await server.init()
         server.set_endpoint(self.endpoint)

@@ -901,7 +901,7 @@ def test_a_conveyors_page_with_more_results_than_its_bound_shows_the_same(
     served: Served, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     from chaintwin.report.data import conveyor_data
-    from chaintwin.web import api
+    from chaintwin.web.routes import conveyors as api
 
     browser = served.client()
     login = browser.post("/login", data={"token": served.tokens["viewer"]})

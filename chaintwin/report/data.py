@@ -319,6 +319,7 @@ def conveyor_data(
     max_points: int | None = None,
     latest: bool = True,
     stored_forecasts: bool = False,
+    known_verdict: Verdict | None = None,
 ) -> ConveyorData:
     """Gather a conveyor's page from the store.
 
@@ -348,6 +349,10 @@ def conveyor_data(
         since (the web pages: ``summary["forecasts_as_of"]`` says how far
         behind); False: fit them here, as the monitor says them (the
         reports; nothing is written to the store).
+    known_verdict : Verdict, optional
+        The conveyor's verdict when the caller keeps it per version of the
+        health model (:class:`~chaintwin.store.verdicts.VerdictCache`, the web
+        service); None: worked out here from the model.
 
     Raises
     ------
@@ -426,7 +431,7 @@ def conveyor_data(
         notes=notes,
         total=total,
         represents=represents,
-        verdict=verdict_of(judged),
+        verdict=verdict_of(judged) if known_verdict is None else known_verdict,
     )
     if not latest and waterfall <= 0:
         return data

@@ -136,3 +136,39 @@ def test_schemathesis_finds_nothing_over_every_get_operation(
         else:
             formats.STRING_FORMATS["date-time"] = before
     assert len(checked) == 12, checked  # every JSON GET operation
+
+
+def test_every_operation_but_health_needs_its_role(base: tuple[str, dict[str, str]]) -> None:
+    """The role dependency: no token 401, too low a role 403, the role itself answered."""
+    import httpx
+
+    url, tokens = base
+    document = httpx.get(f"{url}/openapi.json", timeout=30).json()
+    needs = {
+        "/api/v1/tokens": "admin",
+        "/api/v1/audit": "admin",
+    }
+    real = {"{conveyor_id}": BELT, "{alarm_id}": "none", "{name}": "none"}
+    asked = 0
+    for path, operations in document["paths"].items():
+        for method in operations:
+            concrete = path
+            for key, value in real.items():
+                concrete = concrete.replace(key, value)
+            concrete = concrete.replace("{recording_id}", "0" * 64)
+            if path == "/api/v1/health":
+                continue
+            anonymous = httpx.request(method, url + concrete, timeout=30)
+            assert anonymous.status_code == 401, (method, path, anonymous.text)
+            assert anonymous.json()["error"]["code"] == "unauthorized"
+            role = needs.get(path, "viewer" if method == "get" else "maintainer")
+            if path.startswith("/api/v1/tokens"):
+                role = "admin"
+            lower = {"viewer": None, "maintainer": "viewer", "admin": "maintainer"}[role]
+            if lower is not None:
+                headers = {"Authorization": f"Bearer {tokens[lower]}"}
+                refused = httpx.request(method, url + concrete, headers=headers, timeout=30)
+                assert refused.status_code == 403, (method, path, lower, refused.text)
+                assert f"this needs the role {role}" in refused.json()["error"]["message"]
+            asked += 1
+    assert asked >= 22

@@ -30,6 +30,11 @@ browser does (sending back the ETag), the fleet without the ETag, and the
 page of 100 recordings; the p99 of those requests and its ratio to the
 reference median (target within 20x).
 
+With ``--baseline-code DIR`` (another checkout, e.g. the commit before a
+change) each store is measured three times in the same run, its server run
+from this code, from ``DIR``, and from this code again, and each row's
+ratio of this code's median to the baseline's is printed (a change's cost).
+
 With ``--compare-ingest`` it also ingests the fault fleet's recordings into
 fresh SQLite stores without and with the forecasts' refit after ingest
 (``ingest(refit=False)``: the ingest as it was before forecasts were kept;
@@ -320,7 +325,12 @@ def reuse(url: str) -> str:
 
 
 def measure(
-    url: str, args: argparse.Namespace, faults: FaultFleet | None, *, built_before: bool = False
+    url: str,
+    args: argparse.Namespace,
+    faults: FaultFleet | None,
+    *,
+    built_before: bool = False,
+    code: Path | None = None,
 ) -> dict[str, Any]:
     t0 = time.perf_counter()
     token = reuse(url) if built_before else build(url, args.conveyors, args.results)
@@ -331,6 +341,8 @@ def measure(
         ingested = {"seconds": seconds, "recordings": n}
     port = free_port()
     env = os.environ | {"OPENBLAS_NUM_THREADS": "1"}
+    if code is not None:  # the server runs another checkout's chaintwin
+        env["PYTHONPATH"] = str(code)
     if args.trace_ms:
         env["CHAINTWIN_TRACE_SLOW_MS"] = str(args.trace_ms)
     log = open(args.server_log, "ab") if args.server_log else None  # noqa: SIM115
@@ -421,6 +433,25 @@ def measure(
     }
 
 
+def both(
+    name: str,
+    url: str,
+    args: argparse.Namespace,
+    faults: FaultFleet | None,
+    *,
+    built_before: bool = False,
+) -> dict[str, dict[str, Any]]:
+    """The store measured with this code and, with ``--baseline-code``, with that code's
+    server too (the same store, one after the other; the rows' ratios printed)."""
+    out = {name: measure(url, args, faults, built_before=built_before)}
+    if args.baseline_code is not None:
+        out[f"{name}, baseline code"] = measure(
+            url, args, faults, built_before=True, code=args.baseline_code
+        )
+        out[f"{name}, this code again"] = measure(url, args, faults, built_before=True)
+    return out
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--conveyors", type=int, default=200)
@@ -458,6 +489,13 @@ def main() -> int:
         help="also time the fault fleet's ingest without and with the forecasts' refit",
     )
     parser.add_argument("--compare-rounds", type=int, default=2)
+    parser.add_argument(
+        "--baseline-code",
+        type=Path,
+        help="a checkout of another chaintwin (e.g. `git worktree add` or `git archive` of an "
+        "older commit): each store is measured again with the server run from it, and then "
+        "with this code once more, and each row's median is compared (this code / baseline)",
+    )
     args = parser.parse_args()
     work = tempfile.TemporaryDirectory()
     faults = None
@@ -478,15 +516,15 @@ def main() -> int:
     stores = {}
     if not args.no_sqlite and args.sqlite_file is not None:
         path = args.sqlite_file.resolve()
-        stores["SQLite"] = measure(f"sqlite:///{path}", args, faults, built_before=path.exists())
+        stores |= both("SQLite", f"sqlite:///{path}", args, faults, built_before=path.exists())
     elif not args.no_sqlite:
         with tempfile.TemporaryDirectory() as folder:
-            stores["SQLite"] = measure(f"sqlite:///{folder}/bench.db", args, faults)
+            stores |= both("SQLite", f"sqlite:///{folder}/bench.db", args, faults)
     if args.postgres == "auto":
         with private_postgres() as url:
-            stores["PostgreSQL"] = measure(url, args, faults)
+            stores |= both("PostgreSQL", url, args, faults)
     elif args.postgres:
-        stores["PostgreSQL"] = measure(args.postgres, args, faults)
+        stores |= both("PostgreSQL", args.postgres, args, faults)
     work.cleanup()
     print(
         f"{args.conveyors} conveyors x {args.results} results each"
@@ -519,6 +557,15 @@ def main() -> int:
                 f"  {'50 clients polling ' + name + ', p99':58} {poll['p99_ms']:8.1f} ms "
                 f"{poll['p99_ms'] / m['health_ms']:5.1f}x  ({poll['n']} requests)"
             )
+    if args.baseline_code is not None:
+        for name in [n for n in stores if f"{n}, baseline code" in stores]:
+            first, base, again = (stores[name], stores[f"{name}, baseline code"],
+                                  stores[f"{name}, this code again"])  # fmt: skip
+            print(f"\n{name}: this code / baseline code, median times (run before and after it)")
+            for row in ["GET /api/v1/health (reference)", *first["rows"]]:
+                ms = [m["health_ms"] if row.endswith("(reference)") else m["rows"][row]
+                      for m in (first, base, again)]  # fmt: skip
+                print(f"  {row:58} {ms[0] / ms[1]:5.2f} {ms[2] / ms[1]:5.2f}")
     print(json.dumps({"stores": stores, "ingest": compared}, indent=1), file=sys.stderr)
     return 0
 

@@ -29,7 +29,7 @@ from chaintwin.store.access import (
 from chaintwin.web.routes.alarms import acknowledge_as
 from chaintwin.web.routes.conveyors import maintenance_as
 from chaintwin.web.routes.recordings import take_uploads
-from chaintwin.web.security import COOKIE, SESSION_SECONDS, Principal, require
+from chaintwin.web.security import COOKIE, SESSION_SECONDS, ApiError, Principal, require
 from chaintwin.web.sessions import end_session, open_session
 
 __all__ = ["error_page", "router"]
@@ -134,11 +134,12 @@ def conveyor_page(request: Request, conveyor_id: str) -> HTMLResponse:
 
     p = _viewer(request)
     web = _web(request)
-    if web.store.profile(conveyor_id) is None:
-        return error_page(request, 404, f"no conveyor '{conveyor_id}' in the store")
     # bounded (its status, health index and features need the newest results; the
     # trends' charts fetch their own series from the API), the verdict the fleet's
-    data = conveyor_data_of(web, conveyor_id)
+    try:
+        data = conveyor_data_of(web, conveyor_id)
+    except ApiError as exc:  # no such conveyor
+        return error_page(request, exc.status, exc.message)
     return _render(request, "conveyor.html.j2", p, conveyor_id=conveyor_id, data=data)
 
 

@@ -19,6 +19,7 @@ from fastapi import Depends, Header, Query, Request, Response
 from chaintwin import __version__
 from chaintwin.diagnose.alarm_actions import clear_out_of_service, set_out_of_service
 from chaintwin.diagnose.state import add_maintenance
+from chaintwin.errors import StoreError
 from chaintwin.store.access import audit
 from chaintwin.store.queries import results_page, store_signature
 from chaintwin.web.deps import require_role, web_of
@@ -94,18 +95,22 @@ def conveyor_data_of(
     from chaintwin.report.data import conveyor_data
 
     store = web.store
-    if store.profile(conveyor_id) is None:
-        raise ApiError(404, "not_found", f"no conveyor '{conveyor_id}' in the store")
-    return conveyor_data(
-        store,
-        conveyor_id,
-        waterfall=0,
-        forecast_bands=bands,
-        max_points=PAGE_POINTS if max_points is None else max_points,
-        latest=False,
-        stored_forecasts=True,
-        known_verdict=fleet_health(web).verdict(store, conveyor_id),
-    )
+    try:
+        return conveyor_data(
+            store,
+            conveyor_id,
+            waterfall=0,
+            forecast_bands=bands,
+            max_points=PAGE_POINTS if max_points is None else max_points,
+            latest=False,
+            stored_forecasts=True,
+            known_verdict=fleet_health(web).verdict(store, conveyor_id),
+        )
+    except StoreError:
+        # the profile is read once, by conveyor_data (a round trip less on PostgreSQL)
+        if store.profile(conveyor_id) is None:
+            raise ApiError(404, "not_found", f"no conveyor '{conveyor_id}' in the store") from None
+        raise
 
 
 @router.get(

@@ -31,9 +31,11 @@ page of 100 recordings; the p99 of those requests and its ratio to the
 reference median (target within 20x).
 
 With ``--baseline-code DIR`` (another checkout, e.g. the commit before a
-change) each store is measured three times in the same run, its server run
-from this code, from ``DIR``, and from this code again, and each row's
-ratio of this code's median to the baseline's is printed (a change's cost).
+change) each store is then served twice at once, by this code and by
+``DIR``'s, and every request is sent to both, alternating which goes first
+(``--repeat`` x 2 pairs), so that both meet the same load on a shared
+machine; each row's medians and their ratio (this / baseline) are printed:
+a change's cost.
 
 With ``--compare-ingest`` it also ingests the fault fleet's recordings into
 fresh SQLite stores without and with the forecasts' refit after ingest
@@ -441,15 +443,91 @@ def both(
     *,
     built_before: bool = False,
 ) -> dict[str, dict[str, Any]]:
-    """The store measured with this code and, with ``--baseline-code``, with that code's
-    server too (the same store, one after the other; the rows' ratios printed)."""
+    """The store measured with this code and, with ``--baseline-code``, this code's server
+    against that code's on the same store, request by request (:func:`paired`)."""
     out = {name: measure(url, args, faults, built_before=built_before)}
     if args.baseline_code is not None:
-        out[f"{name}, baseline code"] = measure(
-            url, args, faults, built_before=True, code=args.baseline_code
-        )
-        out[f"{name}, this code again"] = measure(url, args, faults, built_before=True)
+        out[f"{name}, paired"] = paired(url, args, faults)
     return out
+
+
+def start_server(url: str, code: Path | None) -> tuple[subprocess.Popen[bytes], str]:
+    """``chaintwin serve`` on ``url`` from this code or another checkout; its base URL."""
+    env = os.environ | {"OPENBLAS_NUM_THREADS": "1"}
+    if code is not None:
+        env["PYTHONPATH"] = str(code)
+    port = free_port()
+    server = subprocess.Popen(
+        [sys.executable, "-m", "chaintwin", "serve", "--db", url, "--port", str(port)],
+        env=env,
+        stderr=subprocess.DEVNULL,
+    )
+    base = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + 300
+    while True:
+        try:
+            httpx.get(base + "/api/v1/health", timeout=5)
+            return server, base
+        except httpx.TransportError:
+            assert time.monotonic() < deadline, "the server did not start"
+            time.sleep(0.2)
+
+
+def paired(url: str, args: argparse.Namespace, faults: FaultFleet | None) -> dict[str, Any]:
+    """This code's server and ``--baseline-code``'s on the same store at once, each request
+    sent to one then the other (alternating which goes first), so that both meet the
+    same load; per row the median of each and their ratio (this / baseline)."""
+    token = reuse(url)
+    servers = [start_server(url, None), start_server(url, args.baseline_code)]
+    try:
+        clients = []
+        for _server, base in servers:
+            c = httpx.Client(base_url=base, headers={"Authorization": f"Bearer {token}"},
+                             timeout=60)  # fmt: skip
+            c.post("/login", data={"token": token})
+            clients.append(c)
+        one = f"conveyor-{min(7, args.conveyors - 1):03d}" if args.conveyors else None
+        if one is None:
+            assert faults is not None, "no conveyor to measure: give --conveyors"
+            one = next(iter(faults.profiles))
+        paths = {
+            "GET /api/v1/health (reference)": "/api/v1/health",
+            "GET /api/v1/conveyors": "/api/v1/conveyors",
+            "GET / (fleet page)": "/",
+            "GET .../recordings?limit=100": f"/api/v1/conveyors/{one}/recordings?limit=100",
+            "GET /conveyors/{id} (the conveyor's HTML page)": f"/conveyors/{one}",
+            "GET /api/v1/conveyors/{id}": f"/api/v1/conveyors/{one}",
+            "GET .../trends?feature=friction": f"/api/v1/conveyors/{one}/trends?feature=friction",
+        }
+        for cid in faults.profiles if faults is not None else ():
+            if clients[0].get(f"/api/v1/conveyors/{cid}").json()["open_alarms"]:
+                paths |= {
+                    "GET /conveyors/{id} (in alarm)": f"/conveyors/{cid}",
+                    "GET /api/v1/conveyors/{id} (in alarm)": f"/api/v1/conveyors/{cid}",
+                    "GET .../trends (in alarm, all)": f"/api/v1/conveyors/{cid}/trends",
+                }
+                break
+        rows = {}
+        for row, path in paths.items():
+            for c in clients:  # warm
+                c.get(path)
+            times: list[list[float]] = [[], []]
+            for k in range(2 * args.repeat):
+                order = (0, 1) if k % 2 == 0 else (1, 0)
+                for i in order:
+                    t0 = time.perf_counter()
+                    r = clients[i].get(path)
+                    times[i].append(time.perf_counter() - t0)
+                    assert r.status_code == 200, (path, r.status_code, r.text[:200])
+            this, base = (1e3 * statistics.median(t) for t in times)
+            rows[row] = {"this_ms": this, "baseline_ms": base, "ratio": this / base}
+        for c in clients:
+            c.close()
+    finally:
+        for server, _base in servers:
+            server.terminate()
+            server.wait(30)
+    return {"paired": rows}
 
 
 def main() -> int:
@@ -492,9 +570,9 @@ def main() -> int:
     parser.add_argument(
         "--baseline-code",
         type=Path,
-        help="a checkout of another chaintwin (e.g. `git worktree add` or `git archive` of an "
-        "older commit): each store is measured again with the server run from it, and then "
-        "with this code once more, and each row's median is compared (this code / baseline)",
+        help="a checkout of another chaintwin (e.g. `git archive` of an older commit): each "
+        "store is also served by it beside this code, every request sent to both in turn, "
+        "and each row's medians compared (this code / baseline)",
     )
     args = parser.parse_args()
     work = tempfile.TemporaryDirectory()
@@ -543,6 +621,8 @@ def main() -> int:
             f"ratio {compared['ratio']:.3f} (target <= 1.10)"
         )
     for name, m in stores.items():
+        if "paired" in m:
+            continue  # printed below
         print(f"\n{name} (store built in {m['built_s']:.0f} s)")
         if m["fault_fleet_ingest"] is not None:
             fi = m["fault_fleet_ingest"]
@@ -558,14 +638,13 @@ def main() -> int:
                 f"{poll['p99_ms'] / m['health_ms']:5.1f}x  ({poll['n']} requests)"
             )
     if args.baseline_code is not None:
-        for name in [n for n in stores if f"{n}, baseline code" in stores]:
-            first, base, again = (stores[name], stores[f"{name}, baseline code"],
-                                  stores[f"{name}, this code again"])  # fmt: skip
-            print(f"\n{name}: this code / baseline code, median times (run before and after it)")
-            for row in ["GET /api/v1/health (reference)", *first["rows"]]:
-                ms = [m["health_ms"] if row.endswith("(reference)") else m["rows"][row]
-                      for m in (first, base, again)]  # fmt: skip
-                print(f"  {row:58} {ms[0] / ms[1]:5.2f} {ms[2] / ms[1]:5.2f}")
+        for name in [n for n in stores if f"{n}, paired" in stores]:
+            print(
+                f"\n{name}: this code against {args.baseline_code}, the same requests alternating"
+            )
+            for row, m in stores[f"{name}, paired"]["paired"].items():
+                print(f"  {row:58} {m['this_ms']:8.1f} ms {m['baseline_ms']:8.1f} ms "
+                      f"{m['ratio']:5.2f}")  # fmt: skip
     print(json.dumps({"stores": stores, "ingest": compared}, indent=1), file=sys.stderr)
     return 0
 

@@ -30,6 +30,13 @@ browser does (sending back the ETag), the fleet without the ETag, and the
 page of 100 recordings; the p99 of those requests and its ratio to the
 reference median (target within 20x).
 
+With ``--baseline-code DIR`` (another checkout, e.g. the commit before a
+change) each store is then served twice at once, by this code and by
+``DIR``'s, and every request is sent to both, alternating which goes first
+(``--repeat`` x 2 pairs), so that both meet the same load on a shared
+machine; each row's medians and their ratio (this / baseline) are printed:
+a change's cost.
+
 With ``--compare-ingest`` it also ingests the fault fleet's recordings into
 fresh SQLite stores without and with the forecasts' refit after ingest
 (``ingest(refit=False)``: the ingest as it was before forecasts were kept;
@@ -320,7 +327,12 @@ def reuse(url: str) -> str:
 
 
 def measure(
-    url: str, args: argparse.Namespace, faults: FaultFleet | None, *, built_before: bool = False
+    url: str,
+    args: argparse.Namespace,
+    faults: FaultFleet | None,
+    *,
+    built_before: bool = False,
+    code: Path | None = None,
 ) -> dict[str, Any]:
     t0 = time.perf_counter()
     token = reuse(url) if built_before else build(url, args.conveyors, args.results)
@@ -331,6 +343,8 @@ def measure(
         ingested = {"seconds": seconds, "recordings": n}
     port = free_port()
     env = os.environ | {"OPENBLAS_NUM_THREADS": "1"}
+    if code is not None:  # the server runs another checkout's chaintwin
+        env["PYTHONPATH"] = str(code)
     if args.trace_ms:
         env["CHAINTWIN_TRACE_SLOW_MS"] = str(args.trace_ms)
     log = open(args.server_log, "ab") if args.server_log else None  # noqa: SIM115
@@ -421,6 +435,101 @@ def measure(
     }
 
 
+def both(
+    name: str,
+    url: str,
+    args: argparse.Namespace,
+    faults: FaultFleet | None,
+    *,
+    built_before: bool = False,
+) -> dict[str, dict[str, Any]]:
+    """The store measured with this code and, with ``--baseline-code``, this code's server
+    against that code's on the same store, request by request (:func:`paired`)."""
+    out = {name: measure(url, args, faults, built_before=built_before)}
+    if args.baseline_code is not None:
+        out[f"{name}, paired"] = paired(url, args, faults)
+    return out
+
+
+def start_server(url: str, code: Path | None) -> tuple[subprocess.Popen[bytes], str]:
+    """``chaintwin serve`` on ``url`` from this code or another checkout; its base URL."""
+    env = os.environ | {"OPENBLAS_NUM_THREADS": "1"}
+    if code is not None:
+        env["PYTHONPATH"] = str(code)
+    port = free_port()
+    server = subprocess.Popen(
+        [sys.executable, "-m", "chaintwin", "serve", "--db", url, "--port", str(port)],
+        env=env,
+        stderr=subprocess.DEVNULL,
+    )
+    base = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + 300
+    while True:
+        try:
+            httpx.get(base + "/api/v1/health", timeout=5)
+            return server, base
+        except httpx.TransportError:
+            assert time.monotonic() < deadline, "the server did not start"
+            time.sleep(0.2)
+
+
+def paired(url: str, args: argparse.Namespace, faults: FaultFleet | None) -> dict[str, Any]:
+    """This code's server and ``--baseline-code``'s on the same store at once, each request
+    sent to one then the other (alternating which goes first), so that both meet the
+    same load; per row the median of each and their ratio (this / baseline)."""
+    token = reuse(url)
+    servers = [start_server(url, None), start_server(url, args.baseline_code)]
+    try:
+        clients = []
+        for _server, base in servers:
+            c = httpx.Client(base_url=base, headers={"Authorization": f"Bearer {token}"},
+                             timeout=60)  # fmt: skip
+            c.post("/login", data={"token": token})
+            clients.append(c)
+        one = f"conveyor-{min(7, args.conveyors - 1):03d}" if args.conveyors else None
+        if one is None:
+            assert faults is not None, "no conveyor to measure: give --conveyors"
+            one = next(iter(faults.profiles))
+        paths = {
+            "GET /api/v1/health (reference)": "/api/v1/health",
+            "GET /api/v1/conveyors": "/api/v1/conveyors",
+            "GET / (fleet page)": "/",
+            "GET .../recordings?limit=100": f"/api/v1/conveyors/{one}/recordings?limit=100",
+            "GET /conveyors/{id} (the conveyor's HTML page)": f"/conveyors/{one}",
+            "GET /api/v1/conveyors/{id}": f"/api/v1/conveyors/{one}",
+            "GET .../trends?feature=friction": f"/api/v1/conveyors/{one}/trends?feature=friction",
+        }
+        for cid in faults.profiles if faults is not None else ():
+            if clients[0].get(f"/api/v1/conveyors/{cid}").json()["open_alarms"]:
+                paths |= {
+                    "GET /conveyors/{id} (in alarm)": f"/conveyors/{cid}",
+                    "GET /api/v1/conveyors/{id} (in alarm)": f"/api/v1/conveyors/{cid}",
+                    "GET .../trends (in alarm, all)": f"/api/v1/conveyors/{cid}/trends",
+                }
+                break
+        rows = {}
+        for row, path in paths.items():
+            for c in clients:  # warm
+                c.get(path)
+            times: list[list[float]] = [[], []]
+            for k in range(2 * args.repeat):
+                order = (0, 1) if k % 2 == 0 else (1, 0)
+                for i in order:
+                    t0 = time.perf_counter()
+                    r = clients[i].get(path)
+                    times[i].append(time.perf_counter() - t0)
+                    assert r.status_code == 200, (path, r.status_code, r.text[:200])
+            this, base = (1e3 * statistics.median(t) for t in times)
+            rows[row] = {"this_ms": this, "baseline_ms": base, "ratio": this / base}
+        for c in clients:
+            c.close()
+    finally:
+        for server, _base in servers:
+            server.terminate()
+            server.wait(30)
+    return {"paired": rows}
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--conveyors", type=int, default=200)
@@ -458,6 +567,13 @@ def main() -> int:
         help="also time the fault fleet's ingest without and with the forecasts' refit",
     )
     parser.add_argument("--compare-rounds", type=int, default=2)
+    parser.add_argument(
+        "--baseline-code",
+        type=Path,
+        help="a checkout of another chaintwin (e.g. `git archive` of an older commit): each "
+        "store is also served by it beside this code, every request sent to both in turn, "
+        "and each row's medians compared (this code / baseline)",
+    )
     args = parser.parse_args()
     work = tempfile.TemporaryDirectory()
     faults = None
@@ -478,15 +594,15 @@ def main() -> int:
     stores = {}
     if not args.no_sqlite and args.sqlite_file is not None:
         path = args.sqlite_file.resolve()
-        stores["SQLite"] = measure(f"sqlite:///{path}", args, faults, built_before=path.exists())
+        stores |= both("SQLite", f"sqlite:///{path}", args, faults, built_before=path.exists())
     elif not args.no_sqlite:
         with tempfile.TemporaryDirectory() as folder:
-            stores["SQLite"] = measure(f"sqlite:///{folder}/bench.db", args, faults)
+            stores |= both("SQLite", f"sqlite:///{folder}/bench.db", args, faults)
     if args.postgres == "auto":
         with private_postgres() as url:
-            stores["PostgreSQL"] = measure(url, args, faults)
+            stores |= both("PostgreSQL", url, args, faults)
     elif args.postgres:
-        stores["PostgreSQL"] = measure(args.postgres, args, faults)
+        stores |= both("PostgreSQL", args.postgres, args, faults)
     work.cleanup()
     print(
         f"{args.conveyors} conveyors x {args.results} results each"
@@ -505,6 +621,8 @@ def main() -> int:
             f"ratio {compared['ratio']:.3f} (target <= 1.10)"
         )
     for name, m in stores.items():
+        if "paired" in m:
+            continue  # printed below
         print(f"\n{name} (store built in {m['built_s']:.0f} s)")
         if m["fault_fleet_ingest"] is not None:
             fi = m["fault_fleet_ingest"]
@@ -519,6 +637,14 @@ def main() -> int:
                 f"  {'50 clients polling ' + name + ', p99':58} {poll['p99_ms']:8.1f} ms "
                 f"{poll['p99_ms'] / m['health_ms']:5.1f}x  ({poll['n']} requests)"
             )
+    if args.baseline_code is not None:
+        for name in [n for n in stores if f"{n}, paired" in stores]:
+            print(
+                f"\n{name}: this code against {args.baseline_code}, the same requests alternating"
+            )
+            for row, m in stores[f"{name}, paired"]["paired"].items():
+                print(f"  {row:58} {m['this_ms']:8.1f} ms {m['baseline_ms']:8.1f} ms "
+                      f"{m['ratio']:5.2f}")  # fmt: skip
     print(json.dumps({"stores": stores, "ingest": compared}, indent=1), file=sys.stderr)
     return 0
 

@@ -801,8 +801,8 @@ def test_web_uploads_take_the_profiles_the_live_service_reads_again(
 ) -> None:
     """An upload is weighed with the --profiles the service follows, not those it started with."""
     from chaintwin.live.service import LiveOptions, LiveService
-    from chaintwin.web.api import Staged, ingest_uploads
     from chaintwin.web.app import create_app
+    from chaintwin.web.routes.recordings import Staged, ingest_uploads
 
     url = f"sqlite:///{tmp_path / 'plant.db'}"
     store = Store(url)  # no profile in the store

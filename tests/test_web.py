@@ -728,11 +728,23 @@ def test_every_operation_answers_as_its_schema_says(
         check()
 
 
+_NEEDS_STATE = {
+    "DELETE": ("/api/v1/conveyors/{conveyor_id}/out-of-service",),
+    "POST": (
+        "/api/v1/alarms/{alarm_id}/acknowledge",
+        "/api/v1/alarms/{alarm_id}/shelve",
+        "/api/v1/alarms/{alarm_id}/unshelve",
+    ),
+}
+"""The changes refused (400) in a state that does not allow them."""
+
+
 def test_sequences_of_operations_answer_as_their_schema_says(
     api_schema: Any, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Stateful: schemathesis chains the operations by the links it infers (a token
     created, then revoked; an alarm listed, then acknowledged), every response as declared."""
+    from schemathesis.checks import positive_data_acceptance
     from schemathesis.specs.openapi.checks import ensure_resource_availability
 
     from chaintwin.web import events
@@ -748,6 +760,13 @@ def test_sequences_of_operations_answer_as_their_schema_says(
             excluded = []
             if (case.path_parameters or {}).get("recording_id") in (None, "None"):
                 excluded = [ensure_resource_availability]
+            # A change the conveyor's or alarm's state does not allow (back in service when
+            # not out of it, unshelve when not shelved, acknowledge twice) is refused with
+            # 400 and says why; the schema cannot say which state an operation needs, and
+            # the links the typed answers give lead to such calls: that check is left out
+            # there, the others run.
+            if case.operation.path in _NEEDS_STATE.get(case.operation.method.upper(), ()):
+                excluded.append(positive_data_acceptance)
             case.validate_response(
                 response, excluded_checks=excluded, recorder=self.recorder, **kwargs
             )
@@ -901,7 +920,7 @@ def test_a_conveyors_page_with_more_results_than_its_bound_shows_the_same(
     served: Served, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     from chaintwin.report.data import conveyor_data
-    from chaintwin.web import api
+    from chaintwin.web.routes import conveyors as api
 
     browser = served.client()
     login = browser.post("/login", data={"token": served.tokens["viewer"]})

@@ -234,7 +234,8 @@ def _trends(
     for name in names:
         spec = feature_spec(name)
         fb = baselines.get(name)
-        idx, vals, exc, before = [], [], [], []
+        idx, vals, exc, before, payloads = [], [], [], [], []
+        regressor = None if fb is None else regressor_of(name, fb)
         for k, r in enumerate(results):
             feats = r.get("features") or {}
             if name not in feats:
@@ -244,9 +245,7 @@ def _trends(
             if name in wear and math.isfinite(used):
                 v -= wear[name] * used
             if fb is not None:
-                v = _at_mean_payload(
-                    fb, v, _number(feats.get(regressor_of(name, fb))), z_limit, spec
-                )
+                payloads.append(_number(feats.get(regressor)) if regressor else math.nan)
             idx.append(k)
             vals.append(v)
             exc.append(name in (r.get("exceeded") or []))
@@ -254,6 +253,9 @@ def _trends(
             # the baseline's own recordings are not judged against it either
             learning = r.get("status") == "baseline"
             before.append(bool(learning or (baseline_since and at and at < baseline_since)))
+        if fb is not None:  # all the feature's values at once
+            moved = _at_mean_payload(fb, np.asarray(vals), np.asarray(payloads), z_limit, spec)
+            vals = [float(v) for v in moved]
         if not any(math.isfinite(v) for v in vals):
             continue  # never known (a retired feature such as belt_bump): no trend to draw
         out.append(
@@ -278,29 +280,36 @@ def _trends(
 
 
 def _at_mean_payload(
-    fb: FeatureBaseline, value: float, payload_kg: float, z_limit: float, spec: FeatureSpec
-) -> float:
-    """A value moved to the baseline's mean payload, its margin to the limit kept in proportion.
+    fb: FeatureBaseline,
+    values: FloatArray,
+    payloads_kg: FloatArray,
+    z_limit: float,
+    spec: FeatureSpec,
+) -> FloatArray:
+    """Values moved to the baseline's mean payload, each margin to the limit kept in proportion.
 
     The health model judges a value against the baseline line and limit at
     the recording's own payload (the mean payload when its estimate is
-    missing). Mapping ``e(p) → e(p̄)`` and ``L(p) → L(p̄)`` linearly keeps
+    missing, NaN). Mapping ``e(p) → e(p̄)`` and ``L(p) → L(p̄)`` linearly keeps
     every point on the same side of the one drawn limit as it was judged.
+    One value per payload (kg), feature units in and out.
     """
-    p = payload_kg if math.isfinite(payload_kg) else fb.mean_payload_kg
-    e_p = fb.expected(p)
+    p = np.where(np.isfinite(payloads_kg), payloads_kg, fb.mean_payload_kg)
+    e_p = fb.expected_at(p)
     e_m = fb.expected(fb.mean_payload_kg)
-    if (
-        spec.two_sided and fb.slope == 0.0 and value < e_p
-    ):  # a fall: in proportion to the lower limit's margin
-        span_p = e_p - fb.lower_limit(z_limit, spec.min_rel, payload_kg=p)
-        span_m = e_m - fb.lower_limit(z_limit, spec.min_rel)
-    else:
-        span_p = fb.limit(z_limit, spec.min_rel, payload_kg=p) - e_p
-        span_m = fb.limit(z_limit, spec.min_rel) - e_m
-    if span_p <= 0.0:
-        return value - e_p + e_m
-    return e_m + (value - e_p) * span_m / span_p
+    # above the line (or one-sided): in proportion to the upper limit's margin (the limit
+    # less the line, computed as such)
+    span_p = (e_p + fb.margin_at(e_p, z_limit, spec.min_rel)) - e_p
+    span_m: FloatArray = np.full_like(e_p, fb.limit(z_limit, spec.min_rel) - e_m)
+    if spec.two_sided and fb.slope == 0.0:  # a fall: in proportion to the lower limit's margin
+        falls = values < e_p
+        bottom = -math.inf if fb.bottom_residual is None else -fb.bottom_residual
+        lower_span = np.maximum(np.maximum(z_limit * fb.scale, spec.min_rel * np.abs(e_p)), bottom)
+        span_p = np.where(falls, e_p - (e_p - lower_span), span_p)
+        span_m = np.where(falls, e_m - fb.lower_limit(z_limit, spec.min_rel), span_m)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scaled = e_m + (values - e_p) * span_m / span_p
+    return np.asarray(np.where(span_p <= 0.0, values - e_p + e_m, scaled), dtype=float)
 
 
 def _spread(n: int, k: int) -> list[int]:
@@ -319,6 +328,7 @@ def conveyor_data(
     max_points: int | None = None,
     latest: bool = True,
     stored_forecasts: bool = False,
+    known_verdict: Verdict | None = None,
 ) -> ConveyorData:
     """Gather a conveyor's page from the store.
 
@@ -348,6 +358,10 @@ def conveyor_data(
         since (the web pages: ``summary["forecasts_as_of"]`` says how far
         behind); False: fit them here, as the monitor says them (the
         reports; nothing is written to the store).
+    known_verdict : Verdict, optional
+        The conveyor's verdict when the caller keeps it per version of the
+        health model (:class:`~chaintwin.store.verdicts.VerdictCache`, the web
+        service); None: worked out here from the model.
 
     Raises
     ------
@@ -426,7 +440,7 @@ def conveyor_data(
         notes=notes,
         total=total,
         represents=represents,
-        verdict=verdict_of(judged),
+        verdict=verdict_of(judged) if known_verdict is None else known_verdict,
     )
     if not latest and waterfall <= 0:
         return data

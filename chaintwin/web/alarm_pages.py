@@ -2,7 +2,7 @@
 and the alarm KPI page.
 
 The forms carry the CSRF token as the field ``csrf`` and do what the API's
-endpoints do (:mod:`chaintwin.web.alarms_api`).
+endpoints do (:mod:`chaintwin.web.routes.alarms`).
 """
 
 from __future__ import annotations
@@ -15,14 +15,10 @@ from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
 from chaintwin.diagnose.alarm_kpis import KPI_DAYS
 from chaintwin.errors import StoreError
-from chaintwin.web.alarms_api import (
-    comment_as,
-    kpis_of,
-    out_of_service_as,
-    shelve_as,
-    unshelve_as,
-)
 from chaintwin.web.pages import _render, _viewer, _web
+from chaintwin.web.routes.alarms import comment_as, shelve_as, unshelve_as
+from chaintwin.web.routes.conveyors import out_of_service_as
+from chaintwin.web.routes.kpis import kpis_of
 from chaintwin.web.security import require
 
 __all__ = ["router"]

@@ -134,7 +134,8 @@ def create_app(
     login_attempts : int
         Login attempts a client may make a minute (429 with ``Retry-After`` beyond).
     """
-    from chaintwin.web import alarm_pages, alarms_api, api, pages
+    from chaintwin.web import alarm_pages, pages
+    from chaintwin.web.routes import ROUTERS
 
     app = FastAPI(
         title="chaintwin",
@@ -271,8 +272,8 @@ def create_app(
 
         return Response(service_metrics.text(), media_type=CONTENT_TYPE)
 
-    app.include_router(alarms_api.router)  # before api's /conveyors/{id:path} routes
-    app.include_router(api.router)
+    for router in ROUTERS:  # the API, one router per resource
+        app.include_router(router)
     app.include_router(alarm_pages.router)  # before pages' /conveyors/{id:path} routes
     app.include_router(pages.router)
     return app

@@ -13,7 +13,7 @@ from typing import Any
 
 import orjson
 
-from chaintwin.diagnose.verdict import verdict
+from chaintwin.diagnose.verdict import Verdict, verdict
 from chaintwin.store.queries import fleet_rows
 from chaintwin.store.store import Store
 from chaintwin.store.verdicts import VerdictCache
@@ -46,6 +46,14 @@ class FleetHealth:
         with self._lock:
             self._snapshot = (key, rows, body)
         return rows, body
+
+    def verdict(self, store: Store, conveyor: str) -> Verdict:
+        """One conveyor's verdict, as the fleet's rows give it (``no_data`` without a model).
+
+        Worked out once per version of its health model: a conveyor's page
+        and ``GET /api/v1/conveyors/{id}`` read the same as the fleet.
+        """
+        return self.cache.verdicts(store).get(conveyor) or verdict(None)
 
     def rows(self, store: Store) -> list[dict[str, Any]]:
         """:func:`~chaintwin.store.queries.fleet_rows` with the verdict's fields

@@ -26,8 +26,10 @@ from chaintwin.web.access import (
     role_at_least,
     verify_token,
 )
-from chaintwin.web.api import acknowledge_as, maintenance_as, take_uploads
-from chaintwin.web.security import COOKIE, SESSION_SECONDS, Principal, require
+from chaintwin.web.routes.alarms import acknowledge_as
+from chaintwin.web.routes.conveyors import maintenance_as
+from chaintwin.web.routes.recordings import take_uploads
+from chaintwin.web.security import COOKIE, SESSION_SECONDS, ApiError, Principal, require
 from chaintwin.web.sessions import end_session, open_session
 
 __all__ = ["error_page", "router"]
@@ -117,7 +119,7 @@ def logout(request: Request, csrf: Annotated[str, Form()] = "") -> Response:
 @router.get("/", response_class=HTMLResponse)
 def fleet(request: Request) -> HTMLResponse:
     """The fleet: health, open alarms, TLF ranking; refreshes itself."""
-    from chaintwin.web.api import fleet_etag, fleet_health
+    from chaintwin.web.routes.conveyors import fleet_etag, fleet_health
 
     p = _viewer(request)
     web = _web(request)
@@ -128,23 +130,16 @@ def fleet(request: Request) -> HTMLResponse:
 @router.get("/conveyors/{conveyor_id:path}", response_class=HTMLResponse)
 def conveyor_page(request: Request, conveyor_id: str) -> HTMLResponse:
     """One conveyor: trends with baseline bands and alarms, payloads, latest recording."""
-    from chaintwin.report.data import conveyor_data
-    from chaintwin.web.api import PAGE_POINTS
+    from chaintwin.web.routes.conveyors import conveyor_data_of
 
     p = _viewer(request)
-    store = _web(request).store
-    if store.profile(conveyor_id) is None:
-        return error_page(request, 404, f"no conveyor '{conveyor_id}' in the store")
-    # bounded: its status, health index and features need the newest results, and
-    # the trends' charts fetch their own (bounded) series from the API
-    data = conveyor_data(
-        store,
-        conveyor_id,
-        waterfall=0,
-        max_points=PAGE_POINTS,
-        latest=False,
-        stored_forecasts=True,
-    )
+    web = _web(request)
+    # bounded (its status, health index and features need the newest results; the
+    # trends' charts fetch their own series from the API), the verdict the fleet's
+    try:
+        data = conveyor_data_of(web, conveyor_id)
+    except ApiError as exc:  # no such conveyor
+        return error_page(request, exc.status, exc.message)
     return _render(request, "conveyor.html.j2", p, conveyor_id=conveyor_id, data=data)
 
 

@@ -29,37 +29,43 @@ from chaintwin.diagnose.monitor import ConveyorMonitor
 from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.identify.calibrating import calibrate
 from chaintwin.read.profile import load_profile
-from chaintwin.simulate.faults import Fault
+from chaintwin.simulate.faults import Fault, expected_causes, fault_type
 from chaintwin.simulate.fleet import generate
 from chaintwin.validate.checks import load_recording
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "chaintwin" / "examples"
 
+
+def _at_end(name: str) -> list[Fault]:
+    """A fault at its end severity (the fault table's)."""
+    end = fault_type(name).end_severity
+    if end is None:
+        raise SystemExit(f"fault '{name}' has no end severity in the fault table")
+    return [Fault(name, end)]
+
+
 SERIES: list[tuple[str, list[Fault], int]] = [
     ("healthy-a", [], 0),
     ("healthy-b", [], 0),
-    ("friction", [Fault("friction", 0.5)], 6),
-    ("lubrication", [Fault("lubrication", 1.0)], 6),
-    ("bearing", [Fault("bearing", 0.5)], 6),
-    ("gear_tooth", [Fault("gear_tooth", 0.5)], 6),
-    ("obstruction", [Fault("obstruction", 0.5)], 6),
-    ("rail_obstacle", [Fault("rail_obstacle", 1.0)], 6),
-    ("elongation", [Fault("elongation", 1.0)], 6),
-    ("sprocket", [Fault("sprocket", 1.0)], 6),
-    ("healthy-events", [Fault("payload_event", 1.0)], 0),
+    *[
+        (name, _at_end(name), 6)
+        for name in (
+            "friction",
+            "lubrication",
+            "bearing",
+            "gear_tooth",
+            "obstruction",
+            "rail_obstacle",
+            "elongation",
+            "sprocket",
+        )
+    ],
+    ("healthy-events", _at_end("payload_event"), 0),
 ]
 """(name, faults at their final severity, onset day)."""
 
-EXPECTED = {
-    "friction": "friction",
-    "lubrication": "lubrication",
-    "bearing": "bearing",
-    "gear_tooth": "gear",
-    "obstruction": "obstruction",
-    "rail_obstacle": "obstruction",
-    "elongation": "elongation",
-    "sprocket": "sprocket",
-}
+EXPECTED = expected_causes()
+"""The probable cause each fault should be given (the fault table's)."""
 
 
 def run_series(

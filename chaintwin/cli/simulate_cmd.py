@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from chaintwin.simulate.faults import FAULT_NAMES
+from chaintwin.simulate.faults import fault_names
 
 if TYPE_CHECKING:
     from chaintwin.read.profile import ConveyorProfile, ModelSpec
@@ -30,7 +30,7 @@ __all__ = ["build_model", "build_realism", "register"]
 
 REALISM_SWITCHES = ("noise", "quantisation", "elastic", "stick_slip", "polygon", "gear_mesh")
 MOVES = ("trapezoid", "trapezoid2", "ramp", "stairs")
-FAULT_HELP = f"NAME:SEVERITY, repeatable; names: {', '.join(FAULT_NAMES)}."
+FAULT_HELP = f"NAME:SEVERITY, repeatable; names: {', '.join(fault_names())}."
 
 
 def build_model(

@@ -15,8 +15,8 @@ from chaintwin.cli.app import main
 from chaintwin.diagnose.causes import CAUSE_PRIORITY, NOTE_CAUSES, explaining_causes, resolve_causes
 from chaintwin.diagnose.features import FEATURES, IMPULSIVE, is_tracked
 from chaintwin.errors import ModelError
+from chaintwin.read.formats import read_recording
 from chaintwin.read.profile import ConveyorProfile
-from chaintwin.read.reader import read_recording
 from chaintwin.simulate.faults import (
     Fault,
     FaultType,

@@ -24,8 +24,8 @@ from chaintwin.errors import (
 from chaintwin.identify.calibration import load_calibration
 from chaintwin.read.columns import load_column_map
 from chaintwin.read.files import MAX_FILE_MB_ENV, max_file_bytes
+from chaintwin.read.formats import read_recording
 from chaintwin.read.profile import load_profile
-from chaintwin.read.reader import read_recording
 
 LOADERS = [
     (read_recording, RecordingError),

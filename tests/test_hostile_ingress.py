@@ -35,7 +35,8 @@ from test_live import PROFILES, Service, wait_for
 from chaintwin.errors import RecordingError
 from chaintwin.read import files
 from chaintwin.read.files import MAX_FILE_MB_ENV, read_limited
-from chaintwin.read.reader import MAX_COLUMNS, parse_recording, read_recording
+from chaintwin.read.formats import read_recording
+from chaintwin.read.reader import MAX_COLUMNS, parse_recording
 from chaintwin.store.engine import engine_for
 from chaintwin.store.schema import RecordingRow, RefusedFileRow
 from chaintwin.store.store import Store
@@ -401,7 +402,7 @@ def test_parsing_the_largest_recording_holds_its_bytes_and_its_samples_only(
     warm = tmp_path / "warm.csv"
     warm.write_text(_dense(64))
     script = (
-        "from chaintwin.read.reader import read_recording\n"
+        "from chaintwin.read.formats import read_recording\n"
         # the same call on a small file first: what it imports (lazily) is not the parse's
         f"read_recording({str(warm)!r})\n"
         "def kb(key):\n"

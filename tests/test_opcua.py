@@ -37,8 +37,8 @@ from chaintwin.live.opcua import (
     recording_from_scope,
 )
 from chaintwin.live.scope_layout import DEFAULT_NODES
+from chaintwin.read.formats import read_recording
 from chaintwin.read.profile import load_profile
-from chaintwin.read.reader import read_recording
 from chaintwin.read.recording import Recording
 from chaintwin.read.writer import format_recording, write_recording
 from chaintwin.simulate.faults import Fault

@@ -142,19 +142,26 @@ def print_warning(console: Console, where: str, code: str, message: str) -> None
 
 
 def expand_recordings(paths: Iterable[Path]) -> list[str]:
-    """Expand folders into their ``*.csv`` files (sorted); keep files as given.
+    """Expand folders into their recording files (sorted); keep files as given.
+
+    A folder's recording files are those matching a registered format's
+    pattern (:func:`~chaintwin.read.formats.recording_patterns`: ``*.csv``
+    and those of the formats added).
 
     Raises
     ------
     RecordingError
-        When a folder holds no ``*.csv`` file.
+        When a folder holds no recording file.
     """
+    from chaintwin.read.formats import recording_patterns
+
+    patterns = recording_patterns()
     out: list[str] = []
     for p in paths:
         if p.is_dir():
-            found = sorted(str(f) for f in p.rglob("*.csv"))
+            found = sorted({str(f) for pattern in patterns for f in p.rglob(pattern)})
             if not found:
-                raise RecordingError(str(p), "folder holds no *.csv recording")
+                raise RecordingError(str(p), f"folder holds no {' or '.join(patterns)} recording")
             out.extend(found)
         else:
             out.append(str(p))

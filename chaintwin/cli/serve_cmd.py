@@ -383,7 +383,8 @@ def register(app: typer.Typer) -> None:
             list[Path] | None,
             typer.Option(
                 "--watch",
-                help="Folder to follow (recursively): every *.csv that appears is ingested. "
+                help="Folder to follow (recursively): every recording file that appears (*.csv, "
+                "or a registered format's pattern) is ingested. "
                 "Repeat for more folders.",
             ),
         ] = None,

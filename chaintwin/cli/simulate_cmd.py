@@ -244,8 +244,8 @@ def register(app: typer.Typer) -> None:
         identified friction and losses), else the profile's model: section,
         else typical values (friction 0.23, the reference losses).
         """
+        from chaintwin.read.formats import read_recording
         from chaintwin.read.profile import load_profile
-        from chaintwin.read.reader import read_recording
         from chaintwin.read.writer import write_recording
         from chaintwin.simulate import setpoints as sp
         from chaintwin.simulate.faults import parse_faults

@@ -1,4 +1,4 @@
-"""Evaluate condition monitoring on virtual-conveyor time series (issue 5).
+"""Evaluate condition monitoring on virtual-conveyor time series.
 
 For each series the virtual conveyor (all realism on, payload 10-40 kg drawn
 per recording, gear losses drifting ±5 % with temperature) writes a
@@ -8,12 +8,13 @@ its final severity, and healthy ones. Each series is monitored from its
 recordings (read back from the files, as ``chaintwin monitor`` does) and the
 script prints, per series: onset, first alarm, severity at first alarm,
 cause given, false alarms (alarm recordings before the onset, or any on a
-healthy series) and the alarms (one per probable cause) opened there.
+healthy series) and the alarms (one per probable cause) opened there, and
+writes them as JSON (``--json``, ``docs/evaluation/monitor.json`` by default).
 
 Usage::
 
     python scripts/evaluate_monitor.py [--days 20] [--per-day 6] [--learned]
-        [--profile chaintwin/examples/profiles/white-belt-01.yaml] [--keep DIR]
+        [--profile chaintwin/examples/profiles/white-belt-01.yaml] [--keep DIR] [--json PATH]
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from pathlib import Path
 
 from chaintwin.diagnose.monitor import ConveyorMonitor
 from chaintwin.diagnose.records import MonitorSettings
+from chaintwin.diagnose.state import json_ready
 from chaintwin.identify.calibrating import calibrate
 from chaintwin.read.profile import load_profile
 from chaintwin.simulate.faults import Fault, expected_causes, fault_type
@@ -34,6 +36,8 @@ from chaintwin.simulate.fleet import generate
 from chaintwin.validate.checks import load_recording
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "chaintwin" / "examples"
+EVALUATION = Path(__file__).resolve().parent.parent / "docs" / "evaluation"
+"""Where the evaluations write their JSON by default (the evaluation reports read it)."""
 
 
 def _at_end(name: str) -> list[Fault]:
@@ -169,6 +173,12 @@ def main() -> None:
     ap.add_argument("--profile", default=str(EXAMPLES / "profiles" / "white-belt-01.yaml"))
     ap.add_argument("--keep", type=Path, default=None, help="write the series here and keep them")
     ap.add_argument("--only", nargs="*", default=None, help="series names to run")
+    ap.add_argument(
+        "--json",
+        type=Path,
+        default=EVALUATION / "monitor.json",
+        help="write the series' results here [docs/evaluation/monitor.json]",
+    )
     args = ap.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -177,6 +187,14 @@ def main() -> None:
             if args.only and name not in args.only:
                 continue
             rows.append(run_series(name, faults, onset, folder, args, seed=1000 + k))
+
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    settings = {
+        k: getattr(args, k) for k in ("days", "per_day", "baseline", "sample_time", "learned")
+    }
+    args.json.write_text(
+        json.dumps(json_ready({"settings": settings, "series": rows}), indent=1, allow_nan=False)
+    )
 
     def day(iso: object) -> str:
         return "-" if iso is None else datetime.fromisoformat(str(iso)).strftime("%m-%d %H:%M")

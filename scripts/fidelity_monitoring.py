@@ -1,10 +1,10 @@
-"""The ``monitoring`` part of the fidelity evaluation (issue 17).
+"""The ``monitoring`` part of the fidelity evaluation.
 
 Run::
 
     OPENBLAS_NUM_THREADS=1 python scripts/evaluate_fidelity.py monitoring \
         [--per-fault 8] [--healthy 12] [--recordings 200] [--workers 2] \
-        [--json fidelity-monitoring.json]
+        [--json docs/evaluation/fidelity-monitoring.json]
 
 Conveyors are drawn from the weighing evaluation's design distribution
 (every realism effect on, the richer plant, 1, 6 or 12 ms scopes). For each
@@ -68,7 +68,7 @@ FAULT_TYPES = (
     "elongation",
     "sprocket",
 )
-"""The seven fault types (``rail_obstacle`` is the issue's obstruction)."""
+"""The seven fault types (``rail_obstacle`` stands for the obstruction)."""
 
 EXPECTED = expected_causes()
 """The probable cause each fault type should be given (the fault table's)."""

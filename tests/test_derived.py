@@ -87,8 +87,7 @@ def test_every_trend_in_one_request_as_each_alone_without_a_refit(
 def test_forecasts_are_refitted_after_ingest_and_say_how_far_behind(
     fleet: Path, tmp_path: Path
 ) -> None:
-    store = Store(f"sqlite:///{tmp_path / 'plant.db'}")
-    try:
+    with Store(f"sqlite:///{tmp_path / 'plant.db'}") as store:
         cal_files = sorted((fleet / "calibration").glob("*.csv"))
         recs = [load_recording(f, profile=PROFILE).recording for f in cal_files]
         store.put_calibration(calibrate(recs, PROFILE))
@@ -146,8 +145,6 @@ def test_forecasts_are_refitted_after_ingest_and_say_how_far_behind(
         ]
         assert json.dumps(json_ready(report.forecasts)) == json.dumps(json_ready(fresh))
         assert read_derived(store, PROFILE.id) == now  # nothing written by a report
-    finally:
-        store.close()
 
 
 def test_in_a_browser_the_page_of_a_conveyor_in_alarm_draws_every_trend(

@@ -162,8 +162,7 @@ def test_a_toy_format_through_a_watched_folder(tmp_path: Path) -> None:
 
     asyncio.run(hand_over())
     profile = load_profile(REFERENCE_PROFILE)
-    store = Store(f"sqlite:///{tmp_path / 'plant.db'}")
-    try:
+    with Store(f"sqlite:///{tmp_path / 'plant.db'}") as store:
         calibration = [
             load_recording(EXAMPLES / "recordings" / name, profile=profile).recording
             for name in ("white-belt-01-cal-empty.csv", "white-belt-01-cal-50kg.csv")
@@ -172,5 +171,3 @@ def test_a_toy_format_through_a_watched_folder(tmp_path: Path) -> None:
         summary = ingest(handed, {profile.id: profile}, store, workers=1)
         assert (summary.processed, summary.refused) == (1, 0)
         assert [file for _id, file, _at in store.recording_index(profile.id)] == [str(toy)]
-    finally:
-        store.close()

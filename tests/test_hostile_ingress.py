@@ -441,8 +441,7 @@ def test_a_file_that_cannot_be_read_now_fails_and_is_tried_again_not_refused(
     pipe = tmp_path / "pipe.csv"
     os.mkfifo(pipe)
     url = f"sqlite:///{tmp_path / 'plant.db'}"
-    store = Store(url)
-    try:
+    with Store(url) as store:
         ingestor = Ingestor(store, {})
         with pytest.raises(RecordingError, match="cannot be read") as info:
             ingestor.ingest_one(Job(str(a), "folder:x"))
@@ -455,5 +454,3 @@ def test_a_file_that_cannot_be_read_now_fails_and_is_tried_again_not_refused(
             rows = [(r.path, r.reason) for r in s.scalars(select(RefusedFileRow))]
         assert rows == [(str(pipe), f"{pipe}: {NOT_REGULAR}")]
         ingestor.close()
-    finally:
-        store.close()

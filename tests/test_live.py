@@ -1170,7 +1170,7 @@ def test_memory_usage_and_trim_on_glibc() -> None:
 
 
 def test_serve_bounds_its_sqlite_connections_and_their_page_caches(tmp_path: Path) -> None:
-    """Issue 21: the live service's memory grew for hours as its pool opened SQLite
+    """The live service's memory grew for hours as its pool opened SQLite
     connections one by one (16 kept), each with SQLite's default 2 MB page cache.
     ``serve`` keeps few on SQLite, each with a small cache set on every new connection;
     a burst opens more, closed when given back."""
@@ -1209,12 +1209,8 @@ def test_the_page_cache_pragma_applies_to_a_read_only_store_too(tmp_path: Path) 
 
     url = f"sqlite:///{tmp_path / 'ro.db'}"
     Store(url).close()
-    store = Store(url, read_only=True, sqlite_cache_kib=256)
-    try:
-        with store.engine.connect() as c:
-            assert c.execute(text("PRAGMA cache_size")).scalar() == -256
-    finally:
-        store.close()
+    with Store(url, read_only=True, sqlite_cache_kib=256) as store, store.engine.connect() as c:
+        assert c.execute(text("PRAGMA cache_size")).scalar() == -256
 
 
 def test_a_drive_with_a_lease_of_its_own_has_its_row_written_by_its_own_source_only(

@@ -530,16 +530,13 @@ def test_a_scope_read_twice_is_stored_once(ua_loop: Loop, sim: DriveSim, tmp_pat
         files.append(write_recording(rec, tmp_path / f"read{i}.csv"))
     digests = {hashlib.sha256(p.read_bytes()).hexdigest() for p in files}
     assert len(digests) == 1  # the store's content hash: the same content
-    store = Store(f"sqlite:///{tmp_path / 'store.db'}")
-    try:
+    with Store(f"sqlite:///{tmp_path / 'store.db'}") as store:
         first = ingest([str(files[0])], {CONVEYOR: PROFILE}, store)
         second = ingest([str(files[1])], {CONVEYOR: PROFILE}, store)
         assert first.refused == 0 and first.duplicates == 0
         assert second.duplicates == 1 and second.processed == 0
         assert store.counts()["recordings"] == 1
         assert store.known(digests) == digests
-    finally:
-        store.close()
     # and a file of it reads back to the scope
     again = read_recording(files[0], profile=PROFILE)
     assert again.metadata == scope.recording.metadata

@@ -173,12 +173,9 @@ def test_demo_runs_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture[str]
 
     found = re.search(r"ct_[A-Za-z0-9_-]{40,}", text)
     assert found is not None
-    store = Store(f"sqlite:///{out / 'plant.db'}", create=False)
-    try:
+    with Store(f"sqlite:///{out / 'plant.db'}", create=False) as store:
         info = verify_token(store, found.group(0))
         assert info is not None and info.role == "viewer"
-    finally:
-        store.close()
     # a second run rebuilds the demo's own folder; a foreign folder is refused
     assert main(args) == 0
     foreign = tmp_path / "mine"
@@ -194,8 +191,7 @@ def test_trend_points_lie_above_the_drawn_limit_exactly_when_judged_so(plant_db:
     from chaintwin.report.data import conveyor_data
     from chaintwin.store.store import Store
 
-    store = Store(plant_db)
-    try:
+    with Store(plant_db) as store:
         judged = 0
         for cid in (HEALTHY, FAULTY):
             d = conveyor_data(store, cid, waterfall=0)
@@ -212,8 +208,6 @@ def test_trend_points_lie_above_the_drawn_limit_exactly_when_judged_so(plant_db:
         assert judged > 100
         faulty = conveyor_data(store, FAULTY, waterfall=0)
         assert any(any(t.exceeded) for t in faulty.trends)  # the check saw exceedances
-    finally:
-        store.close()
 
 
 def test_page_names_are_distinct_and_never_the_fleet_page() -> None:
@@ -265,8 +259,7 @@ def test_the_report_reads_the_stored_health_as_the_monitor_would_say_it(plant_db
     from chaintwin.report.data import conveyor_data
     from chaintwin.store.store import Store
 
-    store = Store(plant_db)
-    try:
+    with Store(plant_db) as store:
         for cid in (HEALTHY, FAULTY):
             profile = store.profile(cid)
             state = store.state(cid)
@@ -283,8 +276,6 @@ def test_the_report_reads_the_stored_health_as_the_monitor_would_say_it(plant_db
             assert page.calibration is not None and mon.calibration is not None
             assert page.calibration.to_dict() == mon.calibration.to_dict()
         assert page.summary["open_alarms"]  # the faulty conveyor's alarm is on the page
-    finally:
-        store.close()
 
 
 def test_campbell_peaks_are_the_lines_standing_out_of_the_floor() -> None:

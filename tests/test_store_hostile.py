@@ -378,11 +378,8 @@ def _monitored_store(tmp_path: Path) -> tuple[str, str]:
     shutil.copy(FIXTURE_STORE, path)
     url = f"sqlite:///{path}"
     assert main(["db", "upgrade", "--db", url]) == 0
-    store = Store(url)
-    try:
+    with Store(url) as store:
         conveyor = store.conveyors()[0]
-    finally:
-        store.close()
     return url, conveyor
 
 

@@ -930,8 +930,7 @@ def test_trend_rows_keep_the_newest_whole_and_thin_the_rest(tmp_path: Path) -> N
     from chaintwin.store.queries import trend_rows
     from chaintwin.store.schema import ConveyorRow, RecordingRow, ResultRow
 
-    store = Store(f"sqlite:///{tmp_path / 'long.db'}")
-    try:
+    with Store(f"sqlite:///{tmp_path / 'long.db'}") as store:
         with store.engine.begin() as c:
             for cid in ("a", "b"):
                 c.execute(
@@ -994,8 +993,6 @@ def test_trend_rows_keep_the_newest_whole_and_thin_the_rest(tmp_path: Path) -> N
         few = trend_rows(store, "b", 5000)
         assert [r["n"] for r in few.results] == [r["n"] for r in store.results("b")]
         assert few.total == 1000 and few.represents == [1] * 1000
-    finally:
-        store.close()
 
 
 def test_the_served_app_freezes_its_start_up_heap(tmp_path: Path) -> None:

@@ -22,13 +22,23 @@ if TYPE_CHECKING:
 
 
 __all__ = [
+    "DB_HELP",
+    "EDIT_STATE_HELP",
     "EXIT_ALARM",
     "EXIT_USAGE",
     "OPTION_OF_FIELD",
+    "PROFILES_HELP",
     "ColumnsOption",
+    "DbOption",
+    "EditStateOption",
+    "JsonListOption",
+    "JsonObjectOption",
+    "ProfilesOption",
+    "db_option",
     "error_message",
     "error_object",
     "expand_recordings",
+    "json_option",
     "load_options",
     "print_json",
     "print_refused",
@@ -85,6 +95,44 @@ ColumnsOption = Annotated[
     Path | None,
     typer.Option("--columns", help="Column map YAML for exports named otherwise."),
 ]
+
+DB_HELP = (
+    "Results store URL (sqlite:///file.db, postgresql://...); default CHAINTWIN_DB, "
+    "else sqlite:///chaintwin.db."
+)
+"""The help of ``--db`` where it names the results store."""
+
+PROFILES_HELP = "Folder of profiles (*.yaml); recordings are matched to them by conveyor id."
+"""The help of ``--profiles`` where recordings are matched to profiles."""
+
+EDIT_STATE_HELP = "The monitoring state file (of `monitor --state`)."
+"""The help of ``--state`` for the commands that change a monitoring state."""
+
+
+def db_option(help: str = DB_HELP) -> Any:
+    """The ``--db`` option (a results store URL), with its help."""
+    return typer.Option("--db", help=help)
+
+
+def json_option(help: str) -> Any:
+    """The ``--json`` option (print JSON instead of text), with its help."""
+    return typer.Option("--json", help=help)
+
+
+#: ``--db``: the results store's URL (default CHAINTWIN_DB, else sqlite:///chaintwin.db).
+DbOption = Annotated[str | None, db_option()]
+
+#: ``--json`` of a command that prints a list.
+JsonListOption = Annotated[bool, json_option("Print one JSON list.")]
+
+#: ``--json`` of a command that prints one object.
+JsonObjectOption = Annotated[bool, json_option("Print one JSON object.")]
+
+#: ``--profiles``: a folder of profiles matched to recordings by conveyor id.
+ProfilesOption = Annotated[Path | None, typer.Option("--profiles", help=PROFILES_HELP)]
+
+#: ``--state`` of the commands that change a monitoring state file.
+EditStateOption = Annotated[Path | None, typer.Option("--state", help=EDIT_STATE_HELP)]
 
 
 def wants_json(args: Iterable[str]) -> bool:

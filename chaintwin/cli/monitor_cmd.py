@@ -15,7 +15,11 @@ from rich.table import Table
 from chaintwin.cli.common import (
     EXIT_ALARM,
     ColumnsOption,
+    EditStateOption,
+    ProfilesOption,
+    db_option,
     expand_recordings,
+    json_option,
     print_json,
     print_refused,
     print_warning,
@@ -42,14 +46,12 @@ T = TypeVar("T")
 __all__ = ["load_profiles", "register", "run_monitor"]
 
 _PROFILE_HELP = "Profile of the one conveyor monitored."
-_PROFILES_HELP = "Folder of profiles (*.yaml); recordings are matched to them by conveyor id."
 _CAL_HELP = (
     "Calibration file (repeat for several conveyors). A calibration of another conveyor "
     "serves as a sibling's starting point when one --profile is given."
 )
 _STATE_HELP = "State file: monitoring continues from it and is saved back (created if missing)."
 _BASELINE_HELP = "Recordings in a baseline (and in a learned calibration) [20]."
-_EDIT_STATE_HELP = "The monitoring state file (of `monitor --state`)."
 _EDIT_DB_HELP = (
     "Or the results store (of `ingest --db`); without --state the store is used: this URL, "
     "else CHAINTWIN_DB, else sqlite:///chaintwin.db."
@@ -273,7 +275,7 @@ def register(app: typer.Typer) -> None:
     def monitor_cmd(
         files: Annotated[list[Path], typer.Argument(help=_FILES_HELP)],
         profile: Annotated[Path | None, typer.Option("--profile", help=_PROFILE_HELP)] = None,
-        profiles: Annotated[Path | None, typer.Option("--profiles", help=_PROFILES_HELP)] = None,
+        profiles: ProfilesOption = None,
         calibration: Annotated[
             list[Path] | None, typer.Option("--calibration", help=_CAL_HELP)
         ] = None,
@@ -281,7 +283,7 @@ def register(app: typer.Typer) -> None:
         baseline: Annotated[int | None, typer.Option("--baseline", help=_BASELINE_HELP)] = None,
         alarm_rule: Annotated[str | None, typer.Option("--alarm-rule", help=_RULE_HELP)] = None,
         z_limit: Annotated[float | None, typer.Option("--z-limit", help=_Z_HELP)] = None,
-        as_json: Annotated[bool, typer.Option("--json", help=_JSON_HELP)] = False,
+        as_json: Annotated[bool, json_option(_JSON_HELP)] = False,
         fail_on_alarm: Annotated[bool, typer.Option("--fail-on-alarm", help=_FAIL_HELP)] = False,
         columns: ColumnsOption = None,
         residual: Annotated[
@@ -339,8 +341,8 @@ def register(app: typer.Typer) -> None:
         at: Annotated[
             str | None, typer.Option("--at", help="When (ISO 8601); default now.")
         ] = None,
-        state: Annotated[Path | None, typer.Option("--state", help=_EDIT_STATE_HELP)] = None,
-        db: Annotated[str | None, typer.Option("--db", help=_EDIT_DB_HELP)] = None,
+        state: EditStateOption = None,
+        db: Annotated[str | None, db_option(_EDIT_DB_HELP)] = None,
     ) -> None:
         """Record a maintenance event: the conveyor's baseline restarts after it."""
         from chaintwin.diagnose.state import add_maintenance
@@ -360,8 +362,8 @@ def register(app: typer.Typer) -> None:
         alarm: Annotated[str, typer.Argument(help="Alarm id (from monitor).")],
         by: Annotated[str, typer.Option("--by", help="Who acknowledges.")],
         why: Annotated[str, typer.Option("--why", help="Why (e.g. work order).")] = "",
-        state: Annotated[Path | None, typer.Option("--state", help=_EDIT_STATE_HELP)] = None,
-        db: Annotated[str | None, typer.Option("--db", help=_EDIT_DB_HELP)] = None,
+        state: EditStateOption = None,
+        db: Annotated[str | None, db_option(_EDIT_DB_HELP)] = None,
     ) -> None:
         """Acknowledge an alarm: someone has seen it; it stays open until it closes."""
         from chaintwin.diagnose.state import acknowledge_alarm
@@ -394,13 +396,10 @@ def _edit(
     from chaintwin.store.engine import store_url
     from chaintwin.store.store import Store
 
-    store = Store(store_url(db), create=False)
-    try:
+    with Store(store_url(db), create=False) as store:
         if conveyor is None:
             conveyor = store.alarm_conveyor(alarm or "")
         return store.edit_state(conveyor, edit)
-    finally:
-        store.close()
 
 
 def _parse_at(text: str | None, option: str = "--at") -> datetime | None:

@@ -21,7 +21,7 @@ if TYPE_CHECKING:
 from rich.console import Console
 from rich.progress import Progress
 
-from chaintwin.cli.common import print_json
+from chaintwin.cli.common import json_option, print_json
 from chaintwin.diagnose.records import date_out_of_span
 from chaintwin.errors import CalibrationError, ModelError, RecordingError
 from chaintwin.units import RPM_TO_RAD_S
@@ -234,9 +234,7 @@ def register(app: typer.Typer) -> None:
                 "--calibration", help="Simulate with the friction and losses of a calibration."
             ),
         ] = None,
-        as_json: Annotated[
-            bool, typer.Option("--json", help="Print the ground truth as JSON.")
-        ] = False,
+        as_json: Annotated[bool, json_option("Print the ground truth as JSON.")] = False,
     ) -> None:
         """Simulate one drive recording of the virtual conveyor (what-if runs).
 

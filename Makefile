@@ -6,7 +6,7 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 SOURCES := chaintwin tests benchmarks scripts
 
-.PHONY: demo test check format bench clean
+.PHONY: demo test test-fast check format bench clean
 
 $(BIN)/python:
 	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "chaintwin needs Python >= 3.11"'
@@ -36,6 +36,15 @@ test: $(VENV)/.installed-dev
 	$(BIN)/ruff check $(SOURCES)
 	$(BIN)/mypy chaintwin
 	$(BIN)/pytest -q --cov --cov-report=term:skip-covered
+
+## test-fast: what `make test` checks but the slow, browser and PostgreSQL tests (markers
+## in pyproject.toml) and the coverage floor: formatter check, linter, type checker (its
+## cache makes it quick after the first run), the quick tests and the doctests
+test-fast: $(VENV)/.installed-dev
+	$(BIN)/ruff format --check $(SOURCES)
+	$(BIN)/ruff check $(SOURCES)
+	$(BIN)/mypy chaintwin
+	$(BIN)/pytest -q -m "not slow and not browser and not postgres"
 
 format: $(VENV)/.installed-dev
 	$(BIN)/ruff format $(SOURCES)

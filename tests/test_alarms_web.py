@@ -146,6 +146,7 @@ def test_the_dashboard_forms_shelve_comment_and_take_out_of_service(served: Serv
         assert 'data-kpis="fleet"' in kpis.text and f'data-kpis="{PROFILE.id}"' in kpis.text
 
 
+@pytest.mark.browser
 def test_in_a_browser_acknowledge_shelve_comment_and_unshelve(served: Served) -> None:
     """Chromium driven by Playwright through the alarms page's forms."""
     from test_web import CHROMIUM

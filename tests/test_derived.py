@@ -147,6 +147,7 @@ def test_forecasts_are_refitted_after_ingest_and_say_how_far_behind(
         assert read_derived(store, PROFILE.id) == now  # nothing written by a report
 
 
+@pytest.mark.browser
 def test_in_a_browser_the_page_of_a_conveyor_in_alarm_draws_every_trend(
     fleet: Path, tmp_path: Path
 ) -> None:

@@ -478,8 +478,8 @@ def test_a_lease_expires_when_its_holder_stops_renewing(tmp_path: Path) -> None:
     assert acquire_lease(store, "opcua:white-belt-01", "host-a:1", 0.3)
     assert acquire_lease(store, "opcua:white-belt-01", "host-a:1", 0.3)  # renewed
     assert not acquire_lease(store, "opcua:white-belt-01", "host-b:2", 0.3)
-    time.sleep(0.4)
-    assert acquire_lease(store, "opcua:white-belt-01", "host-b:2", 0.3)  # a's expired
+    # a's lease expires unrenewed: b takes it then
+    wait_for(lambda: acquire_lease(store, "opcua:white-belt-01", "host-b:2", 0.3), 10, "expiry")
     assert not acquire_lease(store, "opcua:white-belt-01", "host-a:1", 0.3)
     with Session(store.engine) as s:
         assert s.get(LeaseRow, "opcua:white-belt-01").holder == "host-b:2"  # type: ignore[union-attr]

@@ -168,5 +168,6 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         callspec = getattr(item, "callspec", None)
         params = callspec.params.values() if callspec is not None else ()
-        if "postgres" in getattr(item, "fixturenames", ()) or "postgresql" in params:
+        on_postgresql = any(isinstance(v, str) and v == "postgresql" for v in params)
+        if "postgres" in getattr(item, "fixturenames", ()) or on_postgresql:
             item.add_marker(pytest.mark.postgres)

@@ -25,6 +25,7 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
     s.close()
 
 
+@pytest.mark.slow
 def test_shelve_unshelve_and_comment_an_alarm(served: Served) -> None:
     viewer, maintainer, admin = (served.client(r) for r in ("viewer", "maintainer", "admin"))
     (alarm,) = viewer.get("/api/v1/alarms", params={"state": "open"}).json()

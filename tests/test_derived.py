@@ -41,6 +41,7 @@ def _no_refit(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(derived, "derived_of", refused)
 
 
+@pytest.mark.slow
 def test_every_trend_in_one_request_as_each_alone_without_a_refit(
     served: Served, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -84,6 +85,7 @@ def test_every_trend_in_one_request_as_each_alone_without_a_refit(
     assert browser.get(f"/conveyors/{PROFILE.id}").status_code == 200
 
 
+@pytest.mark.slow
 def test_forecasts_are_refitted_after_ingest_and_say_how_far_behind(
     fleet: Path, tmp_path: Path
 ) -> None:

@@ -100,6 +100,7 @@ def test_links_are_followed_and_loops_refused(tmp_path: Path) -> None:
         read_recording(a)
 
 
+@pytest.mark.slow
 def test_deep_nesting_is_a_one_line_error(tmp_path: Path) -> None:
     deep_yaml = tmp_path / "deep.yaml"
     deep_yaml.write_text("[" * 5000 + "]" * 5000)

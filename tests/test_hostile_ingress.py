@@ -208,6 +208,7 @@ def _after(watched: Watched, before: tuple[dict[str, str], dict[str, str]], host
     assert peak <= bound, f"peak {peak / 1e6:.0f} MB, bound {bound / 1e6:.0f} MB"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(CASES))
 def test_a_hostile_file_is_refused_in_one_line_and_the_next_good_file_stored(
     watched: Watched, name: str

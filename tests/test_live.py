@@ -159,6 +159,7 @@ def test_which_names_are_read() -> None:
     assert not is_candidate("/a/truth.jsonl")
 
 
+@pytest.mark.slow
 def test_slowly_written_files_are_read_once_complete_with_metrics_health_and_sigterm(
     fleet: Path, tmp_path: Path
 ) -> None:
@@ -267,6 +268,7 @@ def test_slowly_written_files_are_read_once_complete_with_metrics_health_and_sig
     assert any("stopping" in line for line in service.lines())
 
 
+@pytest.mark.slow
 def test_kill_9_while_files_arrive_then_restart_stores_every_file_once(
     fleet: Path, tmp_path: Path
 ) -> None:
@@ -746,6 +748,7 @@ def test_serve_refuses_bad_options_in_one_line(
     assert not db.exists()  # refused before the store is touched
 
 
+@pytest.mark.slow
 def test_files_refused_for_want_of_a_profile_are_read_again_when_it_is_added(
     fleet: Path, tmp_path: Path
 ) -> None:
@@ -821,6 +824,7 @@ def test_web_uploads_take_the_profiles_the_live_service_reads_again(
         store.close()
 
 
+@pytest.mark.slow
 def test_a_profile_added_while_the_service_was_down_reads_the_refused_files_at_start(
     fleet: Path, tmp_path: Path
 ) -> None:
@@ -1056,6 +1060,7 @@ def test_serve_refuses_bad_mail_options_in_one_line(
     assert len(err.splitlines()) == 1 and needle in err, err
 
 
+@pytest.mark.slow
 def test_serve_mails_the_outbox_with_its_options(fleet: Path, tmp_path: Path) -> None:
     """``serve --notify-smtp ... --notify-mail-to ...`` end to end, with a login file."""
     url = f"sqlite:///{tmp_path / 'plant.db'}"

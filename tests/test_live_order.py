@@ -187,6 +187,7 @@ def _out_of_order(dump: dict[str, Any]) -> int:
     return sum(1 for w in dump["warnings"] if w[2] == "out_of_order")
 
 
+@pytest.mark.slow
 def test_a_shuffled_burst_gives_what_ingest_of_the_same_files_gives(
     check_same: ModuleType, tmp_path: Path
 ) -> None:

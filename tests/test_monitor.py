@@ -394,6 +394,7 @@ def _onset(folder: Path) -> str:
     return next(t["recorded_at"] for t in truth if any(v > 0 for v in t["faults"].values()))
 
 
+@pytest.mark.slow
 def test_condition_fit_s_loss_gradient_matches_a_refit_and_a_simulated_drift(
     cal: Calibration,
 ) -> None:
@@ -655,6 +656,7 @@ def test_without_calibration_one_is_learned(series: dict[str, Path]) -> None:
 
 
 # ---------------------------------------------------------------- command line
+@pytest.mark.slow
 def test_cli_monitor_state_fail_on_alarm_and_acknowledge(
     series: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -510,6 +510,7 @@ def test_the_client_tells_the_drive_the_largest_message_it_takes() -> None:
     assert client.max_messagesize == MAX_MESSAGE_BYTES
 
 
+@pytest.mark.slow
 def test_a_scope_read_twice_is_stored_once(ua_loop: Loop, sim: DriveSim, tmp_path: Path) -> None:
     from chaintwin.store import Store
     from chaintwin.store.ingest import ingest
@@ -597,6 +598,7 @@ def test_faults_grow_from_the_onset_counted_in_scopes() -> None:
     assert [step.severities(k)[0].severity for k in range(4)] == [0.0, 0.0, 0.8, 0.8]
 
 
+@pytest.mark.slow
 def test_a_running_drive_simulates_each_scope_before_its_trigger(ua_loop: Loop) -> None:
     """run() simulates the next scope during the interval: a scope triggers when it is
     published, so a slow simulation is not in the time from trigger to counter change."""
@@ -870,6 +872,7 @@ def test_recording_from_scope_equals_the_file_of_it_and_refuses_alike(sim: Drive
 
 
 # ---------------------------------------------------------------- the command
+@pytest.mark.slow
 def test_drive_sim_command_serves_the_minimal_config_and_stops_on_sigterm(
     ua_loop: Loop, tmp_path: Path
 ) -> None:
@@ -930,6 +933,7 @@ def test_drive_sim_command_refuses_bad_options(capsys: pytest.CaptureFixture[str
     assert "whole multiple of the controller cycle" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_serve_follows_a_drive_over_opcua_and_stores_its_scopes(
     ua_loop: Loop, sim: DriveSim, tmp_path: Path
 ) -> None:

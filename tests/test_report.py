@@ -67,6 +67,7 @@ def _self_contained(html: str) -> None:
     assert "@import" not in html and "url(" not in html
 
 
+@pytest.mark.slow
 def test_conveyor_page_has_every_section_with_real_plots(
     plant_db: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -107,6 +108,7 @@ def test_conveyor_page_has_every_section_with_real_plots(
     assert "constant" in _section(html, "residuals")
 
 
+@pytest.mark.slow
 def test_fleet_page_ranks_the_faulty_conveyor_first(plant_db: str, tmp_path: Path) -> None:
     assert main(["report", "--db", plant_db, "--all", "--out", str(tmp_path / "r")]) == 0
     pages = sorted(p.name for p in (tmp_path / "r").iterdir())
@@ -128,6 +130,7 @@ def test_fleet_page_ranks_the_faulty_conveyor_first(plant_db: str, tmp_path: Pat
     assert 'href="fleet.html"' in (tmp_path / "r" / f"{HEALTHY}.html").read_text(encoding="utf-8")
 
 
+@pytest.mark.slow
 def test_report_escapes_user_text_and_refuses_bad_requests(
     plant_db: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -150,6 +153,7 @@ def test_report_escapes_user_text_and_refuses_bad_requests(
     assert out.read_text(encoding="utf-8") == html  # the page there is left as it was
 
 
+@pytest.mark.slow
 def test_demo_runs_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "demo"
     args = ["demo", "--out", str(out), "--days", "4", "--per-day", "3", "--workers", "1"]

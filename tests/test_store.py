@@ -61,6 +61,7 @@ def _calibrate(plant: Path, url: str) -> None:
 
 
 # ---------------------------------------------------------------- tests
+@pytest.mark.slow
 def test_ingest_is_idempotent_and_keeps_a_refused_file_out(
     plant: Path, db: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -183,6 +184,7 @@ def _ingest_cmd(plant: Path, url: str, group: int) -> list[str]:
     ]
 
 
+@pytest.mark.slow
 def test_killed_ingest_leaves_one_result_per_recording(plant: Path, db: str) -> None:
     _calibrate(plant, db)
     files = _recordings(plant)
@@ -218,6 +220,7 @@ def test_killed_ingest_leaves_one_result_per_recording(plant: Path, db: str) -> 
             proc.kill()
 
 
+@pytest.mark.slow
 def test_two_ingests_at_once_store_each_recording_once(plant: Path, db: str) -> None:
     _calibrate(plant, db)
     files = _recordings(plant)
@@ -241,6 +244,7 @@ def test_two_ingests_at_once_store_each_recording_once(plant: Path, db: str) -> 
         assert len({r["file"] for r in store.results()}) == len(files)
 
 
+@pytest.mark.slow
 def test_dask_cluster_and_this_process_give_the_same_results_as_the_local_pool(
     plant: Path, tmp_path: Path
 ) -> None:
@@ -486,6 +490,7 @@ def test_what_tasks_share_goes_to_a_dask_cluster_once() -> None:
     ex.shutdown()
 
 
+@pytest.mark.slow
 def test_a_fleet_ingest_on_workers_equals_each_conveyor_ingested_alone(tmp_path: Path) -> None:
     """Three conveyors in one shuffled batch on two workers (tasks across conveyors, small
     commit groups, one conveyor learning its calibration) against one conveyor at a time here."""
@@ -674,6 +679,7 @@ def _session(sid: int) -> list[int]:
     return found
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
 def test_no_process_outlives_a_killed_ingest_and_sigterm_says_what_was_stored(
     tmp_path: Path,
@@ -768,6 +774,7 @@ def test_a_damaged_stored_health_model_leaves_the_page_with_a_note(tmp_path: Pat
         assert any("health model not readable" in n for n in page.notes)
 
 
+@pytest.mark.slow
 def test_a_long_ingest_keeps_only_the_stored_history_in_memory(
     plant: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -137,6 +137,7 @@ def _error(response: httpx.Response, status: int, code: str) -> str:
     return message
 
 
+@pytest.mark.slow
 def test_reading_the_api_needs_a_token_and_pages_through_results(served: Served) -> None:
     anon = served.client()
     health = anon.get("/api/v1/health").json()
@@ -697,6 +698,7 @@ def api_schema(fleet: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterato
     s.close()
 
 
+@pytest.mark.slow
 def test_every_operation_answers_as_its_schema_says(
     api_schema: Any, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -1001,6 +1003,7 @@ def test_trend_rows_keep_the_newest_whole_and_thin_the_rest(tmp_path: Path) -> N
         assert few.total == 1000 and few.represents == [1] * 1000
 
 
+@pytest.mark.slow
 def test_the_served_app_freezes_its_start_up_heap(tmp_path: Path) -> None:
     import subprocess
     import sys

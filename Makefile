@@ -6,7 +6,7 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 SOURCES := chaintwin tests benchmarks scripts
 
-.PHONY: demo test check format bench docs clean
+.PHONY: demo test test-fast check format bench docs clean
 
 $(BIN)/python:
 	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "chaintwin needs Python >= 3.11"'
@@ -42,6 +42,16 @@ test: $(VENV)/.installed-dev
 ## docs: the documentation site in site/ (mkdocs.yml; `$(BIN)/mkdocs serve` to read it live)
 docs: $(VENV)/.installed-dev
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
+
+## test-fast: what `make test` checks but the slow, browser and PostgreSQL tests (markers
+## in pyproject.toml) and the coverage floor: formatter check, linter, type checker (its
+## cache makes it quick after the first run), the quick tests and the doctests
+test-fast: $(VENV)/.installed-dev
+	$(BIN)/ruff format --check $(SOURCES)
+	$(BIN)/ruff check $(SOURCES)
+	$(BIN)/mypy chaintwin
+	$(BIN)/lint-imports --no-cache
+	$(BIN)/pytest -q -m "not slow and not browser and not postgres"
 
 format: $(VENV)/.installed-dev
 	$(BIN)/ruff format $(SOURCES)

@@ -1,6 +1,6 @@
 """Benchmark: the live service following watched folders (a script, not a test).
 
-Scenario (issue 21): ``--sources`` conveyors (20), each writing a recording
+Scenario: ``--sources`` conveyors (20), each writing a recording
 into its own sub-folder of one watched folder every ``--interval`` seconds
 (2), for ``--seconds`` (60; an hour for the memory check). ``chaintwin serve
 --no-web --watch DROP --settle-s S`` runs in its own process. It prints

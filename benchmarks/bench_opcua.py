@@ -409,8 +409,7 @@ def reference_ingest(rounds: int) -> tuple[float, float]:
         profiles.mkdir()
         (profiles / "white-belt-01.yaml").write_bytes(PROFILE.read_bytes())
         url = f"sqlite:///{tmp}/ref.db"
-        store = Store(url)
-        try:
+        with Store(url) as store:
             store.put_calibration(cal)
             inproc = []
             for k, f in enumerate(files[: rounds + 1]):
@@ -419,8 +418,6 @@ def reference_ingest(rounds: int) -> tuple[float, float]:
                 if k > 0:  # the first one compiles and warms up
                     inproc.append(time.perf_counter() - t0)
                 assert summary.refused == 0, summary.refusals
-        finally:
-            store.close()
         cli = []
         env = {**os.environ, "PYTHONPATH": str(PROFILE.parents[3])}
         for f in files[rounds + 1 : 2 * rounds + 1]:

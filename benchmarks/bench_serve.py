@@ -1,6 +1,6 @@
 """Benchmark: the dashboard and API on a large store (a script, not a test).
 
-Scenario (issue 20): a store of ``--conveyors`` conveyors (200) with
+Scenario: a store of ``--conveyors`` conveyors (200) with
 ``--results`` result rows each (10 000; synthetic rows without samples),
 on SQLite (a file) and, with ``--postgres URL`` (an empty database) or
 ``--postgres auto`` (a private server started here from the distribution's
@@ -201,8 +201,7 @@ def fault_fleet(folder: Path, conveyors: int, days: int, per_day: int) -> FaultF
 
 def ingest_fault_fleet(url: str, fleet: FaultFleet, *, refit: bool = True) -> tuple[float, int]:
     """Ingest the fault fleet into a store (calibrations first); seconds, recordings stored."""
-    store = Store(url)
-    try:
+    with Store(url) as store:
         for cid, cal_files in fleet.calibration_files.items():
             prof = fleet.profiles[cid]
             recs = [load_recording(f, profile=prof).recording for f in cal_files]
@@ -215,8 +214,6 @@ def ingest_fault_fleet(url: str, fleet: FaultFleet, *, refit: bool = True) -> tu
         seconds = time.perf_counter() - t0
         assert summary.refused == 0, summary.refusals[:3]
         return seconds, summary.processed
-    finally:
-        store.close()
 
 
 def compare_ingest(fleet: FaultFleet, rounds: int) -> dict[str, Any]:
@@ -319,11 +316,8 @@ def polling(
 
 def reuse(url: str) -> str:
     """A new admin token in a store built by an earlier run (``--sqlite-file``)."""
-    store = Store(url)
-    try:
+    with Store(url) as store:
         return create_token(store, f"bench-{time.time_ns()}", "admin")
-    finally:
-        store.close()
 
 
 def measure(

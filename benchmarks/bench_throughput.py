@@ -1,4 +1,4 @@
-"""Benchmark: ingest throughput against the cost of reading, scaling, PostgreSQL, memory (issue 22).
+"""Benchmark: ingest throughput against the cost of reading, scaling, PostgreSQL, memory.
 
 A script, not a test: every figure is a ratio against a reference measured
 in the same run (the machine drifts by 10 % and more between runs), and
@@ -421,7 +421,7 @@ def main() -> None:
     best = {k: min(v) for k, v in times.items()}
     ref = best["read"] / n
     print(
-        f"chaintwin ingest throughput (issue 22), {prof.id}: {n} recordings "
+        f"chaintwin ingest throughput, {prof.id}: {n} recordings "
         f"({n // PER_DAY} days x {PER_DAY}, 2048 samples at 6 ms, friction rise from day "
         f"{ONSET_DAY}), baseline_n={BASELINE_N}; best of {args.rounds} rounds; "
         f"os.cpu_count()={os.cpu_count()}; load average {os.getloadavg()[0]:.2f}; "

@@ -1,4 +1,4 @@
-"""Accuracy benchmark of identification and dynamic weighing (issue 4).
+"""Accuracy benchmark of identification and dynamic weighing.
 
 On the virtual conveyor with all realism on (noise, quantisation, elastic
 belt, stick-slip, polygon effect, gear mesh ripple), healthy and with the same

@@ -135,29 +135,28 @@ def record(out: Path, data: Path, workers: int | None) -> None:
         str(Path(f).relative_to(data)): hashlib.sha256(Path(f).read_bytes()).hexdigest()
         for f in files
     }
-    with tempfile.TemporaryDirectory(prefix="check_same_") as tmp:
-        store = Store(f"sqlite:///{Path(tmp) / 'check.db'}")
-        try:
-            for cid, _fault, _seed, calibrated in PLANT:
-                if not calibrated:
-                    continue
-                prof = profiles[cid]
-                cal_files = sorted((data / cid / "calibration").glob("*.csv"))
-                recs = [load_recording(f, profile=prof).recording for f in cal_files]
-                recs = [r for r in recs if r.metadata.payload_kg == 0.0]
-                store.put_calibration(calibrate(recs, prof, version="check"))
-            t0 = time.perf_counter()
-            summary = ingest(
-                files,
-                profiles,
-                store,
-                settings=MonitorSettings(baseline_n=BASELINE_N),
-                workers=workers,
-            )
-            seconds = time.perf_counter() - t0
-            dump = _dump(store, data)
-        finally:
-            store.close()
+    with (
+        tempfile.TemporaryDirectory(prefix="check_same_") as tmp,
+        Store(f"sqlite:///{Path(tmp) / 'check.db'}") as store,
+    ):
+        for cid, _fault, _seed, calibrated in PLANT:
+            if not calibrated:
+                continue
+            prof = profiles[cid]
+            cal_files = sorted((data / cid / "calibration").glob("*.csv"))
+            recs = [load_recording(f, profile=prof).recording for f in cal_files]
+            recs = [r for r in recs if r.metadata.payload_kg == 0.0]
+            store.put_calibration(calibrate(recs, prof, version="check"))
+        t0 = time.perf_counter()
+        summary = ingest(
+            files,
+            profiles,
+            store,
+            settings=MonitorSettings(baseline_n=BASELINE_N),
+            workers=workers,
+        )
+        seconds = time.perf_counter() - t0
+        dump = _dump(store, data)
     dump["inputs"] = inputs
     summ = summary.to_dict()
     summ.pop("seconds")

@@ -1,11 +1,11 @@
-"""Fidelity evaluation of dynamic weighing (issue 16) and monitoring (issue 17, see
+"""Fidelity evaluation of dynamic weighing and monitoring (see
 ``scripts/fidelity_monitoring.py``) over randomly drawn conveyors.
 
 Run::
 
     OPENBLAS_NUM_THREADS=1 python scripts/evaluate_fidelity.py weighing \
-        [--conveyors 30] [--seed 20261125] [--seeds 1] [--json fidelity-weighing.json] \
-        [--markdown table.md]
+        [--conveyors 30] [--seed 20261125] [--seeds 1] \
+        [--json docs/evaluation/fidelity-weighing.json] [--markdown table.md]
 
 (about 20 s for 30 conveyors on one idle core; ``--seeds N`` draws the
 conveyors N times, seeds SEED to SEED+N-1, and pools them; the per-conveyor
@@ -91,6 +91,9 @@ from chaintwin.units import RPM_TO_RAD_S, G
 from chaintwin.validate import Inspection, load_recording
 from chaintwin.weigh import reweigh, weigh
 from chaintwin.weigh.drift import LossDrift
+
+EVALUATION = Path(__file__).resolve().parent.parent / "docs" / "evaluation"
+"""Where the evaluations write their JSON by default (the evaluation reports read it)."""
 
 PROTOCOLS = ("one_load_one_speed", "one_load_several_speeds", "several_loads")
 MODES = ("trusted", "unknown")
@@ -661,7 +664,9 @@ def main(argv: list[str] | None = None) -> int:
         choices=[*RICHER, "export"],
         help="leave one effect of the richer plant out (repeatable), to see what it costs",
     )
-    parser.add_argument("--json", type=Path, default=None, help="fidelity-WHAT.json by default")
+    parser.add_argument(
+        "--json", type=Path, default=None, help="docs/evaluation/fidelity-WHAT.json by default"
+    )
     parser.add_argument("--per-fault", type=int, default=8, help="monitoring: conveyors per fault")
     parser.add_argument("--healthy", type=int, default=12, help="monitoring: healthy sequences")
     parser.add_argument(
@@ -683,7 +688,8 @@ def main(argv: list[str] | None = None) -> int:
         "--only", nargs="*", default=None, help="monitoring: fault types (or healthy) to run"
     )
     args = parser.parse_args(argv)
-    args.json = args.json or Path(f"fidelity-{args.what}.json")
+    args.json = args.json or EVALUATION / f"fidelity-{args.what}.json"
+    args.json.parent.mkdir(parents=True, exist_ok=True)
     if args.what == "monitoring":
         sys.path.insert(0, str(Path(__file__).resolve().parent))
         from fidelity_monitoring import run_seeds

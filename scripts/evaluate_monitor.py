@@ -1,4 +1,4 @@
-"""Evaluate condition monitoring on virtual-conveyor time series (issue 5).
+"""Evaluate condition monitoring on virtual-conveyor time series.
 
 For each series the virtual conveyor (all realism on, payload 10-40 kg drawn
 per recording, gear losses drifting ±5 % with temperature) writes a
@@ -8,12 +8,13 @@ its final severity, and healthy ones. Each series is monitored from its
 recordings (read back from the files, as ``chaintwin monitor`` does) and the
 script prints, per series: onset, first alarm, severity at first alarm,
 cause given, false alarms (alarm recordings before the onset, or any on a
-healthy series) and the alarms (one per probable cause) opened there.
+healthy series) and the alarms (one per probable cause) opened there, and
+writes them as JSON (``--json``, ``docs/evaluation/monitor.json`` by default).
 
 Usage::
 
     python scripts/evaluate_monitor.py [--days 20] [--per-day 6] [--learned]
-        [--profile chaintwin/examples/profiles/white-belt-01.yaml] [--keep DIR]
+        [--profile chaintwin/examples/profiles/white-belt-01.yaml] [--keep DIR] [--json PATH]
 """
 
 from __future__ import annotations
@@ -28,38 +29,47 @@ from pathlib import Path
 from chaintwin.calibrating.procedure import calibrate
 from chaintwin.diagnose.monitor import ConveyorMonitor
 from chaintwin.diagnose.records import MonitorSettings
+from chaintwin.diagnose.state import json_ready
 from chaintwin.read.profile import load_profile
-from chaintwin.simulate.faults import Fault
+from chaintwin.simulate.faults import Fault, expected_causes, fault_type
 from chaintwin.simulate.fleet import generate
 from chaintwin.validate.checks import load_recording
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "chaintwin" / "examples"
+EVALUATION = Path(__file__).resolve().parent.parent / "docs" / "evaluation"
+"""Where the evaluations write their JSON by default (the evaluation reports read it)."""
+
+
+def _at_end(name: str) -> list[Fault]:
+    """A fault at its end severity (the fault table's)."""
+    end = fault_type(name).end_severity
+    if end is None:
+        raise SystemExit(f"fault '{name}' has no end severity in the fault table")
+    return [Fault(name, end)]
+
 
 SERIES: list[tuple[str, list[Fault], int]] = [
     ("healthy-a", [], 0),
     ("healthy-b", [], 0),
-    ("friction", [Fault("friction", 0.5)], 6),
-    ("lubrication", [Fault("lubrication", 1.0)], 6),
-    ("bearing", [Fault("bearing", 0.5)], 6),
-    ("gear_tooth", [Fault("gear_tooth", 0.5)], 6),
-    ("obstruction", [Fault("obstruction", 0.5)], 6),
-    ("rail_obstacle", [Fault("rail_obstacle", 1.0)], 6),
-    ("elongation", [Fault("elongation", 1.0)], 6),
-    ("sprocket", [Fault("sprocket", 1.0)], 6),
-    ("healthy-events", [Fault("payload_event", 1.0)], 0),
+    *[
+        (name, _at_end(name), 6)
+        for name in (
+            "friction",
+            "lubrication",
+            "bearing",
+            "gear_tooth",
+            "obstruction",
+            "rail_obstacle",
+            "elongation",
+            "sprocket",
+        )
+    ],
+    ("healthy-events", _at_end("payload_event"), 0),
 ]
 """(name, faults at their final severity, onset day)."""
 
-EXPECTED = {
-    "friction": "friction",
-    "lubrication": "lubrication",
-    "bearing": "bearing",
-    "gear_tooth": "gear",
-    "obstruction": "obstruction",
-    "rail_obstacle": "obstruction",
-    "elongation": "elongation",
-    "sprocket": "sprocket",
-}
+EXPECTED = expected_causes()
+"""The probable cause each fault should be given (the fault table's)."""
 
 
 def run_series(
@@ -163,6 +173,12 @@ def main() -> None:
     ap.add_argument("--profile", default=str(EXAMPLES / "profiles" / "white-belt-01.yaml"))
     ap.add_argument("--keep", type=Path, default=None, help="write the series here and keep them")
     ap.add_argument("--only", nargs="*", default=None, help="series names to run")
+    ap.add_argument(
+        "--json",
+        type=Path,
+        default=EVALUATION / "monitor.json",
+        help="write the series' results here [docs/evaluation/monitor.json]",
+    )
     args = ap.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -171,6 +187,14 @@ def main() -> None:
             if args.only and name not in args.only:
                 continue
             rows.append(run_series(name, faults, onset, folder, args, seed=1000 + k))
+
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    settings = {
+        k: getattr(args, k) for k in ("days", "per_day", "baseline", "sample_time", "learned")
+    }
+    args.json.write_text(
+        json.dumps(json_ready({"settings": settings, "series": rows}), indent=1, allow_nan=False)
+    )
 
     def day(iso: object) -> str:
         return "-" if iso is None else datetime.fromisoformat(str(iso)).strftime("%m-%d %H:%M")

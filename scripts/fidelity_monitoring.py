@@ -1,10 +1,10 @@
-"""The ``monitoring`` part of the fidelity evaluation (issue 17).
+"""The ``monitoring`` part of the fidelity evaluation.
 
 Run::
 
     OPENBLAS_NUM_THREADS=1 python scripts/evaluate_fidelity.py monitoring \
         [--per-fault 8] [--healthy 12] [--recordings 200] [--workers 2] \
-        [--json fidelity-monitoring.json]
+        [--json docs/evaluation/fidelity-monitoring.json]
 
 Conveyors are drawn from the weighing evaluation's design distribution
 (every realism effect on, the richer plant, 1, 6 or 12 ms scopes). For each
@@ -55,7 +55,7 @@ from chaintwin.diagnose.health import FeatureBaseline
 from chaintwin.diagnose.monitor import ConveyorMonitor
 from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.errors import ChaintwinError
-from chaintwin.simulate.faults import Fault
+from chaintwin.simulate.faults import Fault, expected_causes, fault_type
 from chaintwin.simulate.virtual import default_setpoints, run_virtual
 from chaintwin.validate import inspect_recording
 
@@ -68,30 +68,18 @@ FAULT_TYPES = (
     "elongation",
     "sprocket",
 )
-"""The seven fault types (``rail_obstacle`` is the issue's obstruction)."""
+"""The seven fault types (``rail_obstacle`` stands for the obstruction)."""
 
-EXPECTED = {
-    "friction": "friction",
-    "lubrication": "lubrication",
-    "bearing": "bearing",
-    "gear_tooth": "gear",
-    "rail_obstacle": "obstruction",
-    "elongation": "elongation",
-    "sprocket": "sprocket",
-}
-"""The probable cause each fault type should be given."""
+EXPECTED = expected_causes()
+"""The probable cause each fault type should be given (the fault table's)."""
 
 END_SEVERITY = {
-    "friction": 0.5,
-    "lubrication": 1.0,
-    "bearing": 0.5,
-    "gear_tooth": 0.5,
-    "rail_obstacle": 1.0,
-    "elongation": 1.0,
-    "sprocket": 1.0,
-    "payload_event": 1.0,
+    name: end
+    for name in (*FAULT_TYPES, "payload_event")
+    if (end := fault_type(name).end_severity) is not None
 }
-"""Severity at the last recording (the scales of :mod:`chaintwin.simulate.faults`)."""
+"""Severity at the last recording (the fault table's, on the scales of
+:mod:`chaintwin.simulate.faults`)."""
 
 DRIFT = 0.10
 """Amplitude of the slow gear-loss drift, 1."""

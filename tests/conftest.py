@@ -158,3 +158,16 @@ def db(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
     with psycopg.connect(base.replace("postgresql://", "postgresql://", 1), autocommit=True) as c:
         c.execute(f"CREATE DATABASE {name}")
     yield base.rsplit("/", 1)[0] + "/" + name
+
+
+# ---------------------------------------------------------------- markers
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Mark every test that needs the PostgreSQL server ``postgres``: it asks for the
+    ``postgres`` fixture (itself or through another fixture), or runs with a store
+    fixture's ``postgresql`` parameter (``make test-fast`` leaves them out)."""
+    for item in items:
+        callspec = getattr(item, "callspec", None)
+        params = callspec.params.values() if callspec is not None else ()
+        on_postgresql = any(isinstance(v, str) and v == "postgresql" for v in params)
+        if "postgres" in getattr(item, "fixturenames", ()) or on_postgresql:
+            item.add_marker(pytest.mark.postgres)

@@ -25,6 +25,7 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
     s.close()
 
 
+@pytest.mark.slow
 def test_shelve_unshelve_and_comment_an_alarm(served: Served) -> None:
     viewer, maintainer, admin = (served.client(r) for r in ("viewer", "maintainer", "admin"))
     (alarm,) = viewer.get("/api/v1/alarms", params={"state": "open"}).json()
@@ -146,6 +147,7 @@ def test_the_dashboard_forms_shelve_comment_and_take_out_of_service(served: Serv
         assert 'data-kpis="fleet"' in kpis.text and f'data-kpis="{PROFILE.id}"' in kpis.text
 
 
+@pytest.mark.browser
 def test_in_a_browser_acknowledge_shelve_comment_and_unshelve(served: Served) -> None:
     """Chromium driven by Playwright through the alarms page's forms."""
     from test_web import CHROMIUM

@@ -40,6 +40,7 @@ def _write(path: Path, data: dict[str, Any]) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_tiny_differences_pass_and_larger_ones_fail(
     check_same: ModuleType, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -140,6 +140,7 @@ def test_folder_argument_and_table_output(
     assert "a.csv" in out and "b.csv" in out and "complete" in out
 
 
+@pytest.mark.slow
 def test_python_dash_m_and_no_traceback(tmp_path: Path) -> None:
     f = tmp_path / "nan.csv"
     f.write_text(make_text().replace("\n0.030,", "\n0.030,nan,", 1).replace("nan,0.0,", "nan,", 1))

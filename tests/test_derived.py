@@ -41,6 +41,7 @@ def _no_refit(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(derived, "derived_of", refused)
 
 
+@pytest.mark.slow
 def test_every_trend_in_one_request_as_each_alone_without_a_refit(
     served: Served, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -84,11 +85,11 @@ def test_every_trend_in_one_request_as_each_alone_without_a_refit(
     assert browser.get(f"/conveyors/{PROFILE.id}").status_code == 200
 
 
+@pytest.mark.slow
 def test_forecasts_are_refitted_after_ingest_and_say_how_far_behind(
     fleet: Path, tmp_path: Path
 ) -> None:
-    store = Store(f"sqlite:///{tmp_path / 'plant.db'}")
-    try:
+    with Store(f"sqlite:///{tmp_path / 'plant.db'}") as store:
         cal_files = sorted((fleet / "calibration").glob("*.csv"))
         recs = [load_recording(f, profile=PROFILE).recording for f in cal_files]
         store.put_calibration(calibrate(recs, PROFILE))
@@ -146,10 +147,9 @@ def test_forecasts_are_refitted_after_ingest_and_say_how_far_behind(
         ]
         assert json.dumps(json_ready(report.forecasts)) == json.dumps(json_ready(fresh))
         assert read_derived(store, PROFILE.id) == now  # nothing written by a report
-    finally:
-        store.close()
 
 
+@pytest.mark.browser
 def test_in_a_browser_the_page_of_a_conveyor_in_alarm_draws_every_trend(
     fleet: Path, tmp_path: Path
 ) -> None:

@@ -26,6 +26,7 @@ def _script() -> ModuleType:
     return module
 
 
+@pytest.mark.slow
 def test_with_the_drift_allowance_the_uncertainty_is_honest_over_random_conveyors(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

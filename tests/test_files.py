@@ -24,8 +24,8 @@ from chaintwin.errors import (
 from chaintwin.identify.calibration import load_calibration
 from chaintwin.read.columns import load_column_map
 from chaintwin.read.files import MAX_FILE_MB_ENV, max_file_bytes
+from chaintwin.read.formats import read_recording
 from chaintwin.read.profile import load_profile
-from chaintwin.read.reader import read_recording
 
 LOADERS = [
     (read_recording, RecordingError),
@@ -100,6 +100,7 @@ def test_links_are_followed_and_loops_refused(tmp_path: Path) -> None:
         read_recording(a)
 
 
+@pytest.mark.slow
 def test_deep_nesting_is_a_one_line_error(tmp_path: Path) -> None:
     deep_yaml = tmp_path / "deep.yaml"
     deep_yaml.write_text("[" * 5000 + "]" * 5000)

@@ -140,6 +140,7 @@ def test_the_entry_point_and_the_error_tree_import_nothing_heavy() -> None:
     assert done.stdout.strip() == "[]"
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="pipe sizes are Linux's")
 def test_the_ingest_pool_s_results_pipe_holds_a_whole_task_s_results(
     monkeypatch: pytest.MonkeyPatch,

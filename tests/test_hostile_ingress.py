@@ -35,7 +35,8 @@ from test_live import PROFILES, Service, wait_for
 from chaintwin.errors import RecordingError
 from chaintwin.read import files
 from chaintwin.read.files import MAX_FILE_MB_ENV, read_limited
-from chaintwin.read.reader import MAX_COLUMNS, parse_recording, read_recording
+from chaintwin.read.formats import read_recording
+from chaintwin.read.reader import MAX_COLUMNS, parse_recording
 from chaintwin.store.engine import engine_for
 from chaintwin.store.schema import RecordingRow, RefusedFileRow
 from chaintwin.store.store import Store
@@ -207,6 +208,7 @@ def _after(watched: Watched, before: tuple[dict[str, str], dict[str, str]], host
     assert peak <= bound, f"peak {peak / 1e6:.0f} MB, bound {bound / 1e6:.0f} MB"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(CASES))
 def test_a_hostile_file_is_refused_in_one_line_and_the_next_good_file_stored(
     watched: Watched, name: str
@@ -401,7 +403,7 @@ def test_parsing_the_largest_recording_holds_its_bytes_and_its_samples_only(
     warm = tmp_path / "warm.csv"
     warm.write_text(_dense(64))
     script = (
-        "from chaintwin.read.reader import read_recording\n"
+        "from chaintwin.read.formats import read_recording\n"
         # the same call on a small file first: what it imports (lazily) is not the parse's
         f"read_recording({str(warm)!r})\n"
         "def kb(key):\n"
@@ -440,8 +442,7 @@ def test_a_file_that_cannot_be_read_now_fails_and_is_tried_again_not_refused(
     pipe = tmp_path / "pipe.csv"
     os.mkfifo(pipe)
     url = f"sqlite:///{tmp_path / 'plant.db'}"
-    store = Store(url)
-    try:
+    with Store(url) as store:
         ingestor = Ingestor(store, {})
         with pytest.raises(RecordingError, match="cannot be read") as info:
             ingestor.ingest_one(Job(str(a), "folder:x"))
@@ -454,5 +455,3 @@ def test_a_file_that_cannot_be_read_now_fails_and_is_tried_again_not_refused(
             rows = [(r.path, r.reason) for r in s.scalars(select(RefusedFileRow))]
         assert rows == [(str(pipe), f"{pipe}: {NOT_REGULAR}")]
         ingestor.close()
-    finally:
-        store.close()

@@ -1,4 +1,4 @@
-"""A worn sprocket, payload events and the causes of impulsive features (issue 17)."""
+"""A worn sprocket, payload events and the causes of impulsive features."""
 
 from __future__ import annotations
 

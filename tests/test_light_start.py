@@ -58,6 +58,7 @@ def _run(code: str, *args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.slow
 def test_help_of_every_command_imports_nothing_heavy() -> None:
     """`--help`, and `--help` of every command and subcommand, load none of HEAVY."""
     done = _run(_HELP_RUNNER)
@@ -109,6 +110,7 @@ sys.exit(main(sys.argv[2:]))
         ),
     ],
 )
+@pytest.mark.slow
 def test_a_missing_extra_is_named_in_one_line_with_exit_2(
     tmp_path: Path, blocked: str, args: list[str], extra: str, needed_by: str
 ) -> None:

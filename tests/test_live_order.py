@@ -91,8 +91,7 @@ def test_the_window_breaks_ties_by_path_and_drains_in_order() -> None:
 def test_put_file_holds_a_file_with_a_recorded_time_only(tmp_path: Path) -> None:
     """A file without a recorded time (or unreadable metadata) is not held: the ingest
     says what is wrong with it at once."""
-    store = Store(f"sqlite:///{tmp_path / 'w.db'}")
-    try:
+    with Store(f"sqlite:///{tmp_path / 'w.db'}") as store:
         ingestor = Ingestor(store, {}, order_window_s=60.0)
         timed = tmp_path / "timed.csv"
         timed.write_text("# recorded_at: 2026-01-01T01:00:00+01:00\ntime_s,torque_nm\n0,1\n")
@@ -109,8 +108,6 @@ def test_put_file_holds_a_file_with_a_recorded_time_only(tmp_path: Path) -> None
         assert ingestor.depth() == 2  # the held one waits by design: not counted
         assert [j.path for j in ingestor.window.drain()] == [str(timed)]
         ingestor.close()
-    finally:
-        store.close()
 
 
 # ---------------------------------------------------------------- the burst
@@ -146,8 +143,7 @@ def _plant(folder: Path, n: int) -> tuple[dict[str, ConveyorProfile], list[Path]
 
 
 def _calibrated_store(url: str, profiles: dict[str, ConveyorProfile], folder: Path) -> None:
-    store = Store(url)
-    try:
+    with Store(url) as store:
         for cid, _fault, _seed, calibrated in PLANT:
             if calibrated:
                 prof = profiles[cid]
@@ -155,8 +151,6 @@ def _calibrated_store(url: str, profiles: dict[str, ConveyorProfile], folder: Pa
                 recs = [load_recording(f, profile=prof).recording for f in runs]
                 recs = [r for r in recs if r.metadata.payload_kg == 0.0]
                 store.put_calibration(calibrate(recs, prof, version="order-test"))
-    finally:
-        store.close()
 
 
 def _notifications(store: Store, alarm_names: dict[str, str]) -> list[dict[str, Any]]:
@@ -179,13 +173,10 @@ def _notifications(store: Store, alarm_names: dict[str, str]) -> list[dict[str, 
 
 def _dumped(check_same: ModuleType, url: str, data: Path, out: Path) -> dict[str, Any]:
     """What check_same compares of a store (written to ``out``), with the notifications."""
-    store = Store(url)
-    try:
+    with Store(url) as store:
         dump = check_same._dump(store, data)
         names = {a: f"alarm-{k + 1}" for k, a in enumerate(dump["alarm_ids"])}
         dump["notifications"] = _notifications(store, names)
-    finally:
-        store.close()
     dump["inputs"] = {}
     dump["summary"] = {}
     out.write_text(check_same.dump_text(dump, data))
@@ -196,6 +187,7 @@ def _out_of_order(dump: dict[str, Any]) -> int:
     return sum(1 for w in dump["warnings"] if w[2] == "out_of_order")
 
 
+@pytest.mark.slow
 def test_a_shuffled_burst_gives_what_ingest_of_the_same_files_gives(
     check_same: ModuleType, tmp_path: Path
 ) -> None:
@@ -229,27 +221,21 @@ def test_a_shuffled_burst_gives_what_ingest_of_the_same_files_gives(
         wait_for(lambda: any("following" in x for x in service.lines()), 300, "start", service)
         for k, f in enumerate(shuffled):
             f.rename(watched / f"{rng.getrandbits(32):08x}-{k:04d}.csv")
-        store = Store(live_url)
-        try:
+        with Store(live_url) as store:
 
             def all_stored() -> bool:
                 with Session(store.engine) as s:
                     return s.scalar(select(func.count()).select_from(RecordingRow)) == len(made)
 
             wait_for(all_stored, 60 + 2.0 * len(made), "every file stored", service)
-        finally:
-            store.close()
         assert service.stop() == 0
     finally:
         if service.proc.poll() is None:
             service.kill()
     files = sorted(str(p) for p in watched.glob("*.csv"))
     assert len(files) == len(made)
-    store = Store(ingest_url)
-    try:
+    with Store(ingest_url) as store:
         summary = ingest(files, profiles, store, workers=1, commit_group=1)
-    finally:
-        store.close()
     assert summary.refused == 0
     live = _dumped(check_same, live_url, watched, tmp_path / "live.json")
     batch = _dumped(check_same, ingest_url, watched, tmp_path / "ingest.json")

@@ -82,6 +82,7 @@ def test_a_whole_file_is_not_held(complete: Path, tmp_path: Path) -> None:
         store.close()
 
 
+@pytest.mark.slow
 def test_a_writer_pausing_longer_than_the_settle_time_gets_its_file_stored_once_whole(
     complete: Path, tmp_path: Path
 ) -> None:

@@ -121,6 +121,7 @@ def test_profile_files_of_any_bytes(tmp_path_factory: pytest.TempPathFactory, da
     ends_cleanly(lambda: load_profile(path))
 
 
+@pytest.mark.slow
 @FUZZ
 @given(st.sampled_from(PROFILE_PATHS), JSON_VALUE)
 def test_profiles_with_any_value_anywhere(path: list[Any], value: Any) -> None:
@@ -266,6 +267,7 @@ URL = st.one_of(
 )
 
 
+@pytest.mark.slow
 @FUZZ
 @given(URL)
 def test_store_urls_of_any_text(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, url: str) -> None:

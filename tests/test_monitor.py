@@ -19,8 +19,8 @@ from chaintwin.diagnose import baseline
 from chaintwin.diagnose.baseline import at_mean_payload, payload_of
 from chaintwin.diagnose.causes import resolve_causes
 from chaintwin.diagnose.features import _line_sums, recording_features
-from chaintwin.diagnose.forecasting import MIN_POINTS
-from chaintwin.diagnose.health import FeatureBaseline, fit_baseline, forecast_crossing, x_of_y
+from chaintwin.diagnose.forecasting import MIN_POINTS, forecast_feature
+from chaintwin.diagnose.health import FeatureBaseline, fit_baseline, x_of_y
 from chaintwin.diagnose.monitor import ConveyorMonitor
 from chaintwin.diagnose.monitor_state import LEARNED, MonitorState
 from chaintwin.diagnose.records import Alarm, Event, MonitorSettings, RecordingResult
@@ -256,14 +256,14 @@ def test_forecast_of_a_linear_trend_brackets_the_true_crossing() -> None:
     rng = np.random.default_rng(1)
     times = [t0 + timedelta(days=0.5 * k) for k in range(40)]
     values = [1.0 + 0.01 * 0.5 * k + rng.normal(0, 0.005) for k in range(40)]
-    fc = forecast_crossing("friction", times, values, limit=1.3)
+    fc = forecast_feature("friction", times, values, 1.3)
     assert fc is not None
     true = t0 + timedelta(days=30.0)  # 1 + 0.01 d = 1.3
     assert fc.earliest <= true <= (fc.latest or true)
     assert abs((fc.crosses_at - true).total_seconds()) < 2 * 86400
     assert fc.slope_per_day == pytest.approx(0.01, rel=0.1)
     flat = [1.0 + rng.normal(0, 0.005) for _ in range(40)]
-    assert forecast_crossing("friction", times, flat, limit=1.3) is None
+    assert forecast_feature("friction", times, flat, 1.3) is None
 
 
 def test_the_load_part_is_taken_out_at_the_weighed_payload_without_the_regressor() -> None:
@@ -394,6 +394,7 @@ def _onset(folder: Path) -> str:
     return next(t["recorded_at"] for t in truth if any(v > 0 for v in t["faults"].values()))
 
 
+@pytest.mark.slow
 def test_condition_fit_s_loss_gradient_matches_a_refit_and_a_simulated_drift(
     cal: Calibration,
 ) -> None:
@@ -584,7 +585,7 @@ def test_state_round_trip_continues_where_it_stopped(
 def test_late_baseline_rows_are_only_those_that_can_feed_a_fit(
     series: dict[str, Path], cal: Calibration
 ) -> None:
-    # issue 22: the health model kept every recording after its baseline as a
+    # before: the health model kept every recording after its baseline as a
     # late-baseline row (the retired belt_bump is never finite, so a baseline
     # was always "missing"): about 2 kB more per recording for ever, in memory
     # and in the state stored with each recording
@@ -655,6 +656,7 @@ def test_without_calibration_one_is_learned(series: dict[str, Path]) -> None:
 
 
 # ---------------------------------------------------------------- command line
+@pytest.mark.slow
 def test_cli_monitor_state_fail_on_alarm_and_acknowledge(
     series: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -969,15 +971,12 @@ def test_monitor_and_ingest_resume_and_order_alike(
     )
     by_file = {r["file"]: r for r in json.loads(capsys.readouterr().out)["recordings"]}
     assert "no_recorded_at" in [w["code"] for w in by_file[batch[-1]]["warnings"]]
-    store = Store(f"sqlite:///{tmp_path / 'store.db'}")
-    try:
+    with Store(f"sqlite:///{tmp_path / 'store.db'}") as store:
         ingest(
             batch, {PROFILE.id: PROFILE}, store, settings=MonitorSettings(baseline_n=5), workers=1
         )
         stored = {r["file"]: r for r in store.results(PROFILE.id)}
         assert "no_recorded_at" in [w["code"] for w in stored[batch[-1]]["warnings"]]
-    finally:
-        store.close()
     # a model made with a calibration from a file: the same one goes on, another
     # is refused for a state file and replaces it (baseline restarted) for a store
     settings = MonitorSettings(baseline_n=BASELINE)

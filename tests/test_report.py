@@ -67,6 +67,7 @@ def _self_contained(html: str) -> None:
     assert "@import" not in html and "url(" not in html
 
 
+@pytest.mark.slow
 def test_conveyor_page_has_every_section_with_real_plots(
     plant_db: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -107,6 +108,7 @@ def test_conveyor_page_has_every_section_with_real_plots(
     assert "constant" in _section(html, "residuals")
 
 
+@pytest.mark.slow
 def test_fleet_page_ranks_the_faulty_conveyor_first(plant_db: str, tmp_path: Path) -> None:
     assert main(["report", "--db", plant_db, "--all", "--out", str(tmp_path / "r")]) == 0
     pages = sorted(p.name for p in (tmp_path / "r").iterdir())
@@ -128,6 +130,7 @@ def test_fleet_page_ranks_the_faulty_conveyor_first(plant_db: str, tmp_path: Pat
     assert 'href="fleet.html"' in (tmp_path / "r" / f"{HEALTHY}.html").read_text(encoding="utf-8")
 
 
+@pytest.mark.slow
 def test_report_escapes_user_text_and_refuses_bad_requests(
     plant_db: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -150,6 +153,7 @@ def test_report_escapes_user_text_and_refuses_bad_requests(
     assert out.read_text(encoding="utf-8") == html  # the page there is left as it was
 
 
+@pytest.mark.slow
 def test_demo_runs_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "demo"
     args = ["demo", "--out", str(out), "--days", "4", "--per-day", "3", "--workers", "1"]
@@ -173,12 +177,9 @@ def test_demo_runs_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture[str]
 
     found = re.search(r"ct_[A-Za-z0-9_-]{40,}", text)
     assert found is not None
-    store = Store(f"sqlite:///{out / 'plant.db'}", create=False)
-    try:
+    with Store(f"sqlite:///{out / 'plant.db'}", create=False) as store:
         info = verify_token(store, found.group(0))
         assert info is not None and info.role == "viewer"
-    finally:
-        store.close()
     # a second run rebuilds the demo's own folder; a foreign folder is refused
     assert main(args) == 0
     foreign = tmp_path / "mine"
@@ -194,8 +195,7 @@ def test_trend_points_lie_above_the_drawn_limit_exactly_when_judged_so(plant_db:
     from chaintwin.report.data import conveyor_data
     from chaintwin.store.store import Store
 
-    store = Store(plant_db)
-    try:
+    with Store(plant_db) as store:
         judged = 0
         for cid in (HEALTHY, FAULTY):
             d = conveyor_data(store, cid, waterfall=0)
@@ -212,8 +212,6 @@ def test_trend_points_lie_above_the_drawn_limit_exactly_when_judged_so(plant_db:
         assert judged > 100
         faulty = conveyor_data(store, FAULTY, waterfall=0)
         assert any(any(t.exceeded) for t in faulty.trends)  # the check saw exceedances
-    finally:
-        store.close()
 
 
 def test_page_names_are_distinct_and_never_the_fleet_page() -> None:
@@ -265,8 +263,7 @@ def test_the_report_reads_the_stored_health_as_the_monitor_would_say_it(plant_db
     from chaintwin.report.data import conveyor_data
     from chaintwin.store.store import Store
 
-    store = Store(plant_db)
-    try:
+    with Store(plant_db) as store:
         for cid in (HEALTHY, FAULTY):
             profile = store.profile(cid)
             state = store.state(cid)
@@ -283,8 +280,6 @@ def test_the_report_reads_the_stored_health_as_the_monitor_would_say_it(plant_db
             assert page.calibration is not None and mon.calibration is not None
             assert page.calibration.to_dict() == mon.calibration.to_dict()
         assert page.summary["open_alarms"]  # the faulty conveyor's alarm is on the page
-    finally:
-        store.close()
 
 
 def test_campbell_peaks_are_the_lines_standing_out_of_the_floor() -> None:

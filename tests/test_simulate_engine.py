@@ -287,6 +287,7 @@ def test_coefficient_layout_is_one_table() -> None:
         _kernel.pack({**values, "speed": 1.0})
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("elastic", [False, True])
 def test_stribeck_friction_by_hand(plant: PlantParameters, elastic: bool) -> None:
     """At belt speed v the sliding friction is fc + (fs − fc)·exp(−(v/vs)²)."""

@@ -61,6 +61,7 @@ def _calibrate(plant: Path, url: str) -> None:
 
 
 # ---------------------------------------------------------------- tests
+@pytest.mark.slow
 def test_ingest_is_idempotent_and_keeps_a_refused_file_out(
     plant: Path, db: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -78,13 +79,10 @@ def test_ingest_is_idempotent_and_keeps_a_refused_file_out(
     assert main([*args, "--json"]) == 0
     again = json.loads(capsys.readouterr().out)
     assert again["processed"] == 0 and again["duplicates"] == len(files)
-    store = Store(db)
-    try:
+    with Store(db) as store:
         assert store.counts()["results"] == len(files)
         assert store.counts()["recordings"] == len(files)
         rows = store.results("white-belt-01")
-    finally:
-        store.close()
     assert [r["recorded_at"] for r in rows] == sorted(r["recorded_at"] for r in rows)
     assert any(r["alarm"] and r["causes"][0]["cause"] == "friction" for r in rows)
     # export: CSV for other tools, one row per recording
@@ -104,8 +102,7 @@ def test_store_keeps_samples_acknowledgements_and_maintenance(
     args = ["ingest", *files, "--profiles", str(plant / "profiles"), "--db", db, "--json"]
     assert main([*args, "--baseline", "6", "--commit-group", "5"]) == 0
     capsys.readouterr()
-    store = Store(db)
-    try:
+    with Store(db) as store:
         # the samples are kept: a stored recording is the file's recording again
         index = store.recording_index("white-belt-01")
         assert len(index) == len(files)
@@ -164,8 +161,6 @@ def test_store_keeps_samples_acknowledgements_and_maintenance(
             == 2
         )
         assert "no health model of conveyor 'nope'" in capsys.readouterr().err
-    finally:
-        store.close()
 
 
 def _ingest_cmd(plant: Path, url: str, group: int) -> list[str]:
@@ -189,6 +184,7 @@ def _ingest_cmd(plant: Path, url: str, group: int) -> list[str]:
     ]
 
 
+@pytest.mark.slow
 def test_killed_ingest_leaves_one_result_per_recording(plant: Path, db: str) -> None:
     _calibrate(plant, db)
     files = _recordings(plant)
@@ -224,6 +220,7 @@ def test_killed_ingest_leaves_one_result_per_recording(plant: Path, db: str) -> 
             proc.kill()
 
 
+@pytest.mark.slow
 def test_two_ingests_at_once_store_each_recording_once(plant: Path, db: str) -> None:
     _calibrate(plant, db)
     files = _recordings(plant)
@@ -242,14 +239,12 @@ def test_two_ingests_at_once_store_each_recording_once(plant: Path, db: str) -> 
     sa, sb = json.loads(out_a), json.loads(out_b)
     assert sa["processed"] + sb["processed"] == len(files)
     assert sa["processed"] + sa["duplicates"] == len(files)
-    store = Store(db)
-    try:
+    with Store(db) as store:
         assert store.counts()["results"] == len(files)
         assert len({r["file"] for r in store.results()}) == len(files)
-    finally:
-        store.close()
 
 
+@pytest.mark.slow
 def test_dask_cluster_and_this_process_give_the_same_results_as_the_local_pool(
     plant: Path, tmp_path: Path
 ) -> None:
@@ -270,15 +265,12 @@ def test_dask_cluster_and_this_process_give_the_same_results_as_the_local_pool(
         ):
             url = f"sqlite:///{tmp_path / kind}.db"
             _calibrate(plant, url)
-            store = Store(url)
-            try:
+            with Store(url) as store:
                 s = ingest(
                     files, profiles, store, settings=settings, workers=workers, scheduler=scheduler
                 )
                 assert s.processed == len(files)
                 out[kind] = store.results()
-            finally:
-                store.close()
     finally:
         cluster.close()
     for other in ("dask", "inline"):
@@ -376,8 +368,7 @@ def test_a_changed_profile_is_refused_and_changes_nothing(
     changed.mkdir()
     text = REFERENCE_PROFILE.read_text(encoding="utf-8").replace("length_m: 4.3", "length_m: 4.4")
     (changed / "white-belt-01.yaml").write_text(text, encoding="utf-8")
-    store = Store(db)
-    try:
+    with Store(db) as store:
         before = store.profile(PROFILE.id)
         capsys.readouterr()
         again = ["ingest", *files[8:], "--profiles", str(changed), "--db", db, "--json"]
@@ -392,8 +383,6 @@ def test_a_changed_profile_is_refused_and_changes_nothing(
         assert main(["calibrate", "--profile", profile, *cal, "--db", db]) == 2
         assert "another version of its profile" in capsys.readouterr().err
         assert store.profile(PROFILE.id) == before
-    finally:
-        store.close()
 
 
 def test_json_columns_write_standard_json_and_read_earlier_nan(tmp_path: Path) -> None:
@@ -428,14 +417,10 @@ def test_json_columns_write_standard_json_and_read_earlier_nan(tmp_path: Path) -
 
     from chaintwin.store.schema import ConveyorRow
 
-    store = Store(f"sqlite:///{db}")
-    try:
-        with Session(store.engine) as s:
-            row = s.get(ConveyorRow, PROFILE.id)
-            assert row is not None
-            assert np.isnan(row.profile["legacy"])
-    finally:
-        store.close()
+    with Store(f"sqlite:///{db}") as store, Session(store.engine) as s:
+        row = s.get(ConveyorRow, PROFILE.id)
+        assert row is not None
+        assert np.isnan(row.profile["legacy"])
 
 
 def test_guided_tasks_shrink_towards_the_end() -> None:
@@ -505,6 +490,7 @@ def test_what_tasks_share_goes_to_a_dask_cluster_once() -> None:
     ex.shutdown()
 
 
+@pytest.mark.slow
 def test_a_fleet_ingest_on_workers_equals_each_conveyor_ingested_alone(tmp_path: Path) -> None:
     """Three conveyors in one shuffled batch on two workers (tasks across conveyors, small
     commit groups, one conveyor learning its calibration) against one conveyor at a time here."""
@@ -537,8 +523,7 @@ def test_a_fleet_ingest_on_workers_equals_each_conveyor_ingested_alone(tmp_path:
             cal = sorted(str(p) for p in (tmp_path / "recs" / cid / "calibration").glob("*.csv"))
             prof_file = EXAMPLES / "profiles" / f"{cid}.yaml"
             assert main(["calibrate", "--profile", str(prof_file), *cal, "--db", url]) == 0
-        store = Store(url)
-        try:
+        with Store(url) as store:
             if kind == "fleet":
                 # given out of recorded order: sent so while the scan runs, taken in order
                 batch = [f for cid in sorted(files) for f in files[cid]]
@@ -549,8 +534,6 @@ def test_a_fleet_ingest_on_workers_equals_each_conveyor_ingested_alone(tmp_path:
                 for cid, some in files.items():
                     ingest(some, {cid: profs[cid]}, store, settings=settings, workers=1)
             results[kind] = store.results()
-        finally:
-            store.close()
     assert len(results["fleet"]) == sum(len(v) for v in files.values()) == 48
     by_file = {r["file"]: r for r in results["alone"]}
     _same_results(results["fleet"], [by_file[str(r["file"])] for r in results["fleet"]])
@@ -628,8 +611,7 @@ def test_an_unexpected_failure_refuses_that_recording_and_the_batch_goes_on(
         return real(ins, cal)
 
     monkeypatch.setattr(worker, "recording_features", fragile)
-    store = Store(url)
-    try:
+    with Store(url) as store:
         summary = ingest(files, {PROFILE.id: PROFILE}, store, workers=1)
         assert summary.refused == 1
         (refusal,) = summary.refusals
@@ -637,8 +619,6 @@ def test_an_unexpected_failure_refuses_that_recording_and_the_batch_goes_on(
         assert "FloatingPointError: overflow in a fit" in refusal["error"]
         assert summary.processed == len(files) - 1
         assert len(store.results(PROFILE.id)) == len(files) - 1
-    finally:
-        store.close()
 
 
 def _digest(path: Path) -> str:
@@ -659,13 +639,10 @@ def test_reading_commands_open_read_only_and_damaged_stores_are_refused_untouche
     assert main(["export", "--db", f"sqlite:///{good}", "--format", "json"]) == 0
     assert json.loads(capsys.readouterr().out) == []
     assert _digest(good) == before
-    ro = Store(f"sqlite:///{good}", read_only=True)
-    try:
+    with Store(f"sqlite:///{good}", read_only=True) as ro:
         assert ro.conveyors() == [PROFILE.id]
         with pytest.raises(Exception, match="readonly"):
             ro.put_profile(PROFILE.model_copy(update={"id": "another-belt"}))
-    finally:
-        ro.close()
     assert _digest(good) == before
     # truncated, garbage pages, an empty file: one line, exit 2, file unchanged
     data = good.read_bytes()
@@ -702,6 +679,7 @@ def _session(sid: int) -> list[int]:
     return found
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
 def test_no_process_outlives_a_killed_ingest_and_sigterm_says_what_was_stored(
     tmp_path: Path,
@@ -785,8 +763,7 @@ def test_a_damaged_stored_health_model_leaves_the_page_with_a_note(tmp_path: Pat
     from chaintwin.report.data import conveyor_data
     from chaintwin.store.schema import MonitorStateRow
 
-    store = Store(f"sqlite:///{tmp_path / 'damaged.db'}")
-    try:
+    with Store(f"sqlite:///{tmp_path / 'damaged.db'}") as store:
         store.put_profile(PROFILE)
         with Session(store.engine) as s, s.begin():
             broken = {"conveyor": PROFILE.id, "profile_sha256": PROFILE.content_hash()}
@@ -795,14 +772,13 @@ def test_a_damaged_stored_health_model_leaves_the_page_with_a_note(tmp_path: Pat
             store.state(PROFILE.id)
         page = conveyor_data(store, PROFILE.id, waterfall=0)
         assert any("health model not readable" in n for n in page.notes)
-    finally:
-        store.close()
 
 
+@pytest.mark.slow
 def test_a_long_ingest_keeps_only_the_stored_history_in_memory(
     plant: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Memory stays flat over a long batch, and the results stay the same (issue 22)."""
+    """Memory stays flat over a long batch, and the results stay the same."""
     import chaintwin.ingest.pipeline as ingest_module
     from chaintwin.diagnose.monitor import ConveyorMonitor
 

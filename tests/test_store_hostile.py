@@ -67,6 +67,7 @@ def _listing(folder: Path) -> dict[str, bytes]:
     return {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.is_file()}
 
 
+@pytest.mark.slow
 def test_every_command_refuses_a_foreign_sqlite_file_leaving_its_bytes_as_they_were(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -177,6 +178,7 @@ def _run(argv: list[str], **kw: object) -> subprocess.Popen[bytes]:
     )
 
 
+@pytest.mark.slow
 def test_output_to_a_full_disk_is_one_line_and_exit_1(tmp_path: Path) -> None:
     url = f"sqlite:///{_store(tmp_path / 'plant.db')}"
     for argv in (
@@ -191,6 +193,7 @@ def test_output_to_a_full_disk_is_one_line_and_exit_1(tmp_path: Path) -> None:
         assert len(text.splitlines()) == 1 and "No space left on device" in text, text
 
 
+@pytest.mark.slow
 def test_a_closed_pipe_ends_the_command_quietly(tmp_path: Path) -> None:
     url = f"sqlite:///{_store(tmp_path / 'plant.db')}"
     proc = _run(["export", "--db", url, "--format", "json"], stdout=subprocess.PIPE)
@@ -347,6 +350,7 @@ def test_a_tampered_state_file_is_refused_by_monitor_before_any_recording(
 STATE_PATHS = _paths(STATE)
 
 
+@pytest.mark.slow
 @FUZZ
 @given(st.sampled_from(STATE_PATHS), JSON_VALUE)
 def test_a_tampered_state_is_refused_in_one_line_or_works_everywhere_it_is_used(
@@ -378,14 +382,12 @@ def _monitored_store(tmp_path: Path) -> tuple[str, str]:
     shutil.copy(FIXTURE_STORE, path)
     url = f"sqlite:///{path}"
     assert main(["db", "upgrade", "--db", url]) == 0
-    store = Store(url)
-    try:
+    with Store(url) as store:
         conveyor = store.conveyors()[0]
-    finally:
-        store.close()
     return url, conveyor
 
 
+@pytest.mark.slow
 def test_maintenance_dated_outside_1970_2200_is_refused_by_the_api_with_422(
     tmp_path: Path,
 ) -> None:
@@ -450,6 +452,7 @@ def test_dates_outside_1970_2200_are_refused_by_cli_options(
     assert main(argv) == 0
 
 
+@pytest.mark.slow
 def test_export_to_a_full_tmpfs_is_one_line_and_exit_1(
     tmp_path: Path, read_only_mount: Path
 ) -> None:

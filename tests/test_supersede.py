@@ -73,14 +73,11 @@ def ingest(url: str, files: list[Path], profiles: Path, capsys: Any) -> None:
 
 def comparable(url: str) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """The results and the health model of a store (what does not depend on when it ran)."""
-    store = Store(url, create=False)
-    try:
+    with Store(url, create=False) as store:
         results = store.results()
         state = store.state(PROFILE.id)
         assert state is not None
         return results, state.to_dict()
-    finally:
-        store.close()
 
 
 def test_the_complete_version_through_ingest_supersedes_the_stored_partial(
@@ -132,14 +129,11 @@ def test_the_complete_version_through_ingest_supersedes_the_stored_partial(
     assert [h["file"] for h in state["history"]] == [str(f) for f in files]
 
     # the web API's pages and trends, and the export, likewise
-    store = Store(url, create=False)
-    try:
+    with Store(url, create=False) as store:
         page = results_page(store, PROFILE.id)
         assert [r["file"] for r in page.items] == [str(f) for f in reversed(files)]
         trend = trend_rows(store, PROFILE.id, 100)
         assert trend.results == expected and trend.total == 4
-    finally:
-        store.close()
     exported = json.loads(run(["export", "--db", url, "--format", "json"], capsys))
     assert [r["file"] for r in exported] == [str(f) for f in files]
 

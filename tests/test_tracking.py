@@ -90,6 +90,7 @@ def test_recordings_are_tracked_oldest_first(fleet: list[Recording]) -> None:
     assert [r.source for r in in_time_order(shuffled)] == [r.source for r in fleet[:3]]
 
 
+@pytest.mark.slow
 def test_cli_identify_methods(
     tmp_path: Path, fleet: list[Recording], capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -201,6 +201,7 @@ STEPS = st.lists(
     deadline=None,
     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
 )
+@pytest.mark.slow
 @given(start=st.sampled_from([0, 1]), steps=STEPS)
 def test_every_view_gives_the_same_verdict_at_every_step(
     plant: Plant, views: Any, start: int, steps: list[str]

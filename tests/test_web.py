@@ -137,6 +137,7 @@ def _error(response: httpx.Response, status: int, code: str) -> str:
     return message
 
 
+@pytest.mark.slow
 def test_reading_the_api_needs_a_token_and_pages_through_results(served: Served) -> None:
     anon = served.client()
     health = anon.get("/api/v1/health").json()
@@ -439,9 +440,12 @@ def test_the_event_stream_tells_of_stored_results_and_alarm_changes(
             assert next(others)[0] == "ready"
             feed = served.app.state.web.extra["feed"]
             assert feed.listeners == 2
-            polls = feed.polls
-            time.sleep(2.5)
-            assert 1 <= feed.polls - polls <= 4  # once a second, not once per listener
+            poller, polls = feed._task, feed.polls
+            deadline = time.monotonic() + 30
+            while feed.polls - polls < 2:  # two rounds of the poll while both listen
+                assert time.monotonic() < deadline, "the feed did not poll the store"
+                time.sleep(0.02)
+            assert feed._task is poller  # one poll of the store for both listeners
         files = [("files", ("late.csv", new_file.read_bytes(), "text/csv"))]
         stored = maintainer.post("/api/v1/recordings", files=files).json()["files"]
         assert stored[0]["status"] == "stored"
@@ -600,6 +604,7 @@ def test_token_commands(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> N
     assert main(["token", "revoke", "nope", "--db", db]) == 2
 
 
+@pytest.mark.browser
 def test_in_a_browser_a_trend_shows_its_forecast_band(rising: Served) -> None:
     """The conveyor page draws the monitor's forecast and its 90 % band on the trend."""
     if not CHROMIUM.exists():
@@ -622,6 +627,7 @@ def test_in_a_browser_a_trend_shows_its_forecast_band(rising: Served) -> None:
         browser.close()
 
 
+@pytest.mark.browser
 def test_in_a_browser_a_missing_tlf_or_payload_is_said_in_words(rising: Served) -> None:
     """No empty chart: where nothing has a TLF (or a payload) the chart says why in words.
 
@@ -692,6 +698,7 @@ def api_schema(fleet: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterato
     s.close()
 
 
+@pytest.mark.slow
 def test_every_operation_answers_as_its_schema_says(
     api_schema: Any, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -786,6 +793,7 @@ def test_sequences_of_operations_answer_as_their_schema_says(
 CHROMIUM = Path("/usr/bin/chromium")
 
 
+@pytest.mark.browser
 def test_in_a_browser_log_in_see_charts_acknowledge_and_a_viewer_refused(
     fleet: Path, tmp_path: Path
 ) -> None:
@@ -949,8 +957,7 @@ def test_trend_rows_keep_the_newest_whole_and_thin_the_rest(tmp_path: Path) -> N
     from chaintwin.store.queries import trend_rows
     from chaintwin.store.schema import ConveyorRow, RecordingRow, ResultRow
 
-    store = Store(f"sqlite:///{tmp_path / 'long.db'}")
-    try:
+    with Store(f"sqlite:///{tmp_path / 'long.db'}") as store:
         with store.engine.begin() as c:
             for cid in ("a", "b"):
                 c.execute(
@@ -1013,10 +1020,9 @@ def test_trend_rows_keep_the_newest_whole_and_thin_the_rest(tmp_path: Path) -> N
         few = trend_rows(store, "b", 5000)
         assert [r["n"] for r in few.results] == [r["n"] for r in store.results("b")]
         assert few.total == 1000 and few.represents == [1] * 1000
-    finally:
-        store.close()
 
 
+@pytest.mark.slow
 def test_the_served_app_freezes_its_start_up_heap(tmp_path: Path) -> None:
     import subprocess
     import sys

@@ -85,12 +85,9 @@ def test_the_store_keeps_the_friction_drift(
     from chaintwin.store.store import Store
 
     cal = load_calibration(calibrated[0])
-    store = Store(f"sqlite:///{tmp_path / 'r.db'}")
-    try:
+    with Store(f"sqlite:///{tmp_path / 'r.db'}") as store:
         store.put_calibration(cal)
         back = store.calibration(cal.profile.id)
-    finally:
-        store.close()
     assert back is not None and back.friction_drift == 0.1
 
 

@@ -15,7 +15,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from chaintwin.cli.common import print_json
+from chaintwin.cli.common import DbOption, EditStateOption, json_option, print_json
 from chaintwin.diagnose.alarm_actions import (
     clear_out_of_service,
     comment_alarm,
@@ -30,14 +30,6 @@ from chaintwin.errors import StoreError
 __all__ = ["filter_alarms", "register"]
 
 T = TypeVar("T")
-
-_STATE_HELP = "The monitoring state file (of `monitor --state`)."
-_DB_HELP = (
-    "Results store URL (sqlite:///file.db, postgresql://...); default CHAINTWIN_DB, "
-    "else sqlite:///chaintwin.db."
-)
-_STATE_OPT = typer.Option("--state", help=_STATE_HELP)
-_DB_OPT = typer.Option("--db", help=_DB_HELP)
 
 
 def filter_alarms(
@@ -83,11 +75,8 @@ def _alarms(state: Path | None, db: str | None) -> list[Alarm]:
     from chaintwin.store.engine import store_url
     from chaintwin.store.store import Store
 
-    store = Store(store_url(db), create=False)
-    try:
+    with Store(store_url(db), create=False) as store:
         return store.alarms()
-    finally:
-        store.close()
 
 
 def _change(
@@ -107,11 +96,8 @@ def _change(
         from chaintwin.store.store import Store
         from chaintwin.web.access import audit
 
-        store = Store(store_url(db), create=False)
-        try:
+        with Store(store_url(db), create=False) as store:
             audit(store, *audit_as)
-        finally:
-            store.close()
     return out
 
 
@@ -145,9 +131,9 @@ def register(app: typer.Typer) -> None:
         lifecycle: Annotated[
             str | None, typer.Option("--lifecycle", help=f"One of {', '.join(LIFECYCLES)}.")
         ] = None,
-        state: Annotated[Path | None, _STATE_OPT] = None,
-        db: Annotated[str | None, _DB_OPT] = None,
-        as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+        state: EditStateOption = None,
+        db: DbOption = None,
+        as_json: Annotated[bool, json_option("Print JSON.")] = False,
     ) -> None:
         """List alarms with their lifecycle, oldest first."""
         found = filter_alarms(_alarms(state, db), status, lifecycle)
@@ -176,8 +162,8 @@ def register(app: typer.Typer) -> None:
         alarm: Annotated[str, typer.Argument(help="Alarm id.")],
         by: Annotated[str, typer.Option("--by", help="Who acknowledges.")],
         why: Annotated[str, typer.Option("--why", help="Why (e.g. work order).")] = "",
-        state: Annotated[Path | None, _STATE_OPT] = None,
-        db: Annotated[str | None, _DB_OPT] = None,
+        state: EditStateOption = None,
+        db: DbOption = None,
     ) -> None:
         """Acknowledge an alarm (as `chaintwin acknowledge`)."""
         a = _change(
@@ -196,8 +182,8 @@ def register(app: typer.Typer) -> None:
         by: Annotated[str, typer.Option("--by", help="Who shelves it.")],
         why: Annotated[str, typer.Option("--why", help="Why (required).")],
         minutes: Annotated[float, typer.Option("--minutes", help="For how long, minutes.")],
-        state: Annotated[Path | None, _STATE_OPT] = None,
-        db: Annotated[str | None, _DB_OPT] = None,
+        state: EditStateOption = None,
+        db: DbOption = None,
     ) -> None:
         """Shelve an alarm for a time: it neither counts nor notifies until it returns."""
         a = _change(
@@ -215,8 +201,8 @@ def register(app: typer.Typer) -> None:
     def unshelve_cmd(
         alarm: Annotated[str, typer.Argument(help="Alarm id.")],
         by: Annotated[str, typer.Option("--by", help="Who unshelves it.")],
-        state: Annotated[Path | None, _STATE_OPT] = None,
-        db: Annotated[str | None, _DB_OPT] = None,
+        state: EditStateOption = None,
+        db: DbOption = None,
     ) -> None:
         """End an alarm's shelf now."""
         a = _change(
@@ -234,8 +220,8 @@ def register(app: typer.Typer) -> None:
         alarm: Annotated[str, typer.Argument(help="Alarm id.")],
         text: Annotated[str, typer.Argument(help="The comment.")],
         by: Annotated[str, typer.Option("--by", help="Who writes it.")],
-        state: Annotated[Path | None, _STATE_OPT] = None,
-        db: Annotated[str | None, _DB_OPT] = None,
+        state: EditStateOption = None,
+        db: DbOption = None,
     ) -> None:
         """Add a comment to an alarm."""
         a = _change(
@@ -262,8 +248,8 @@ def register(app: typer.Typer) -> None:
         end: Annotated[
             bool, typer.Option("--end", help="Put the conveyor back in service now.")
         ] = False,
-        state: Annotated[Path | None, _STATE_OPT] = None,
-        db: Annotated[str | None, _DB_OPT] = None,
+        state: EditStateOption = None,
+        db: DbOption = None,
     ) -> None:
         """Take a conveyor out of service: its recordings are kept, not judged, not learned."""
         if end:

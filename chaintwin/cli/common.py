@@ -23,14 +23,24 @@ if TYPE_CHECKING:
 
 
 __all__ = [
+    "DB_HELP",
+    "EDIT_STATE_HELP",
     "EXIT_ALARM",
     "EXIT_USAGE",
     "OPTION_OF_FIELD",
+    "PROFILES_HELP",
     "ColumnsOption",
+    "DbOption",
+    "EditStateOption",
+    "JsonListOption",
+    "JsonObjectOption",
+    "ProfilesOption",
+    "db_option",
     "edit_state",
     "error_message",
     "error_object",
     "expand_recordings",
+    "json_option",
     "load_options",
     "load_profiles",
     "parse_at",
@@ -92,6 +102,44 @@ ColumnsOption = Annotated[
     typer.Option("--columns", help="Column map YAML for exports named otherwise."),
 ]
 
+DB_HELP = (
+    "Results store URL (sqlite:///file.db, postgresql://...); default CHAINTWIN_DB, "
+    "else sqlite:///chaintwin.db."
+)
+"""The help of ``--db`` where it names the results store."""
+
+PROFILES_HELP = "Folder of profiles (*.yaml); recordings are matched to them by conveyor id."
+"""The help of ``--profiles`` where recordings are matched to profiles."""
+
+EDIT_STATE_HELP = "The monitoring state file (of `monitor --state`)."
+"""The help of ``--state`` for the commands that change a monitoring state."""
+
+
+def db_option(help: str = DB_HELP) -> Any:
+    """The ``--db`` option (a results store URL), with its help."""
+    return typer.Option("--db", help=help)
+
+
+def json_option(help: str) -> Any:
+    """The ``--json`` option (print JSON instead of text), with its help."""
+    return typer.Option("--json", help=help)
+
+
+#: ``--db``: the results store's URL (default CHAINTWIN_DB, else sqlite:///chaintwin.db).
+DbOption = Annotated[str | None, db_option()]
+
+#: ``--json`` of a command that prints a list.
+JsonListOption = Annotated[bool, json_option("Print one JSON list.")]
+
+#: ``--json`` of a command that prints one object.
+JsonObjectOption = Annotated[bool, json_option("Print one JSON object.")]
+
+#: ``--profiles``: a folder of profiles matched to recordings by conveyor id.
+ProfilesOption = Annotated[Path | None, typer.Option("--profiles", help=PROFILES_HELP)]
+
+#: ``--state`` of the commands that change a monitoring state file.
+EditStateOption = Annotated[Path | None, typer.Option("--state", help=EDIT_STATE_HELP)]
+
 
 def wants_json(args: Iterable[str]) -> bool:
     """Whether a command line asks for JSON output (``--json``, ``--format json``)."""
@@ -148,19 +196,26 @@ def print_warning(console: Console, where: str, code: str, message: str) -> None
 
 
 def expand_recordings(paths: Iterable[Path]) -> list[str]:
-    """Expand folders into their ``*.csv`` files (sorted); keep files as given.
+    """Expand folders into their recording files (sorted); keep files as given.
+
+    A folder's recording files are those matching a registered format's
+    pattern (:func:`~chaintwin.read.formats.recording_patterns`: ``*.csv``
+    and those of the formats added).
 
     Raises
     ------
     RecordingError
-        When a folder holds no ``*.csv`` file.
+        When a folder holds no recording file.
     """
+    from chaintwin.read.formats import recording_patterns
+
+    patterns = recording_patterns()
     out: list[str] = []
     for p in paths:
         if p.is_dir():
-            found = sorted(str(f) for f in p.rglob("*.csv"))
+            found = sorted({str(f) for pattern in patterns for f in p.rglob(pattern)})
             if not found:
-                raise RecordingError(str(p), "folder holds no *.csv recording")
+                raise RecordingError(str(p), f"folder holds no {' or '.join(patterns)} recording")
             out.extend(found)
         else:
             out.append(str(p))
@@ -219,13 +274,10 @@ def edit_state(
     from chaintwin.store.engine import store_url
     from chaintwin.store.store import Store
 
-    store = Store(store_url(db), create=False)
-    try:
+    with Store(store_url(db), create=False) as store:
         if conveyor is None:
             conveyor = store.alarm_conveyor(alarm or "")
         return store.edit_state(conveyor, edit)
-    finally:
-        store.close()
 
 
 def parse_at(text: str | None, option: str = "--at") -> datetime | None:

@@ -2,19 +2,12 @@
 
 from __future__ import annotations
 
-from typing import Annotated
-
 import typer
 
-from chaintwin.cli.common import print_json
+from chaintwin.cli.common import DbOption, JsonObjectOption, print_json
 from chaintwin.errors import StoreError
 
 __all__ = ["register"]
-
-_DB_HELP = (
-    "Results store URL (sqlite:///file.db, postgresql://...); default CHAINTWIN_DB, "
-    "else sqlite:///chaintwin.db."
-)
 
 
 def register(app: typer.Typer) -> None:
@@ -27,8 +20,8 @@ def register(app: typer.Typer) -> None:
 
     @db.command("upgrade")
     def upgrade(
-        url: Annotated[str | None, typer.Option("--db", help=_DB_HELP)] = None,
-        as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+        url: DbOption = None,
+        as_json: JsonObjectOption = False,
     ) -> None:
         """Upgrade a store's tables to this chaintwin's revision (creates an empty store).
 

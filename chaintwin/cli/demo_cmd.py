@@ -122,8 +122,7 @@ def run_demo(out: Path, *, days: int, per_day: int, workers: int | None, console
                 progress=tick,
             )
             files += sorted(str(f) for f in summary.folder.glob("*.csv"))
-    store = Store(f"sqlite:///{out / 'plant.db'}")
-    try:
+    with Store(f"sqlite:///{out / 'plant.db'}") as store:
         console.print(
             "[bold]2. calibration[/] from each conveyor's empty runs at several speeds "
             "(one_load_several_speeds, the recommended protocol):"
@@ -191,8 +190,6 @@ def run_demo(out: Path, *, days: int, per_day: int, workers: int | None, console
                 "-" if d.verdict.health_index is None else f"{d.verdict.health_index:.2f}",
             )
         console.print(table)
-    finally:
-        store.close()
     console.print(
         "payload and TLF: medians of the latest recordings; weights right: share of the "
         "weighed recordings within 2 standard uncertainties of the simulated payload, median "
@@ -216,12 +213,9 @@ def demo_token(out: Path) -> str:
     from chaintwin.store.store import Store
     from chaintwin.web.access import create_token, list_tokens
 
-    store = Store(f"sqlite:///{out / 'plant.db'}")
-    try:
+    with Store(f"sqlite:///{out / 'plant.db'}") as store:
         n = len(list_tokens(store))
         return create_token(store, f"demo-viewer-{n + 1}", "viewer")
-    finally:
-        store.close()
 
 
 def _weights_right(results: list[dict[str, Any]], truth_file: Path) -> str:

@@ -12,8 +12,12 @@ from rich.table import Table
 from chaintwin import __version__
 from chaintwin.cli.common import (
     ColumnsOption,
+    JsonListOption,
+    JsonObjectOption,
+    db_option,
     error_message,
     expand_recordings,
+    json_option,
     print_json,
     print_refused,
     print_warning,
@@ -158,7 +162,7 @@ def register(app: typer.Typer) -> None:
     def identify_cmd(
         files: Annotated[list[Path], typer.Argument(help="Recordings with payload_kg metadata.")],
         profile: Annotated[Path, typer.Option("--profile", help="Conveyor profile YAML.")],
-        as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+        as_json: JsonObjectOption = False,
         columns: ColumnsOption = None,
         method: Annotated[
             str,
@@ -263,11 +267,9 @@ def register(app: typer.Typer) -> None:
         ] = None,
         db: Annotated[
             str | None,
-            typer.Option("--db", help="Keep the calibration in this results store (URL)."),
+            db_option("Keep the calibration in this results store (URL)."),
         ] = None,
-        as_json: Annotated[
-            bool, typer.Option("--json", help="Print the calibration file's content.")
-        ] = False,
+        as_json: Annotated[bool, json_option("Print the calibration file's content.")] = False,
         columns: ColumnsOption = None,
         friction_drift: Annotated[
             float,
@@ -309,11 +311,8 @@ def register(app: typer.Typer) -> None:
             from chaintwin.store.engine import store_url
             from chaintwin.store.store import Store
 
-            store = Store(store_url(db))
-            try:
+            with Store(store_url(db)) as store:
                 store.put_calibration(cal)
-            finally:
-                store.close()
         if as_json:
             print_json(cal.to_dict())
         else:
@@ -339,7 +338,7 @@ def register(app: typer.Typer) -> None:
         calibration: Annotated[
             Path, typer.Option("--calibration", help="Calibration file from `calibrate`.")
         ],
-        as_json: Annotated[bool, typer.Option("--json", help="Print one JSON list.")] = False,
+        as_json: JsonListOption = False,
         columns: ColumnsOption = None,
         loss_drift: Annotated[
             float,

@@ -13,6 +13,7 @@ from chaintwin.cli.common import (
     ColumnsOption,
     error_message,
     expand_recordings,
+    json_option,
     load_options,
     print_json,
     print_refused,
@@ -115,9 +116,7 @@ def register(app: typer.Typer) -> None:
             ),
         ] = None,
         columns: ColumnsOption = None,
-        as_json: Annotated[
-            bool, typer.Option("--json", help="Print one JSON list instead of a table.")
-        ] = False,
+        as_json: Annotated[bool, json_option("Print one JSON list instead of a table.")] = False,
     ) -> None:
         """Show what each recording holds and whether it is usable.
 

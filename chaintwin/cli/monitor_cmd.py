@@ -14,8 +14,12 @@ from rich.table import Table
 from chaintwin.cli.common import (
     EXIT_ALARM,
     ColumnsOption,
+    EditStateOption,
+    ProfilesOption,
+    db_option,
     edit_state,
     expand_recordings,
+    json_option,
     load_profiles,
     parse_at,
     print_json,
@@ -41,14 +45,12 @@ from chaintwin.errors import (
 __all__ = ["register", "run_monitor"]
 
 _PROFILE_HELP = "Profile of the one conveyor monitored."
-_PROFILES_HELP = "Folder of profiles (*.yaml); recordings are matched to them by conveyor id."
 _CAL_HELP = (
     "Calibration file (repeat for several conveyors). A calibration of another conveyor "
     "serves as a sibling's starting point when one --profile is given."
 )
 _STATE_HELP = "State file: monitoring continues from it and is saved back (created if missing)."
 _BASELINE_HELP = "Recordings in a baseline (and in a learned calibration) [20]."
-_EDIT_STATE_HELP = "The monitoring state file (of `monitor --state`)."
 _EDIT_DB_HELP = (
     "Or the results store (of `ingest --db`); without --state the store is used: this URL, "
     "else CHAINTWIN_DB, else sqlite:///chaintwin.db."
@@ -252,7 +254,7 @@ def register(app: typer.Typer) -> None:
     def monitor_cmd(
         files: Annotated[list[Path], typer.Argument(help=_FILES_HELP)],
         profile: Annotated[Path | None, typer.Option("--profile", help=_PROFILE_HELP)] = None,
-        profiles: Annotated[Path | None, typer.Option("--profiles", help=_PROFILES_HELP)] = None,
+        profiles: ProfilesOption = None,
         calibration: Annotated[
             list[Path] | None, typer.Option("--calibration", help=_CAL_HELP)
         ] = None,
@@ -260,7 +262,7 @@ def register(app: typer.Typer) -> None:
         baseline: Annotated[int | None, typer.Option("--baseline", help=_BASELINE_HELP)] = None,
         alarm_rule: Annotated[str | None, typer.Option("--alarm-rule", help=_RULE_HELP)] = None,
         z_limit: Annotated[float | None, typer.Option("--z-limit", help=_Z_HELP)] = None,
-        as_json: Annotated[bool, typer.Option("--json", help=_JSON_HELP)] = False,
+        as_json: Annotated[bool, json_option(_JSON_HELP)] = False,
         fail_on_alarm: Annotated[bool, typer.Option("--fail-on-alarm", help=_FAIL_HELP)] = False,
         columns: ColumnsOption = None,
         residual: Annotated[
@@ -318,8 +320,8 @@ def register(app: typer.Typer) -> None:
         at: Annotated[
             str | None, typer.Option("--at", help="When (ISO 8601); default now.")
         ] = None,
-        state: Annotated[Path | None, typer.Option("--state", help=_EDIT_STATE_HELP)] = None,
-        db: Annotated[str | None, typer.Option("--db", help=_EDIT_DB_HELP)] = None,
+        state: EditStateOption = None,
+        db: Annotated[str | None, db_option(_EDIT_DB_HELP)] = None,
     ) -> None:
         """Record a maintenance event: the conveyor's baseline restarts after it."""
         from chaintwin.diagnose.state import add_maintenance
@@ -339,8 +341,8 @@ def register(app: typer.Typer) -> None:
         alarm: Annotated[str, typer.Argument(help="Alarm id (from monitor).")],
         by: Annotated[str, typer.Option("--by", help="Who acknowledges.")],
         why: Annotated[str, typer.Option("--why", help="Why (e.g. work order).")] = "",
-        state: Annotated[Path | None, typer.Option("--state", help=_EDIT_STATE_HELP)] = None,
-        db: Annotated[str | None, typer.Option("--db", help=_EDIT_DB_HELP)] = None,
+        state: EditStateOption = None,
+        db: Annotated[str | None, db_option(_EDIT_DB_HELP)] = None,
     ) -> None:
         """Acknowledge an alarm: someone has seen it; it stays open until it closes."""
         from chaintwin.diagnose.state import acknowledge_alarm

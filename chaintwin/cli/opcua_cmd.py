@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from chaintwin.cli.common import safe
+from chaintwin.cli.common import db_option, safe
 
 __all__ = ["register"]
 
@@ -27,7 +27,7 @@ def register(app: typer.Typer) -> None:
     @group.command("nodeset")
     def nodeset(
         out: Annotated[Path, typer.Option("--out", help="The NodeSet2 XML file to write.")],
-        db: Annotated[str | None, typer.Option("--db", help=_DB_HELP)] = None,
+        db: Annotated[str | None, db_option(_DB_HELP)] = None,
         no_values: Annotated[
             bool,
             typer.Option(

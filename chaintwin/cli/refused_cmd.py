@@ -10,15 +10,10 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from chaintwin.cli.common import print_json, printable, safe
+from chaintwin.cli.common import DbOption, JsonListOption, print_json, printable, safe
 from chaintwin.errors import StoreError
 
 __all__ = ["register", "retry_refusals"]
-
-_DB_HELP = (
-    "Results store URL (sqlite:///file.db, postgresql://...); default CHAINTWIN_DB, "
-    "else sqlite:///chaintwin.db."
-)
 
 
 def retry_refusals(
@@ -105,19 +100,16 @@ def register(app: typer.Typer) -> None:
 
     @group.command("list")
     def list_cmd(
-        db: Annotated[str | None, typer.Option("--db", help=_DB_HELP)] = None,
-        as_json: Annotated[bool, typer.Option("--json", help="Print one JSON list.")] = False,
+        db: DbOption = None,
+        as_json: JsonListOption = False,
     ) -> None:
         """List the refused files: when, why (cause: profile or recording), the reason."""
         from chaintwin.live.ledger import refusals
         from chaintwin.store.engine import store_url
         from chaintwin.store.store import Store
 
-        store = Store(store_url(db), create=False)
-        try:
+        with Store(store_url(db), create=False) as store:
             rows = refusals(store)
-        finally:
-            store.close()
         if as_json:
             print_json([r.to_dict() for r in rows])
             return
@@ -136,12 +128,12 @@ def register(app: typer.Typer) -> None:
             list[str] | None,
             typer.Argument(help="Refused files to read again (default: all of them)."),
         ] = None,
-        db: Annotated[str | None, typer.Option("--db", help=_DB_HELP)] = None,
+        db: DbOption = None,
         profiles: Annotated[
             Path | None,
             typer.Option("--profiles", help="Folder of profiles (the store's serve the rest)."),
         ] = None,
-        as_json: Annotated[bool, typer.Option("--json", help="Print one JSON list.")] = False,
+        as_json: JsonListOption = False,
     ) -> None:
         """Read refused files again (after their profile was added or fixed).
 
@@ -153,11 +145,8 @@ def register(app: typer.Typer) -> None:
         from chaintwin.store.store import Store
 
         profs = load_profiles(None, profiles) if profiles is not None else {}
-        store = Store(store_url(db), create=False)
-        try:
+        with Store(store_url(db), create=False) as store:
             done = retry_refusals(store, profs, files or None)
-        finally:
-            store.close()
         if as_json:
             print_json(done)
             return

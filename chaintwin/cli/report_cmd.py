@@ -8,15 +8,11 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from chaintwin.cli.common import safe
+from chaintwin.cli.common import DbOption, safe
 from chaintwin.errors import StoreError
 
 __all__ = ["register"]
 
-_DB_HELP = (
-    "Results store URL (sqlite:///file.db, postgresql://...); default CHAINTWIN_DB, "
-    "else sqlite:///chaintwin.db."
-)
 _CONVEYOR_HELP = "The conveyor whose page is made."
 _FLEET_HELP = "Make the fleet page (conveyors ranked by health and by TLF)."
 _ALL_HELP = "Make every conveyor's page and the fleet page (fleet.html) in the --out folder."
@@ -31,7 +27,7 @@ def register(app: typer.Typer) -> None:
 
     @app.command("report")
     def report_cmd(
-        db: Annotated[str | None, typer.Option("--db", help=_DB_HELP)] = None,
+        db: DbOption = None,
         conveyor: Annotated[str | None, typer.Option("--conveyor", help=_CONVEYOR_HELP)] = None,
         fleet: Annotated[bool, typer.Option("--fleet", help=_FLEET_HELP)] = False,
         every: Annotated[bool, typer.Option("--all", help=_ALL_HELP)] = False,
@@ -56,9 +52,8 @@ def register(app: typer.Typer) -> None:
 
         if sum((conveyor is not None, fleet, every)) != 1:
             raise StoreError("give one of --conveyor ID, --fleet or --all")
-        store = Store(store_url(db), create=False, read_only=True)
         console = Console()
-        try:
+        with Store(store_url(db), create=False, read_only=True) as store:
             if conveyor is not None:
                 html, _d = conveyor_page(store, conveyor)
                 target = write_page(html, out or Path(report_file_name(conveyor)))
@@ -74,5 +69,3 @@ def register(app: typer.Typer) -> None:
                     f"(start with {safe(str(written[-1]))})",
                     highlight=False,
                 )
-        finally:
-            store.close()

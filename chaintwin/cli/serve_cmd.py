@@ -12,7 +12,14 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from chaintwin.cli.common import print_json, printable, safe
+from chaintwin.cli.common import (
+    DbOption,
+    JsonListOption,
+    JsonObjectOption,
+    print_json,
+    printable,
+    safe,
+)
 from chaintwin.errors import StoreError
 
 if TYPE_CHECKING:
@@ -41,7 +48,7 @@ A SQLite connection costs about 0.5 ms to open but holds memory of its own
 as long as it is open (its page cache, up to :data:`SERVE_SQLITE_CACHE_KIB`,
 and its prepared statements: 0.6 MB or more). Connections kept are opened one by
 one as the service's work happens to overlap, and kept for its life: with 16
-kept, the live service's memory grew over hours as more were opened (issue 21)."""
+kept, the live service's memory grew over hours as more were opened."""
 
 SERVE_SQLITE_CACHE_KIB = 1024
 """Each of ``serve``'s SQLite connections' page cache at most, KiB (SQLite's default:
@@ -77,12 +84,6 @@ def serve_store(url: str) -> Store:
             sqlite_cache_kib=SERVE_SQLITE_CACHE_KIB,
         )
     return Store(url, pool_size=SERVE_POOL_SIZE)
-
-
-_DB_HELP = (
-    "Results store URL (sqlite:///file.db, postgresql://...); default CHAINTWIN_DB, "
-    "else sqlite:///chaintwin.db."
-)
 
 
 @dataclass
@@ -420,7 +421,7 @@ def register(app: typer.Typer) -> None:
 
     @app.command("serve")
     def serve_cmd(
-        db: Annotated[str | None, typer.Option("--db", help=_DB_HELP)] = None,
+        db: DbOption = None,
         profiles: Annotated[
             Path | None,
             typer.Option("--profiles", help="Folder of profiles uploads are weighed with."),
@@ -447,7 +448,8 @@ def register(app: typer.Typer) -> None:
             list[Path] | None,
             typer.Option(
                 "--watch",
-                help="Folder to follow (recursively): every *.csv that appears is ingested. "
+                help="Folder to follow (recursively): every recording file that appears (*.csv, "
+                "or a registered format's pattern) is ingested. "
                 "Repeat for more folders.",
             ),
         ] = None,
@@ -619,22 +621,19 @@ def register(app: typer.Typer) -> None:
         role: Annotated[
             str, typer.Option("--role", help="viewer, maintainer or admin.")
         ] = "viewer",
-        db: Annotated[str | None, typer.Option("--db", help=_DB_HELP)] = None,
+        db: DbOption = None,
         expires_days: Annotated[
             float | None, typer.Option("--expires-days", help="Lifetime in days (default: none).")
         ] = None,
-        as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+        as_json: JsonObjectOption = False,
     ) -> None:
         """Create a token and print it once (the store keeps only its hash)."""
         from chaintwin.store.engine import store_url
         from chaintwin.store.store import Store
         from chaintwin.web.access import create_token
 
-        store = Store(store_url(db))
-        try:
+        with Store(store_url(db)) as store:
             value = create_token(store, name, role, expires_days)
-        finally:
-            store.close()
         if as_json:
             print_json({"token": value, "name": name, "role": role})
         else:
@@ -646,19 +645,16 @@ def register(app: typer.Typer) -> None:
 
     @token.command("list")
     def list_cmd(
-        db: Annotated[str | None, typer.Option("--db", help=_DB_HELP)] = None,
-        as_json: Annotated[bool, typer.Option("--json", help="Print one JSON list.")] = False,
+        db: DbOption = None,
+        as_json: JsonListOption = False,
     ) -> None:
         """List the tokens (names, roles, lifetimes; never the tokens)."""
         from chaintwin.store.engine import store_url
         from chaintwin.store.store import Store
         from chaintwin.web.access import list_tokens
 
-        store = Store(store_url(db), create=False)
-        try:
+        with Store(store_url(db), create=False) as store:
             tokens = list_tokens(store)
-        finally:
-            store.close()
         if as_json:
             print_json([t.to_dict() for t in tokens])
             return
@@ -673,18 +669,15 @@ def register(app: typer.Typer) -> None:
     @token.command("revoke")
     def revoke(
         name: Annotated[str, typer.Argument(help="The token's name.")],
-        db: Annotated[str | None, typer.Option("--db", help=_DB_HELP)] = None,
+        db: DbOption = None,
     ) -> None:
         """Revoke a token: it and its browser sessions stop working at once."""
         from chaintwin.store.engine import store_url
         from chaintwin.store.store import Store
         from chaintwin.web.access import revoke_token
 
-        store = Store(store_url(db), create=False)
-        try:
+        with Store(store_url(db), create=False) as store:
             info = revoke_token(store, name)
-        finally:
-            store.close()
         print(f"token '{safe(info.name)}' revoked at {info.revoked_at}")
 
     app.add_typer(token)

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from chaintwin.simulate.faults import FAULT_NAMES
+from chaintwin.simulate.faults import fault_names
 
 if TYPE_CHECKING:
     from chaintwin.read.profile import ConveyorProfile, ModelSpec
@@ -21,7 +21,7 @@ if TYPE_CHECKING:
 from rich.console import Console
 from rich.progress import Progress
 
-from chaintwin.cli.common import print_json
+from chaintwin.cli.common import json_option, print_json
 from chaintwin.diagnose.records import date_out_of_span
 from chaintwin.errors import CalibrationError, ModelError, RecordingError
 from chaintwin.units import RPM_TO_RAD_S
@@ -30,7 +30,7 @@ __all__ = ["build_model", "build_realism", "register"]
 
 REALISM_SWITCHES = ("noise", "quantisation", "elastic", "stick_slip", "polygon", "gear_mesh")
 MOVES = ("trapezoid", "trapezoid2", "ramp", "stairs")
-FAULT_HELP = f"NAME:SEVERITY, repeatable; names: {', '.join(FAULT_NAMES)}."
+FAULT_HELP = f"NAME:SEVERITY, repeatable; names: {', '.join(fault_names())}."
 
 
 def build_model(
@@ -234,9 +234,7 @@ def register(app: typer.Typer) -> None:
                 "--calibration", help="Simulate with the friction and losses of a calibration."
             ),
         ] = None,
-        as_json: Annotated[
-            bool, typer.Option("--json", help="Print the ground truth as JSON.")
-        ] = False,
+        as_json: Annotated[bool, json_option("Print the ground truth as JSON.")] = False,
     ) -> None:
         """Simulate one drive recording of the virtual conveyor (what-if runs).
 
@@ -244,8 +242,8 @@ def register(app: typer.Typer) -> None:
         identified friction and losses), else the profile's model: section,
         else typical values (friction 0.23, the reference losses).
         """
+        from chaintwin.read.formats import read_recording
         from chaintwin.read.profile import load_profile
-        from chaintwin.read.reader import read_recording
         from chaintwin.read.writer import write_recording
         from chaintwin.simulate import setpoints as sp
         from chaintwin.simulate.faults import parse_faults

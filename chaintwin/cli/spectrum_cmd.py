@@ -10,7 +10,14 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from chaintwin.cli.common import ColumnsOption, load_options, print_json, print_warning, safe
+from chaintwin.cli.common import (
+    ColumnsOption,
+    json_option,
+    load_options,
+    print_json,
+    print_warning,
+    safe,
+)
 
 if TYPE_CHECKING:
     from chaintwin.diagnose.spectra import Spectrum
@@ -195,7 +202,7 @@ def register(app: typer.Typer) -> None:
         profile: Annotated[Path | None, typer.Option("--profile", help=PROFILE_HELP)] = None,
         orders: Annotated[bool, typer.Option("--orders", help=ORDERS_HELP)] = False,
         png: Annotated[Path | None, typer.Option("--png", help=PNG_HELP)] = None,
-        as_json: Annotated[bool, typer.Option("--json", help=JSON_HELP)] = False,
+        as_json: Annotated[bool, json_option(JSON_HELP)] = False,
         columns: ColumnsOption = None,
     ) -> None:
         """Show the torque spectrum of a recording with its characteristic lines.

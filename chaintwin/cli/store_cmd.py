@@ -14,7 +14,10 @@ from rich.progress import Progress
 
 from chaintwin.cli.common import (
     ColumnsOption,
+    DbOption,
+    ProfilesOption,
     expand_recordings,
+    json_option,
     load_profiles,
     print_json,
     print_refused,
@@ -29,8 +32,6 @@ from chaintwin.errors import StoreError
 
 __all__ = ["EXPORT_COLUMNS", "register"]
 
-_DB_HELP = "Results store URL (sqlite:///file.db, postgresql://...); default CHAINTWIN_DB, else sqlite:///chaintwin.db."
-_PROFILES_HELP = "Folder of profiles (*.yaml), matched to recordings by conveyor id."
 _PROFILE_HELP = "Profile of the one conveyor ingested."
 _SCHED_HELP = (
     "Dask scheduler address (tcp://host:8786): run on that cluster instead of local processes."
@@ -92,13 +93,13 @@ def register(app: typer.Typer) -> None:
     @app.command("ingest")
     def ingest_cmd(
         paths: Annotated[list[Path], typer.Argument(help="Recordings (files or folders).")],
-        profiles: Annotated[Path | None, typer.Option("--profiles", help=_PROFILES_HELP)] = None,
+        profiles: ProfilesOption = None,
         profile: Annotated[Path | None, typer.Option("--profile", help=_PROFILE_HELP)] = None,
-        db: Annotated[str | None, typer.Option("--db", help=_DB_HELP)] = None,
+        db: DbOption = None,
         scheduler: Annotated[str | None, typer.Option("--scheduler", help=_SCHED_HELP)] = None,
         workers: Annotated[int | None, typer.Option("--workers", help=_WORKERS_HELP)] = None,
         baseline: Annotated[int | None, typer.Option("--baseline", help=_BASELINE_HELP)] = None,
-        as_json: Annotated[bool, typer.Option("--json", help=_JSON_HELP)] = False,
+        as_json: Annotated[bool, json_option(_JSON_HELP)] = False,
         columns: ColumnsOption = None,
         commit_group: Annotated[int, typer.Option("--commit-group", help=_GROUP_HELP)] = 64,
     ) -> None:
@@ -121,23 +122,22 @@ def register(app: typer.Typer) -> None:
         settings = SettingsGiven(baseline_n=baseline).merged(None)
         cmap = load_column_map(columns) if columns is not None else None
         files = expand_recordings(paths)
-        store = Store(store_url(db))
-        try:
-            with Progress(transient=True, disable=as_json) as bar:
-                task = bar.add_task("ingest", total=len(files))
-                summary = ingest(
-                    files,
-                    profs,
-                    store,
-                    settings=settings,
-                    workers=workers,
-                    scheduler=scheduler,
-                    column_map=cmap,
-                    progress=lambda d, n: bar.update(task, completed=d, total=n),
-                    commit_group=commit_group,
-                )
-        finally:
-            store.close()
+        with (
+            Store(store_url(db)) as store,
+            Progress(transient=True, disable=as_json) as bar,
+        ):
+            task = bar.add_task("ingest", total=len(files))
+            summary = ingest(
+                files,
+                profs,
+                store,
+                settings=settings,
+                workers=workers,
+                scheduler=scheduler,
+                column_map=cmap,
+                progress=lambda d, n: bar.update(task, completed=d, total=n),
+                commit_group=commit_group,
+            )
         if as_json:
             print_json(summary.to_dict())
             return
@@ -161,7 +161,7 @@ def register(app: typer.Typer) -> None:
 
     @app.command("export")
     def export_cmd(
-        db: Annotated[str | None, typer.Option("--db", help=_DB_HELP)] = None,
+        db: DbOption = None,
         conveyor: Annotated[
             str | None, typer.Option("--conveyor", help="Only this conveyor (default all).")
         ] = None,
@@ -173,16 +173,13 @@ def register(app: typer.Typer) -> None:
 
         if fmt not in ("csv", "json"):
             raise StoreError(f"--format {fmt}: use csv or json")
-        store = Store(store_url(db), create=False, read_only=True)
-        try:
+        with Store(store_url(db), create=False, read_only=True) as store:
             if conveyor is not None and conveyor not in store.conveyors():
                 raise StoreError(
                     f"the store holds no conveyor '{conveyor}' "
                     f"(it holds: {', '.join(store.conveyors()) or 'none'})"
                 )
             rows = store.results(conveyor, with_ids=True)
-        finally:
-            store.close()
         if fmt == "json":
             print_json(rows)
         else:

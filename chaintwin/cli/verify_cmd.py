@@ -11,6 +11,7 @@ from rich.table import Table
 
 from chaintwin.cli.common import (
     ColumnsOption,
+    JsonListOption,
     error_message,
     expand_recordings,
     print_json,
@@ -78,7 +79,7 @@ def register(app: typer.Typer) -> None:
                 "(the published method); inverse: the rigid model driven by the measured speed.",
             ),
         ] = "closed-loop",
-        as_json: Annotated[bool, typer.Option("--json", help="Print one JSON list.")] = False,
+        as_json: JsonListOption = False,
         columns: ColumnsOption = None,
     ) -> None:
         """Verify the twin: relative error (REP) of model against measured speed and torque.

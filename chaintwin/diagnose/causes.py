@@ -7,13 +7,16 @@ from collections.abc import Collection, Mapping
 
 from scipy import stats
 
-from .features import IMPULSIVE, feature_spec
+from chaintwin.simulate.faults import fault_types
+
+from .features import IMPULSIVE, feature_spec, is_tracked
 
 __all__ = [
     "CAUSE_PRIORITY",
-    "EXPLAINED_BY",
+    "EXPLAINING_ORDER",
     "NOTE_CAUSES",
     "cause_priority",
+    "explaining_causes",
     "impact_context",
     "one_per_revolution",
     "resolve_causes",
@@ -35,21 +38,10 @@ the general features (an obstruction raises the mean friction, an elongated
 chain's articulation raises friction, a broken tooth raises the broadband
 residual), so those are read as the specific fault when it is present."""
 
-EXPLAINED_BY: dict[str, tuple[str, ...]] = {
-    "friction": ("obstruction", "sprocket", "elongation"),
-    "residual_std": ("obstruction", "sprocket", "gear", "elongation"),
-    "unexplained_peak": ("obstruction", "sprocket", "gear"),
-    "comb": ("obstruction", "sprocket"),
-    "tooth_pass": ("sprocket",),
-    "mode": ("obstruction", "sprocket", "gear", "elongation", "bearing"),
-    IMPULSIVE: ("obstruction", "sprocket", "gear"),
-}
-"""Which more specific causes explain a feature's rise (``comb`` stands for
-every ``comb_<shaft>``, ``mode`` every ``mode_<line>``, ``impulsive`` every feature of
-:data:`~chaintwin.diagnose.features.IMPULSIVE` cause): an obstruction's bump,
-passed once in a scope, is an impulse whose spectrum spreads over the shaft
-lines too; a worn sprocket's knocks raise the tooth-pass lines an elongated
-chain raises, and more."""
+EXPLAINING_ORDER: tuple[str, ...] = ("obstruction", "sprocket", "gear", "elongation", "bearing")
+"""Which present cause names a feature that several explain, first first; the
+causes of registered faults not listed here come after these, in the fault
+table's order."""
 
 NOTE_CAUSES = frozenset({"payload_event", IMPULSIVE})
 """Causes reported on the recording and never alarmed: an item caught for a
@@ -141,7 +133,7 @@ def resolve_causes(
     dict of str to str
         Feature to cause: its own (:data:`~chaintwin.diagnose.features.FEATURES`),
         unless a more specific cause present among the others explains it
-        (:data:`EXPLAINED_BY`).
+        (:func:`explaining_causes`).
     """
     own = {f: feature_spec(f).cause or "unknown" for f in features}
     present = set(own.values()) | set(open_causes)
@@ -158,7 +150,7 @@ def resolve_causes(
             if cause == IMPULSIVE
             else f
         )
-        for specific in EXPLAINED_BY.get(key, ()):
+        for specific in explaining_causes(key):
             if specific in present:
                 cause = specific
                 break
@@ -169,6 +161,33 @@ def resolve_causes(
                 cause = "payload_event"
         out[f] = cause
     return out
+
+
+def explaining_causes(key: str) -> tuple[str, ...]:
+    """The more specific causes that explain a feature's rise, in :data:`EXPLAINING_ORDER`.
+
+    Read from the fault table (:func:`~chaintwin.simulate.faults.fault_types`):
+    every alarmed cause whose faults move the feature, but the feature's own
+    cause. An obstruction's bump, passed once in a scope, is an impulse whose
+    spectrum spreads over the shaft lines too; a worn sprocket's knocks raise
+    the tooth-pass lines an elongated chain raises, and more.
+
+    Parameters
+    ----------
+    key : str
+        A feature's name, ``comb`` for every ``comb_<shaft>``, ``mode`` for
+        every ``mode_<line>``, ``impulsive`` for every feature of
+        :data:`~chaintwin.diagnose.features.IMPULSIVE` cause.
+    """
+    name = key + "_" if key in ("comb", "mode") else key
+    own = IMPULSIVE if key == IMPULSIVE else feature_spec(name).cause if is_tracked(name) else None
+    movers: list[str] = []
+    for t in fault_types():
+        cause = t.cause
+        if cause is not None and t.alarmed and cause != own and key in t.moves:
+            movers += [] if cause in movers else [cause]
+    rank = {c: i for i, c in enumerate(EXPLAINING_ORDER)}
+    return tuple(sorted(movers, key=lambda c: rank.get(c, len(rank))))
 
 
 def cause_priority(cause: str) -> int:

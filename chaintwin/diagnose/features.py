@@ -574,14 +574,6 @@ def _line_sums(
     return sums
 
 
-def _line_sum(spec: Spectrum, orders: list[float], ts: float, avoid: Sequence[float] = ()) -> float:
-    """Sum of band amplitudes at the apparent places of the given orders, Nm.
-
-    See :func:`_line_centres` for the orders left out.
-    """
-    return _line_sums(spec, {"": _line_centres(spec, orders, ts, avoid)})[""]
-
-
 def recording_features(
     inspection: Inspection, calibration: Calibration, *, residual: str = "inverse"
 ) -> RecordingFeatures:

@@ -1,8 +1,8 @@
 """Forecasts of a rising feature with prediction intervals and a remaining-life band.
 
-:func:`~chaintwin.diagnose.health.forecast_crossing` fits a straight line and
-the confidence band of its *mean*; that band says where the trend is, not
-where the next values will be. :func:`forecast_feature` forecasts the values:
+A straight line with the confidence band of its *mean* says where the trend
+is, not where the next values will be. :func:`forecast_feature`, the one
+forecasting path (the monitor's, the library's), forecasts the values:
 
 1. **Gate**: a forecast is made only for a rising trend, the straight line's
    slope positive with p < 0.01 (as before), so noise is not extrapolated.

@@ -48,7 +48,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
-from datetime import datetime, timedelta
+from datetime import datetime
 from typing import Any
 
 import numpy as np
@@ -64,7 +64,6 @@ __all__ = [
     "Forecast",
     "ForecastBand",
     "fit_baseline",
-    "forecast_crossing",
     "in_days",
     "robust_scale",
     "x_of_y",
@@ -522,9 +521,8 @@ class Forecast:
     crossed: bool = False
     """The fitted line is already above the limit at the last value."""
     model: str = "line"
-    """``line`` (:func:`forecast_crossing`: the mean's confidence band), or the model
-    :func:`chaintwin.diagnose.forecasting.forecast_feature` chose (``line``, ``ets``,
-    ``arima``; the band is then a prediction interval)."""
+    """The model :func:`chaintwin.diagnose.forecasting.forecast_feature` chose
+    (``line``, ``ets``, ``arima``; the band is a prediction interval)."""
     backtest_mae: float | None = None
     """The chosen model's backtest mean absolute error, feature units."""
     last: datetime | None = None
@@ -581,85 +579,3 @@ def in_days(
     if float(np.ptp(t)) <= 0.0:
         return None
     return t0, t, v[ok]
-
-
-def forecast_crossing(
-    feature: str,
-    times: Sequence[datetime],
-    values: Sequence[float],
-    limit: float,
-    *,
-    horizon_days: float = 365.0,
-    alpha: float = 0.1,
-    max_p_value: float = 0.01,
-) -> Forecast | None:
-    """Forecast when a rising feature crosses its limit.
-
-    Fits ``value = a + b·t`` (t in days) by ordinary least squares and, if
-    the slope is positive and significant (p < ``max_p_value``), finds
-    where the fitted line and the (1 − ``alpha``) confidence band of the
-    mean cross ``limit``.
-
-    Parameters
-    ----------
-    feature : str
-        Name, for the result.
-    times : sequence of datetime
-        When each value was recorded.
-    values : sequence of float
-        The feature (NaN values are left out).
-    limit : float
-        The alarm limit in the feature's units.
-    horizon_days : float
-        How far ahead to look from the last value, days.
-    alpha : float
-        1 − confidence level of the band.
-    max_p_value : float
-        Largest p-value of the slope that counts as a trend.
-
-    Returns
-    -------
-    Forecast or None
-        None without a significant rising trend, or when the line does not
-        cross within the horizon. When the fitted line is above the limit
-        already, ``crossed`` is True and the times say when it got there.
-    """
-    days = in_days(times, values, 8)
-    if days is None:
-        return None
-    t0, t, v = days
-    # imported here: statsmodels (and pandas) cost about 0.3 s, which every
-    # command that imports the monitor would pay whether it forecasts or not
-    import statsmodels.api as sm
-
-    x = sm.add_constant(t)
-    fit = sm.OLS(v, x).fit()
-    b = float(fit.params[1])
-    if b <= 0.0 or float(fit.pvalues[1]) >= max_p_value:
-        return None
-    t_last = float(t[-1])
-    # from the first value on, so that a limit already crossed says since when
-    grid = np.linspace(float(t[0]), t_last + horizon_days, 4001)
-    pred = fit.get_prediction(sm.add_constant(grid, has_constant="add"))
-    band = pred.conf_int(alpha=alpha)
-    mean = pred.predicted_mean
-
-    def first(mask: np.ndarray) -> float | None:
-        hit = np.flatnonzero(mask)
-        return float(grid[hit[0]]) if hit.shape[0] else None
-
-    cross = first(mean >= limit)
-    if cross is None:
-        return None
-    earliest = first(band[:, 1] >= limit)
-    latest = first(band[:, 0] >= limit)
-    day = timedelta(days=1)
-    return Forecast(
-        feature=feature,
-        limit=limit,
-        slope_per_day=b,
-        crosses_at=t0 + cross * day,
-        earliest=t0 + (earliest if earliest is not None else cross) * day,
-        latest=None if latest is None else t0 + latest * day,
-        crossed=cross <= t_last,
-    )

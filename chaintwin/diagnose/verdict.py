@@ -169,10 +169,6 @@ def _make(
     )
 
 
-def _iso(when: datetime) -> str:
-    return when.astimezone(UTC).isoformat()
-
-
 def _parse(text: str | None) -> datetime | None:
     if not text:
         return None

@@ -273,7 +273,7 @@ class _Conveyor:
         results inside its health model (all of them in its results table),
         and that is what the next ingest reads back. The model in memory
         would otherwise keep every result of the batch (a few kB each: about
-        80 MB over 20,000 recordings, measured in issue 22); once a group is
+        80 MB over 20,000 recordings, measured); once a group is
         stored it keeps what a new ingest would read back. Monitoring a
         recording reads only the latest results, and this batch's duplicates
         are found before monitoring (content hashes), so results are the same.

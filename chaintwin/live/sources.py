@@ -45,8 +45,8 @@ from typing import Literal, Protocol
 
 from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.errors import ChaintwinError, RecordingError
+from chaintwin.read.formats import read_bytes
 from chaintwin.read.profile import ConveyorProfile
-from chaintwin.read.reader import read_bytes
 from chaintwin.read.recording import Recording
 from chaintwin.store.store import Store
 
@@ -172,7 +172,7 @@ def recorded_key(path: str) -> str | None:
     None also when its metadata cannot be read: the ingest then says why
     (one line, in the refusals), so nothing is said here.
     """
-    from chaintwin.read.reader import read_metadata
+    from chaintwin.read.formats import read_metadata
 
     try:
         when = read_metadata(path).recorded_at
@@ -420,10 +420,10 @@ class Ingestor:
         one fixes it), or the store monitors it with another profile;
         ``recording`` otherwise.
         """
-        from chaintwin.read.reader import parse_metadata
+        from chaintwin.read.formats import parse_file_metadata
 
         try:
-            conveyor = parse_metadata(read_bytes(job.path), job.name).conveyor
+            conveyor = parse_file_metadata(read_bytes(job.path), job.name).conveyor
         except ChaintwinError:
             return "recording", None
         profiles = self.profiles_for()
@@ -449,14 +449,14 @@ class Ingestor:
         validation segments it (:func:`~chaintwin.validate.phases.segment`; the
         ``incomplete_cycle`` warning). False when it cannot be read: the ingest
         then says why."""
-        from chaintwin.read.reader import parse_metadata, parse_recording, read_bytes
+        from chaintwin.read.formats import parse_file, parse_file_metadata
         from chaintwin.validate.phases import segment
 
         try:
             raw = read_bytes(path)
-            conveyor = parse_metadata(raw, path).conveyor
+            conveyor = parse_file_metadata(raw, path).conveyor
             profile = None if conveyor is None else self.profiles_for().get(conveyor)
-            phases = segment(parse_recording(raw, path, profile=profile))
+            phases = segment(parse_file(raw, path, profile=profile))
         except (ChaintwinError, OSError, ValueError):
             return False
         return bool(phases) and phases[-1].moving

@@ -8,8 +8,10 @@ net. A file is handed to the ingest queue once its size and modification
 time have stayed the same for the settle time (counted from its last
 modification on a local file system, from when it was first seen when
 polling a share, whose clock may differ); names ending in ``.part``
-or ``.tmp`` are ignored until renamed, and only ``*.csv`` files are taken
-(as ``chaintwin ingest DIR`` takes them). A file the ingest defers (it ends
+or ``.tmp`` are ignored until renamed, and only recording files are taken:
+those matching a registered format's pattern (``*.csv`` and those of the
+formats added, :func:`~chaintwin.read.formats.recording_patterns`; as
+``chaintwin ingest DIR`` takes them). A file the ingest defers (it ends
 in motion: its writer may have paused) is handed again when it changes, or
 after the time asked (:meth:`FolderSource.defer`).
 """
@@ -25,6 +27,8 @@ import time
 from collections import OrderedDict
 from collections.abc import Awaitable, Callable
 from pathlib import Path
+
+from chaintwin.read.formats import is_recording_name
 
 __all__ = [
     "IGNORED_SUFFIXES",
@@ -53,9 +57,10 @@ next one will have settled, or a new one is seen)."""
 
 
 def is_candidate(path: str) -> bool:
-    """Whether a file name is a recording to read (``*.csv``, not ``.part``/``.tmp``)."""
+    """Whether a file name is a recording to read (a registered format's pattern,
+    ``*.csv`` and others; not ``.part``/``.tmp``)."""
     name = os.path.basename(path).lower()
-    return name.endswith(".csv") and not name.endswith(IGNORED_SUFFIXES)
+    return not name.endswith(IGNORED_SUFFIXES) and is_recording_name(name)
 
 
 class FolderSource:

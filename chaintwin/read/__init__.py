@@ -6,8 +6,9 @@ from chaintwin._lazy import lazy_getattr
 
 if _typing.TYPE_CHECKING:
     from chaintwin.read.columns import ColumnMap, ColumnTarget, load_column_map
+    from chaintwin.read.formats import read_recording
     from chaintwin.read.profile import ConveyorProfile, load_profile, load_profiles, parse_profile
-    from chaintwin.read.reader import MIN_SAMPLES, parse_recording, read_recording
+    from chaintwin.read.reader import MIN_SAMPLES, parse_recording
     from chaintwin.read.recording import WARNING_CODES, Metadata, Recording, RecordingWarning
     from chaintwin.read.writer import format_recording, write_recording
 
@@ -26,7 +27,7 @@ _LAZY: dict[str, str] = {
     "load_profiles": "chaintwin.read.profile",
     "parse_profile": "chaintwin.read.profile",
     "parse_recording": "chaintwin.read.reader",
-    "read_recording": "chaintwin.read.reader",
+    "read_recording": "chaintwin.read.formats",
     "write_recording": "chaintwin.read.writer",
 }
 """Module of each public name (imported on first use, PEP 562)."""

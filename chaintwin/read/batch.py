@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 
 from chaintwin.errors import ChaintwinError, RecordingError
-from chaintwin.read.reader import parse_metadata, read_bytes
+from chaintwin.read.formats import parse_file_metadata, read_bytes
 
 __all__ = ["RecordingFile", "group_by_conveyor", "order_recordings"]
 
@@ -52,7 +52,7 @@ def group_by_conveyor(
     for f in files:
         try:
             raw = read_bytes(f)
-            meta = parse_metadata(raw, f)
+            meta = parse_file_metadata(raw, f)
             conveyor = meta.conveyor or single
             if conveyor is None:
                 raise RecordingError(

@@ -1,4 +1,9 @@
-"""Read drive recordings ("scopes") exactly as the data contract writes them.
+"""The data contract's recording format, CSV: the first registered format.
+
+Drive recordings ("scopes") read exactly as the data contract writes them
+(:mod:`chaintwin.read.formats` dispatches a file to its format; this module
+is one, with ``NAME``, ``PATTERNS``, :func:`recognises`,
+:func:`parse_recording` and :func:`parse_metadata`).
 
 The format (docs/data-contract.md, section 1)::
 
@@ -25,7 +30,6 @@ import math
 import re
 from collections.abc import Callable
 from datetime import UTC, datetime
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -34,7 +38,6 @@ from chaintwin._types import FloatArray
 from chaintwin.errors import RecordingError
 from chaintwin.read.columns import ColumnMap
 from chaintwin.read.fastparse import parse_grid
-from chaintwin.read.files import read_limited
 from chaintwin.read.recording import Metadata, Recording
 from chaintwin.units import (
     CANONICAL_CHANNELS,
@@ -51,13 +54,19 @@ __all__ = [
     "MAX_COLUMNS",
     "MAX_VALUES",
     "MIN_SAMPLES",
+    "NAME",
+    "PATTERNS",
     "parse_metadata",
     "parse_recording",
-    "read_bytes",
-    "read_metadata",
-    "read_recording",
+    "recognises",
     "recording_from_samples",
 ]
+
+NAME = "csv"
+"""The format's name (:mod:`chaintwin.read.formats`)."""
+
+PATTERNS: tuple[str, ...] = ("*.csv",)
+"""File patterns of the format's files."""
 
 MIN_SAMPLES = 32
 """Fewest samples a recording may hold."""
@@ -86,66 +95,15 @@ _HEADER_RE = re.compile(r"^\s*(?P<name>[^\[\]]*?)\s*\[(?P<unit>[^\[\]]*)\]\s*$")
 _NUMBER_KEYS = ("sample_time_s", "nominal_torque_nm", "increments_per_rev", "payload_kg", "tray_kg")
 
 
-def read_recording(
-    path: str | Path,
-    *,
-    profile: ConveyorProfile | None = None,
-    column_map: ColumnMap | None = None,
-) -> Recording:
-    """Read one recording file into SI channels.
-
-    Parameters
-    ----------
-    path : str or Path
-        The recording file. Its name as given is kept as ``source``.
-    profile : ConveyorProfile, optional
-        Supplies what the file lacks (``nominal_torque_nm`` for ``%``).
-        Metadata wins where both give a value.
-    column_map : ColumnMap, optional
-        Maps exported headers named otherwise to canonical names and units.
-
-    Returns
-    -------
-    Recording
-        Without warnings; :func:`chaintwin.validate.load_recording` adds them.
-
-    Raises
-    ------
-    RecordingError
-        Naming the file, the line or column, and what to do.
-    """
-    source = str(path)
-    return parse_recording(read_bytes(path), source, profile=profile, column_map=column_map)
-
-
-def read_metadata(path: str | Path) -> Metadata:
-    """Read only the ``# key: value`` metadata of a recording file.
-
-    For matching recordings to conveyors (``conveyor``) and ordering them
-    (``recorded_at``) before reading them whole.
-
-    Raises
-    ------
-    RecordingError
-        When the file cannot be read, has no header row or bad metadata.
-    """
-    return parse_metadata(read_bytes(path), str(path))
-
-
-def read_bytes(path: str | Path) -> bytes:
-    """A recording file's bytes (:func:`~chaintwin.read.files.read_limited`).
-
-    Raises
-    ------
-    RecordingError
-        When it cannot be read, is a folder or not a regular file, or is
-        larger than the input file limit.
-    """
-    return read_limited(path, what="recording", error=RecordingError)
+def recognises(name: str, head: bytes) -> bool:
+    """Every file: the data contract's text is what a file no other format
+    recognises is read as (its refusal names what is wrong with it)."""
+    return True
 
 
 def parse_metadata(raw: bytes, source: str) -> Metadata:
-    """The ``# key: value`` metadata of a recording's bytes (:func:`read_metadata`)."""
+    """The ``# key: value`` metadata of a recording's bytes
+    (:func:`~chaintwin.read.formats.read_metadata`)."""
     items, _lineno, _header, _body = _split_head(source, _decode(raw))
     return _parse_metadata(source, items)
 
@@ -433,7 +391,7 @@ def parse_recording(
     profile: ConveyorProfile | None = None,
     column_map: ColumnMap | None = None,
 ) -> Recording:
-    """Parse the text of one recording; see :func:`read_recording`.
+    """Parse the text of one recording; see :func:`~chaintwin.read.formats.read_recording`.
 
     Parameters
     ----------
@@ -442,7 +400,7 @@ def parse_recording(
     source : str
         Name used in messages and kept as ``Recording.source``.
     profile, column_map
-        As for :func:`read_recording`.
+        As for :func:`~chaintwin.read.formats.read_recording`.
     """
     # ASCII bytes are their own text: the body is parsed from them where they are
     raw = data if isinstance(data, bytes) and data.isascii() and b"\r" not in data else None
@@ -513,7 +471,7 @@ def recording_from_samples(
     source : str
         Name used in messages and kept as ``Recording.source``.
     profile : ConveyorProfile, optional
-        As for :func:`read_recording`.
+        As for :func:`~chaintwin.read.formats.read_recording`.
 
     Raises
     ------

@@ -17,7 +17,14 @@ if _typing.TYPE_CHECKING:
         elastic_substeps,
         simulate,
     )
-    from chaintwin.simulate.faults import FAULT_NAMES, Fault, parse_fault, parse_faults
+    from chaintwin.simulate.faults import (
+        Fault,
+        FaultType,
+        fault_names,
+        parse_fault,
+        parse_faults,
+        register_fault,
+    )
     from chaintwin.simulate.fleet import GenerateSummary, generate
     from chaintwin.simulate.plant import DEFAULT_BELT_STIFFNESS_N_M, PlantParameters
     from chaintwin.simulate.setpoints import (
@@ -39,8 +46,8 @@ if _typing.TYPE_CHECKING:
 
 _LAZY: dict[str, str] = {
     "DEFAULT_BELT_STIFFNESS_N_M": "chaintwin.simulate.plant",
-    "FAULT_NAMES": "chaintwin.simulate.faults",
     "Fault": "chaintwin.simulate.faults",
+    "FaultType": "chaintwin.simulate.faults",
     "GenerateSummary": "chaintwin.simulate.fleet",
     "PlantParameters": "chaintwin.simulate.plant",
     "Realism": "chaintwin.simulate.virtual",
@@ -49,6 +56,7 @@ _LAZY: dict[str, str] = {
     "VirtualRun": "chaintwin.simulate.virtual",
     "default_setpoints": "chaintwin.simulate.virtual",
     "elastic_substeps": "chaintwin.simulate.engine",
+    "fault_names": "chaintwin.simulate.faults",
     "faulty_plant": "chaintwin.simulate.virtual",
     "from_arrays": "chaintwin.simulate.setpoints",
     "generate": "chaintwin.simulate.fleet",
@@ -56,6 +64,7 @@ _LAZY: dict[str, str] = {
     "parse_fault": "chaintwin.simulate.faults",
     "parse_faults": "chaintwin.simulate.faults",
     "ramp": "chaintwin.simulate.setpoints",
+    "register_fault": "chaintwin.simulate.faults",
     "run_virtual": "chaintwin.simulate.virtual",
     "simulate": "chaintwin.simulate.engine",
     "stairs": "chaintwin.simulate.setpoints",
@@ -66,8 +75,8 @@ _LAZY: dict[str, str] = {
 
 __all__ = [
     "DEFAULT_BELT_STIFFNESS_N_M",
-    "FAULT_NAMES",
     "Fault",
+    "FaultType",
     "GenerateSummary",
     "PlantParameters",
     "Realism",
@@ -76,6 +85,7 @@ __all__ = [
     "VirtualRun",
     "default_setpoints",
     "elastic_substeps",
+    "fault_names",
     "faulty_plant",
     "from_arrays",
     "generate",
@@ -83,6 +93,7 @@ __all__ = [
     "parse_fault",
     "parse_faults",
     "ramp",
+    "register_fault",
     "run_virtual",
     "simulate",
     "stairs",

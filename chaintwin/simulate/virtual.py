@@ -32,7 +32,6 @@ moves with it).
 from __future__ import annotations
 
 import math
-import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from datetime import datetime
@@ -49,22 +48,14 @@ from chaintwin.read.profile import ConveyorProfile, ModelSpec
 from chaintwin.read.recording import Metadata, Recording
 from chaintwin.simulate.engine import SimulationResult, simulate
 from chaintwin.simulate.faults import (
-    BEARING_AMPLITUDE,
-    BEARING_ORDER,
-    ELONGATION_IMPACT,
-    ELONGATION_PER_SEVERITY,
-    GEAR_TOOTH_AMPLITUDE,
-    OBSTACLE_FORCE,
-    OBSTACLE_WIDTH_M,
-    OBSTRUCTION_WIDTH_M,
+    PAYLOAD_EVENT,
     PAYLOAD_EVENT_CHANCE,
     PAYLOAD_EVENT_FORCE,
     PAYLOAD_EVENT_S,
-    PAYLOAD_STEP_KG,
-    SPROCKET_IMPACT,
-    SPROCKET_WIDTH,
     Fault,
+    PlantEdit,
     check_exclusive,
+    fault_type,
 )
 from chaintwin.simulate.plant import PlantParameters
 from chaintwin.simulate.setpoints import Setpoints, from_arrays, trapezoid
@@ -86,9 +77,6 @@ INCREMENTS_PER_REV = 4096
 
 GEAR_MESH_RIPPLE = 0.003
 """Healthy gear-mesh ripple amplitude, share of nominal torque."""
-
-OBSTRUCTION_PLACE = 0.37
-"""Where on the belt loop the obstruction sits, share of the loop length."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -252,72 +240,24 @@ def faulty_plant(
         "loss_viscous_nm_s_rad": plant.loss_viscous_nm_s_rad * loss_scale,
         "loss_quadratic_nm_s2_rad2": plant.loss_quadratic_nm_s2_rad2 * loss_scale,
     }
-    orders: list[float] = []
-    amps: list[float] = []
+    edit = PlantEdit(
+        profile=profile,
+        plant=plant,
+        nominal_torque_nm=tn,
+        payload_step_time_s=payload_step_time_s,
+        rail_force_n=plant.mu * G * (plant.belt_mass_kg + plant.tray_mass_kg),
+        changes=changes,
+        mu=plant.mu,
+    )
     stages = profile.gear.stages
     if realism.gear_mesh and stages:
-        orders.append(float(stages[0][0]))  # first-stage mesh: pinion teeth per motor revolution
-        amps.append(GEAR_MESH_RIPPLE * tn)
-    mu = plant.mu
+        edit.orders.append(float(stages[0][0]))  # first-stage mesh: pinion teeth per motor rev
+        edit.amplitudes.append(GEAR_MESH_RIPPLE * tn)
     for fault in faults:
-        s = fault.severity
-        if fault.name == "friction":
-            mu *= 1.0 + s
-        elif fault.name == "lubrication":
-            changes["loss_constant_nm"] *= 1.0 + 0.5 * s
-            changes["loss_viscous_nm_s_rad"] *= 1.0 + s
-            changes["loss_quadratic_nm_s2_rad2"] *= 1.0 + s
-        elif fault.name == "bearing":
-            orders += [BEARING_ORDER, 2.0 * BEARING_ORDER]
-            amps += [s * BEARING_AMPLITUDE * tn, 0.5 * s * BEARING_AMPLITUDE * tn]
-        elif fault.name == "gear_tooth":
-            if stages and len(stages) >= 2:
-                shaft_order = stages[0][0] / stages[0][1]
-                teeth = stages[1][0]
-            else:
-                shaft_order = 1.0 / plant.ratio
-                teeth = 20
-            period = 2.0 * math.pi / shaft_order
-            changes["impulse_period_rad"] = period
-            changes["impulse_width_rad"] = period / teeth
-            changes["impulse_amplitude_nm"] = s * GEAR_TOOTH_AMPLITUDE * tn
-        elif fault.name == "sprocket" and plant.teeth > 0:
-            # one engagement per tooth: the motor turns ratio/z per tooth pass
-            period = 2.0 * math.pi * plant.ratio / plant.teeth
-            changes["impulse_period_rad"] = period
-            changes["impulse_width_rad"] = SPROCKET_WIDTH * period
-            changes["impulse_amplitude_nm"] = s * SPROCKET_IMPACT * tn
-        elif fault.name == "obstruction":
-            rail = plant.mu * G * (plant.belt_mass_kg + plant.tray_mass_kg)
-            changes["obstruction_position_m"] = OBSTRUCTION_PLACE * plant.loop_length_m
-            changes["obstruction_width_m"] = OBSTRUCTION_WIDTH_M
-            changes["obstruction_force_n"] = s * rail
-        elif fault.name == "rail_obstacle":
-            rail = plant.mu * G * (plant.belt_mass_kg + plant.tray_mass_kg)
-            # where on the loop the tray that hits it sits: any place, per conveyor
-            place = (zlib.crc32(profile.id.encode()) % 1000) / 1000.0
-            changes["obstruction_position_m"] = place * plant.loop_length_m
-            changes["obstruction_width_m"] = OBSTACLE_WIDTH_M
-            changes["obstruction_force_n"] = s * OBSTACLE_FORCE * rail
-        elif fault.name == "elongation":
-            eps = s * ELONGATION_PER_SEVERITY
-            changes["pitch_radius_m"] = plant.pitch_radius_m * (1.0 + eps)
-            changes["loop_length_m"] = plant.loop_length_m * (1.0 + eps)
-            changes["polygon"] = plant.teeth > 0
-            mu *= 1.0 + 2.0 * eps
-            if plant.teeth > 0:
-                # the longer pitch no longer seats on the tooth flank: each link
-                # lands and drops on engagement, an impact once per tooth pass
-                tooth_pass = plant.teeth / plant.ratio
-                for h in (1, 2, 3):
-                    orders.append(h * tooth_pass)
-                    amps.append(s * ELONGATION_IMPACT * tn / h)
-        elif fault.name == "payload_step":
-            changes["payload_step_time_s"] = payload_step_time_s
-            changes["payload_step_kg"] = s * PAYLOAD_STEP_KG
-    changes["mu"] = mu
-    changes["ripple_orders"] = tuple(orders)
-    changes["ripple_amplitudes_nm"] = tuple(amps)
+        fault_type(fault.name).apply(edit, fault.severity)
+    changes["mu"] = edit.mu
+    changes["ripple_orders"] = tuple(edit.orders)
+    changes["ripple_amplitudes_nm"] = tuple(edit.amplitudes)
     return plant.replace(**changes)
 
 
@@ -449,7 +389,7 @@ def _payload_event(
         Start s, duration s, belt position where the stretch starts m, its
         length m, and the force N.
     """
-    s = sum(f.severity for f in faults if f.name == "payload_event")
+    s = sum(f.severity for f in faults if f.name == PAYLOAD_EVENT)
     if s <= 0.0 or moving.size < 2 or rng.random() >= PAYLOAD_EVENT_CHANCE:
         return None
     t = setpoints.time
@@ -605,7 +545,11 @@ def run_virtual(
         t_sp = t_sp + du[idx]
         tq = tq + du_lagged[idx]
     if realism.noise:
-        noise_scale = 1.0 + sum(f.severity for f in faults if f.name == "bearing")
+        noise_scale = 1.0 + sum(
+            f.severity * fault_type(f.name).torque_noise_gain
+            for f in faults
+            if fault_type(f.name).torque_noise_gain
+        )
         tq = tq + rng.normal(0.0, realism.torque_noise * tn * noise_scale, tq.shape)
         w = w + rng.normal(0.0, realism.speed_noise_rpm * RPM_TO_RAD_S, w.shape)
     inc = 2.0 * math.pi / INCREMENTS_PER_REV

@@ -283,8 +283,8 @@ WAL_AUTOCHECKPOINT_PAGES = 8192
 """Pages (4 kB) the SQLite WAL grows to before a commit copies it back (32 MB).
 
 At SQLite's default of 1,000 pages (4 MB) every other ingest transaction (a
-group of 64 recordings, about 2.7 MB with their samples) paid a checkpoint
-(issue 22); at 8,192 about one in twelve does, and the WAL file stays
+group of 64 recordings, about 2.7 MB with their samples) paid a checkpoint;
+at 8,192 about one in twelve does, and the WAL file stays
 under about 35 MB (SQLite removes it when the last connection closes)."""
 
 QUICK_CHECK_MAX_MB = 512

@@ -55,7 +55,7 @@ SAMPLES_ZSTD_LEVEL = 1
 
 Level 1 against 3, measured on 200 virtual white-belt-01 scopes (2048
 samples, 8 channels): 39.9 kB against 39.2 kB per recording (+1.9 %),
-0.25 ms against 0.35 ms to pack (issue 22). Any level reads back the same."""
+0.25 ms against 0.35 ms to pack. Any level reads back the same."""
 
 SENT_UNPACKED = ("time", "speed")
 """Channels a :class:`PackedChannels` carries unpacked beside its packed bytes.

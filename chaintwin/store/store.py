@@ -20,7 +20,7 @@ import json
 import os
 from collections.abc import Callable, Iterable, Sequence
 from datetime import UTC, datetime
-from typing import Any, TypeVar
+from typing import Any, Self, TypeVar
 
 from sqlalchemy import insert, select, update
 from sqlalchemy.engine import Engine
@@ -207,6 +207,13 @@ class Store:
     def close(self) -> None:
         """Release the connections."""
         self.engine.dispose()
+
+    def __enter__(self) -> Self:
+        """The store itself: ``with Store(url) as store:`` closes it however the block ends."""
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     # ------------------------------------------------------------ conveyors
     def put_profile(self, profile: ConveyorProfile) -> None:

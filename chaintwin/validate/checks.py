@@ -16,8 +16,8 @@ import numpy as np
 from chaintwin._stats import median
 from chaintwin._types import FloatArray
 from chaintwin.read.columns import ColumnMap
+from chaintwin.read.formats import read_recording
 from chaintwin.read.profile import ConveyorProfile
-from chaintwin.read.reader import read_recording
 from chaintwin.read.recording import Recording, RecordingWarning
 from chaintwin.units import RPM_TO_RAD_S
 from chaintwin.validate.phases import Phase, segment
@@ -268,7 +268,7 @@ def inspect_recording(recording: Recording, profile: ConveyorProfile | None = No
     Parameters
     ----------
     recording : Recording
-        As read by :func:`~chaintwin.read.reader.read_recording`.
+        As read by :func:`~chaintwin.read.formats.read_recording`.
     profile : ConveyorProfile, optional
         Supplies the torque limit; its id is compared with the recording's.
 

@@ -1,4 +1,4 @@
-"""What pauses the web server: a maintainers' tool for the polling tail (issue 20).
+"""What pauses the web server: a maintainers' tool for the polling tail.
 
 With ``CHAINTWIN_TRACE_SLOW_MS=N`` in the environment, ``chaintwin serve``
 writes one line to stderr (``trace ...``) for

@@ -60,7 +60,7 @@ from .causes import (
 from .features import RecordingFeatures, feature_spec, is_tracked
 from .features import recording_features as extract
 from .health import FeatureBaseline
-from .impacts import POOL, background_hits_per_m, hits_per_revolution, pooled_hits
+from .impacts import POOL, hits_per_revolution, pooled_hits
 from .learned import learn_calibration
 from .limits import check_limit_names, judge_limits
 from .monitor_state import MonitorState
@@ -505,7 +505,7 @@ class ConveyorMonitor:
         values["impact_hits_per_rev"] = hits_per_revolution(
             [*pooled, values],
             self.calibration.id_profile.loop_length_m,
-            background_hits_per_m(self.baseline_rows) if self.baselines is not None else 0.0,
+            self.baseline_rows if self.baselines is not None else None,
         )
         values["impact_pooled_hits"] = pooled_hits([*pooled, values])
         warnings = [x.to_dict() for x in w.warnings] + [x.to_dict() for x in feats.warnings]

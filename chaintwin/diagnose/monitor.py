@@ -584,8 +584,17 @@ class ConveyorMonitor:
             judged = self._after_expected_wear(values)
             base.features = {k: finite_or_none(v) for k, v in values.items()}
             zs: dict[str, float] = {}
+            # no span searched for impacts: an event in it would go unnoticed
+            searched = values.get("belt_travel_m", 0.0) > 0.0
             met, change, exceeded = alarms.judge(
-                self.baselines, judged, self.windows, self.window_times, self.settings, when, zs
+                self.baselines,
+                judged,
+                self.windows,
+                self.window_times,
+                self.settings,
+                when,
+                zs,
+                confirm=not searched,
             )
             base.exceeded.extend(exceeded)
             self._late_baselines(values)

@@ -218,10 +218,11 @@ def judge(
     is updated in place; ``z_out``, when given, receives each feature's
     distance from its baseline (robust baseline scales, where known).
 
-    ``confirm``: this recording's torque could not be searched for events
-    (its constant-speed run too short for the impact search, as on a 1 ms
-    scope), so an item caught for part of it would go unnoticed and move
-    its features for this recording alone. An exceedance of such a recording
+    ``confirm``: this recording's torque shows an item caught (a drag the
+    impact search found) or could not be searched for one (its
+    constant-speed run too short for the impact search, as on a 1 ms
+    scope); such an event moves the features of this recording alone
+    (speed loss, residual, spectral lines). An exceedance of such a recording
     counts only when the feature exceeded at the recording before it or
     exceeds at the next one (which then counts both); until then it waits
     in ``unconfirmed:<feature>``. A fault that grows exceeds recording after

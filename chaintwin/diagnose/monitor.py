@@ -584,8 +584,11 @@ class ConveyorMonitor:
             judged = self._after_expected_wear(values)
             base.features = {k: finite_or_none(v) for k, v in values.items()}
             zs: dict[str, float] = {}
-            # no span searched for impacts: an event in it would go unnoticed
+            # an item caught moves this recording's features alone: where the
+            # impact search found a drag, or could look at no span (an event
+            # would go unnoticed), an exceedance waits for the next to confirm it
             searched = values.get("belt_travel_m", 0.0) > 0.0
+            dragged = (values.get("impact_drags") or 0.0) > 0.0
             met, change, exceeded = alarms.judge(
                 self.baselines,
                 judged,
@@ -594,7 +597,7 @@ class ConveyorMonitor:
                 self.settings,
                 when,
                 zs,
-                confirm=not searched,
+                confirm=dragged or not searched,
             )
             base.exceeded.extend(exceeded)
             self._late_baselines(values)

@@ -508,6 +508,9 @@ class ConveyorMonitor:
             self.baseline_rows if self.baselines is not None else None,
         )
         values["impact_pooled_hits"] = pooled_hits([*pooled, values])
+        travelled = sum(float(r.get("belt_travel_m") or 0.0) for r in [*pooled, values])
+        loop = self.calibration.id_profile.loop_length_m
+        values["impact_pooled_revs"] = travelled / loop if loop > 0 else float("nan")
         warnings = [x.to_dict() for x in w.warnings] + [x.to_dict() for x in feats.warnings]
         # features computed elsewhere (an ingest worker) may predate a warning
         # the recording got since (e.g. no_recorded_at): none is lost

@@ -71,13 +71,16 @@ rising from day 2 to +80 %, 5 recordings a day, seeds 100 + k) with each
 commit's tree is exported with ``git archive`` into a temporary folder. Each
 ingest runs in a new process (``PYTHONPATH`` the tree; BLAS on one thread):
 it calibrates each conveyor from its calibration recordings into a fresh
-SQLite store, runs a warm-up ingest of 8 recordings into a throwaway store
-(numba's cache loaded), then times ``ingest(files, profiles, store,
+SQLite store, runs a warm-up ingest of 16 recordings (baseline_n=5) into a
+throwaway store (numba's cache loaded; each tree's cache is filled by an
+untimed run first), then times ``ingest(files, profiles, store,
 settings=MonitorSettings(baseline_n=10), workers=1)``: wall and CPU time of
 the process (with one worker everything runs in it), the refit included
 (and statsmodels' import when a forecast needs a model: a command pays it).
 ``new, no refit`` is this tree with ``ingest(refit=False)``: what the refit
-itself costs. The configurations alternate in each of ``--rounds`` rounds;
+itself costs (``--no-refit-row`` leaves it out); the CPU time spent inside
+the refit in the ``new`` ingest is printed over the rest of that ingest. The
+configurations alternate in each of ``--rounds`` rounds;
 the verdict is the median of the rounds' paired ratios new / old of the CPU
 time per recording (the machine's load moves wall time more; both printed),
 target at most 1.10.
@@ -559,6 +562,22 @@ for sub in sorted(p for p in folder.iterdir() if p.is_dir()):
     recs = [load_recording(f, profile=prof).recording for f in cal_files]
     cals[prof.id] = calibrate(recs, prof)
 kw = {} if refit else {"refit": False}
+in_refit = [0.0]  # CPU seconds inside the refit (this tree's; the old one has none)
+try:
+    import chaintwin.store.derived as derived
+except ImportError:
+    derived = None
+if derived is not None:
+    plain = derived.refit
+
+    def timed_refit(*args, **kwargs):
+        c = time.process_time()
+        try:
+            return plain(*args, **kwargs)
+        finally:
+            in_refit[0] += time.process_time() - c
+
+    derived.refit = timed_refit
 with tempfile.TemporaryDirectory() as tmp:
     stores = []
     for name in ("warm", "timed"):
@@ -568,17 +587,20 @@ with tempfile.TemporaryDirectory() as tmp:
             store.put_calibration(cal)
         stores.append(store)
     first = next(iter(profiles))
-    warm = [f for f in files if Path(f).parent.name == first][:8]
+    warm = [f for f in files if Path(f).parent.name == first][:16]
     ingest(warm, profiles, stores[0], settings=MonitorSettings(baseline_n=5), workers=1, **kw)
+    in_refit[0] = 0.0
     t0, c0 = time.perf_counter(), time.process_time()
     settings = MonitorSettings(baseline_n=10)
     summary = ingest(files, profiles, stores[1], settings=settings, workers=1, **kw)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    refit_cpu = in_refit[0]
     counts = stores[1].counts()
     for store in stores:
         store.close()
 print(json.dumps({"wall": wall, "cpu": cpu, "processed": summary.processed,
-                  "refused": summary.refused, "results": counts["results"]}))
+                  "refused": summary.refused, "results": counts["results"],
+                  "refit_cpu": refit_cpu}))
 """
 """What one ingest of the fault fleet runs, in a new process (``python -c``)."""
 
@@ -593,6 +615,9 @@ def fault_fleet_compare() -> None:
     parser.add_argument("--conveyors", type=int, default=10)
     parser.add_argument("--per-conveyor", type=int, nargs="+", default=[30, 120])
     parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument(
+        "--no-refit-row", action="store_true", help="leave out 'new, no refit' (a third less time)"
+    )
     args = parser.parse_args()
     repo = Path(__file__).resolve().parents[1]
     old = subprocess.run(
@@ -624,6 +649,8 @@ def fault_fleet_compare() -> None:
         ).stdout
         subprocess.run(["tar", "-x", "-C", str(old_tree)], input=archive, check=True)
         trees = {"old": (old_tree, True), "new": (repo, True), "new, no refit": (repo, False)}
+        if args.no_refit_row:
+            del trees["new, no refit"]
         fleets = {}
         t0 = time.perf_counter()
         for per in args.per_conveyor:
@@ -642,6 +669,15 @@ def fault_fleet_compare() -> None:
         t_gen = time.perf_counter() - t0
         got: dict[tuple[int, str], list[dict[str, float]]] = {}
         problems = []
+        # each tree once, not timed: numba compiles into the exported tree's cache
+        small = fleets[min(fleets)]
+        for tree in {str(t) for t, _ in trees.values()}:
+            subprocess.run(
+                [sys.executable, "-c", FLEET_CHILD, str(PROFILE), str(small), "1"],
+                capture_output=True,
+                env=dict(os.environ, PYTHONPATH=tree),
+                check=False,
+            )
         for rnd in range(args.rounds):
             names = list(trees) if rnd % 2 == 0 else list(trees)[::-1]
             for per, where in fleets.items():
@@ -712,6 +748,12 @@ def fault_fleet_compare() -> None:
             for a, b in zip(got.get((per, "new"), []), old_runs, strict=False)
         ]
         print(f"{'':19s} rounds' CPU ratios new / old: {', '.join(rounds)}; target at most 1.10")
+        shares = [r["refit_cpu"] / (r["cpu"] - r["refit_cpu"]) for r in got.get((per, "new"), [])]
+        if shares:
+            print(
+                f"{'':19s} the refit's CPU in the same ingest, over the rest of it: median "
+                f"{statistics.median(shares):.3f} (rounds: {', '.join(f'{x:.3f}' for x in shares)})"
+            )
     for problem in problems:
         print(f"CHECK FAILED: {problem}")
     print(f"total run time {time.perf_counter() - t_start:.0f} s")

@@ -61,6 +61,29 @@ rows 2-4 keep the best round, rows 2m and 3m show the median. BLAS is pinned
 to one thread (docs/design.md).
 
 Run: ``python benchmarks/bench_ingest.py`` (about 2 minutes on 2 cores).
+
+``--fault-fleet``: instead, the ingest cost per recording of this tree against
+an older commit (``--old``, default the commit before ingest refitted the
+forecasts), measured in one run on a fault fleet: ``--conveyors`` virtual
+conveyors (the serving benchmark's: white-belt-01's profile, rail friction
+rising from day 2 to +80 %, 5 recordings a day, seeds 100 + k) with each
+``--per-conveyor`` recordings (several sizes: one fleet each). The old
+commit's tree is exported with ``git archive`` into a temporary folder. Each
+ingest runs in a new process (``PYTHONPATH`` the tree; BLAS on one thread):
+it calibrates each conveyor from its calibration recordings into a fresh
+SQLite store, runs a warm-up ingest of 16 recordings (baseline_n=5) into a
+throwaway store (numba's cache loaded; each tree's cache is filled by an
+untimed run first), then times ``ingest(files, profiles, store,
+settings=MonitorSettings(baseline_n=10), workers=1)``: wall and CPU time of
+the process (with one worker everything runs in it), the refit included
+(and statsmodels' import when a forecast needs a model: a command pays it).
+``new, no refit`` is this tree with ``ingest(refit=False)``: what the refit
+itself costs (``--no-refit-row`` leaves it out); the CPU time spent inside
+the refit in the ``new`` ingest is printed over the rest of that ingest. The
+configurations alternate in each of ``--rounds`` rounds;
+the verdict is the median of the rounds' paired ratios new / old of the CPU
+time per recording (the machine's load moves wall time more; both printed),
+target at most 1.10.
 """
 
 from __future__ import annotations
@@ -518,5 +541,230 @@ def main() -> None:
     print(f"total run time {time.perf_counter() - t_start:.0f} s")
 
 
+FLEET_CHILD = r"""
+import json, sys, tempfile, time
+from pathlib import Path
+from chaintwin.diagnose.records import MonitorSettings
+from chaintwin.read.profile import load_profile
+from chaintwin.store.store import Store
+try:  # this tree's modules
+    from chaintwin.calibrating import calibrate
+    from chaintwin.ingest import ingest
+except ImportError:  # an older tree's (the old commit compared against)
+    from chaintwin.identify.calibrating import calibrate
+    from chaintwin.store.ingest import ingest
+from chaintwin.validate.checks import load_recording
+
+profile_path, folder, refit = sys.argv[1], Path(sys.argv[2]), sys.argv[3] == "1"
+base = load_profile(profile_path)
+profiles, files, cals = {}, [], {}
+for sub in sorted(p for p in folder.iterdir() if p.is_dir()):
+    prof = base.model_copy(update={"id": sub.name})
+    profiles[prof.id] = prof
+    files += sorted(str(f) for f in sub.glob("*.csv"))
+    cal_files = sorted((sub / "calibration").glob("*.csv"))
+    recs = [load_recording(f, profile=prof).recording for f in cal_files]
+    cals[prof.id] = calibrate(recs, prof)
+kw = {} if refit else {"refit": False}
+in_refit = [0.0]  # CPU seconds inside the refit (this tree's; the old one has none)
+try:
+    import chaintwin.store.derived as derived
+except ImportError:
+    derived = None
+if derived is not None:
+    plain = derived.refit
+
+    def timed_refit(*args, **kwargs):
+        c = time.process_time()
+        try:
+            return plain(*args, **kwargs)
+        finally:
+            in_refit[0] += time.process_time() - c
+
+    derived.refit = timed_refit
+with tempfile.TemporaryDirectory() as tmp:
+    stores = []
+    for name in ("warm", "timed"):
+        store = Store(f"sqlite:///{tmp}/{name}.db")
+        for cid, cal in cals.items():
+            store.put_profile(profiles[cid])
+            store.put_calibration(cal)
+        stores.append(store)
+    first = next(iter(profiles))
+    warm = [f for f in files if Path(f).parent.name == first][:16]
+    ingest(warm, profiles, stores[0], settings=MonitorSettings(baseline_n=5), workers=1, **kw)
+    in_refit[0] = 0.0
+    t0, c0 = time.perf_counter(), time.process_time()
+    settings = MonitorSettings(baseline_n=10)
+    summary = ingest(files, profiles, stores[1], settings=settings, workers=1, **kw)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    refit_cpu = in_refit[0]
+    counts = stores[1].counts()
+    for store in stores:
+        store.close()
+print(json.dumps({"wall": wall, "cpu": cpu, "processed": summary.processed,
+                  "refused": summary.refused, "results": counts["results"],
+                  "refit_cpu": refit_cpu}))
+"""
+"""What one ingest of the fault fleet runs, in a new process (``python -c``)."""
+
+
+def fault_fleet_compare() -> None:
+    """``--fault-fleet``: ingest cost per recording, this tree against an older commit."""
+    import argparse
+
+    parser = argparse.ArgumentParser(description="ingest cost on a fault fleet, old vs new")
+    parser.add_argument("--fault-fleet", action="store_true")
+    parser.add_argument("--old", default="562dbc5^", help="the old commit (git rev)")
+    parser.add_argument("--conveyors", type=int, default=10)
+    parser.add_argument("--per-conveyor", type=int, nargs="+", default=[30, 120])
+    parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument(
+        "--no-refit-row", action="store_true", help="leave out 'new, no refit' (a third less time)"
+    )
+    args = parser.parse_args()
+    repo = Path(__file__).resolve().parents[1]
+    old = subprocess.run(
+        ["git", "-C", str(repo), "rev-parse", "--short", args.old],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.strip()
+    head = subprocess.run(
+        ["git", "-C", str(repo), "rev-parse", "--short", "HEAD"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.strip()
+    dirty = subprocess.run(
+        ["git", "-C", str(repo), "status", "--porcelain", "chaintwin"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.strip()
+    prof = load_profile(PROFILE)
+    t_start = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="bench_fault_") as tmp_name:
+        tmp = Path(tmp_name)
+        old_tree = tmp / "old"
+        old_tree.mkdir()
+        archive = subprocess.run(
+            ["git", "-C", str(repo), "archive", old, "chaintwin"], capture_output=True, check=True
+        ).stdout
+        subprocess.run(["tar", "-x", "-C", str(old_tree)], input=archive, check=True)
+        trees = {"old": (old_tree, True), "new": (repo, True), "new, no refit": (repo, False)}
+        if args.no_refit_row:
+            del trees["new, no refit"]
+        fleets = {}
+        t0 = time.perf_counter()
+        for per in args.per_conveyor:
+            where = tmp / f"fleet{per}"
+            for k in range(args.conveyors):
+                generate(
+                    prof.model_copy(update={"id": f"faulty-{k:03d}"}),
+                    where / f"faulty-{k:03d}",
+                    days=max(1, per // 5),
+                    per_day=5,
+                    faults=[Fault("friction", 0.8)],
+                    onset_day=2,
+                    seed=100 + k,
+                )
+            fleets[per] = where
+        t_gen = time.perf_counter() - t0
+        got: dict[tuple[int, str], list[dict[str, float]]] = {}
+        problems = []
+        # each tree once, not timed: numba compiles into the exported tree's cache
+        small = fleets[min(fleets)]
+        for tree in {str(t) for t, _ in trees.values()}:
+            subprocess.run(
+                [sys.executable, "-c", FLEET_CHILD, str(PROFILE), str(small), "1"],
+                capture_output=True,
+                env=dict(os.environ, PYTHONPATH=tree),
+                check=False,
+            )
+        for rnd in range(args.rounds):
+            names = list(trees) if rnd % 2 == 0 else list(trees)[::-1]
+            for per, where in fleets.items():
+                for name in names:
+                    tree, refit = trees[name]
+                    env = dict(os.environ, PYTHONPATH=str(tree))
+                    done = subprocess.run(
+                        [
+                            sys.executable,
+                            "-c",
+                            FLEET_CHILD,
+                            str(PROFILE),
+                            str(where),
+                            str(int(refit)),
+                        ],
+                        capture_output=True,
+                        text=True,
+                        env=env,
+                        check=False,
+                    )
+                    try:
+                        out = json.loads(done.stdout.strip().splitlines()[-1])
+                    except (json.JSONDecodeError, IndexError):
+                        problems.append(f"{name}, {per}: {done.stderr[-400:]}")
+                        continue
+                    want = per * args.conveyors
+                    if out["processed"] != want or out["refused"] or out["results"] != want:
+                        problems.append(f"{name}, {per}: {out}")
+                    got.setdefault((per, name), []).append(out)
+    print(
+        f"ingest cost on a fault fleet: {args.conveyors} conveyors ({prof.id}'s profile, rail "
+        "friction rising from day 2 to +80 %, baseline_n=10), workers=1, a new process per "
+        f"ingest, {args.rounds} rounds, configurations alternating"
+    )
+    print(
+        f"old = {old} (git archive), new = {head}{' + uncommitted changes' if dirty else ''}; "
+        f"setup (not timed): generate {t_gen:.0f} s; load average now {os.getloadavg()[0]:.2f}"
+    )
+    print()
+    head_row = (
+        f"{'recordings/conveyor':>19s} {'configuration':>14s} {'CPU ms/rec':>10s} "
+        f"{'wall ms/rec':>11s} {'CPU / old':>9s} {'wall / old':>10s}"
+    )
+    print(head_row)
+    print("-" * len(head_row))
+    for per in fleets:
+        n = per * args.conveyors
+        old_runs = got.get((per, "old"), [])
+        for name in trees:
+            runs = got.get((per, name), [])
+            if not runs or not old_runs:
+                continue
+            cpu = statistics.median(r["cpu"] for r in runs) / n
+            wall = statistics.median(r["wall"] for r in runs) / n
+            # the rounds' own ratios: each pair ran back to back
+            r_cpu = statistics.median(
+                a["cpu"] / b["cpu"] for a, b in zip(runs, old_runs, strict=False)
+            )
+            r_wall = statistics.median(
+                a["wall"] / b["wall"] for a, b in zip(runs, old_runs, strict=False)
+            )
+            print(
+                f"{per:19d} {name:>14s} {cpu * 1e3:10.2f} {wall * 1e3:11.2f} "
+                f"{r_cpu:9.3f} {r_wall:10.3f}"
+            )
+        rounds = [
+            f"{a['cpu'] / b['cpu']:.3f}"
+            for a, b in zip(got.get((per, "new"), []), old_runs, strict=False)
+        ]
+        print(f"{'':19s} rounds' CPU ratios new / old: {', '.join(rounds)}; target at most 1.10")
+        shares = [r["refit_cpu"] / (r["cpu"] - r["refit_cpu"]) for r in got.get((per, "new"), [])]
+        if shares:
+            print(
+                f"{'':19s} the refit's CPU in the same ingest, over the rest of it: median "
+                f"{statistics.median(shares):.3f} (rounds: {', '.join(f'{x:.3f}' for x in shares)})"
+            )
+    for problem in problems:
+        print(f"CHECK FAILED: {problem}")
+    print(f"total run time {time.perf_counter() - t_start:.0f} s")
+
+
 if __name__ == "__main__":
-    main()
+    if "--fault-fleet" in sys.argv:
+        fault_fleet_compare()
+    else:
+        main()

@@ -316,3 +316,52 @@ def test_cli_alarms_on_a_store_are_audited(
     actions = [(e["who"], e["action"]) for e in audit_entries(store)]
     assert actions[:2] == [("ann", "out_of_service"), ("ann", "comment")]
     store.close()
+
+
+def test_an_exceedance_no_impact_search_could_explain_counts_once_confirmed() -> None:
+    """3 of 10 on a flat baseline 0.006 +- 0.00046 Nm: 0.012 exceeds, 0.006 does not.
+
+    Recordings whose torque could not be searched for events (``confirm``):
+    an exceedance alone (an item caught for part of a 1 ms scope) never
+    counts; one the next recording confirms counts both; one after a counted
+    exceedance counts at once. Searched recordings count as before.
+    """
+    from chaintwin.diagnose.alarms import judge
+    from chaintwin.diagnose.health import FeatureBaseline
+    from chaintwin.diagnose.records import MonitorSettings
+
+    fb = FeatureBaseline(0.006, 0.0, 0.00046, count=20, outliers=0, mean_payload_kg=25.0)
+    settings = MonitorSettings()
+    base = {"residual_std": fb}
+    when = datetime(2026, 3, 2, tzinfo=UTC)
+
+    def run(seq: list[tuple[float, bool]]) -> tuple[list[bool], list[list[str]]]:
+        windows: dict[str, list[bool]] = {}
+        times: dict[str, list[str | None]] = {}
+        met_at = []
+        for k, (value, confirm) in enumerate(seq):
+            met, _, _ = judge(
+                base,
+                {"residual_std": value, "payload_inertia_kg": 25.0},
+                windows,
+                times,
+                settings,
+                when + timedelta(hours=k),
+                confirm=confirm,
+            )
+            met_at.append(met)
+        return windows["residual_std"], met_at
+
+    hi, lo = 0.012, 0.006
+    # three lone events on unsearched recordings: nothing counts, no alarm
+    win, met = run([(hi, True), (lo, True), (hi, True), (lo, True), (hi, True), (lo, True)])
+    assert win == [False] * 6 and not any(met)
+    # the same on searched recordings: 3 of 10, met at the third
+    win, met = run([(hi, False), (lo, False), (hi, False), (lo, False), (hi, False)])
+    assert win == [True, False, True, False, True] and met[-1] == ["residual_std"]
+    # a fault that grows on unsearched recordings: the second confirms the first
+    win, met = run([(lo, True), (hi, True), (hi, True), (hi, True)])
+    assert win == [False, True, True, True] and met[-1] == ["residual_std"] and not met[2]
+    # after a searched exceedance, an unsearched one counts at once
+    win, _ = run([(hi, False), (hi, True)])
+    assert win == [True, True]

@@ -12,6 +12,7 @@ from chaintwin.diagnose.forecasting import (
     WINDOW,
     backtest_errors,
     forecast_feature,
+    line_slope,
     predict,
     resample_even,
 )
@@ -135,3 +136,23 @@ def test_a_limit_crossed_says_since_when_rising_or_levelled_off() -> None:
     blip = 1.0 + rng.normal(0.0, 0.01, n)
     blip[-1] = 1.3
     assert forecast_feature("friction", times, blip, 1.2) is None
+
+
+def test_the_gate_s_slope_and_p_value_agree_with_statsmodels_ols() -> None:
+    """The gate's least-squares line in numpy gives statsmodels' slope and p-value."""
+    import statsmodels.api as sm
+
+    rng = np.random.default_rng(7)
+    for n, rise, noise in ((12, 0.02, 0.05), (30, 0.0, 0.1), (30, 0.05, 0.5), (5, -0.3, 0.2)):
+        x = np.sort(rng.uniform(0.0, 20.0, n))
+        y = 1.0 + rise * x + rng.normal(0.0, noise, n)
+        fit = sm.OLS(y, sm.add_constant(x)).fit()
+        slope, p_value = line_slope(x, y)
+        assert slope == pytest.approx(float(fit.params[1]), rel=1e-9, abs=1e-12)
+        assert p_value == pytest.approx(float(fit.pvalues[1]), rel=1e-7, abs=1e-12)
+    # a line without noise: the slope is certain (p = 0, as statsmodels' t is infinite)
+    x = np.arange(10.0)
+    assert line_slope(x, 2.0 + 0.5 * x) == pytest.approx((0.5, 0.0), abs=1e-12)
+    # too few points or no spread in time: no slope
+    assert all(np.isnan(line_slope(np.array([1.0, 2.0]), np.array([1.0, 3.0]))))
+    assert all(np.isnan(line_slope(np.full(5, 3.0), np.arange(5.0))))

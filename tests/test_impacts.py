@@ -90,14 +90,23 @@ def test_regular_knocks_are_periodic_and_isolated_ones_pool_per_revolution(
     assert np.isnan(hits_per_revolution([{}], 8.6))
     # one knock says nothing of a rate: no obstacle read from it
     assert hits_per_revolution(rows[:2], 8.6) == 0.0
-    # beyond the healthy conveyor's own random knocks (its baseline: one in 34.4 m):
-    # 2 hits less 17.2 m x 1/34.4 m = 1.5 over 17.2 m on an 8.6 m loop, by hand 0.75
     baseline = [{"impact_rail_hits": 1.0, "belt_travel_m": 17.2}, {"belt_travel_m": 17.2}]
     assert background_hits_per_m(baseline) == pytest.approx(1.0 / 34.4)
     assert background_hits_per_m([{}]) == 0.0
-    assert hits_per_revolution(rows, 8.6, 1.0 / 34.4) == pytest.approx(0.75)
-    # never below none
-    assert hits_per_revolution(rows, 8.6, 1.0) == 0.0
+    # beyond the healthy conveyor's own random knocks (its baseline: one in 34.4 m,
+    # (1 + 1/2) / 34.4 m): 0.75 expected over 17.2 m, two hits are P = 0.17: background
+    assert hits_per_revolution(rows, 8.6, baseline) == 0.0
+    # a baseline that saw no knock over 68.8 m: (0 + 1/2) / 68.8 m, 0.125 expected in
+    # 17.2 m; two hits are P = 1 - e^-0.125 (1 + 0.125) = 0.0072, beyond it:
+    # (2 - 0.125) / 17.2 m x 8.6 m = 0.9375 per revolution, by hand
+    quiet = [{"impact_rail_hits": 0.0, "belt_travel_m": 17.2}] * 4
+    assert hits_per_revolution(rows, 8.6, quiet) == pytest.approx(0.9375)
+    # the same two hits against a baseline of 34.4 m without a knock: 0.25 expected,
+    # P = 1 - e^-0.25 (1.25) = 0.026, not beyond the background
+    assert hits_per_revolution(rows, 8.6, quiet[:2]) == 0.0
+    # an obstacle's hits over eight revolutions against that baseline: 8 hits, P ~ 1e-10
+    many = [{"impact_rail_hits": 1.0, "belt_travel_m": 8.6}] * 8
+    assert hits_per_revolution(many, 8.6, quiet[:2]) == pytest.approx((8 - 1.0) / 8)
 
 
 def test_knocks_one_obstacle_cannot_have_made_are_not_pooled_as_its_hits(

@@ -8,14 +8,9 @@ from typing import Annotated
 
 import typer
 
-from chaintwin.cli.common import db_option, safe
+from chaintwin.cli.common import DbOption, safe
 
 __all__ = ["register"]
-
-_DB_HELP = (
-    "Results store URL (sqlite:///file.db, postgresql://...); default CHAINTWIN_DB, "
-    "else sqlite:///chaintwin.db."
-)
 
 
 def register(app: typer.Typer) -> None:
@@ -27,7 +22,7 @@ def register(app: typer.Typer) -> None:
     @group.command("nodeset")
     def nodeset(
         out: Annotated[Path, typer.Option("--out", help="The NodeSet2 XML file to write.")],
-        db: Annotated[str | None, db_option(_DB_HELP)] = None,
+        db: DbOption = None,
         no_values: Annotated[
             bool,
             typer.Option(

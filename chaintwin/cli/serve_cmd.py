@@ -281,16 +281,18 @@ def serve(
                 file=sys.stderr,
                 flush=True,
             )
-            escalating = None
+            from chaintwin.live.shelves import unshelve_forever
+
+            timers = [asyncio.create_task(unshelve_forever(store))]
             if live.escalate_after_min is not None:
                 from chaintwin.live.escalation import escalate_forever
 
-                escalating = asyncio.create_task(escalate_forever(store, live.escalate_after_min))
+                timers.append(asyncio.create_task(escalate_forever(store, live.escalate_after_min)))
             try:
                 await service.run(config)
             finally:
-                if escalating is not None:
-                    escalating.cancel()
+                for timer in timers:
+                    timer.cancel()
 
         asyncio.run(main())
     finally:

@@ -18,6 +18,7 @@ from .records import Alarm, Evidence, MonitorSettings, iso_utc
 
 __all__ = [
     "LIMIT_PREFIX",
+    "UNCONFIRMED_PREFIX",
     "close_quiet_alarms",
     "group_by_cause",
     "judge",
@@ -27,6 +28,11 @@ __all__ = [
 
 LIMIT_PREFIX = "limit:"
 """Prefix of the exceedance windows of absolute limits (``limit:<feature>``)."""
+
+
+UNCONFIRMED_PREFIX = "unconfirmed:"
+"""Prefix of the windows that hold whether a feature's last exceedance awaits its
+confirmation (``unconfirmed:<feature>``, :func:`judge` with ``confirm``)."""
 
 
 def window_key(feature: str, kind: str = "statistical") -> str:
@@ -204,12 +210,23 @@ def judge(
     settings: MonitorSettings,
     when: datetime | None,
     z_out: dict[str, float] | None = None,
+    confirm: bool = False,
 ) -> tuple[list[str], dict[str, float], list[str]]:
     """Check a recording's features against their baselines and apply the X-of-Y rule.
 
     Each tracked feature's window (the last Y exceedances, with their times)
     is updated in place; ``z_out``, when given, receives each feature's
     distance from its baseline (robust baseline scales, where known).
+
+    ``confirm``: this recording's torque shows an item caught (a drag the
+    impact search found) or could not be searched for one (its
+    constant-speed run too short for the impact search, as on a 1 ms
+    scope); such an event moves the features of this recording alone
+    (speed loss, residual, spectral lines). An exceedance of such a recording
+    counts only when the feature exceeded at the recording before it or
+    exceeds at the next one (which then counts both); until then it waits
+    in ``unconfirmed:<feature>``. A fault that grows exceeds recording after
+    recording and loses at most one recording; an event stays alone.
 
     Returns
     -------
@@ -235,8 +252,16 @@ def judge(
         ex = fb.check(value, load, settings.z_limit, spec.min_rel, spec.two_sided, drift, allowance)
         win = windows.setdefault(name, [])
         times = window_times.setdefault(name, [])
-        win.append(ex.exceeded)
+        waiting = windows.setdefault(UNCONFIRMED_PREFIX + name, [])
+        waiting_at = window_times.setdefault(UNCONFIRMED_PREFIX + name, [])
+        before = bool(win and win[-1])
+        if ex.exceeded and waiting and waiting[-1] and win:
+            win[-1] = before = True  # the exceedance before, confirmed now
+        counted = ex.exceeded and (before or not confirm)
+        win.append(counted)
         times.append(at)
+        waiting[:] = [ex.exceeded and not counted]
+        waiting_at[:] = [at]
         del win[: -settings.y]
         del times[: -settings.y]
         if ex.exceeded:

@@ -10,6 +10,7 @@ from scipy import stats
 from chaintwin.simulate.faults import fault_types
 
 from .features import IMPULSIVE, feature_spec, is_tracked
+from .impacts import MIN_POOLED_HITS
 
 __all__ = [
     "CAUSE_PRIORITY",
@@ -62,7 +63,7 @@ def impact_context(values: Mapping[str, float], exceeded: Collection[str]) -> st
     ----------
     values : dict of str to float
         The recording's features (``impact_isolated``, ``impact_drags``,
-        ``impact_hits_per_rev``).
+        ``impact_hits_per_rev``, ``impact_pooled_hits``, ``impact_pooled_revs``).
     exceeded : collection of str
         Features this recording exceeded (a worn sprocket's ``sprocket_comb``,
         a tooth's ``comb_<shaft>``).
@@ -79,7 +80,12 @@ def impact_context(values: Mapping[str, float], exceeded: Collection[str]) -> st
     knocks = values.get("impact_isolated") or 0.0
     drags = values.get("impact_drags") or 0.0
     rate = values.get("impact_hits_per_rev", float("nan"))
-    if one_per_revolution(values.get("impact_pooled_hits") or 0.0, rate):
+    pooled = values.get("impact_pooled_hits") or 0.0
+    revs = values.get("impact_pooled_revs") or 0.0
+    # the cause is read from the knocks as pooled, even those the conveyor's own
+    # random knocks could make (which do not raise the rate itself)
+    seen = pooled / revs if pooled >= MIN_POOLED_HITS and revs > 0 else rate
+    if one_per_revolution(pooled, seen):
         return "obstruction"
     if "sprocket_comb" in exceeded:
         return "sprocket"

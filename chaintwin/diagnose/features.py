@@ -268,6 +268,7 @@ FEATURES: dict[str, FeatureSpec] = {
     "usage_since_baseline_t_km": FeatureSpec(None, 0.0, "t·km"),  # what expected_wear is taken for
     "impact_hits_per_rev": FeatureSpec("obstruction", 0.0, "1/rev", min_scale=0.1),
     "impact_pooled_hits": FeatureSpec(None, 0.0, "-"),  # isolated knocks behind the rate above
+    "impact_pooled_revs": FeatureSpec(None, 0.0, "rev"),  # belt revolutions the pool covers
 }
 """Every tracked feature (``comb_<shaft>`` features are added per profile, cause gear)."""
 

@@ -51,6 +51,7 @@ __all__ = [
     "backtest_errors",
     "forecast_feature",
     "forecast_path",
+    "line_slope",
     "predict",
     "resample_even",
 ]
@@ -130,8 +131,11 @@ def predict(
     mean, lower, upper : FloatArray
         One value per step ahead, feature units.
     """
-    # imported here: statsmodels and pandas cost some 0.3 s to import
-    import statsmodels.api as sm
+    # imported here, and not statsmodels.api (half a second more): statsmodels
+    # and pandas cost over a second to import, paid only by a refit with a
+    # feature whose trend rises
+    from statsmodels.regression.linear_model import OLS
+    from statsmodels.tools.tools import add_constant
 
     y = np.asarray(y, dtype=np.float64)
     n = y.shape[0]
@@ -140,9 +144,9 @@ def predict(
         warnings.simplefilter("ignore")
         if model == "line":
             x = np.arange(n, dtype=np.float64)
-            fit = sm.OLS(y, sm.add_constant(x)).fit()
+            fit = OLS(y, add_constant(x)).fit()
             ahead = np.arange(n, n + steps, dtype=np.float64)
-            frame = fit.get_prediction(sm.add_constant(ahead, has_constant="add")).summary_frame(
+            frame = fit.get_prediction(add_constant(ahead, has_constant="add")).summary_frame(
                 alpha=alpha
             )
             return (
@@ -254,6 +258,48 @@ def forecast_path(
     return model, mae[model], mean, lower, upper
 
 
+def line_slope(x: FloatArray, y: FloatArray) -> tuple[float, float]:
+    """Slope of the least-squares straight line through (x, y) and its two-sided p-value.
+
+    Ordinary least squares with an intercept, the p-value from Student's t
+    with n − 2 degrees of freedom (as statsmodels' ``OLS(...).fit().pvalues``
+    gives it), in numpy: the gate runs for every feature of every refit,
+    and most features never reach a model, so statsmodels (over a second to
+    import) is imported only when one does.
+
+    Parameters
+    ----------
+    x : FloatArray
+        Abscissae (days).
+    y : FloatArray
+        Ordinates (feature units).
+
+    Returns
+    -------
+    slope : float
+        y units per x unit (NaN with fewer than 3 points or no spread of x).
+    p_value : float
+        Of the slope being zero (NaN when the slope is).
+    """
+    from scipy.special import stdtr
+
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    n = x.shape[0]
+    if n < 3:
+        return math.nan, math.nan
+    dx = x - x.mean()
+    sxx = float(dx @ dx)
+    if not sxx > 0.0:
+        return math.nan, math.nan
+    slope = float(dx @ (y - y.mean())) / sxx
+    resid = y - y.mean() - slope * dx
+    se = math.sqrt(float(resid @ resid) / (n - 2) / sxx)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_value = np.float64(abs(slope)) / np.float64(se)
+    return slope, float(2.0 * stdtr(n - 2, -t_value))
+
+
 def _first_cross(t: FloatArray, series: FloatArray, limit: float) -> float | None:
     hit = np.flatnonzero(series >= limit)
     return float(t[hit[0]]) if hit.size else None
@@ -311,8 +357,6 @@ def forecast_feature(
         began the run above it), ``model`` ``line`` (no model forecasts) and a
         remaining life of zero.
     """
-    import statsmodels.api as sm
-
     days = in_days(times, values, MIN_POINTS)
     if days is None:
         return None
@@ -322,9 +366,8 @@ def forecast_feature(
         return None
     # the gate: a rising straight line over the values the models see
     recent = t >= grid[-WINDOW:][0] - 0.5 * step
-    line = sm.OLS(v[recent], sm.add_constant(t[recent])).fit()
-    slope = float(line.params[1])
-    rising = slope > 0.0 and float(line.pvalues[1]) < MAX_P_VALUE
+    slope, p_value = line_slope(t[recent], v[recent])
+    rising = slope > 0.0 and p_value < MAX_P_VALUE
     day = timedelta(days=1)
     above = series >= limit
     if above[-1] and (rising or bool(np.all(above[-BACKTEST_STEPS:]))):

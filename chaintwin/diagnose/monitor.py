@@ -60,7 +60,7 @@ from .causes import (
 from .features import RecordingFeatures, feature_spec, is_tracked
 from .features import recording_features as extract
 from .health import FeatureBaseline
-from .impacts import POOL, background_hits_per_m, hits_per_revolution, pooled_hits
+from .impacts import POOL, hits_per_revolution, pooled_hits
 from .learned import learn_calibration
 from .limits import check_limit_names, judge_limits
 from .monitor_state import MonitorState
@@ -505,9 +505,12 @@ class ConveyorMonitor:
         values["impact_hits_per_rev"] = hits_per_revolution(
             [*pooled, values],
             self.calibration.id_profile.loop_length_m,
-            background_hits_per_m(self.baseline_rows) if self.baselines is not None else 0.0,
+            self.baseline_rows if self.baselines is not None else None,
         )
         values["impact_pooled_hits"] = pooled_hits([*pooled, values])
+        travelled = sum(float(r.get("belt_travel_m") or 0.0) for r in [*pooled, values])
+        loop = self.calibration.id_profile.loop_length_m
+        values["impact_pooled_revs"] = travelled / loop if loop > 0 else float("nan")
         warnings = [x.to_dict() for x in w.warnings] + [x.to_dict() for x in feats.warnings]
         # features computed elsewhere (an ingest worker) may predate a warning
         # the recording got since (e.g. no_recorded_at): none is lost
@@ -584,8 +587,20 @@ class ConveyorMonitor:
             judged = self._after_expected_wear(values)
             base.features = {k: finite_or_none(v) for k, v in values.items()}
             zs: dict[str, float] = {}
+            # an item caught moves this recording's features alone: where the
+            # impact search found a drag, or could look at no span (an event
+            # would go unnoticed), an exceedance waits for the next to confirm it
+            searched = values.get("belt_travel_m", 0.0) > 0.0
+            dragged = (values.get("impact_drags") or 0.0) > 0.0
             met, change, exceeded = alarms.judge(
-                self.baselines, judged, self.windows, self.window_times, self.settings, when, zs
+                self.baselines,
+                judged,
+                self.windows,
+                self.window_times,
+                self.settings,
+                when,
+                zs,
+                confirm=dragged or not searched,
             )
             base.exceeded.extend(exceeded)
             self._late_baselines(values)

@@ -26,6 +26,7 @@ from chaintwin.errors import StoreError
 from chaintwin.read.files import read_limited, write_atomic
 from chaintwin.read.integers import json_loads, refuse_huge_integers
 
+from .alarm_actions import edit_alarm
 from .records import Acknowledgement, Alarm, Event, date_out_of_span, parse_time
 
 __all__ = [
@@ -237,37 +238,23 @@ def acknowledge_alarm(
     """
     if not by.strip():
         raise StoreError("say who acknowledges the alarm (by)", field="by")
-    open_ids = []
-    for conveyor, state in data["conveyors"].items():
-        try:
-            alarms = [Alarm.from_dict(a) for a in state["alarms"]]
-        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+    when = (at or datetime.now(UTC)).astimezone(UTC).isoformat()
+
+    def acknowledge(alarm: Alarm) -> None:
+        if not alarm.is_open:
             raise StoreError(
-                f"the state of '{conveyor}' is damaged ({exc!r}); start a new one"
-            ) from None
-        for k, alarm in enumerate(alarms):
-            if alarm.answers_to(alarm_id):
-                if not alarm.is_open:
-                    raise StoreError(
-                        f"alarm '{alarm_id}' is closed ({alarm.closed_by or 'closed'}); "
-                        "only open alarms are acknowledged"
-                    )
-                done = alarm.acknowledged
-                if done is not None:
-                    raise StoreError(
-                        f"alarm '{alarm_id}' was acknowledged by {done.by} at "
-                        f"{done.at} ({done.why}); it stays so"
-                    )
-                alarm.acknowledged = Acknowledgement(
-                    by=by, why=why, at=(at or datetime.now(UTC)).astimezone(UTC).isoformat()
-                )
-                state["alarms"][k] = alarm.to_dict()
-                return alarm
-            if alarm.is_open:
-                open_ids.append(alarm.id)
-    raise StoreError(
-        f"no alarm '{alarm_id}' in the state (open alarms: {', '.join(open_ids) or 'none'})"
-    )
+                f"alarm '{alarm_id}' is closed ({alarm.closed_by or 'closed'}); "
+                "only open alarms are acknowledged"
+            )
+        done = alarm.acknowledged
+        if done is not None:
+            raise StoreError(
+                f"alarm '{alarm_id}' was acknowledged by {done.by} at "
+                f"{done.at} ({done.why}); it stays so"
+            )
+        alarm.acknowledged = Acknowledgement(by=by, why=why, at=when)
+
+    return edit_alarm(data, alarm_id, acknowledge)
 
 
 def apply_events(

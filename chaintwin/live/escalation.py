@@ -50,16 +50,14 @@ def escalate_due(store: Store, after_min: float, now: datetime | None = None) ->
     done = []
     with Session(store.engine) as s, s.begin():
         for alarm in due:
-            before = len(s.new)
-            notify_alarm(
+            if notify_alarm(
                 s,
                 alarm.conveyor,
                 alarm,
                 "escalated",
                 at.isoformat(),
                 functools.partial(conveyor_verdict, store, alarm.conveyor),
-            )
-            if len(s.new) > before:
+            ):
                 done.append(alarm.id)
     return done
 

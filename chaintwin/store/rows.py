@@ -13,7 +13,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from chaintwin.diagnose.monitor_state import MonitorState
-from chaintwin.diagnose.records import Alarm, Event, RecordingResult
+from chaintwin.diagnose.records import Alarm, Event, RecordingResult, parse_time
 from chaintwin.diagnose.state import json_ready
 from chaintwin.diagnose.verdict import Verdict, verdict
 from chaintwin.read.recording import Recording
@@ -52,23 +52,28 @@ def notify_alarm(
     event: str,
     at: str | None = None,
     verdict: Callable[[], Verdict] | None = None,
-) -> None:
+    shelf_at: str | None = None,
+) -> bool:
     """Put a notification of an alarm's change in the outbox (once per alarm and event).
 
-    ``event`` is ``opened``, ``acknowledged``, ``shelved``, ``closed`` or
-    ``escalated``; ``at`` is when it happened (default: when it opened or
-    closed). A shelving is told once per shelf (its start in the id).
+    ``event`` is ``opened``, ``acknowledged``, ``shelved``, ``unshelved``,
+    ``closed`` or ``escalated``; ``at`` is when it happened (default: when it
+    opened or closed). A shelving and the end of a shelf are told once per
+    shelf (its start in the id: ``shelf_at``, default the alarm's shelf).
     ``verdict`` gives the conveyor's verdict as the change leaves it (its
     ``health`` and ``ne107`` go with the notification), called only when a
     notification is written.
     Written in the transaction that changes the alarm's row: a notification
     exists exactly when its change was stored (the live service sends it).
+    Returns whether it was written (False: told before).
     """
     key = f"{alarm.id}-{event}"
-    if event == "shelved" and alarm.shelved is not None:
-        key += "-" + hashlib.sha256(alarm.shelved.at.encode()).hexdigest()[:8]
+    if shelf_at is None and alarm.shelved is not None:
+        shelf_at = alarm.shelved.at
+    if event in ("shelved", "unshelved") and shelf_at is not None:
+        key += "-" + hashlib.sha256(shelf_at.encode()).hexdigest()[:8]
     if s.get(OutboxRow, key) is not None:
-        return
+        return False
     if at is None:
         at = alarm.closed_at if event == "closed" else (alarm.opened_at or alarm.since)
     told = None if verdict is None else verdict()
@@ -86,6 +91,7 @@ def notify_alarm(
             ne107=None if told is None else told.ne107,
         )
     )
+    return True
 
 
 def _notify_changes(
@@ -102,8 +108,19 @@ def _notify_changes(
     if alarm.acknowledged is not None and not was.get("acknowledged"):
         notify_alarm(s, conveyor, alarm, "acknowledged", alarm.acknowledged.at, verdict)
     shelf = alarm.shelved
-    if shelf is not None and (was.get("shelved") or {}).get("at") != shelf.at:
+    old = was.get("shelved") or {}
+    if shelf is not None and old.get("at") != shelf.at:
         notify_alarm(s, conveyor, alarm, "shelved", shelf.at, verdict)
+    if alarm.is_open:
+        now = datetime.now(UTC)
+        if old.get("at") and (shelf is None or shelf.at != old["at"]):  # unshelved, or shelved anew
+            until = parse_time(old.get("until"))
+            if until is not None and until.tzinfo is None:
+                until = until.replace(tzinfo=UTC)
+            ended = old["until"] if until is not None and until < now else now.isoformat()
+            notify_alarm(s, conveyor, alarm, "unshelved", ended, verdict, shelf_at=old["at"])
+        if shelf is not None and not alarm.is_shelved(now):  # the shelf ended by itself
+            notify_alarm(s, conveyor, alarm, "unshelved", shelf.until, verdict)
     if alarm.status == "closed" and (before is None or before.status != "closed"):
         notify_alarm(s, conveyor, alarm, "closed", verdict=verdict)
 
@@ -120,8 +137,9 @@ def put_alarms_events(
     ``state`` gives that health model: the notifications carry its verdict
     (worked out once, and only when a notification is written).
 
-    An alarm that opens, is acknowledged or shelved, or closes puts a
-    notification in the outbox (:func:`notify_alarm`). An alarm grouped into another (its id in the
+    An alarm that opens, is acknowledged, shelved or unshelved (by someone,
+    or its shelf ended), or closes puts a notification in the outbox
+    (:func:`notify_alarm`). An alarm grouped into another (its id in the
     other's ``merged``) leaves the table; its id stays an alias of the other.
     """
     told = None if state is None else functools.cache(lambda: verdict(state()))

@@ -28,15 +28,21 @@ Between known runs the losses move on. :class:`ZeroTracker` allows for
   ``a = 0 ± WARM_UP_REL``, learned from the weighed recordings'
   friction-minus-inertia differences over the days (each is noisy: the
   inertia signature is weak, on most conveyors one recording tells δ only
-  to ±3-15 %; pooled over many days the repeating offset shows);
-* the history since the last known run: pooled, a mean difference that
-  disagrees with the prediction beyond :data:`WIDEN_SIGMA` widens the
-  allowance to cover it.
+  to ±3-15 %; pooled over many days the repeating offset shows). The
+  inertia signature's gain error (a share of the payload, prior
+  :data:`GAIN_PRIOR`) is fitted beside it, since it reads as a drift in
+  proportion to the payload;
+* the history since the last known run: pooled, and its latest recording
+  alone, a difference (the gain error taken out) that disagrees with the
+  prediction beyond :data:`WIDEN_SIGMA` moves the allowance half-way to it
+  and widens it to cover both (a history less precise than the default
+  allowance is not used for this).
 
 Without known runs the allowance is the default ±10 % (:meth:`LossDrift.unknown`)
-and narrows only where the pooled differences of the recent recordings show
-the losses where the calibration left them, to no less than
-:data:`HISTORY_FLOOR_REL`; it widens again when they move.
+and narrows only where the differences of the recent recordings, regressed
+on the payload (the intercept is the drift, the slope the inertia
+signature's gain error), show the losses where the calibration left them,
+to no less than :data:`HISTORY_FLOOR_REL`; it widens again when they move.
 
 What a conveyor's history can and cannot show: a δ that stays put is
 averaged down by the number of recordings, so the history narrows a
@@ -65,6 +71,7 @@ from chaintwin.weigh.drift import LossDrift
 from chaintwin.weigh.weigh import Signatures, WeighResult, reweigh
 
 __all__ = [
+    "GAIN_PRIOR",
     "HISTORY_FLOOR_REL",
     "JUMP_SIGMA",
     "RATE_CHANGE_PRIOR",

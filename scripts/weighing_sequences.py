@@ -136,7 +136,12 @@ def evaluate_sequences(
                     if known and not with_known:
                         continue
                     at = START + timedelta(seconds=t)
-                    res = tracker.track(results[protocol], at, payload if known else None)
+                    res = tracker.track(
+                        results[protocol],
+                        at,
+                        payload if known else None,
+                        cals[protocol].zero_reference,
+                    )
                     if known:
                         continue
                     exact = reweigh(results[protocol], LossDrift(d, 0.0))

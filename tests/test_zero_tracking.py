@@ -5,11 +5,14 @@ losses can have moved since, in ``weigh``, in ingest (through a restart) and in 
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import json
 import math
+import sys
 from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 import pytest
@@ -20,6 +23,7 @@ from chaintwin.diagnose.state import STATE_FORMAT, load_state
 from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.calibration import Calibration
 from chaintwin.identify.defaults import LOSS_DRIFT_REL
+from chaintwin.identify.zero_reference import ZeroReference
 from chaintwin.read.profile import load_profile
 from chaintwin.read.recording import Recording
 from chaintwin.read.writer import write_recording
@@ -28,9 +32,10 @@ from chaintwin.store.ingest import ingest
 from chaintwin.store.store import Store
 from chaintwin.validate import inspect_recording
 from chaintwin.weigh import LossDrift, Signatures, weigh
-from chaintwin.weigh.zero_tracking import ZeroTracker, known_run_drift
+from chaintwin.weigh.zero_tracking import NO_REFERENCE, ZeroTracker, known_run_drift
 
 PROFILE = load_profile(REFERENCE_PROFILE)
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "evaluate_fidelity.py"
 DAY0 = datetime(2030, 3, 4, 6, 0, tzinfo=UTC)
 
 
@@ -286,3 +291,87 @@ def test_a_version_1_state_file_still_loads(
     again = json.loads(state.read_text())
     assert again["format_version"] == 2
     assert again["conveyors"][PROFILE.id]["zero_tracking"]["at"] is None  # nothing known yet
+
+
+def test_the_reference_zero_recovers_a_line_and_the_scatter_beyond_the_readings() -> None:
+    """Known answer: readings drawn about 0.01 − 0.0004·p with an extra 0.003 scatter."""
+    rng = np.random.default_rng(11)
+    sd, extra = 0.002, 0.003
+    payloads = np.repeat([0.0, 20.0, 40.0], 40)
+    truth = 0.01 - 0.0004 * payloads
+    readings = truth + rng.normal(0, sd, payloads.size) + rng.normal(0, extra, payloads.size)
+    ref = ZeroReference(
+        tuple((float(p), float(d), sd**2) for p, d in zip(payloads, readings, strict=True))
+    )
+    zero, var = ref.zero(30.0)
+    assert zero == pytest.approx(0.01 - 0.0004 * 30.0, abs=3.0 * math.sqrt(var))
+    assert ref.model_sigma == pytest.approx(extra, rel=0.3)
+    assert math.sqrt(var) < 0.005
+    # one payload only: a constant, and no scatter beyond the readings
+    flat = ZeroReference(((0.0, 0.004, 1e-4), (0.0, 0.006, 1e-4)))
+    assert flat.zero(50.0)[0] == pytest.approx(0.005)
+    assert flat.model_sigma == 0.0
+    back = ZeroReference.from_dict(json.loads(json.dumps(ref.to_dict())))
+    assert back == ref
+
+
+def _evaluation() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("evaluate_fidelity", SCRIPT)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.slow
+def test_without_drift_a_known_empty_run_tracks_zero_within_its_sigma_on_random_conveyors() -> None:
+    """Known answer: the losses as calibrated (δ = 0) on conveyors drawn from the
+    evaluation's design distribution with every realism effect on (about 30 s)."""
+    ev = _evaluation()
+    rng = np.random.default_rng(20261127)
+    z = []
+    for k in range(4):
+        conv = ev.draw_conveyor(rng, k)
+        runs = ev.calibration_runs(conv, 4000 + 100 * k)
+        for protocol in ("several_loads", "one_load_several_speeds"):
+            cal = calibrate(runs[protocol], conv.profile)
+            assert cal.zero_reference is not None and cal.zero_reference.readings
+            for j in range(2):
+                rec = ev._run(conv, 0.0, 4050 + 100 * k + j, direction=conv.direction)
+                res = weigh(inspect_recording(rec, conv.profile), cal)
+                tracked = ZeroTracker().track(res, DAY0, 0.0, cal.zero_reference)
+                assert tracked.known_run
+                z.append(abs(tracked.loss_drift.mean) / tracked.loss_drift.sigma)
+    assert len(z) == 16
+    assert max(z) <= 2.0, z
+    assert np.mean(np.array(z) <= 1.0) >= 0.6, z
+
+
+def test_a_calibration_without_a_reference_zero_loads_and_its_known_runs_warn(
+    cal: Calibration,
+) -> None:
+    data = cal.to_dict()
+    assert data["zero_reference"]["readings"]
+    del data["zero_reference"]  # as calibrations were written before it
+    old = Calibration.from_dict(data)
+    assert old.zero_reference is None
+    rec = _recording(0.0, 61, DAY0, 1.0, known=True)
+    res = weigh(inspect_recording(rec, PROFILE), old)
+    tracked = ZeroTracker().track(res, DAY0, 0.0, old.zero_reference)
+    assert tracked.known_run and NO_REFERENCE in {w.code for w in tracked.warnings}
+    current = ZeroTracker().track(res, DAY0, 0.0, cal.zero_reference)
+    assert NO_REFERENCE not in {w.code for w in current.warnings}
+
+
+def test_a_version_1_tracking_state_keeps_its_filter_and_relearns_its_rows() -> None:
+    rng = np.random.default_rng(8)
+    tracker = ZeroTracker()
+    _daily(tracker, lambda t: 0.02, 0, 2, rng)
+    data = tracker.to_dict()
+    old = dict(data, version=1, warm=[r[:2] + r[3:] for r in data["warm"]])
+    old["history"] = [r[:3] for r in data["history"]]
+    del old["reference_var"]
+    back = ZeroTracker.from_dict(old)
+    assert back.state == tracker.state and back.at == tracker.at
+    assert back.warm == [] and back.history == []

@@ -24,6 +24,7 @@ from chaintwin.identify.defaults import DEFAULT_FORGETTING, DEFAULT_HOLD_FIRST, 
 
 if TYPE_CHECKING:
     from chaintwin.identify.calibration import Calibration
+    from chaintwin.identify.zero_reference import ZeroReference
     from chaintwin.read.columns import ColumnMap
     from chaintwin.read.profile import ConveyorProfile
     from chaintwin.read.recording import Metadata, Recording
@@ -407,7 +408,7 @@ def register(app: typer.Typer) -> None:
                 results.append({"file": f, "error": error_message(exc)})
         known = any(meta.payload_kg is not None for _r, meta in weighed.values())
         if zero_tracking or (zero_tracking is None and known):
-            for k, res in track_in_order(weighed).items():
+            for k, res in track_in_order(weighed, cal.zero_reference).items():
                 results[k] = res.to_dict()
         if as_json:
             print_json(results)
@@ -448,10 +449,12 @@ def register(app: typer.Typer) -> None:
 
 def track_in_order(
     weighed: dict[int, tuple[WeighResult, Metadata]],
+    reference: ZeroReference | None,
 ) -> dict[int, WeighResult]:
     """Each weighing combined with the zero-tracked loss drift, fed in recorded order.
 
-    Recordings without a time keep their place among the given order.
+    Recordings without a time keep their place among the given order; known
+    runs are read relative to the calibration's ``reference`` zero.
     """
     from chaintwin.weigh.zero_tracking import ZeroTracker
 
@@ -460,7 +463,9 @@ def track_in_order(
     if all(weighed[k][1].recorded_at is not None for k in order):
         order.sort(key=lambda k: (weighed[k][1].recorded_at, k))
     return {
-        k: tracker.track(weighed[k][0], weighed[k][1].recorded_at, weighed[k][1].payload_kg)
+        k: tracker.track(
+            weighed[k][0], weighed[k][1].recorded_at, weighed[k][1].payload_kg, reference
+        )
         for k in order
     }
 

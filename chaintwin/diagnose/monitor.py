@@ -492,7 +492,12 @@ class ConveyorMonitor:
             return base
         # zero tracking: a known payload measures the loss drift, the others are
         # weighed with what it can have moved since
-        w = self.zero_tracking.track(feats.weighing, when, recording.metadata.payload_kg)
+        w = self.zero_tracking.track(
+            feats.weighing,
+            when,
+            recording.metadata.payload_kg,
+            self.calibration.zero_reference,
+        )
         values = dict(feats.values)
         # usage (chaintwin.diagnose.wear): payload times belt travel, kg·m
         payload = values.get("payload_kg", float("nan"))

@@ -67,6 +67,8 @@ import numpy as np
 
 from chaintwin.identify.calibration import INERTIA_MODEL_REL
 from chaintwin.identify.defaults import LOSS_DRIFT_REL
+from chaintwin.identify.zero_reference import ZeroReference
+from chaintwin.read.recording import RecordingWarning
 from chaintwin.weigh.drift import LossDrift
 from chaintwin.weigh.weigh import Signatures, WeighResult, reweigh
 
@@ -83,8 +85,9 @@ __all__ = [
     "known_run_drift",
 ]
 
-TRACKING_VERSION = 1
-"""Format version of :meth:`ZeroTracker.to_dict`."""
+TRACKING_VERSION = 2
+"""Format version of :meth:`ZeroTracker.to_dict` (1: rows without the offset's regressor;
+such a state loads with its warm-up rows and history dropped)."""
 
 DAY_S = 86400.0
 
@@ -128,7 +131,13 @@ HISTORY_KEEP = 30
 
 HISTORY_RECENT = 1
 """The latest recordings the history also checks on their own (a step shows there first)."""
-"""Recordings the history pools (the most recent)."""
+
+OFFSET_PRIOR_KG = 1.0e4
+"""Prior standard uncertainty of the inertia signature's offset in operation, kg
+(weak: the known runs measure it)."""
+
+NO_REFERENCE = "zero_reference_missing"
+"""Warning code of a known run read against a calibration without a reference zero."""
 
 WIDEN_SIGMA = 2.0
 """The history widens the allowance when its mean is this many sigmas off."""
@@ -180,13 +189,15 @@ def known_run_drift(sig: Signatures, payload_kg: float) -> tuple[float, float] |
     )
 
 
-def _difference_drift(sig: Signatures) -> tuple[float, float, float] | None:
+def _difference_drift(sig: Signatures) -> tuple[float, float, float, float] | None:
     """δ from the friction-minus-inertia difference of a recording with an unknown payload.
 
-    ``p_f − p_i = δ·(k_f − k_i) + e``. Returns ``(δ, var δ, p_i/(k_f − k_i))``,
-    the last the regressor of the inertia signature's gain error (a share of
-    the payload, which reads as δ in proportion to the payload); None
-    without an inertia signature.
+    ``p_f − p_i = δ·(k_f − k_i) + e``. Returns ``(δ, var δ, p_i/(k_f − k_i),
+    1/(k_f − k_i))``: the third is the regressor of the inertia signature's
+    gain error (a share of the payload, which reads as δ in proportion to
+    the payload), the last (1/kg) that of its offset in operation (kg: the
+    ramps of operation are not the calibration's); None without an inertia
+    signature.
     """
     if sig.inertia_kg is None or sig.inertia_var is None:
         return None
@@ -194,7 +205,7 @@ def _difference_drift(sig: Signatures) -> tuple[float, float, float] | None:
     var = (sig.friction_var + sig.inertia_var - 2.0 * sig.covariance) * sig.widen**2
     if k == 0.0 or not (var > 0.0 and math.isfinite(var)):
         return None
-    return (sig.friction_kg - sig.inertia_kg) / k, var / k**2, sig.inertia_kg / k
+    return (sig.friction_kg - sig.inertia_kg) / k, var / k**2, sig.inertia_kg / k, 1.0 / k
 
 
 def _iso(at: datetime | None) -> str | None:
@@ -232,9 +243,14 @@ def _fit(
     return beta, cov
 
 
-def _corrected(rows: list[list[float]], gain: float, gain_var: float) -> list[list[float]]:
-    """History rows ``[δ, var, p_i/k]`` as ``[δ, var]`` with the gain error taken out."""
-    return [[d - gain * pk, v + pk * pk * gain_var] for d, v, pk in rows]
+def _corrected(rows: list[list[float]], beta: np.ndarray, cov: np.ndarray) -> list[list[float]]:
+    """History rows ``[δ, var, p_i/k, 1/k]`` as ``[δ, var]`` with the inertia signature's
+    gain error and offset (``beta``, covariance ``cov``) taken out."""
+    out = []
+    for d, v, pk, ik in rows:
+        x = np.array([pk, ik])
+        out.append([d - float(x @ beta), v + float(x @ cov @ x)])
+    return out
 
 
 def _weighted_mean(rows: list[list[float]]) -> tuple[float, float] | None:
@@ -269,12 +285,17 @@ class ZeroTracker:
     innovations : list of float
         Normalised squared innovations of the recent known runs, 1.
     warm : list of list of float
-        ``[x, p_i/k, r, var r]`` of recent recordings: the warm-up regressor,
-        the gain error's regressor, the difference's δ minus the prediction,
-        and its variance.
+        ``[x, p_i/k, 1/k, r, var r]`` of recent recordings: the warm-up
+        regressor, the regressors of the inertia signature's gain error and
+        offset, the difference's δ minus the prediction (for a known run:
+        minus what it read), and its variance.
     history : list of list of float
-        ``[δ, var δ, p_i/k]`` of the recordings' signature differences since
-        the last known run (all recent ones without known runs), oldest first.
+        ``[δ, var δ, p_i/k, 1/k]`` of the recordings' signature differences
+        since the last known run (all recent ones without known runs),
+        oldest first.
+    reference_var : float
+        Variance of the reference zero the last known run was read against
+        (its fit and the calibration model's error there), 1.
     """
 
     at: str | None = None
@@ -283,6 +304,7 @@ class ZeroTracker:
     innovations: list[float] = field(default_factory=list)
     warm: list[list[float]] = field(default_factory=list)
     history: list[list[float]] = field(default_factory=list)
+    reference_var: float = 0.0
 
     @property
     def noise_scale(self) -> float:
@@ -301,14 +323,17 @@ class ZeroTracker:
         p = f @ np.array(self.covariance) @ f.T + self.noise_scale * q
         return x, p
 
-    def _warm_fit(self) -> tuple[float, float, float, float]:
-        """The warm-up offset ``a`` and the inertia signature's gain error ``b``, with
-        their variances, from the priors and the recordings since known runs."""
+    def _warm_fit(self) -> tuple[float, float, np.ndarray, np.ndarray]:
+        """The warm-up offset ``a`` with its variance, and the inertia signature's gain
+        error and offset in operation with their covariance, from the priors and the
+        recordings since known runs (the known runs, at no warm-up, pin the offset)."""
         if not self.warm:
-            return 0.0, WARM_UP_REL**2, 0.0, GAIN_PRIOR**2
+            return 0.0, WARM_UP_REL**2, np.zeros(2), np.diag([GAIN_PRIOR**2, 0.0])
         rows = np.array(self.warm)
-        beta, cov = _fit(rows[:, :2], rows[:, 2], rows[:, 3], (WARM_UP_REL, GAIN_PRIOR))
-        return float(beta[0]), float(cov[0, 0]), float(beta[1]), float(cov[1, 1])
+        beta, cov = _fit(
+            rows[:, :3], rows[:, 3], rows[:, 4], (WARM_UP_REL, GAIN_PRIOR, OFFSET_PRIOR_KG)
+        )
+        return float(beta[0]), float(cov[0, 0]), beta[1:], cov[1:, 1:]
 
     def _history_fit(self) -> tuple[float, float, float, float] | None:
         """The drift and the gain error with their variances from the history alone."""
@@ -328,7 +353,13 @@ class ZeroTracker:
                 return LossDrift.unknown(), None
             c, c_var, gain, gain_var = found
             # the whole history and its most recent part: a move shows in the latter first
-            recent = _weighted_mean(_corrected(self.history[-HISTORY_MIN:], gain, gain_var))
+            recent = _weighted_mean(
+                _corrected(
+                    self.history[-HISTORY_MIN:],
+                    np.array([gain, 0.0]),
+                    np.diag([gain_var, 0.0]),
+                )
+            )
             sigma = math.sqrt(c**2 + 4.0 * c_var)
             if recent is not None:
                 sigma = max(sigma, math.sqrt(recent[0] ** 2 + 4.0 * recent[1]))
@@ -337,11 +368,11 @@ class ZeroTracker:
         if since is None or since < 0.0:
             return LossDrift.unknown(), since
         x, p = self._predict(since)
-        a, a_var, gain, gain_var = self._warm_fit()
+        a, a_var, beta, cov = self._warm_fit()
         xw = _warm(since)
         mean = float(x[0]) + a * xw
-        var = float(p[0, 0]) + xw * xw * a_var
-        corrected = _corrected(self.history, gain, gain_var)
+        var = float(p[0, 0]) + xw * xw * a_var + self.reference_var
+        corrected = _corrected(self.history, beta, cov)
         worst: tuple[float, float, float] | None = None
         for pooled in (_weighted_mean(corrected), _weighted_mean(corrected[-HISTORY_RECENT:])):
             if pooled is None:
@@ -371,15 +402,42 @@ class ZeroTracker:
         self.state = [delta / variance / info, 0.0]
         self.covariance = [[1.0 / info, 0.0], [0.0, RATE_PRIOR**2]]
 
-    def learn_known(self, sig: Signatures, payload_kg: float, at: datetime | None) -> bool:
+    def learn_known(
+        self,
+        sig: Signatures,
+        payload_kg: float,
+        at: datetime | None,
+        reference: ZeroReference | None = None,
+    ) -> bool:
         """Take a known run: the filter updates its drift and rate, and its scale learns.
 
-        Returns False when the recording tells nothing of the losses.
+        Parameters
+        ----------
+        sig : Signatures
+            The known run's signatures.
+        payload_kg : float
+            Its known payload, kg.
+        at : datetime or None
+            When it was recorded.
+        reference : ZeroReference or None
+            The calibration's reference zero: the drift is read relative to
+            what the calibration's own recordings read at this payload, with
+            their scatter as a model error (None: read as it is).
+
+        Returns
+        -------
+        bool
+            False when the recording tells nothing of the losses.
         """
         found = known_run_drift(sig, payload_kg)
         if found is None:
             return False
         delta, r = found
+        if reference is not None:
+            # the reference's error is common to every known run: it is not averaged
+            # down by the filter but carried beside it into the allowance
+            zero, self.reference_var = reference.zero(payload_kg)
+            delta = delta - zero
         since = _seconds(self.at, at)
         if self.at is None or since is None or since <= 0.0:
             # the first known run (or one whose time cannot be placed): start over
@@ -402,6 +460,13 @@ class ZeroTracker:
                 p = p - np.outer(gain, p[0, :])
                 self.state = [float(x[0]), float(x[1])]
                 self.covariance = [[float(v) for v in row] for row in 0.5 * (p + p.T)]
+        diff = _difference_drift(sig)
+        if diff is not None:
+            # the difference at a known drift and no warm-up: the inertia signature's
+            # offset and gain error in operation
+            d_diff, var_diff, pk, ik = diff
+            row = [0.0, pk, ik, d_diff - delta, var_diff + r]
+            self.warm = [*self.warm, row][-WARM_KEEP:]
         self.at = _iso(at)
         self.history = []
         return True
@@ -411,16 +476,20 @@ class ZeroTracker:
         found = _difference_drift(sig)
         if found is None:
             return
-        delta, var, pk = found
-        self.history = [*self.history, [delta, var, pk]][-HISTORY_KEEP:]
+        delta, var, pk, ik = found
+        self.history = [*self.history, [delta, var, pk, ik]][-HISTORY_KEEP:]
         since = _seconds(self.at, at)
         if self.at is not None and since is not None and since >= 0.0:
             x, p = self._predict(since)
-            row = [_warm(since), pk, delta - float(x[0]), var + float(p[0, 0])]
+            row = [_warm(since), pk, ik, delta - float(x[0]), var + float(p[0, 0])]
             self.warm = [*self.warm, row][-WARM_KEEP:]
 
     def track(
-        self, result: WeighResult, at: datetime | None, known_kg: float | None
+        self,
+        result: WeighResult,
+        at: datetime | None,
+        known_kg: float | None,
+        reference: ZeroReference | None = None,
     ) -> WeighResult:
         """The weighing combined with the tracked allowance; the tracker learns from it.
 
@@ -432,16 +501,25 @@ class ZeroTracker:
             When the recording was made.
         known_kg : float or None
             The payload known to be on the belt (metadata ``payload_kg``), kg.
+        reference : ZeroReference or None
+            The calibration's reference zero (:attr:`Calibration.zero_reference`);
+            None (a calibration written before it): a known run is read as it
+            is and its result warns that this needs a recalibration.
         """
         sig = result.signatures
         if sig is None:
             drift, since = self.allowance(at)
             return dataclasses.replace(result, loss_drift=drift, since_known_run_s=since)
         known = known_kg is not None and math.isfinite(known_kg)
-        if known and known_kg is not None and self.learn_known(sig, known_kg, at):
+        if known and known_kg is not None and self.learn_known(sig, known_kg, at, reference):
             drift, since = self.allowance(at)
             out = reweigh(result, drift)
-            return dataclasses.replace(out, since_known_run_s=since, known_run=True)
+            warnings = out.warnings
+            if reference is None:
+                warnings = (*warnings, _no_reference_warning())
+            return dataclasses.replace(
+                out, since_known_run_s=since, known_run=True, warnings=warnings
+            )
         drift, since = self.allowance(at)
         out = reweigh(result, drift)
         self.observe(sig, at)
@@ -457,31 +535,48 @@ class ZeroTracker:
             "innovations": list(self.innovations),
             "warm": [list(r) for r in self.warm],
             "history": [list(h) for h in self.history],
+            "reference_var": self.reference_var,
         }
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> ZeroTracker:
-        """Inverse of :meth:`to_dict`; KeyError, TypeError or ValueError when damaged."""
-        if int(data["version"]) != TRACKING_VERSION:
+        """Inverse of :meth:`to_dict`; KeyError, TypeError or ValueError when damaged.
+
+        A version 1 state keeps its filter; its warm-up rows and history
+        (without the offset's regressor) are dropped and learned again.
+        """
+        version = int(data["version"])
+        if version not in (1, TRACKING_VERSION):
             raise ValueError(f"zero tracking version {data['version']!r} is not supported")
         at = data["at"]
+        old = version == 1
         out = cls(
             at=None if at is None else str(at),
             state=[float(v) for v in data["state"]],
             covariance=[[float(v) for v in row] for row in data["covariance"]],
             innovations=[float(v) for v in data["innovations"]],
-            warm=[[float(v) for v in row] for row in data["warm"]],
-            history=[[float(v) for v in row] for row in data["history"]],
+            warm=[] if old else [[float(v) for v in row] for row in data["warm"]],
+            history=[] if old else [[float(v) for v in row] for row in data["history"]],
+            reference_var=0.0 if old else float(data["reference_var"]),
         )
         if out.at is not None:
             datetime.fromisoformat(out.at)
         shapes = [len(out.state) == 2, len(out.covariance) == 2]
         shapes += [len(row) == 2 for row in out.covariance]
-        shapes += [len(row) == 4 for row in out.warm] + [len(row) == 3 for row in out.history]
+        shapes += [len(row) == 5 for row in out.warm] + [len(row) == 4 for row in out.history]
         if not all(shapes):
             raise ValueError("zero tracking: a state, covariance or history row of the wrong size")
-        values = [*out.state, *out.innovations]
+        values = [*out.state, *out.innovations, out.reference_var]
         values += [v for rows in (out.covariance, out.warm, out.history) for r in rows for v in r]
         if not all(math.isfinite(v) for v in values):
             raise ValueError("zero tracking holds a value that is not a number")
         return out
+
+
+def _no_reference_warning() -> RecordingWarning:
+    return RecordingWarning(
+        NO_REFERENCE,
+        "the calibration has no reference zero (written before it): this known run's loss "
+        "drift is read as it is, and the calibration model's own error at this payload reads "
+        "as drift. Calibrate again to track the zero from known runs",
+    )

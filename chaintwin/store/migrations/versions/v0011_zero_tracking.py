@@ -27,13 +27,14 @@ branch_labels = None
 depends_on = None
 
 EMPTY: dict[str, Any] = {
-    "version": 1,
+    "version": 2,
     "at": None,
     "state": [0.0, 0.0],
     "covariance": [[0.0, 0.0], [0.0, 0.0]],
     "innovations": [],
     "warm": [],
     "history": [],
+    "reference_var": 0.0,
 }
 """An empty tracking state, as ``ZeroTracker().to_dict()`` writes it."""
 

@@ -141,6 +141,7 @@ def evaluate_sequences(
                         at,
                         payload if known else None,
                         cals[protocol].zero_reference,
+                        known_runs=with_known,
                     )
                     if known:
                         continue

@@ -228,13 +228,14 @@ STATE_SHAPE = {
     "last_recorded_at": None,
     "out_of_service": None,
     "zero_tracking": {
-        "version": 1,
+        "version": 2,
         "at": "2026-01-01T06:00:00+00:00",
         "state": [0.01, 1e-8],
         "covariance": [[1e-4, 0.0], [0.0, 1e-12]],
         "innovations": [0.5],
-        "warm": [[0.9, 0.3, -0.01, 0.002]],
-        "history": [[0.02, 0.003, 0.4]],
+        "warm": [[0.9, 0.3, 0.002, -0.01, 0.002]],
+        "history": [[0.02, 0.003, 0.4, 0.002]],
+        "reference_var": 1e-5,
     },
 }
 

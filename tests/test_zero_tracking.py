@@ -24,7 +24,7 @@ from chaintwin.identify.calibrating import calibrate
 from chaintwin.identify.calibration import Calibration
 from chaintwin.identify.defaults import LOSS_DRIFT_REL
 from chaintwin.identify.zero_reference import ZeroReference
-from chaintwin.read.profile import load_profile
+from chaintwin.read.profile import ConveyorProfile, load_profile
 from chaintwin.read.recording import Recording
 from chaintwin.read.writer import write_recording
 from chaintwin.simulate.virtual import run_virtual
@@ -35,6 +35,8 @@ from chaintwin.weigh import LossDrift, Signatures, weigh
 from chaintwin.weigh.zero_tracking import NO_REFERENCE, ZeroTracker, known_run_drift
 
 PROFILE = load_profile(REFERENCE_PROFILE)
+TRACKING = PROFILE.model_copy(update={"zero_tracking": True})
+"""The profile with zero tracking from known runs switched on (experimental, opt-in)."""
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "evaluate_fidelity.py"
 DAY0 = datetime(2030, 3, 4, 6, 0, tzinfo=UTC)
 
@@ -186,7 +188,8 @@ def test_weigh_tracks_the_known_runs_among_its_files(
     files = _write(tmp_path, recs)
     capsys.readouterr()
     # given in another order: tracked in recorded order
-    assert main(["weigh", "--calibration", str(cal_path), files[1], files[0], "--json"]) == 0
+    args = ["weigh", "--calibration", str(cal_path), files[1], files[0], "--json"]
+    assert main([*args, "--zero-tracking"]) == 0
     out = json.loads(capsys.readouterr().out)
     weighed, known = out
     assert known["known_run"] is True and weighed["known_run"] is False
@@ -217,14 +220,16 @@ def _days(first: int, last: int) -> list[Recording]:
     return out
 
 
-def _ingest(url: str, cal: Calibration, batches: list[list[str]]) -> list[dict[str, object]]:
+def _ingest(
+    url: str, cal: Calibration, batches: list[list[str]], profile: ConveyorProfile = TRACKING
+) -> list[dict[str, object]]:
     """Ingest the batches into a new store, each by a new ``Store`` (a restart)."""
     store = Store(url)
     store.put_calibration(cal)
     store.close()
     for files in batches:
         store = Store(url)
-        ingest(files, {PROFILE.id: PROFILE}, store, workers=1)
+        ingest(files, {profile.id: profile}, store, workers=1)
         store.close()
     store = Store(url)
     try:
@@ -276,8 +281,10 @@ def test_a_version_1_state_file_still_loads(
     cal_path.write_text(json.dumps(cal.to_dict()))
     files = _write(tmp_path, _days(0, 1))
     state = tmp_path / "state.json"
-    args = ["--calibration", str(cal_path), "--state", str(state), "--profile"]
-    assert main(["monitor", files[0], files[1], *args, str(REFERENCE_PROFILE)]) in (0, 1)
+    profile = tmp_path / "tracking.yaml"
+    profile.write_text(REFERENCE_PROFILE.read_text() + "\nzero_tracking: true\n")
+    args = ["--calibration", str(cal_path), "--state", str(state), "--profile", str(profile)]
+    assert main(["monitor", files[0], files[1], *args]) in (0, 1)
     data = json.loads(state.read_text())
     assert data["format_version"] == 2
     entry = data["conveyors"][PROFILE.id]
@@ -287,7 +294,7 @@ def test_a_version_1_state_file_still_loads(
     data["format_version"] = 1
     state.write_text(json.dumps(data))
     assert load_state(state)["format"] == STATE_FORMAT
-    assert main(["monitor", files[2], *args, str(REFERENCE_PROFILE)]) in (0, 1)
+    assert main(["monitor", files[2], *args]) in (0, 1)
     again = json.loads(state.read_text())
     assert again["format_version"] == 2
     assert again["conveyors"][PROFILE.id]["zero_tracking"]["at"] is None  # nothing known yet
@@ -340,7 +347,7 @@ def test_without_drift_a_known_empty_run_tracks_zero_within_its_sigma_on_random_
             for j in range(2):
                 rec = ev._run(conv, 0.0, 4050 + 100 * k + j, direction=conv.direction)
                 res = weigh(inspect_recording(rec, conv.profile), cal)
-                tracked = ZeroTracker().track(res, DAY0, 0.0, cal.zero_reference)
+                tracked = ZeroTracker().track(res, DAY0, 0.0, cal.zero_reference, known_runs=True)
                 assert tracked.known_run
                 z.append(abs(tracked.loss_drift.mean) / tracked.loss_drift.sigma)
     assert len(z) == 16
@@ -358,9 +365,9 @@ def test_a_calibration_without_a_reference_zero_loads_and_its_known_runs_warn(
     assert old.zero_reference is None
     rec = _recording(0.0, 61, DAY0, 1.0, known=True)
     res = weigh(inspect_recording(rec, PROFILE), old)
-    tracked = ZeroTracker().track(res, DAY0, 0.0, old.zero_reference)
+    tracked = ZeroTracker().track(res, DAY0, 0.0, old.zero_reference, known_runs=True)
     assert tracked.known_run and NO_REFERENCE in {w.code for w in tracked.warnings}
-    current = ZeroTracker().track(res, DAY0, 0.0, cal.zero_reference)
+    current = ZeroTracker().track(res, DAY0, 0.0, cal.zero_reference, known_runs=True)
     assert NO_REFERENCE not in {w.code for w in current.warnings}
 
 
@@ -375,3 +382,29 @@ def test_a_version_1_tracking_state_keeps_its_filter_and_relearns_its_rows() -> 
     back = ZeroTracker.from_dict(old)
     assert back.state == tracker.state and back.at == tracker.at
     assert back.warm == [] and back.history == []
+
+
+def test_by_default_known_runs_are_not_used(cal: Calibration, tmp_path: Path) -> None:
+    """Zero tracking from known runs is opt-in: without the profile's switch ingest
+    weighs a known empty run as one more recording and reports no time since it,
+    and the tracker and ``weigh`` do the same without being asked."""
+    files = _write(tmp_path, _days(0, 2))
+    off = _ingest(f"sqlite:///{tmp_path / 'off.db'}", cal, [files], PROFILE)
+    on = _ingest(f"sqlite:///{tmp_path / 'on.db'}", cal, [files], TRACKING)
+    assert len(off) == len(on) == 8
+    assert all(r["since_known_run_s"] is None for r in off)
+    assert all(isinstance(r["loss_drift"], dict) for r in off)
+    assert any(r["since_known_run_s"] is not None for r in on)
+    # the history alone: centred on the calibration's losses, while the known runs
+    # (at +3 % and more) move the tracked drift
+    for r in off:
+        drift = r["loss_drift"]
+        assert isinstance(drift, dict) and drift["mean"] == 0.0
+        assert 0.0 < drift["sigma"] <= LOSS_DRIFT_REL
+    assert any(isinstance(r["loss_drift"], dict) and r["loss_drift"]["mean"] > 0.01 for r in on)
+    rec = _recording(0.0, 71, DAY0, 1.07, known=True)
+    w = weigh(inspect_recording(rec, PROFILE), cal)
+    tracker = ZeroTracker()
+    default = tracker.track(w, DAY0, 0.0, cal.zero_reference)
+    assert not default.known_run and default.since_known_run_s is None
+    assert tracker.at is None

@@ -490,13 +490,15 @@ class ConveyorMonitor:
                 text if text.startswith(recording.source) else f"{recording.source}: {text}"
             )
             return base
-        # zero tracking: a known payload measures the loss drift, the others are
+        # zero tracking: the history narrows the loss-drift allowance; with the profile's
+        # (experimental) zero_tracking a known payload measures the drift, the others are
         # weighed with what it can have moved since
         w = self.zero_tracking.track(
             feats.weighing,
             when,
             recording.metadata.payload_kg,
             self.calibration.zero_reference,
+            known_runs=self.profile.zero_tracking,
         )
         values = dict(feats.values)
         # usage (chaintwin.diagnose.wear): payload times belt travel, kg·m

@@ -10,6 +10,20 @@ for the friction and the inertia signature (``k`` their drift gradients,
 :attr:`~.weigh.Signatures.drift_friction_kg`), combined by generalised
 least squares with their covariance.
 
+Learning from known runs is experimental and opt-in (``known_runs`` of
+:meth:`ZeroTracker.track`; the profile's ``zero_tracking``, ``weigh
+--zero-tracking``): over simulated conveyors with every realism effect on,
+a few tracked weights were still beyond five uncertainties. By default a
+known run is one more recording of the history (below).
+
+A known run carries the calibration model's error as its reference zero
+(:mod:`chaintwin.identify.zero_reference`) measures it: the scatter of what
+the calibration's own recordings read beyond their uncertainties. The
+zero those recordings read is not subtracted: they are read in-sample, at
+the calibration's speeds and ramps, while a known run in operation reads
+the operating point's own offset, which the weighings at that point share
+(a belt scale's zero setting takes it out the same way).
+
 Between known runs the losses move on. :class:`ZeroTracker` allows for
 
 * a drift with a trend: the sequence of known runs feeds a Kalman filter
@@ -26,7 +40,10 @@ Between known runs the losses move on. :class:`ZeroTracker` allows for
   runs cannot show that difference. It is modelled as an offset
   ``a·(1 − exp(−Δt/τ))`` (τ = :data:`WARM_UP_S`) with the prior
   ``a = 0 ± WARM_UP_REL``, learned from the weighed recordings'
-  friction-minus-inertia differences over the days (each is noisy: the
+  friction-minus-inertia differences over the days, beside the inertia
+  signature's offset in operation (its ramps are not the calibration's:
+  hundreds of kg on some conveyors), which the known runs, at no warm-up,
+  pin (without that term the offset read as a warm-up of tens of per cent) (each is noisy: the
   inertia signature is weak, on most conveyors one recording tells δ only
   to ±3-15 %; pooled over many days the repeating offset shows). The
   inertia signature's gain error (a share of the payload, prior
@@ -294,8 +311,8 @@ class ZeroTracker:
         since the last known run (all recent ones without known runs),
         oldest first.
     reference_var : float
-        Variance of the reference zero the last known run was read against
-        (its fit and the calibration model's error there), 1.
+        The calibration model's error variance that the last known run carries
+        (:attr:`~chaintwin.identify.zero_reference.ZeroReference.model_sigma`), 1.
     """
 
     at: str | None = None
@@ -344,26 +361,34 @@ class ZeroTracker:
         beta, cov = _fit(x, rows[:, 0], rows[:, 1], (LOSS_DRIFT_REL, GAIN_PRIOR))
         return float(beta[0]), float(cov[0, 0]), float(beta[1]), float(cov[1, 1])
 
-    def allowance(self, at: datetime | None) -> tuple[LossDrift, float | None]:
-        """The loss drift to weigh a recording made at ``at`` with, and the time since the
-        last known run, s (None without one or when a time is unknown)."""
-        if self.at is None:
-            found = self._history_fit()
-            if found is None:
-                return LossDrift.unknown(), None
-            c, c_var, gain, gain_var = found
-            # the whole history and its most recent part: a move shows in the latter first
-            recent = _weighted_mean(
-                _corrected(
-                    self.history[-HISTORY_MIN:],
-                    np.array([gain, 0.0]),
-                    np.diag([gain_var, 0.0]),
-                )
+    def _without_known(self) -> LossDrift:
+        """The allowance from the history alone: the default narrowed where the recent
+        recordings show the losses where the calibration left them."""
+        found = self._history_fit()
+        if found is None:
+            return LossDrift.unknown()
+        c, c_var, gain, gain_var = found
+        # the whole history and its most recent part: a move shows in the latter first
+        recent = _weighted_mean(
+            _corrected(
+                self.history[-HISTORY_MIN:],
+                np.array([gain, 0.0]),
+                np.diag([gain_var, 0.0]),
             )
-            sigma = math.sqrt(c**2 + 4.0 * c_var)
-            if recent is not None:
-                sigma = max(sigma, math.sqrt(recent[0] ** 2 + 4.0 * recent[1]))
-            return LossDrift(0.0, min(max(sigma, HISTORY_FLOOR_REL), LOSS_DRIFT_REL)), None
+        )
+        sigma = math.sqrt(c**2 + 4.0 * c_var)
+        if recent is not None:
+            sigma = max(sigma, math.sqrt(recent[0] ** 2 + 4.0 * recent[1]))
+        return LossDrift(0.0, min(max(sigma, HISTORY_FLOOR_REL), LOSS_DRIFT_REL))
+
+    def allowance(
+        self, at: datetime | None, *, known_runs: bool = True
+    ) -> tuple[LossDrift, float | None]:
+        """The loss drift to weigh a recording made at ``at`` with, and the time since the
+        last known run, s (None without one, when a time is unknown, or with
+        ``known_runs`` False: the known runs learned are then not used)."""
+        if self.at is None or not known_runs:
+            return self._without_known(), None
         since = _seconds(self.at, at)
         if since is None or since < 0.0:
             return LossDrift.unknown(), since
@@ -420,9 +445,9 @@ class ZeroTracker:
         at : datetime or None
             When it was recorded.
         reference : ZeroReference or None
-            The calibration's reference zero: the drift is read relative to
-            what the calibration's own recordings read at this payload, with
-            their scatter as a model error (None: read as it is).
+            The calibration's reference zero: the scatter of what its own
+            recordings read beyond their uncertainties is the model error the
+            known run carries (None: none carried).
 
         Returns
         -------
@@ -434,10 +459,10 @@ class ZeroTracker:
             return False
         delta, r = found
         if reference is not None:
-            # the reference's error is common to every known run: it is not averaged
-            # down by the filter but carried beside it into the allowance
-            zero, self.reference_var = reference.zero(payload_kg)
-            delta = delta - zero
+            # the calibration model's error where its own recordings read it: common
+            # to every known run, so carried beside the filter into the allowance
+            # rather than averaged down by it
+            self.reference_var = reference.model_sigma**2
         since = _seconds(self.at, at)
         if self.at is None or since is None or since <= 0.0:
             # the first known run (or one whose time cannot be placed): start over
@@ -490,8 +515,16 @@ class ZeroTracker:
         at: datetime | None,
         known_kg: float | None,
         reference: ZeroReference | None = None,
+        *,
+        known_runs: bool = False,
     ) -> WeighResult:
         """The weighing combined with the tracked allowance; the tracker learns from it.
+
+        By default the allowance comes from the history alone (the recordings'
+        signature differences narrow the default where the losses stay put)
+        and a recording with a known payload is one more recording. With
+        ``known_runs`` (experimental, opt-in) a known payload measures the
+        drift and the others are weighed with what it can have moved since.
 
         Parameters
         ----------
@@ -503,14 +536,17 @@ class ZeroTracker:
             The payload known to be on the belt (metadata ``payload_kg``), kg.
         reference : ZeroReference or None
             The calibration's reference zero (:attr:`Calibration.zero_reference`);
-            None (a calibration written before it): a known run is read as it
-            is and its result warns that this needs a recalibration.
+            None (a calibration written before it): a known run is read
+            without its model error and its result warns that this needs a
+            recalibration.
+        known_runs : bool
+            Learn from recordings with a known payload (default False).
         """
         sig = result.signatures
         if sig is None:
-            drift, since = self.allowance(at)
+            drift, since = self.allowance(at, known_runs=known_runs)
             return dataclasses.replace(result, loss_drift=drift, since_known_run_s=since)
-        known = known_kg is not None and math.isfinite(known_kg)
+        known = known_runs and known_kg is not None and math.isfinite(known_kg)
         if known and known_kg is not None and self.learn_known(sig, known_kg, at, reference):
             drift, since = self.allowance(at)
             out = reweigh(result, drift)
@@ -520,7 +556,7 @@ class ZeroTracker:
             return dataclasses.replace(
                 out, since_known_run_s=since, known_run=True, warnings=warnings
             )
-        drift, since = self.allowance(at)
+        drift, since = self.allowance(at, known_runs=known_runs)
         out = reweigh(result, drift)
         self.observe(sig, at)
         return dataclasses.replace(out, since_known_run_s=since)
@@ -577,6 +613,6 @@ def _no_reference_warning() -> RecordingWarning:
     return RecordingWarning(
         NO_REFERENCE,
         "the calibration has no reference zero (written before it): this known run's loss "
-        "drift is read as it is, and the calibration model's own error at this payload reads "
-        "as drift. Calibrate again to track the zero from known runs",
+        "drift carries no allowance for the calibration model's own error. Calibrate again "
+        "to track the zero from known runs",
     )

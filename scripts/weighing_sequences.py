@@ -18,7 +18,8 @@ conditions scale the gear losses by ``1 + δ(t)``:
 
 Each condition is weighed twice with the same recordings: without known runs
 (``known = no``) and with one known empty run a day at shift start (06:00,
-``payload_kg: 0``; known runs are not scored). Weighing goes through
+``payload_kg: 0``; known runs are not scored; ``known = yes`` is the opt-in
+path, ``known_runs`` of ``ZeroTracker.track``). Weighing goes through
 :class:`chaintwin.weigh.zero_tracking.ZeroTracker`, the code ingest and the
 live service run on every recording (``ConveyorMonitor``), in recorded order,
 under each calibration protocol. Each row also carries the weight with the

@@ -5,7 +5,7 @@ Run::
 
     OPENBLAS_NUM_THREADS=1 python scripts/evaluate_fidelity.py weighing \
         [--conveyors 30] [--seed 20261125] [--seeds 1] \
-        [--json docs/evaluation/fidelity-weighing.json] [--markdown table.md]
+        [--json docs/evaluation/fidelity-weighing.json] [--markdown table.md] [--sequences]
 
 (about 20 s for 30 conveyors on one idle core; ``--seeds N`` draws the
 conveyors N times, seeds SEED to SEED+N-1, and pools them; the per-conveyor
@@ -687,9 +687,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--only", nargs="*", default=None, help="monitoring: fault types (or healthy) to run"
     )
+    parser.add_argument(
+        "--sequences",
+        action="store_true",
+        help="weighing: zero-tracking sequences (scripts/weighing_sequences.py) instead",
+    )
     args = parser.parse_args(argv)
     args.json = args.json or EVALUATION / f"fidelity-{args.what}.json"
     args.json.parent.mkdir(parents=True, exist_ok=True)
+    if args.sequences:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        from weighing_sequences import run_sequences
+
+        found = run_sequences(args, draw_conveyor, calibration_runs, _run)
+        args.json.write_text(json.dumps(json_ready(found), indent=1, allow_nan=False))
+        if args.markdown is not None:
+            args.markdown.write_text(found["markdown"])
+        return 0
     if args.what == "monitoring":
         sys.path.insert(0, str(Path(__file__).resolve().parent))
         from fidelity_monitoring import run_seeds

@@ -29,6 +29,7 @@ from chaintwin.read.columns import load_column_map
 from chaintwin.read.files import yaml_load
 from chaintwin.read.profile import load_profile, parse_profile
 from chaintwin.store.store import Store
+from chaintwin.weigh.zero_tracking import ZeroTracker
 
 FUZZ = settings(
     max_examples=150,
@@ -227,6 +228,16 @@ STATE_SHAPE = {
     "notes": [],
     "last_recorded_at": None,
     "out_of_service": None,
+    "zero_tracking": {
+        "version": 2,
+        "at": "2026-01-01T06:00:00+00:00",
+        "state": [0.01, 1e-8],
+        "covariance": [[1e-4, 0.0], [0.0, 1e-12]],
+        "innovations": [0.5],
+        "warm": [[0.9, 0.3, 0.002, -0.01, 0.002]],
+        "history": [[0.02, 0.003, 0.4, 0.002]],
+        "reference_var": 1e-5,
+    },
 }
 
 
@@ -237,10 +248,13 @@ def test_the_state_shape_is_a_valid_state() -> None:
     old = json.loads(json.dumps(STATE_SHAPE))
     del old["settings"]["residual"]
     del old["out_of_service"]
+    del old["zero_tracking"]
     lifecycle = ("lifecycle", "evidence", "active", "shelved_until", "shelved")
     for key in ("rule", "kind", *lifecycle, "out_of_service", "out_of_service_until", "comments"):
         del old["alarms"][0][key]
-    assert MonitorState.from_dict(old).to_dict() == STATE_SHAPE
+    assert MonitorState.from_dict(old).to_dict() == STATE_SHAPE | {
+        "zero_tracking": ZeroTracker().to_dict()
+    }
 
 
 @FUZZ

@@ -28,6 +28,7 @@ from chaintwin.identify.calibration import (
 from chaintwin.identify.channels import choose_channel, measure_spreads, on_channel
 from chaintwin.identify.regression import RigidModelRegression, speed_clusters
 from chaintwin.identify.torque_lag import identify_torque_lag
+from chaintwin.identify.zero_reference import ZeroReference
 from chaintwin.model.rigid import PARAMETER_NAMES, RigidParameters
 from chaintwin.model.windows import window_integrals
 from chaintwin.read.files import read_limited
@@ -444,6 +445,44 @@ def calibrate(
     CalibrationError
         When ``friction_drift`` is not a share in [0, 1].
     """
+    cal = _calibrate_channels(
+        recordings, profile, estimator=estimator, version=version, friction_drift=friction_drift
+    )
+    return replace(cal, zero_reference=_zero_reference(cal, recordings))
+
+
+def _zero_reference(cal: Calibration, recordings: Sequence[Recording]) -> ZeroReference:
+    """The loss drift each calibration recording reads at its known payload with the
+    calibration (:mod:`chaintwin.identify.zero_reference`)."""
+    from chaintwin.validate.checks import inspect_recording
+    from chaintwin.weigh.drift import LossDrift
+    from chaintwin.weigh.weigh import weigh
+    from chaintwin.weigh.zero_tracking import known_run_drift
+
+    readings: list[tuple[float, float, float]] = []
+    for rec in recordings:
+        payload = rec.metadata.payload_kg
+        if payload is None:
+            continue
+        try:
+            res = weigh(inspect_recording(rec, cal.profile), cal, loss_drift=LossDrift.unknown())
+        except ChaintwinError:
+            continue
+        found = None if res.signatures is None else known_run_drift(res.signatures, payload)
+        if found is not None and math.isfinite(found[0]) and found[1] > 0.0:
+            readings.append((float(payload), found[0], found[1]))
+    return ZeroReference(tuple(readings))
+
+
+def _calibrate_channels(
+    recordings: Sequence[Recording],
+    profile: ConveyorProfile,
+    *,
+    estimator: RigidModelRegression | None,
+    version: str,
+    friction_drift: float,
+) -> Calibration:
+    """:func:`calibrate` without the reference zero: on the torque channel the data chose."""
     cal, est = _calibrate_on(
         recordings, profile, estimator=estimator, version=version, friction_drift=friction_drift
     )

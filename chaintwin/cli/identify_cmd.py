@@ -28,10 +28,12 @@ from chaintwin.identify.defaults import DEFAULT_FORGETTING, DEFAULT_HOLD_FIRST, 
 
 if TYPE_CHECKING:
     from chaintwin.identify.calibration import Calibration
+    from chaintwin.identify.zero_reference import ZeroReference
     from chaintwin.read.columns import ColumnMap
     from chaintwin.read.profile import ConveyorProfile
-    from chaintwin.read.recording import Recording
+    from chaintwin.read.recording import Metadata, Recording
     from chaintwin.validate.checks import Inspection
+    from chaintwin.weigh.weigh import WeighResult
 
 
 __all__ = ["identify_dict", "register"]
@@ -362,6 +364,18 @@ def register(app: typer.Typer) -> None:
                 "calibration warns `friction_unchecked` (e.g. 0.1).",
             ),
         ] = None,
+        zero_tracking: Annotated[
+            bool | None,
+            typer.Option(
+                "--zero-tracking/--no-zero-tracking",
+                help="Experimental: track the loss drift over the files in recorded order: a "
+                "recording with a known payload (metadata payload_kg, e.g. an empty run at "
+                "shift start) measures it, the others are weighed with what it can have moved "
+                "since (loss_drift, since_known_run_s); it then replaces --loss-drift. Off by "
+                "default: on simulated fleets its weights were not yet as honest as the "
+                "blanket allowance's.",
+            ),
+        ] = None,
     ) -> None:
         """Weigh the payload of each recording from torque alone, with an uncertainty.
 
@@ -378,14 +392,13 @@ def register(app: typer.Typer) -> None:
         drift = LossDrift(0.0, loss_drift)
         cmap = load_column_map(columns) if columns is not None else None
         results: list[dict[str, Any]] = []
+        weighed: dict[int, tuple[WeighResult, Metadata]] = {}
         for f in expand_recordings(files):
             try:
                 ins = _inspect(f, cal.profile, cmap)
-                results.append(
-                    weigh(
-                        ins, cal, source=f, loss_drift=drift, friction_drift=friction_drift
-                    ).to_dict()
-                )
+                res = weigh(ins, cal, source=f, loss_drift=drift, friction_drift=friction_drift)
+                weighed[len(results)] = (res, ins.recording.metadata)
+                results.append(res.to_dict())
             except EstimationError as exc:
                 message = error_message(exc)
                 if not message.startswith(f):
@@ -393,6 +406,9 @@ def register(app: typer.Typer) -> None:
                 results.append({"file": f, "error": message})
             except ChaintwinError as exc:
                 results.append({"file": f, "error": error_message(exc)})
+        if zero_tracking:
+            for k, res in track_in_order(weighed, cal.zero_reference).items():
+                results[k] = res.to_dict()
         if as_json:
             print_json(results)
             # the summary beside the JSON, so that the list stays one document
@@ -428,6 +444,33 @@ def register(app: typer.Typer) -> None:
             console.print(_weigh_summary(results), highlight=False)
         if any("error" in r for r in results):
             raise typer.Exit(2)
+
+
+def track_in_order(
+    weighed: dict[int, tuple[WeighResult, Metadata]],
+    reference: ZeroReference | None,
+) -> dict[int, WeighResult]:
+    """Each weighing combined with the zero-tracked loss drift, fed in recorded order.
+
+    Recordings without a time keep their place among the given order; known
+    runs are read relative to the calibration's ``reference`` zero.
+    """
+    from chaintwin.weigh.zero_tracking import ZeroTracker
+
+    tracker = ZeroTracker()
+    order = sorted(weighed)
+    if all(weighed[k][1].recorded_at is not None for k in order):
+        order.sort(key=lambda k: (weighed[k][1].recorded_at, k))
+    return {
+        k: tracker.track(
+            weighed[k][0],
+            weighed[k][1].recorded_at,
+            weighed[k][1].payload_kg,
+            reference,
+            known_runs=True,
+        )
+        for k in order
+    }
 
 
 def _weigh_summary(results: list[dict[str, Any]]) -> str:

@@ -94,7 +94,8 @@ def learn_calibration(
         "from their inertia and the profile's datasheet inertia; payloads are offset by that "
         "inertia's error, features are compared with this conveyor's own baseline",
     )
-    cal = dataclasses.replace(cal, case="learned", method=LEARNED_METHOD)
+    # its payloads are estimates: no reference zero for known runs to be read against
+    cal = dataclasses.replace(cal, case="learned", method=LEARNED_METHOD, zero_reference=None)
     weak = RecordingWarning("calibration_weak", cal.recommendation() or "")
     kept = tuple(w for w in cal.warnings if w.code != "calibration_weak")
     return dataclasses.replace(cal, warnings=(*kept, note, weak))

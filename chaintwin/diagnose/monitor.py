@@ -47,6 +47,7 @@ from chaintwin.weigh.tlf import (
     transport_loss_factor,
 )
 from chaintwin.weigh.weigh import WeighResult, reweigh
+from chaintwin.weigh.zero_tracking import ZeroTracker
 
 from . import alarms, baseline, monitor_state
 from .alarm_actions import out_of_service_at
@@ -140,6 +141,9 @@ class ConveyorMonitor:
         self.events: list[Event] = []
         # the conveyor out of service (by, why, from, until: :mod:`.alarm_actions`) or None
         self.out_of_service: dict[str, Any] | None = None
+        self.zero_tracking = ZeroTracker()
+        """The loss-drift allowance tracked from known runs
+        (:mod:`chaintwin.weigh.zero_tracking`)."""
         self.history: list[dict[str, Any]] = []
         self.processed: dict[str, int] = {}
         self.last_recorded_at: str | None = None
@@ -486,7 +490,16 @@ class ConveyorMonitor:
                 text if text.startswith(recording.source) else f"{recording.source}: {text}"
             )
             return base
-        w = feats.weighing
+        # zero tracking: the history narrows the loss-drift allowance; with the profile's
+        # (experimental) zero_tracking a known payload measures the drift, the others are
+        # weighed with what it can have moved since
+        w = self.zero_tracking.track(
+            feats.weighing,
+            when,
+            recording.metadata.payload_kg,
+            self.calibration.zero_reference,
+            known_runs=self.profile.zero_tracking,
+        )
         values = dict(feats.values)
         # usage (chaintwin.diagnose.wear): payload times belt travel, kg·m
         payload = values.get("payload_kg", float("nan"))
@@ -673,6 +686,8 @@ class ConveyorMonitor:
             )
         base.payload_kg = finite_or_none(w.payload_kg)
         base.uncertainty_kg = finite_or_none(w.uncertainty_kg)
+        base.loss_drift = w.loss_drift.to_dict()
+        base.since_known_run_s = w.since_known_run_s
         base.tlf = finite_or_none(w.tlf)
         base.tlf_motor_shaft = finite_or_none(w.tlf_motor_shaft)
         base.impacts = [i.to_dict() for i in feats.impacts]

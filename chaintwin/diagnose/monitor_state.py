@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 from chaintwin.errors import ChaintwinError, StoreError
 from chaintwin.identify.calibration import Calibration
 from chaintwin.read.recording import Recording, RecordingWarning
+from chaintwin.weigh.zero_tracking import ZeroTracker
 
 from . import baseline
 from .alarms import group_by_cause
@@ -99,6 +100,7 @@ class MonitorState:
     notes: list[dict[str, str]] = field(default_factory=list)
     last_recorded_at: str | None = None
     out_of_service: dict[str, Any] | None = None
+    zero_tracking: ZeroTracker = field(default_factory=ZeroTracker)
     version: int = STATE_VERSION
 
     def to_dict(self) -> dict[str, Any]:
@@ -133,6 +135,7 @@ class MonitorState:
             "notes": self.notes,
             "last_recorded_at": self.last_recorded_at,
             "out_of_service": self.out_of_service,
+            "zero_tracking": self.zero_tracking.to_dict(),
         }
 
     @classmethod
@@ -187,6 +190,8 @@ class MonitorState:
                 last_recorded_at=data["last_recorded_at"],
                 # states kept before conveyors could be out of service have none
                 out_of_service=_window(data.get("out_of_service")),
+                # states kept before zero tracking have none: nothing known yet
+                zero_tracking=_tracking(data.get("zero_tracking")),
             )
         except ChaintwinError as exc:
             raise StoreError(f"{source}: monitoring state is damaged ({exc})") from None
@@ -205,6 +210,15 @@ def _window(data: Any) -> dict[str, Any] | None:
     if not isinstance(data, dict) or not isinstance(data.get("from"), str):
         raise ValueError(f"out_of_service {data!r} is not a window with 'from'")
     return {k: data.get(k) for k in ("by", "why", "from", "until")}
+
+
+def _tracking(data: Any) -> ZeroTracker:
+    """The zero-tracking state as stored, checked; a new one when absent."""
+    if data is None:
+        return ZeroTracker()
+    if not isinstance(data, dict):
+        raise ValueError(f"zero_tracking {data!r} is not an object")
+    return ZeroTracker.from_dict(data)
 
 
 LEARNED: tuple[str, ...] = (
@@ -226,6 +240,7 @@ LEARNED: tuple[str, ...] = (
     "notes",
     "last_recorded_at",
     "out_of_service",
+    "zero_tracking",
 )
 """Attributes a monitor and its :class:`MonitorState` share by name (copied as they are)."""
 

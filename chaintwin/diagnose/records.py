@@ -147,6 +147,10 @@ class RecordingResult:
     """Torque impacts of the recording (:mod:`chaintwin.diagnose.impacts`)."""
     tlf_motor_shaft: float | None = None
     """Transport loss factor from the work at the motor shaft (the published definition)."""
+    loss_drift: dict[str, float] | None = None
+    """The relative loss drift the payload was weighed with: ``{mean, sigma}``."""
+    since_known_run_s: float | None = None
+    """Time since the conveyor's last recording with a known payload, s (zero tracking)."""
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready; a refused recording gives ``file`` and ``error`` only."""
@@ -167,6 +171,8 @@ class RecordingResult:
             "features": self.features,
             "exceeded": self.exceeded,
             "impacts": self.impacts,
+            "loss_drift": self.loss_drift,
+            "since_known_run_s": self.since_known_run_s,
         }
 
     @classmethod

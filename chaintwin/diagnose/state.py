@@ -2,8 +2,13 @@
 
 One JSON object::
 
-    {"format": "chaintwin.monitor-state", "format_version": 1,
+    {"format": "chaintwin.monitor-state", "format_version": 2,
      "conveyors": {"<id>": <MonitorState.to_dict()>, ...}}
+
+Version 2 adds each conveyor's ``zero_tracking`` (the loss-drift allowance
+tracked from known runs, :mod:`chaintwin.weigh.zero_tracking`); a version 1
+file still loads (its conveyors start with nothing tracked) and is written
+back as version 2.
 
 Unknown numbers (NaN) are written as null. It is written atomically (a
 temporary file, then a rename), so a run that fails or is killed leaves the
@@ -31,6 +36,7 @@ from .records import Acknowledgement, Alarm, Event, date_out_of_span, parse_time
 
 __all__ = [
     "MAINTENANCE_KINDS",
+    "READABLE_VERSIONS",
     "STATE_FORMAT",
     "STATE_VERSION",
     "acknowledge_alarm",
@@ -44,7 +50,9 @@ __all__ = [
 ]
 
 STATE_FORMAT = "chaintwin.monitor-state"
-STATE_VERSION = 1
+STATE_VERSION = 2
+READABLE_VERSIONS: tuple[int, ...] = (1, STATE_VERSION)
+"""State format versions this chaintwin reads (1: before zero tracking)."""
 
 MAINTENANCE_KINDS: tuple[str, ...] = (
     "repair",
@@ -90,11 +98,13 @@ def load_state(path: str | Path, *, missing_ok: bool = True) -> dict[str, Any]:
     refuse_huge_integers(data, str(p), StoreError, "monitoring state")
     if not isinstance(data, dict) or data.get("format") != STATE_FORMAT:
         raise StoreError(f"{p}: not a chaintwin monitoring state (no 'format: {STATE_FORMAT}')")
-    if data.get("format_version") != STATE_VERSION:
+    version = data.get("format_version")
+    if isinstance(version, bool) or version not in READABLE_VERSIONS:
         raise StoreError(
-            f"{p}: state format version {data.get('format_version')!r} is not supported "
-            f"(this chaintwin reads version {STATE_VERSION})"
+            f"{p}: state format version {version!r} is not supported "
+            f"(this chaintwin reads versions {', '.join(map(str, READABLE_VERSIONS))})"
         )
+    data["format_version"] = STATE_VERSION
     if not isinstance(data.get("conveyors"), dict):
         raise StoreError(f"{p}: the state has no 'conveyors' object; start a new state file")
     return data

@@ -48,6 +48,7 @@ import numpy as np
 from chaintwin.errors import CalibrationError
 from chaintwin.identify.channels import TORQUE_CHANNELS, ChannelSpreads
 from chaintwin.identify.regression import speed_clusters
+from chaintwin.identify.zero_reference import ZeroReference
 from chaintwin.model.rigid import (
     PARAMETER_NAMES,
     RigidParameters,
@@ -157,6 +158,11 @@ class Calibration:
     ramp_noise_rate : float
         How well whole-ramp windows fit on this conveyor: residual variance
         per second of window, (N·m·s)²/s; weighing weights them with it.
+    zero_reference : ZeroReference or None
+        What the calibration's own recordings read as loss drift at their
+        known payloads (the reference zero of zero tracking,
+        :mod:`chaintwin.identify.zero_reference`); None in files written
+        before it (zero tracking from known runs then needs a recalibration).
     warnings : tuple of RecordingWarning
         What the calibration found questionable.
     method : str
@@ -183,6 +189,7 @@ class Calibration:
     channel_spreads: ChannelSpreads | None = None
     actual_torque: Calibration | None = None
     ramp_noise_rate: float = float("nan")
+    zero_reference: ZeroReference | None = None
     warnings: tuple[RecordingWarning, ...] = ()
     method: str = "windowed least squares of the rigid model (integral form)"
     created_at: str = field(default_factory=lambda: datetime.now(UTC).isoformat())
@@ -309,6 +316,9 @@ class Calibration:
                 "offset_sigma_kg": self.inertia_offset_sigma_kg,
                 "ramp_noise_rate": self.ramp_noise_rate,
             },
+            "zero_reference": None
+            if self.zero_reference is None
+            else self.zero_reference.to_dict(),
             "warnings": [w.to_dict() for w in self.warnings],
         }
 
@@ -382,6 +392,9 @@ class Calibration:
                 actual_torque=None
                 if data.get("actual_torque") is None
                 else cls.from_dict(data["actual_torque"], f"{source}: actual_torque"),
+                zero_reference=None
+                if data.get("zero_reference") is None
+                else ZeroReference.from_dict(data["zero_reference"]),
                 warnings=tuple(
                     RecordingWarning(str(w["code"]), str(w["message"]))
                     for w in data.get("warnings", [])

@@ -269,6 +269,10 @@ class ConveyorProfile(_Spec):
         None
     )
     """Expected change per t·km of usage per monitored feature, its units per t·km (optional)."""
+    zero_tracking: Annotated[bool, Field(strict=True)] = False
+    """Experimental: ingest, monitor and the live service track the gear losses' drift from
+    known runs (recordings with metadata ``payload_kg``, :mod:`chaintwin.weigh.zero_tracking`);
+    off by default (the history alone then narrows the loss-drift allowance)."""
 
     # ---------------------------------------------------------------- derived
     @property
@@ -384,6 +388,8 @@ class ConveyorProfile(_Spec):
             data.pop("expected_wear", None)
         if data["belt"].get("tension_n") is None:
             data["belt"].pop("tension_n", None)
+        if data.get("zero_tracking") is False:
+            data.pop("zero_tracking", None)
         model = data.get("model")
         if isinstance(model, dict):
             for name, default in ModelSpec.LATER_FIELDS.items():

@@ -87,7 +87,9 @@ class Metadata:
     increments_per_rev : float or None
         Encoder increments per motor revolution (for ``inc`` positions).
     payload_kg : float or None
-        A known reference load, kg: only on calibration recordings.
+        A known load on the belt, kg: on calibration recordings, and on
+        recordings in operation with a known payload (zero tracking,
+        :mod:`chaintwin.weigh.zero_tracking`).
     tray_kg : float or None
         Tray mass, kg; overrides the profile's ``tray_mass_kg``.
     extra : Mapping[str, str]

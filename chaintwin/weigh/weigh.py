@@ -372,6 +372,12 @@ class WeighResult:
         The two signatures before they were combined (for :func:`reweigh`).
     loss_drift : LossDrift
         The loss drift the friction signature was corrected for.
+    since_known_run_s : float or None
+        With zero tracking (:mod:`chaintwin.weigh.zero_tracking`): the time
+        since the conveyor's last recording with a known payload, s (None
+        without one, or when a recording time is unknown).
+    known_run : bool
+        True for a recording with a known payload that zero tracking learned from.
     """
 
     file: str
@@ -388,6 +394,8 @@ class WeighResult:
     tlf_motor_shaft: float | None = None
     signatures: Signatures | None = None
     loss_drift: LossDrift = field(default_factory=LossDrift.unknown)
+    since_known_run_s: float | None = None
+    known_run: bool = False
 
     @property
     def friction_checked_rel(self) -> float | None:
@@ -433,6 +441,9 @@ class WeighResult:
             "inertia_uncertainty_kg": self.inertia_uncertainty_kg,
             "friction_checked_rel": self.friction_checked_rel,
             "friction_10pct_kg": self.friction_10pct_kg,
+            "loss_drift": self.loss_drift.to_dict(),
+            "since_known_run_s": self.since_known_run_s,
+            "known_run": self.known_run,
         }
 
 

@@ -40,6 +40,25 @@ def _differences(want: object, got: object, where: str = "") -> list[str]:
     return [] if typed(want) == typed(got) else [f"{where}: {want!r} expected, {got!r} given"]
 
 
+def _changed_on_purpose(answer: object) -> object:
+    """An answer of the fixture with what changed on purpose since it was captured.
+
+    * the store's revision is the newest one (``GET /api/v1/health``);
+    * a profile has ``zero_tracking`` (false unless the profile switches on
+      zero tracking from known runs; the fixture's profiles do not).
+    """
+    if isinstance(answer, dict):
+        body = answer.get("json")
+        if isinstance(body, dict):
+            store = body.get("store")
+            if isinstance(store, dict) and "revision" in store:
+                store["revision"] = migrate.HEAD_REVISION
+            profile = body.get("profile")
+            if isinstance(profile, dict):
+                profile.setdefault("zero_tracking", False)
+    return answer
+
+
 def test_every_endpoint_answers_as_before(tmp_path: Path) -> None:
     store_file = tmp_path / "store.sqlite"
     shutil.copyfile(STORE, store_file)
@@ -48,7 +67,7 @@ def test_every_endpoint_answers_as_before(tmp_path: Path) -> None:
         migrate.upgrade(engine)  # a store of an older revision, as a user's would be
     finally:
         engine.dispose()
-    want = json.loads(ANSWERS.read_text())
+    want = {k: _changed_on_purpose(a) for k, a in json.loads(ANSWERS.read_text()).items()}
     tokens = json.loads(TOKENS.read_text())
     got = served(store_file, tokens, None, create_app, Store, load_profile)
     assert sorted(got) == sorted(want), "the requests changed: run tests/api_golden.py again"

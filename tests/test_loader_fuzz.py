@@ -238,6 +238,19 @@ STATE_SHAPE = {
         "history": [[0.02, 0.003, 0.4, 0.002]],
         "reference_var": 1e-5,
     },
+    "zero_tracking_undo": {
+        "sha256": "ab" * 32,
+        "before": {
+            "version": 2,
+            "at": None,
+            "state": [0.0, 0.0],
+            "covariance": [[0.0, 0.0], [0.0, 0.0]],
+            "innovations": [],
+            "warm": [],
+            "history": [],
+            "reference_var": 0.0,
+        },
+    },
 }
 
 
@@ -248,12 +261,13 @@ def test_the_state_shape_is_a_valid_state() -> None:
     old = json.loads(json.dumps(STATE_SHAPE))
     del old["settings"]["residual"]
     del old["out_of_service"]
-    del old["zero_tracking"]
+    del old["zero_tracking"], old["zero_tracking_undo"]
     lifecycle = ("lifecycle", "evidence", "active", "shelved_until", "shelved")
     for key in ("rule", "kind", *lifecycle, "out_of_service", "out_of_service_until", "comments"):
         del old["alarms"][0][key]
     assert MonitorState.from_dict(old).to_dict() == STATE_SHAPE | {
-        "zero_tracking": ZeroTracker().to_dict()
+        "zero_tracking": ZeroTracker().to_dict(),
+        "zero_tracking_undo": None,
     }
 
 

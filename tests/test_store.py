@@ -779,9 +779,18 @@ def test_a_long_ingest_keeps_only_the_stored_history_in_memory(
     plant: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Memory stays flat over a long batch, and the results stay the same."""
+    import chaintwin.diagnose.monitor as monitor_module
     import chaintwin.ingest.pipeline as ingest_module
+    from chaintwin.diagnose.impacts import POOL
     from chaintwin.diagnose.monitor import ConveyorMonitor
+    from chaintwin.store.store import HISTORY_IN_STATE
 
+    # monitoring reads the latest POOL - 1 results (the knocks pooled over them): the
+    # stored history holds at least that many, so a new ingest reads back what it needs
+    assert HISTORY_IN_STATE >= POOL
+    # here the pool is 5 recordings, so that a cap of 4 results shows the batch's results
+    # do not depend on the results dropped from memory
+    monkeypatch.setattr(monitor_module, "POOL", 5)
     files = _recordings(plant)
     settings = MonitorSettings(baseline_n=5)
 

@@ -144,6 +144,9 @@ class ConveyorMonitor:
         self.zero_tracking = ZeroTracker()
         """The loss-drift allowance tracked from known runs
         (:mod:`chaintwin.weigh.zero_tracking`)."""
+        self.zero_tracking_undo: dict[str, Any] | None = None
+        """The tracker as it was before the latest recording (``sha256``, ``before``), so
+        that a superseded latest recording is taken back from it too."""
         self.history: list[dict[str, Any]] = []
         self.processed: dict[str, int] = {}
         self.last_recorded_at: str | None = None
@@ -249,6 +252,10 @@ class ConveyorMonitor:
             entry = self.history.pop(k)
             if k == len(self.history):
                 self._unmark(entry)
+                undo = self.zero_tracking_undo
+                if undo is not None and undo.get("sha256") == sha:
+                    self.zero_tracking = ZeroTracker.from_dict(undo["before"])
+                    self.zero_tracking_undo = None
             else:
                 whole = False
             self.processed = {h["sha256"]: n for n, h in enumerate(self.history) if h.get("sha256")}
@@ -493,6 +500,7 @@ class ConveyorMonitor:
         # zero tracking: the history narrows the loss-drift allowance; with the profile's
         # (experimental) zero_tracking a known payload measures the drift, the others are
         # weighed with what it can have moved since
+        self.zero_tracking_undo = {"sha256": sha256, "before": self.zero_tracking.to_dict()}
         w = self.zero_tracking.track(
             feats.weighing,
             when,

@@ -101,6 +101,7 @@ class MonitorState:
     last_recorded_at: str | None = None
     out_of_service: dict[str, Any] | None = None
     zero_tracking: ZeroTracker = field(default_factory=ZeroTracker)
+    zero_tracking_undo: dict[str, Any] | None = None
     version: int = STATE_VERSION
 
     def to_dict(self) -> dict[str, Any]:
@@ -136,6 +137,7 @@ class MonitorState:
             "last_recorded_at": self.last_recorded_at,
             "out_of_service": self.out_of_service,
             "zero_tracking": self.zero_tracking.to_dict(),
+            "zero_tracking_undo": self.zero_tracking_undo,
         }
 
     @classmethod
@@ -192,6 +194,7 @@ class MonitorState:
                 out_of_service=_window(data.get("out_of_service")),
                 # states kept before zero tracking have none: nothing known yet
                 zero_tracking=_tracking(data.get("zero_tracking")),
+                zero_tracking_undo=_tracking_undo(data.get("zero_tracking_undo")),
             )
         except ChaintwinError as exc:
             raise StoreError(f"{source}: monitoring state is damaged ({exc})") from None
@@ -221,6 +224,16 @@ def _tracking(data: Any) -> ZeroTracker:
     return ZeroTracker.from_dict(data)
 
 
+def _tracking_undo(data: Any) -> dict[str, Any] | None:
+    """The tracker before the latest recording as stored, checked; None when absent."""
+    if data is None:
+        return None
+    if not isinstance(data, dict) or not isinstance(data.get("before"), dict):
+        raise ValueError(f"zero_tracking_undo {data!r} is not an object with 'before'")
+    ZeroTracker.from_dict(data["before"])  # damaged: refused as the state's own tracker is
+    return {"sha256": data.get("sha256"), "before": data["before"]}
+
+
 LEARNED: tuple[str, ...] = (
     "calibration",
     "calibration_source",
@@ -241,6 +254,7 @@ LEARNED: tuple[str, ...] = (
     "last_recorded_at",
     "out_of_service",
     "zero_tracking",
+    "zero_tracking_undo",
 )
 """Attributes a monitor and its :class:`MonitorState` share by name (copied as they are)."""
 

@@ -23,6 +23,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
 from chaintwin.diagnose.alarm_actions import MAX_SHELVE_MINUTES
 from chaintwin.diagnose.records import date_in_span
+from chaintwin.diagnose.state import MAINTENANCE_KINDS
 
 __all__ = [
     "AcknowledgeBody",
@@ -471,7 +472,11 @@ class AcknowledgeBody(BaseModel):
 class MaintenanceBody(BaseModel):
     """A maintenance event (the CLI's kinds)."""
 
-    kind: str = Field(min_length=1, max_length=20)
+    # the kinds are listed in the document (clients and schemathesis send only those);
+    # another kind is answered 400 with the list, as the command line says it
+    kind: str = Field(
+        min_length=1, max_length=20, json_schema_extra={"enum": list(MAINTENANCE_KINDS)}
+    )
     why: str = Field(min_length=1, max_length=2000)
     at: Annotated[
         datetime | None,

@@ -772,7 +772,11 @@ def test_sequences_of_operations_answer_as_their_schema_says(
             # 400 and says why; the schema cannot say which state an operation needs, and
             # the links the typed answers give lead to such calls: that check is left out
             # there, the others run.
-            if case.operation.path in _NEEDS_STATE.get(case.operation.method.upper(), ()):
+            # A page's cursor is opaque too: only one the service gave is accepted (a
+            # made-up one is refused with 400 and told to start again); the schema can only
+            # say it is a string, so a generated one is no valid request.
+            needs_state = case.operation.path in _NEEDS_STATE.get(case.operation.method.upper(), ())
+            if needs_state or (case.query or {}).get("cursor") is not None:
                 excluded.append(positive_data_acceptance)
             case.validate_response(
                 response, excluded_checks=excluded, recorder=self.recorder, **kwargs

@@ -159,7 +159,13 @@ def recordings(
     since: str | None = None,
     until: str | None = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-    cursor: str | None = None,
+    cursor: Annotated[
+        str | None,
+        Query(
+            description="The `next_cursor` of the page before (opaque: only one this "
+            "service gave is accepted)"
+        ),
+    ] = None,
 ) -> Response:
     """Stored results, newest first by recording time, cursor-paginated."""
     store = web_of(request).store

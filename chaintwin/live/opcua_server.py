@@ -44,12 +44,12 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from chaintwin.errors import ConnectorError, StoreError
+from chaintwin.store.queries import signature_columns
 from chaintwin.store.schema import (
     AlarmRow,
     ConveyorRow,
     DerivedHealthRow,
     MonitorStateRow,
-    ResultRow,
 )
 from chaintwin.store.store import Store
 
@@ -571,13 +571,7 @@ class ResultsServer:
     def _stamp_now(self) -> tuple[Any, ...]:
         """A few numbers that change whenever anything the server shows may have changed."""
         query = select(
-            select(func.max(ResultRow.id)).scalar_subquery(),
-            select(func.coalesce(func.sum(MonitorStateRow.version), 0)).scalar_subquery(),
-            select(func.count()).select_from(ConveyorRow).scalar_subquery(),
-            select(func.count())
-            .select_from(AlarmRow)
-            .where(AlarmRow.status != "closed")
-            .scalar_subquery(),
+            *signature_columns(),
             select(func.max(DerivedHealthRow.computed_at)).scalar_subquery(),
         )
         with self.store.engine.connect() as c:

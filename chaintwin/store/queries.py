@@ -35,6 +35,7 @@ __all__ = [
     "fleet_rows",
     "recording_by_hash",
     "results_page",
+    "signature_columns",
     "store_signature",
     "trend_rows",
 ]
@@ -251,13 +252,11 @@ class Signature:
         return out
 
 
-def store_signature(store: Store) -> Signature:
-    """The store's :class:`Signature` in one round trip.
-
-    Cheap at any size: the highest result id is a primary-key seek; the
-    health models, conveyors and alarms are a row per conveyor or alarm.
-    """
-    query = select(
+def signature_columns() -> tuple[Any, ...]:
+    """The scalar subqueries of :func:`store_signature`: the highest result id, the sum
+    of the health models' versions, the number of conveyors and of open alarms (others
+    may select more beside them in the same round trip)."""
+    return (
         select(func.max(ResultRow.id)).scalar_subquery(),
         select(func.coalesce(func.sum(MonitorStateRow.version), 0)).scalar_subquery(),
         select(func.count()).select_from(ConveyorRow).scalar_subquery(),
@@ -266,8 +265,16 @@ def store_signature(store: Store) -> Signature:
         .where(AlarmRow.status != "closed")
         .scalar_subquery(),
     )
+
+
+def store_signature(store: Store) -> Signature:
+    """The store's :class:`Signature` in one round trip.
+
+    Cheap at any size: the highest result id is a primary-key seek; the
+    health models, conveyors and alarms are a row per conveyor or alarm.
+    """
     with store.engine.connect() as c:
-        results, states, conveyors, open_alarms = c.execute(query).one()
+        results, states, conveyors, open_alarms = c.execute(select(*signature_columns())).one()
     return Signature(int(results or 0), int(states or 0), int(conveyors), int(open_alarms))
 
 

@@ -189,6 +189,44 @@ class FeatureBaseline:
         bottom = -math.inf if self.bottom_residual is None else -self.bottom_residual
         return e - max(z_limit * self.scale, min_rel * abs(e), bottom)
 
+    def _scale_at(self, payload_kg: float, payload_sigma_kg: float) -> float:
+        """The scale a value at this payload is judged with: widened for the payload's drift."""
+        scale = self.scale
+        uncertain = math.isfinite(payload_sigma_kg) and payload_sigma_kg > 0.0
+        if self.curve is not None and uncertain:
+            # half the curve's spread over the payload's band
+            p = payload_kg if math.isfinite(payload_kg) else self.mean_payload_kg
+            band = [
+                self.expected(q) for q in np.linspace(p - payload_sigma_kg, p + payload_sigma_kg, 9)
+            ]
+            scale = math.hypot(scale, 0.5 * (max(band) - min(band)))
+        elif self.slope != 0.0 and uncertain:
+            scale = math.hypot(scale, self.slope * payload_sigma_kg)
+        return scale
+
+    def rise_margin(
+        self,
+        payload_kg: float,
+        z_limit: float,
+        min_rel: float,
+        payload_sigma_kg: float = 0.0,
+        drift_allowance: float = 0.0,
+    ) -> float:
+        """How far above the healthy value a value must lie to exceed (feature units).
+
+        The alarm rule's threshold (:meth:`check`, whose arguments these are),
+        written once for the rule and for the forecasts of when it alarms
+        (:mod:`chaintwin.diagnose.prognosis`): the larger of ``z_limit``
+        scales (widened for the payload's drift) plus the loss-drift
+        allowance, the smallest relative change of the healthy value, and the
+        baseline's second-largest rise.
+        """
+        e = self.expected(payload_kg)
+        scale = self._scale_at(payload_kg, payload_sigma_kg)
+        allowance = drift_allowance if math.isfinite(drift_allowance) else 0.0
+        top = -math.inf if self.top_residual is None else self.top_residual
+        return max(z_limit * scale + allowance, min_rel * abs(e), top)
+
     def check(
         self,
         value: float,
@@ -226,25 +264,11 @@ class FeatureBaseline:
         """
         e = self.expected(payload_kg)
         dev = value - e
-        scale = self.scale
-        uncertain = math.isfinite(payload_sigma_kg) and payload_sigma_kg > 0.0
-        if self.curve is not None and uncertain:
-            # half the curve's spread over the payload's band
-            p = payload_kg if math.isfinite(payload_kg) else self.mean_payload_kg
-            band = [
-                self.expected(q) for q in np.linspace(p - payload_sigma_kg, p + payload_sigma_kg, 9)
-            ]
-            scale = math.hypot(scale, 0.5 * (max(band) - min(band)))
-        elif self.slope != 0.0 and uncertain:
-            scale = math.hypot(scale, self.slope * payload_sigma_kg)
+        scale = self._scale_at(payload_kg, payload_sigma_kg)
         z = dev / scale
         change = dev / abs(e) if e != 0.0 else math.copysign(math.inf, dev)
         allowance = drift_allowance if math.isfinite(drift_allowance) else 0.0
-        rose = (
-            (dev - allowance) / scale > z_limit
-            and dev > min_rel * abs(e)
-            and (self.top_residual is None or dev > self.top_residual)
-        )
+        rose = dev > self.rise_margin(payload_kg, z_limit, min_rel, payload_sigma_kg, allowance)
         fell = (
             two_sided
             and self.slope == 0.0
@@ -530,6 +554,9 @@ class Forecast:
     band: ForecastBand | None = field(default=None, compare=False, repr=False)
     """The forecast's path with its interval, for plotting (:func:`~chaintwin.diagnose.
     forecasting.forecast_feature` only, not crossed yet); not part of :meth:`to_dict`."""
+    trend_since: datetime | None = None
+    """Where the rise the forecast follows began (its change point,
+    :func:`chaintwin.diagnose.prognosis.forecast_alarm`); None: not found."""
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready; with ``remaining_life_days`` (earliest, expected, latest) from ``last``."""
@@ -545,6 +572,8 @@ class Forecast:
         }
         if self.backtest_mae is not None:
             out["backtest_mae"] = self.backtest_mae
+        if self.trend_since is not None:
+            out["trend_since"] = self.trend_since.isoformat()
         last = self.last
         if last is not None:
 

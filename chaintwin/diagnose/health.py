@@ -38,9 +38,9 @@ baseline is flat.
 An *alarm* needs X exceedances of one feature in the last Y recordings
 (default 3 of 10, :func:`x_of_y`), so one odd scope pages no one.
 
-Forecasts fit a straight line to a feature over time (ordinary least
-squares, statsmodels) since the baseline and report when the line, and the
-band of its 90 % confidence interval, cross the limit.
+Forecasts (:class:`Forecast`) say when a feature's alarm opens
+(:mod:`chaintwin.diagnose.prognosis`, the monitor's) or when its values
+reach a limit (:mod:`chaintwin.diagnose.forecasting`), with a 90 % band.
 """
 
 from __future__ import annotations
@@ -543,10 +543,13 @@ class Forecast:
     latest: datetime | None
     """None when the 90 % band does not cross within the horizon."""
     crossed: bool = False
-    """The fitted line is already above the limit at the last value."""
+    """Already there at the last value: the alarm open (:func:`chaintwin.diagnose.
+    prognosis.forecast_alarm`) or the values above the limit (:func:`chaintwin.
+    diagnose.forecasting.forecast_feature`)."""
     model: str = "line"
-    """The model :func:`chaintwin.diagnose.forecasting.forecast_feature` chose
-    (``line``, ``ets``, ``arima``; the band is a prediction interval)."""
+    """The trend model: ``line`` (the rise after its change point, or a line
+    fitted over time), or ``ets`` or ``arima`` where
+    :func:`chaintwin.diagnose.forecasting.forecast_feature`'s backtest chose it."""
     backtest_mae: float | None = None
     """The chosen model's backtest mean absolute error, feature units."""
     last: datetime | None = None

@@ -97,6 +97,9 @@ LAMBDAS = (0.5, 0.8)
 ALPHA = 0.2
 """A remaining life counts as accurate within this share of the true one (alpha-lambda)."""
 
+SPACING_DAYS = 3.0 / 24.0
+"""Time between a sequence's recordings, days."""
+
 
 def _sequence(task: dict[str, Any]) -> dict[str, Any]:
     """Simulate and monitor one sequence (runs in a worker process)."""
@@ -155,7 +158,7 @@ def _sequence(task: dict[str, Any]) -> dict[str, Any]:
             faults=faults,
             seed=int(rng.integers(2**31)),
             setpoints=setpoints,
-            recorded_at=start + timedelta(hours=3 * k),
+            recorded_at=start + timedelta(days=SPACING_DAYS * k),
             loss_scale=scale,
             initial_motor_angle=angle,
             source=f"{profile.id}-{k:03d}",
@@ -399,7 +402,11 @@ def _life_counts(got: list[dict[str, Any]]) -> dict[str, Any]:
     made = [x for x in got if x["expected_days"] is not None]
     within = sum(1 for x in got if x["within"])
     covered = sum(1 for x in made if x["covered"])
+    # +-ALPHA of the truth spans a whole recording only from 1/ALPHA recordings on
+    wide = [x for x in got if x["true_days"] >= (1.0 / ALPHA - 1e-9) * SPACING_DAYS]
     return {
+        "resolvable": len(wide),
+        "resolvable_within": sum(1 for x in wide if x["within"]),
         "sequences": len(got),
         "forecasts": len(made),
         "within": within,
@@ -421,8 +428,11 @@ def life_summary(rows: list[dict[str, Any]], method: str = "alarm") -> list[dict
     inside the band (its share is of ``forecasts``); ``within_by_fault``:
     per fault type, [within, sequences]; ``crossed``: forecasts that said the
     limit was crossed already; ``median_ratio``: median expected over true
-    remaining life; ``by_fault``: these counts per fault type. ``method``:
-    one of :data:`METHODS`.
+    remaining life; ``resolvable``: sequences whose true remaining life is at
+    least 1/:data:`ALPHA` recordings (where +-:data:`ALPHA` spans a whole
+    recording; a shorter one is hit only exactly), ``resolvable_within``: of
+    them within; ``by_fault``: these counts per fault type. ``method``: one
+    of :data:`METHODS`.
     """
 
     def pick(r: dict[str, Any], lam: float) -> list[dict[str, Any]]:
@@ -760,7 +770,8 @@ def _print(found: list[dict[str, Any]], rows: list[dict[str, Any]], args: Any, s
                 f"({_fmt(x['within_share'], '.0%')}), {x['forecasts']} with a forecast "
                 f"({x['crossed']} crossed), band covering the truth in {x['covered']} "
                 f"({_fmt(x['coverage'], '.0%')}), median expected/true "
-                f"{_fmt(x['median_ratio'], '.2f')}"
+                f"{_fmt(x['median_ratio'], '.2f')}; true remaining life of 1/alpha "
+                f"recordings or more: {x['resolvable_within']} of {x['resolvable']} within"
             )
             for f, c in x["by_fault"].items():
                 print(

@@ -319,7 +319,10 @@ def forecasts(
         else:
             margins, exceeded = alarm_margins(name, fb, rows, z_limit)
             healthy = fb.expected(fb.mean_payload_kg)
-            fc = forecast_alarm(name, times, vals, margins, exceeded, healthy, x=x, y=y)
+            limit = fb.limit(z_limit, spec.min_rel)
+            fc = forecast_alarm(
+                name, times, vals, margins, exceeded, healthy, x=x, y=y, limit=limit
+            )
         if fc is not None:
             used = [src for src, v in zip(sources, vals, strict=True) if math.isfinite(v)]
             extra: dict[str, Any] = {

@@ -560,6 +560,10 @@ class Forecast:
     trend_since: datetime | None = None
     """Where the rise the forecast follows began (its change point,
     :func:`chaintwin.diagnose.prognosis.forecast_alarm`); None: not found."""
+    threshold: float | None = None
+    """The alarm rule's threshold the forecast predicts the crossing of, at the
+    baseline's mean payload (the median of the last recordings', feature units;
+    :func:`chaintwin.diagnose.prognosis.forecast_alarm`); None: ``limit``."""
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready; with ``remaining_life_days`` (earliest, expected, latest) from ``last``."""
@@ -577,6 +581,8 @@ class Forecast:
             out["backtest_mae"] = self.backtest_mae
         if self.trend_since is not None:
             out["trend_since"] = self.trend_since.isoformat()
+        if self.threshold is not None and math.isfinite(self.threshold):
+            out["threshold"] = self.threshold
         last = self.last
         if last is not None:
 

@@ -311,6 +311,7 @@ def forecast_alarm(
     level: float = 0.9,
     seed: int = 0,
     trend: Rise | None = None,
+    limit: float | None = None,
 ) -> Forecast | None:
     """Forecast when a feature's alarm opens: its rise after the change point, the rule ahead.
 
@@ -346,11 +347,14 @@ def forecast_alarm(
         The rise to draw the futures from instead of the one fitted to
         ``values`` (:func:`fit_rise` over other recordings: the evaluation's
         forecast with the trend known in hindsight).
+    limit : float, optional
+        The limit to report as the forecast's ``limit`` (the baseline's at its
+        mean payload, as the trends show it); default the median threshold.
 
     Returns
     -------
     Forecast or None
-        ``limit`` is the median threshold of the last recordings (feature
+        ``threshold`` is the median threshold of the last recordings (feature
         units at the mean payload), ``model`` ``line`` with ``trend_since``
         the change point; ``crossed`` with ``earliest`` = ``latest`` =
         ``crosses_at`` when the alarm is open. None without a significant
@@ -369,14 +373,17 @@ def forecast_alarm(
         return None
     is_open, since = alarm_open(list(exceeded), x, y)
     recent_m = m[-RECENT:][np.isfinite(m[-RECENT:])]
-    limit = healthy + float(np.median(recent_m)) if recent_m.size else math.nan
+    threshold = healthy + float(np.median(recent_m)) if recent_m.size else math.nan
+    limit = threshold if limit is None else limit
     last = t0 + float(t_all[-1]) * day
     if is_open and since is not None:
         at = t0 + float(t_all[since]) * day
         # the straight line over the last recordings (0 when it cannot be fitted)
         slope, _ = line_slope(t_all[ok][-RECENT:], v[ok][-RECENT:])
         slope = slope if math.isfinite(slope) else 0.0
-        return Forecast(feature, limit, slope, at, at, at, True, "line", None, last)
+        return Forecast(
+            feature, limit, slope, at, at, at, True, "line", None, last, threshold=threshold
+        )
     if not recent_m.size:
         return None
     rise = fit_rise(t_all[ok], v[ok]) if trend is None else trend
@@ -423,6 +430,7 @@ def forecast_alarm(
         last=last,
         band=band,
         trend_since=t0 + rise.tau * day,
+        threshold=threshold,
     )
 
 

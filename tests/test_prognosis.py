@@ -55,11 +55,11 @@ def test_white_noise_is_seldom_taken_for_a_rise() -> None:
     rng = np.random.default_rng(3)
     t = np.arange(120) * STEP
     found = sum(fit_rise(t, rng.normal(0.0, 1.0, 120)) is not None for _ in range(300))
-    # the threshold is set at about the 99.5 % quantile of the largest F over change points
-    assert found <= 9, found
+    # the threshold lets about 2 % of white-noise series through (6 of 300)
+    assert found <= 15, found
     falling = fit_rise(t, 1.0 - 0.01 * t + rng.normal(0.0, 0.001, 120))
     assert falling is None
-    assert MIN_F > 8.0
+    assert MIN_F >= 7.0
 
 
 def test_alarm_open_follows_x_of_y_and_closes_after_y_quiet_by_hand() -> None:

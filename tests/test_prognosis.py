@@ -144,3 +144,19 @@ def test_the_same_recordings_give_the_same_forecast_and_flat_ones_none() -> None
     assert a is not None and a == b
     flat = np.random.default_rng(4).normal(1.0, 0.01, 200)
     assert forecast_alarm("f", _times(200), flat, np.full(200, 0.06), flat > 1.06, 1.0) is None
+
+
+def test_alarm_open_agrees_with_the_rule_recording_by_recording() -> None:
+    """Known answer by a second method: the alarm state replayed one recording at a time
+    (open at X of the last Y, closed after Y without an exceedance) on random sequences."""
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        e = list(rng.random(int(rng.integers(1, 80))) < rng.uniform(0.05, 0.5))
+        state, since = False, None
+        for i in range(len(e)):
+            window = e[max(0, i - 9) : i + 1]
+            if not state and sum(window) >= 3:
+                state, since = True, max(0, i - 9) + window.index(True)
+            elif state and i >= 9 and not any(window):
+                state, since = False, None
+        assert alarm_open(e, 3, 10) == (state, since), e

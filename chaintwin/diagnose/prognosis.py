@@ -85,6 +85,9 @@ CHUNK = 32
 """Recordings ahead drawn first; each further draw twice as many (the drawing stops
 once the band is known)."""
 
+MAX_CHUNK = 2048
+"""Most recordings ahead drawn at a time (memory: paths × this)."""
+
 BAND_POINTS = 120
 """Most points of a forecast's band kept for plotting."""
 
@@ -230,15 +233,23 @@ def alarm_open(exceeded: Sequence[bool], x: int, y: int) -> tuple[bool, int | No
         Open, and the index of the first exceedance in the window that
         opened it (None when not open).
     """
+    ex = [bool(e) for e in exceeded]
+    # after y recordings without an exceedance any alarm is closed: start after the last such
+    start, quiet = 0, 0
+    for i in range(len(ex) - 1, -1, -1):
+        quiet = 0 if ex[i] else quiet + 1
+        if quiet >= y:
+            start = i + y
+            break
     is_open = False
     since: int | None = None
-    for i in range(len(exceeded)):
-        lo = max(0, i - y + 1)
-        window = exceeded[lo : i + 1]
+    for i in range(start, len(ex)):
+        lo = max(start, i - y + 1)
+        window = ex[lo : i + 1]
         if not is_open and sum(window) >= x:
             is_open = True
-            since = lo + next(k for k, e in enumerate(window) if e)
-        elif is_open and len(exceeded[: i + 1]) >= y and not any(window):
+            since = lo + window.index(True)
+        elif is_open and i + 1 >= y and not any(ex[max(0, i - y + 1) : i + 1]):
             is_open, since = False, None
     return is_open, since
 
@@ -278,7 +289,7 @@ def _openings(
     chunk = CHUNK
     while done < steps:
         j = np.arange(done + 1, min(steps, done + chunk) + 1, dtype=np.float64)
-        chunk *= 2
+        chunk = min(2 * chunk, MAX_CHUNK)
         s = np.maximum(0.0, (t_last + j * step)[None, :] - tau[:, None])
         values = coef[:, :1] + coef[:, 1:] * s
         values += sigma[:, None] * rng.standard_normal((PATHS, j.shape[0]))
@@ -401,9 +412,7 @@ def forecast_alarm(
     )
     lo_q, hi_q = 0.5 - 0.5 * level, 0.5 + 0.5 * level
     # quantiles that are drawn openings (recordings), no interpolation with "never"
-    mid, lo, hi = (
-        float(q) for q in np.quantile(opened, [0.5, lo_q, hi_q], method="inverted_cdf")
-    )
+    mid, lo, hi = (float(q) for q in np.quantile(opened, [0.5, lo_q, hi_q], method="inverted_cdf"))
     if not math.isfinite(mid):
         return None
     tl = float(t_all[-1])

@@ -15,7 +15,7 @@ import numpy as np
 from .features import DRIFT_OF, feature_spec, is_tracked
 from .forecasting import forecast_feature
 from .health import FeatureBaseline, fit_baseline, robust_scale
-from .prognosis import forecast_alarm
+from .prognosis import RECENT, forecast_alarm
 from .records import as_number
 
 __all__ = [
@@ -317,7 +317,9 @@ def forecasts(
         if method == "window":
             fc = forecast_feature(name, times, vals, fb.limit(z_limit, spec.min_rel))
         else:
-            margins, exceeded = alarm_margins(name, fb, rows, z_limit)
+            # the margins of the last recordings stand for those ahead
+            margins, _ = alarm_margins(name, fb, rows[-RECENT:], z_limit)
+            exceeded = [name in (h.get("exceeded") or ()) for h in rows]
             healthy = fb.expected(fb.mean_payload_kg)
             limit = fb.limit(z_limit, spec.min_rel)
             fc = forecast_alarm(

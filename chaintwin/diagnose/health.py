@@ -223,6 +223,12 @@ class FeatureBaseline:
         """
         e = self.expected(payload_kg)
         scale = self._scale_at(payload_kg, payload_sigma_kg)
+        return self._margin(e, scale, z_limit, min_rel, drift_allowance)
+
+    def _margin(
+        self, e: float, scale: float, z_limit: float, min_rel: float, drift_allowance: float
+    ) -> float:
+        """:meth:`rise_margin` from the healthy value and the scale at the payload."""
         allowance = drift_allowance if math.isfinite(drift_allowance) else 0.0
         top = -math.inf if self.top_residual is None else self.top_residual
         return max(z_limit * scale + allowance, min_rel * abs(e), top)
@@ -268,7 +274,7 @@ class FeatureBaseline:
         z = dev / scale
         change = dev / abs(e) if e != 0.0 else math.copysign(math.inf, dev)
         allowance = drift_allowance if math.isfinite(drift_allowance) else 0.0
-        rose = dev > self.rise_margin(payload_kg, z_limit, min_rel, payload_sigma_kg, allowance)
+        rose = dev > self._margin(e, scale, z_limit, min_rel, allowance)
         fell = (
             two_sided
             and self.slope == 0.0

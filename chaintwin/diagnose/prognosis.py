@@ -57,6 +57,7 @@ __all__ = [
     "MIN_F",
     "MIN_POINTS",
     "PATHS",
+    "RECENT",
     "Rise",
     "alarm_open",
     "fit_rise",
@@ -80,6 +81,10 @@ PATHS = 400
 
 RECENT = 30
 """The last this many recordings give the margins ahead and the spacing."""
+
+FIT_POINTS = 250
+"""The rise is fitted to the last this many values (the change point search costs their
+square)."""
 
 CHUNK = 32
 """Recordings ahead drawn first; each further draw twice as many (the drawing stops
@@ -338,9 +343,9 @@ def forecast_alarm(
     values : sequence of float
         The feature at the baseline's mean payload (NaN: unknown), feature units.
     margins : sequence of float
-        How far above ``healthy`` each recording's value had to lie to exceed
-        (:meth:`~chaintwin.diagnose.health.FeatureBaseline.rise_margin`, NaN:
-        unknown), feature units.
+        How far above ``healthy`` the last recordings' values had to lie to
+        exceed (:meth:`~chaintwin.diagnose.health.FeatureBaseline.rise_margin`,
+        NaN: unknown; the last :data:`RECENT` are used), feature units.
     exceeded : sequence of bool
         Whether each recording exceeded on the feature (the alarm rule's own
         judgement, for the window ahead and whether the alarm is open).
@@ -398,7 +403,7 @@ def forecast_alarm(
         )
     if not recent_m.size:
         return None
-    rise = fit_rise(t_all[ok], v[ok]) if trend is None else trend
+    rise = fit_rise(t_all[ok][-FIT_POINTS:], v[ok][-FIT_POINTS:]) if trend is None else trend
     if rise is None:
         return None
     recent_t = t_all[-RECENT:]

@@ -53,6 +53,7 @@ from chaintwin.calibrating.procedure import calibrate
 from chaintwin.diagnose import baseline
 from chaintwin.diagnose.health import FeatureBaseline
 from chaintwin.diagnose.monitor import ConveyorMonitor
+from chaintwin.diagnose.prognosis import fit_rise, forecast_alarm
 from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.errors import ChaintwinError
 from chaintwin.simulate.faults import Fault, expected_causes, fault_type
@@ -95,6 +96,9 @@ LAMBDAS = (0.5, 0.8)
 
 ALPHA = 0.2
 """A remaining life counts as accurate within this share of the true one (alpha-lambda)."""
+
+SPACING_DAYS = 3.0 / 24.0
+"""Time between a sequence's recordings, days."""
 
 
 def _sequence(task: dict[str, Any]) -> dict[str, Any]:
@@ -154,7 +158,7 @@ def _sequence(task: dict[str, Any]) -> dict[str, Any]:
             faults=faults,
             seed=int(rng.integers(2**31)),
             setpoints=setpoints,
-            recorded_at=start + timedelta(hours=3 * k),
+            recorded_at=start + timedelta(days=SPACING_DAYS * k),
             loss_scale=scale,
             initial_motor_angle=angle,
             source=f"{profile.id}-{k:03d}",
@@ -240,6 +244,93 @@ def _sequence(task: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+METHODS = ("alarm", "window", "hindsight")
+"""The remaining-life forecasts judged: ``alarm`` the monitor's (when the alarm rule
+opens the alarm, from the rise after its change point), ``window`` the one before it
+(the backtest's model over the last 30 steps against the baseline's limit at its mean
+payload), ``hindsight`` the alarm's opening drawn from the rise fitted to the recordings
+up to :data:`HINDSIGHT_AFTER` after the alarm (the trend known: how well the opening can
+be told at all, the noise's and the X-of-Y rule's own spread left)."""
+
+HINDSIGHT_AFTER = 10
+"""Recordings after the alarm the hindsight trend is fitted to."""
+
+
+def _judged(
+    fc: dict[str, Any] | None, lam: float, k: int, feature: str, true_days: float
+) -> dict[str, Any]:
+    """One forecast against the truth: within +-:data:`ALPHA`, its band covering the truth."""
+    life = (fc or {}).get("remaining_life_days") or {}
+    expected, earliest, latest = (life.get(x) for x in ("expected", "earliest", "latest"))
+    return {
+        "lambda": lam,
+        "recording": k,
+        "feature": feature,
+        "true_days": true_days,
+        "expected_days": expected,
+        "earliest_days": earliest,
+        "latest_days": latest,
+        "crossed": None if fc is None else fc["crossed"],
+        "within": expected is not None and abs(expected - true_days) <= ALPHA * true_days,
+        "covered": None
+        if expected is None
+        else earliest is not None
+        and earliest <= true_days
+        and (latest is None or true_days <= latest),
+    }
+
+
+def _hindsight(
+    feature: str,
+    fb: FeatureBaseline | None,
+    history: list[dict[str, Any]],
+    whole: list[dict[str, Any]],
+    since: str,
+    monitor: ConveyorMonitor,
+) -> dict[str, Any] | None:
+    """The alarm's opening after ``history``'s last recording, the trend fitted to ``whole``."""
+    if fb is None:
+        return None
+    z_limit, x, y = monitor.settings.z_limit, monitor.settings.x, monitor.settings.y
+
+    def monitored(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        return [
+            h
+            for h in rows
+            if h.get("status") == "monitored" and h.get("recorded_at") and h["recorded_at"] >= since
+        ]
+
+    past, every = monitored(history), monitored(whole)
+    if len(past) < 8 or not every:
+        return None
+    t0 = datetime.fromisoformat(past[0]["recorded_at"])
+
+    def days(rows: list[dict[str, Any]]) -> np.ndarray:
+        return np.array(
+            [(datetime.fromisoformat(h["recorded_at"]) - t0).total_seconds() / 86400 for h in rows]
+        )
+
+    v_all = np.asarray(baseline.values_at_mean_payload(feature, fb, every)[0])
+    ok = np.isfinite(v_all)
+    trend = fit_rise(days(every)[ok], v_all[ok])
+    if trend is None:
+        return None
+    vals, _ = baseline.values_at_mean_payload(feature, fb, past)
+    margins, exceeded = baseline.alarm_margins(feature, fb, past, z_limit)
+    fc = forecast_alarm(
+        feature,
+        [datetime.fromisoformat(h["recorded_at"]) for h in past],
+        vals,
+        margins,
+        exceeded,
+        fb.expected(fb.mean_payload_kg),
+        x=x,
+        y=y,
+        trend=trend,
+    )
+    return None if fc is None else fc.to_dict()
+
+
 def _remaining_life(
     monitor: ConveyorMonitor,
     baselines_at: dict[int, dict[str, FeatureBaseline]],
@@ -256,55 +347,78 @@ def _remaining_life(
     whether its expected remaining life is within +-:data:`ALPHA` of the
     truth (False without a forecast), ``covered`` whether the truth lies in
     its band (earliest .. latest; no latest: beyond the horizon, open).
+    The other :data:`METHODS` are judged alike under their names.
     """
     if alarm is None or feature is None or alarm <= onset:
         return []
     rows = {int(h["file"].rsplit("-", 1)[1]): h for h in monitor.history if h.get("file")}
+    since = monitor.baseline_since or ""
     out = []
     for lam in LAMBDAS:
         k = onset + round(lam * (alarm - onset))
         if k >= alarm or k not in rows or alarm not in rows:
             continue
         history = [h for i, h in sorted(rows.items()) if i <= k]
+        whole = [h for i, h in sorted(rows.items()) if i <= alarm + HINDSIGHT_AFTER]
         true_days = (
             datetime.fromisoformat(rows[alarm]["recorded_at"])
             - datetime.fromisoformat(rows[k]["recorded_at"])
         ).total_seconds() / 86400.0
-        fc = next(
-            (
-                f
-                for f in baseline.forecasts(
-                    baselines_at.get(k, {}),
-                    history,
-                    monitor.baseline_since or "",
-                    monitor.settings.z_limit,
-                )
-                if f["feature"] == feature
-            ),
-            None,
+        found: dict[str, dict[str, Any] | None] = {}
+        for method in ("alarm", "window"):
+            found[method] = next(
+                (
+                    f
+                    for f in baseline.forecasts(
+                        baselines_at.get(k, {}),
+                        history,
+                        since,
+                        monitor.settings.z_limit,
+                        x=monitor.settings.x,
+                        y=monitor.settings.y,
+                        method=method,
+                    )
+                    if f["feature"] == feature
+                ),
+                None,
+            )
+        found["hindsight"] = _hindsight(
+            feature, baselines_at.get(k, {}).get(feature), history, whole, since, monitor
         )
-        life = (fc or {}).get("remaining_life_days") or {}
-        expected, earliest, latest = (life.get(x) for x in ("expected", "earliest", "latest"))
-        out.append(
-            {
-                "lambda": lam,
-                "recording": k,
-                "feature": feature,
-                "true_days": true_days,
-                "expected_days": expected,
-                "earliest_days": earliest,
-                "latest_days": latest,
-                "crossed": None if fc is None else fc["crossed"],
-                "within": expected is not None and abs(expected - true_days) <= ALPHA * true_days,
-                "covered": None
-                if expected is None
-                else earliest <= true_days and (latest is None or true_days <= latest),
-            }
-        )
+        row = _judged(found["alarm"], lam, k, feature, true_days)
+        for method in METHODS[1:]:
+            row[method] = _judged(found[method], lam, k, feature, true_days)
+        out.append(row)
     return out
 
 
-def life_summary(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+def _ratio_median(made: list[dict[str, Any]]) -> float | None:
+    """Median of expected over true remaining life."""
+    r = [x["expected_days"] / x["true_days"] for x in made if x["true_days"] > 0]
+    return float(np.median(r)) if r else None
+
+
+def _life_counts(got: list[dict[str, Any]]) -> dict[str, Any]:
+    made = [x for x in got if x["expected_days"] is not None]
+    within = sum(1 for x in got if x["within"])
+    covered = sum(1 for x in made if x["covered"])
+    # +-ALPHA of the truth spans a whole recording only from 1/ALPHA recordings on
+    wide = [x for x in got if x["true_days"] >= (1.0 / ALPHA - 1e-9) * SPACING_DAYS]
+    return {
+        "resolvable": len(wide),
+        "resolvable_within": sum(1 for x in wide if x["within"]),
+        "sequences": len(got),
+        "forecasts": len(made),
+        "within": within,
+        "within_share": within / len(got) if got else None,
+        "covered": covered,
+        "coverage": covered / len(made) if made else None,
+        "crossed": sum(1 for x in made if x["crossed"]),
+        "median_ratio": _ratio_median(made),
+    }
+
+
+def life_summary(rows: list[dict[str, Any]], method: str = "alarm") -> list[dict[str, Any]]:
     """The alpha-lambda accuracy and the band's coverage per lambda (the JSON's ``remaining_life``).
 
     ``sequences``: alarmed fault sequences judged at that lambda;
@@ -312,40 +426,37 @@ def life_summary(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     ``within``: forecasts within +-:data:`ALPHA` of the truth (its share is of
     ``sequences``: a missing forecast counts as a miss); ``covered``: truths
     inside the band (its share is of ``forecasts``); ``within_by_fault``:
-    per fault type, [within, sequences].
+    per fault type, [within, sequences]; ``crossed``: forecasts that said the
+    limit was crossed already; ``median_ratio``: median expected over true
+    remaining life; ``resolvable``: sequences whose true remaining life is at
+    least 1/:data:`ALPHA` recordings (where +-:data:`ALPHA` spans a whole
+    recording; a shorter one is hit only exactly), ``resolvable_within``: of
+    them within; ``by_fault``: these counts per fault type. ``method``: one
+    of :data:`METHODS`.
     """
+
+    def pick(r: dict[str, Any], lam: float) -> list[dict[str, Any]]:
+        return [
+            x if method == "alarm" else x[method]
+            for x in r.get("remaining_life", [])
+            if x["lambda"] == lam and (method == "alarm" or method in x)
+        ]
+
     out = []
     for lam in LAMBDAS:
-        got = [x for r in rows for x in r.get("remaining_life", []) if x["lambda"] == lam]
-        made = [x for x in got if x["expected_days"] is not None]
-        within = sum(1 for x in got if x["within"])
-        covered = sum(1 for x in made if x["covered"])
+        got = [x for r in rows for x in pick(r, lam)]
+        by_fault = {
+            f: [x for r in rows if r["fault"] == f for x in pick(r, lam)] for f in FAULT_TYPES
+        }
         out.append(
-            {
-                "lambda": lam,
-                "alpha": ALPHA,
-                "sequences": len(got),
-                "forecasts": len(made),
-                "within": within,
-                "within_share": within / len(got) if got else None,
-                "covered": covered,
-                "coverage": covered / len(made) if made else None,
+            {"lambda": lam, "alpha": ALPHA, "method": method}
+            | _life_counts(got)
+            | {
                 "within_by_fault": {
-                    f: [
-                        sum(1 for x in mine if x["within"]),
-                        len(mine),
-                    ]
-                    for f in FAULT_TYPES
-                    for mine in (
-                        [
-                            x
-                            for r in rows
-                            if r["fault"] == f
-                            for x in r.get("remaining_life", [])
-                            if x["lambda"] == lam
-                        ],
-                    )
+                    f: [sum(1 for x in mine if x["within"]), len(mine)]
+                    for f, mine in by_fault.items()
                 },
+                "by_fault": {f: _life_counts(mine) for f, mine in by_fault.items() if mine},
             }
         )
     return out
@@ -441,6 +552,8 @@ def run_monitoring(
         "table": found,
         "weighing": promise_summary(rows),
         "remaining_life": life_summary(rows),
+        "remaining_life_before": life_summary(rows, "window"),
+        "remaining_life_hindsight": life_summary(rows, "hindsight"),
         "sequences": rows,
         "seconds": seconds,
     }
@@ -649,13 +762,23 @@ def _print(found: list[dict[str, Any]], rows: list[dict[str, Any]], args: Any, s
                 f"({_fmt(r['payload_z_after'], '.2f')} u) after"
             )
     _print_promise(rows)
-    for x in life_summary(rows):
-        print(
-            f"remaining life at lambda {x['lambda']}: {x['within']} of {x['sequences']} alarmed "
-            f"sequences within +-{x['alpha']:.0%} ({_fmt(x['within_share'], '.0%')}), "
-            f"{x['forecasts']} with a forecast, band covering the truth in {x['covered']} "
-            f"({_fmt(x['coverage'], '.0%')})"
-        )
+    for method in METHODS:
+        for x in life_summary(rows, method):
+            print(
+                f"remaining life ({method}) at lambda {x['lambda']}: {x['within']} of "
+                f"{x['sequences']} alarmed sequences within +-{x['alpha']:.0%} "
+                f"({_fmt(x['within_share'], '.0%')}), {x['forecasts']} with a forecast "
+                f"({x['crossed']} crossed), band covering the truth in {x['covered']} "
+                f"({_fmt(x['coverage'], '.0%')}), median expected/true "
+                f"{_fmt(x['median_ratio'], '.2f')}; true remaining life of 1/alpha "
+                f"recordings or more: {x['resolvable_within']} of {x['resolvable']} within"
+            )
+            for f, c in x["by_fault"].items():
+                print(
+                    f"    {f:14s} within {c['within']}/{c['sequences']}, covered "
+                    f"{c['covered']}/{c['forecasts']}, median expected/true "
+                    f"{_fmt(c['median_ratio'], '.2f')}"
+                )
     print("missed or wrong:")
     for r in rows:
         if "error" in r:

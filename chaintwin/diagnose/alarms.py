@@ -11,8 +11,8 @@ import math
 import uuid
 from datetime import datetime
 
-from .baseline import regressor_of
-from .features import DRIFT_OF, feature_spec
+from .baseline import judge_inputs
+from .features import feature_spec
 from .health import FeatureBaseline
 from .records import Alarm, Evidence, MonitorSettings, iso_utc
 
@@ -245,10 +245,7 @@ def judge(
         if spec.cause is None:
             continue
         value = values.get(name, float("nan"))
-        regressor = regressor_of(name, fb)
-        load = values.get(regressor, float("nan"))
-        drift = values.get(DRIFT_OF.get(regressor, ""), 0.0)
-        allowance = values.get(spec.drift, 0.0) if spec.drift else 0.0
+        load, drift, allowance = judge_inputs(name, fb, values)
         ex = fb.check(value, load, settings.z_limit, spec.min_rel, spec.two_sided, drift, allowance)
         win = windows.setdefault(name, [])
         times = window_times.setdefault(name, [])

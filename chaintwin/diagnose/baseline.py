@@ -8,24 +8,28 @@ import math
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from datetime import datetime
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
-from .features import feature_spec, is_tracked
+from .features import DRIFT_OF, feature_spec, is_tracked
 from .forecasting import forecast_feature
 from .health import FeatureBaseline, fit_baseline, robust_scale
+from .prognosis import RECENT, forecast_alarm
 from .records import as_number
 
 __all__ = [
     "ALTERNATIVE_SHARE",
     "NO_FORECAST",
     "WEIGHED_SOURCES",
+    "alarm_margins",
     "at_mean_payload",
     "fit_features",
     "forecasts",
+    "judge_inputs",
     "payload_of",
     "regressor_of",
+    "values_at_mean_payload",
 ]
 
 ALTERNATIVE_SHARE = 0.5
@@ -107,6 +111,40 @@ def regressor_of(name: str, fb: FeatureBaseline) -> str:
     return fb.regressor or feature_spec(name).regressor
 
 
+def judge_inputs(
+    name: str, fb: FeatureBaseline, values: Mapping[str, float | None]
+) -> tuple[float, float, float]:
+    """What a recording's value of a feature is judged with besides the value itself.
+
+    The one source of :meth:`~chaintwin.diagnose.health.FeatureBaseline.check`'s
+    inputs for the alarm rule and for the forecasts of when it alarms.
+
+    Parameters
+    ----------
+    name : str
+        The feature.
+    fb : FeatureBaseline
+        Its baseline.
+    values : Mapping
+        The recording's features (None or NaN: unknown).
+
+    Returns
+    -------
+    load : float
+        The baseline's regressor, kg (NaN: unknown, judged at the mean payload).
+    payload_sigma : float
+        How far a loss drift may have moved that payload estimate, kg.
+    allowance : float
+        How far a loss drift may have moved the feature, feature units.
+    """
+    spec = feature_spec(name)
+    regressor = regressor_of(name, fb)
+    load = as_number(values.get(regressor))
+    drift = values.get(DRIFT_OF.get(regressor, ""), 0.0)
+    allowance = values.get(spec.drift, 0.0) if spec.drift else 0.0
+    return load, as_number(drift), as_number(allowance)
+
+
 WEIGHED_SOURCES: tuple[str, str] = ("weighed_by_inertia", "weighed")
 """The sources (:func:`payload_of`) besides the regressor's name: the recording's
 payload weighed by the inertia signature alone (the monitor's reading while the
@@ -183,6 +221,39 @@ def at_mean_payload(
     return value - fb.slope * (load - fb.mean_payload_kg)
 
 
+def values_at_mean_payload(
+    name: str, fb: FeatureBaseline, rows: Sequence[Mapping[str, Any]]
+) -> tuple[list[float], list[str]]:
+    """A feature's values over results as at the baseline's mean payload, and their loads' sources.
+
+    Each :func:`at_mean_payload` at the load :func:`payload_of` gives (NaN: unknown).
+    """
+    vals, sources = [], []
+    for h in rows:
+        load, source = payload_of(name, fb, h)
+        vals.append(at_mean_payload(name, fb, h["features"], load))
+        sources.append(source)
+    return vals, sources
+
+
+def alarm_margins(
+    name: str, fb: FeatureBaseline, rows: Sequence[Mapping[str, Any]], z_limit: float
+) -> tuple[list[float], list[bool]]:
+    """The alarm rule's margin at each result, and whether the result exceeded on the feature.
+
+    The margin is how far above the baseline's value a recording's value had
+    to lie to exceed (:meth:`~chaintwin.diagnose.health.FeatureBaseline.rise_margin`
+    with :func:`judge_inputs`, feature units); the exceedances are the
+    monitor's own (each result's ``exceeded``).
+    """
+    spec = feature_spec(name)
+    margins = []
+    for h in rows:
+        load, sigma, allowance = judge_inputs(name, fb, h["features"])
+        margins.append(fb.rise_margin(load, z_limit, spec.min_rel, sigma, allowance))
+    return margins, [name in (h.get("exceeded") or ()) for h in rows]
+
+
 def forecasts(
     baselines: dict[str, FeatureBaseline],
     history: Sequence[dict[str, Any]],
@@ -190,8 +261,11 @@ def forecasts(
     z_limit: float,
     *,
     bands: bool = False,
+    x: int = 3,
+    y: int = 10,
+    method: Literal["alarm", "window"] = "alarm",
 ) -> list[dict[str, Any]]:
-    """When each tracked feature's trend crosses its limit (rising trends only).
+    """When each tracked feature's alarm opens (or its trend crosses its limit; rising ones only).
 
     Parameters
     ----------
@@ -206,6 +280,15 @@ def forecasts(
     bands : bool
         Add each forecast's ``band`` (its path and 90 % interval ahead,
         :class:`~chaintwin.diagnose.health.ForecastBand`; None when crossed).
+    x, y : int
+        The monitor's X-of-Y rule.
+    method : {"alarm", "window"}
+        ``alarm``: when the alarm rule opens the feature's alarm, from the
+        rise after its change point (:func:`~chaintwin.diagnose.prognosis.
+        forecast_alarm`); ``window``: where the model its backtest picks over
+        the last steps crosses the baseline's limit at its mean payload
+        (:func:`~chaintwin.diagnose.forecasting.forecast_feature`, the
+        forecasts before the alarm's opening was predicted).
 
     Returns
     -------
@@ -230,12 +313,18 @@ def forecasts(
         spec = feature_spec(name)
         if spec.cause is None or name in NO_FORECAST:
             continue
-        vals, sources = [], []
-        for h in rows:
-            load, source = payload_of(name, fb, h)
-            vals.append(at_mean_payload(name, fb, h["features"], load))
-            sources.append(source)
-        fc = forecast_feature(name, times, vals, fb.limit(z_limit, spec.min_rel))
+        vals, sources = values_at_mean_payload(name, fb, rows)
+        if method == "window":
+            fc = forecast_feature(name, times, vals, fb.limit(z_limit, spec.min_rel))
+        else:
+            # the margins of the last recordings stand for those ahead
+            margins, _ = alarm_margins(name, fb, rows[-RECENT:], z_limit)
+            exceeded = [name in (h.get("exceeded") or ()) for h in rows]
+            healthy = fb.expected(fb.mean_payload_kg)
+            limit = fb.limit(z_limit, spec.min_rel)
+            fc = forecast_alarm(
+                name, times, vals, margins, exceeded, healthy, x=x, y=y, limit=limit
+            )
         if fc is not None:
             used = [src for src, v in zip(sources, vals, strict=True) if math.isfinite(v)]
             extra: dict[str, Any] = {

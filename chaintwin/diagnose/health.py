@@ -38,9 +38,9 @@ baseline is flat.
 An *alarm* needs X exceedances of one feature in the last Y recordings
 (default 3 of 10, :func:`x_of_y`), so one odd scope pages no one.
 
-Forecasts fit a straight line to a feature over time (ordinary least
-squares, statsmodels) since the baseline and report when the line, and the
-band of its 90 % confidence interval, cross the limit.
+Forecasts (:class:`Forecast`) say when a feature's alarm opens
+(:mod:`chaintwin.diagnose.prognosis`, the monitor's) or when its values
+reach a limit (:mod:`chaintwin.diagnose.forecasting`), with a 90 % band.
 """
 
 from __future__ import annotations
@@ -189,6 +189,50 @@ class FeatureBaseline:
         bottom = -math.inf if self.bottom_residual is None else -self.bottom_residual
         return e - max(z_limit * self.scale, min_rel * abs(e), bottom)
 
+    def _scale_at(self, payload_kg: float, payload_sigma_kg: float) -> float:
+        """The scale a value at this payload is judged with: widened for the payload's drift."""
+        scale = self.scale
+        uncertain = math.isfinite(payload_sigma_kg) and payload_sigma_kg > 0.0
+        if self.curve is not None and uncertain:
+            # half the curve's spread over the payload's band
+            p = payload_kg if math.isfinite(payload_kg) else self.mean_payload_kg
+            band = [
+                self.expected(q) for q in np.linspace(p - payload_sigma_kg, p + payload_sigma_kg, 9)
+            ]
+            scale = math.hypot(scale, 0.5 * (max(band) - min(band)))
+        elif self.slope != 0.0 and uncertain:
+            scale = math.hypot(scale, self.slope * payload_sigma_kg)
+        return scale
+
+    def rise_margin(
+        self,
+        payload_kg: float,
+        z_limit: float,
+        min_rel: float,
+        payload_sigma_kg: float = 0.0,
+        drift_allowance: float = 0.0,
+    ) -> float:
+        """How far above the healthy value a value must lie to exceed (feature units).
+
+        The alarm rule's threshold (:meth:`check`, whose arguments these are),
+        written once for the rule and for the forecasts of when it alarms
+        (:mod:`chaintwin.diagnose.prognosis`): the larger of ``z_limit``
+        scales (widened for the payload's drift) plus the loss-drift
+        allowance, the smallest relative change of the healthy value, and the
+        baseline's second-largest rise.
+        """
+        e = self.expected(payload_kg)
+        scale = self._scale_at(payload_kg, payload_sigma_kg)
+        return self._margin(e, scale, z_limit, min_rel, drift_allowance)
+
+    def _margin(
+        self, e: float, scale: float, z_limit: float, min_rel: float, drift_allowance: float
+    ) -> float:
+        """:meth:`rise_margin` from the healthy value and the scale at the payload."""
+        allowance = drift_allowance if math.isfinite(drift_allowance) else 0.0
+        top = -math.inf if self.top_residual is None else self.top_residual
+        return max(z_limit * scale + allowance, min_rel * abs(e), top)
+
     def check(
         self,
         value: float,
@@ -226,25 +270,11 @@ class FeatureBaseline:
         """
         e = self.expected(payload_kg)
         dev = value - e
-        scale = self.scale
-        uncertain = math.isfinite(payload_sigma_kg) and payload_sigma_kg > 0.0
-        if self.curve is not None and uncertain:
-            # half the curve's spread over the payload's band
-            p = payload_kg if math.isfinite(payload_kg) else self.mean_payload_kg
-            band = [
-                self.expected(q) for q in np.linspace(p - payload_sigma_kg, p + payload_sigma_kg, 9)
-            ]
-            scale = math.hypot(scale, 0.5 * (max(band) - min(band)))
-        elif self.slope != 0.0 and uncertain:
-            scale = math.hypot(scale, self.slope * payload_sigma_kg)
+        scale = self._scale_at(payload_kg, payload_sigma_kg)
         z = dev / scale
         change = dev / abs(e) if e != 0.0 else math.copysign(math.inf, dev)
         allowance = drift_allowance if math.isfinite(drift_allowance) else 0.0
-        rose = (
-            (dev - allowance) / scale > z_limit
-            and dev > min_rel * abs(e)
-            and (self.top_residual is None or dev > self.top_residual)
-        )
+        rose = dev > self._margin(e, scale, z_limit, min_rel, allowance)
         fell = (
             two_sided
             and self.slope == 0.0
@@ -519,10 +549,13 @@ class Forecast:
     latest: datetime | None
     """None when the 90 % band does not cross within the horizon."""
     crossed: bool = False
-    """The fitted line is already above the limit at the last value."""
+    """Already there at the last value: the alarm open (:func:`chaintwin.diagnose.
+    prognosis.forecast_alarm`) or the values above the limit (:func:`chaintwin.
+    diagnose.forecasting.forecast_feature`)."""
     model: str = "line"
-    """The model :func:`chaintwin.diagnose.forecasting.forecast_feature` chose
-    (``line``, ``ets``, ``arima``; the band is a prediction interval)."""
+    """The trend model: ``line`` (the rise after its change point, or a line
+    fitted over time), or ``ets`` or ``arima`` where
+    :func:`chaintwin.diagnose.forecasting.forecast_feature`'s backtest chose it."""
     backtest_mae: float | None = None
     """The chosen model's backtest mean absolute error, feature units."""
     last: datetime | None = None
@@ -530,6 +563,13 @@ class Forecast:
     band: ForecastBand | None = field(default=None, compare=False, repr=False)
     """The forecast's path with its interval, for plotting (:func:`~chaintwin.diagnose.
     forecasting.forecast_feature` only, not crossed yet); not part of :meth:`to_dict`."""
+    trend_since: datetime | None = None
+    """Where the rise the forecast follows began (its change point,
+    :func:`chaintwin.diagnose.prognosis.forecast_alarm`); None: not found."""
+    threshold: float | None = None
+    """The alarm rule's threshold the forecast predicts the crossing of, at the
+    baseline's mean payload (the median of the last recordings', feature units;
+    :func:`chaintwin.diagnose.prognosis.forecast_alarm`); None: ``limit``."""
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready; with ``remaining_life_days`` (earliest, expected, latest) from ``last``."""
@@ -545,6 +585,10 @@ class Forecast:
         }
         if self.backtest_mae is not None:
             out["backtest_mae"] = self.backtest_mae
+        if self.trend_since is not None:
+            out["trend_since"] = self.trend_since.isoformat()
+        if self.threshold is not None and math.isfinite(self.threshold):
+            out["threshold"] = self.threshold
         last = self.last
         if last is not None:
 

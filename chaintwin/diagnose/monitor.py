@@ -922,7 +922,12 @@ class ConveyorMonitor:
         if not self.baselines:
             return []
         return baseline.forecasts(
-            self.baselines, self.history, self.baseline_since or "", self.settings.z_limit
+            self.baselines,
+            self.history,
+            self.baseline_since or "",
+            self.settings.z_limit,
+            x=self.settings.x,
+            y=self.settings.y,
         )
 
     def summary(self) -> dict[str, Any]:

@@ -368,7 +368,15 @@ def derived_of(state: MonitorState) -> dict[str, Any]:
     since = state.baseline_since or ""
     z_limit = state.settings.z_limit
     return {
-        "forecasts": baseline.forecasts(baselines, state.history, since, z_limit, bands=True)
+        "forecasts": baseline.forecasts(
+            baselines,
+            state.history,
+            since,
+            z_limit,
+            bands=True,
+            x=state.settings.x,
+            y=state.settings.y,
+        )
         if baselines
         else [],
         "wear": wear_rates(baselines, state.history, since) if baselines else [],

@@ -115,7 +115,8 @@ def clients_child(endpoint: str, count: int, conveyors: list[str], cert: str, ke
                 print(json.dumps(line), flush=True)
 
     async def one(k: int) -> Client:
-        client = Client(endpoint, timeout=30)
+        # a loaded machine answers late: asyncua's watchdog gives the server 1 s by default
+        client = Client(endpoint, timeout=120, watchdog_intervall=30.0)
         client.application_uri = "urn:chaintwin:bench"
         await client.set_security(
             SecurityPolicyBasic256Sha256, certificate=cert, private_key=key,

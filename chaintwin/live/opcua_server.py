@@ -317,6 +317,7 @@ class ResultsServer:
     _trust_mtime: float = -1.0
     _trust: Any = None
     _reader: ConveyorReader = field(init=False)
+    _stamp_query: Any = None
 
     def __post_init__(self) -> None:
         self._reader = ConveyorReader(self.store)
@@ -564,7 +565,7 @@ class ResultsServer:
         for path, value in values.items():
             if known is not None and known.values.get(path) == value:
                 continue
-            dv = ua.DataValue(
+            dv = _Written(
                 _variant(value),
                 StatusCode=ua.StatusCode(
                     ua.UInt32(
@@ -633,12 +634,13 @@ class ResultsServer:
     # ------------------------------------------------------------ the store
     def _stamp_now(self) -> tuple[Any, ...]:
         """A few numbers that change whenever anything the server shows may have changed."""
-        query = select(
-            *signature_columns(),
-            select(func.max(DerivedHealthRow.computed_at)).scalar_subquery(),
-        )
+        if self._stamp_query is None:  # built once: the poll runs it twice a second
+            self._stamp_query = select(
+                *signature_columns(),
+                select(func.max(DerivedHealthRow.computed_at)).scalar_subquery(),
+            )
         with self.store.engine.connect() as c:
-            return tuple(c.execute(query).one())
+            return tuple(c.execute(self._stamp_query).one())
 
     def _keys(self) -> dict[str, ConveyorKey]:
         """Per conveyor: what its values depend on (profile, health model version, forecasts,
@@ -739,6 +741,22 @@ class ResultsServer:
 
 
 _NONE = _Known((), {})
+
+
+class _Written(ua.DataValue):
+    """A value the server writes and never changes afterwards: its own deep copy.
+
+    asyncua copies each value written once per monitored item of its node
+    (``copy.deepcopy``, against a caller changing it later): with 20 clients
+    watching a value that was most of the serving process's work per
+    recording. Every write makes a new one; none is changed once written.
+    """
+
+    __slots__ = ()
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> _Written:
+        return self
+
 
 HEALTH_TYPE = "DeviceHealthEnumeration"
 """The string node id of the server's copy of OPC 10000-100's ``DeviceHealthEnumeration``

@@ -444,6 +444,23 @@ def test_a_conveyor_deleted_from_the_store_leaves_and_its_monitored_items_end(
         running.loop.run(state["client"].disconnect())
 
 
+def test_values_read_again_in_part_agree_with_a_full_read(plant: Plant) -> None:
+    """The reader that keeps a conveyor's parts (its health model without its history)
+    gives the values a full read gives, when only the forecasts' key changed."""
+    from chaintwin.live.opcua_nodes import ConveyorReader, read_conveyor
+
+    server = ResultsServer(plant.store, "opc.tcp://127.0.0.1:4840", security="none")
+    key = server._keys()[PROFILE.id]
+    reader = ConveyorReader(plant.store)
+    full = read_conveyor(plant.store, PROFILE.id)
+    assert full is not None and any(p.startswith("Monitoring/Features/") for p in full)
+    assert reader.read(PROFILE.id, key) == full
+    kept = reader._parts[PROFILE.id]
+    assert kept.state is not None and kept.state.history == []  # the history not kept
+    again = (key[0], key[1], "a later refit", key[3])  # only the forecasts' time differs
+    assert reader.read(PROFILE.id, again) == full
+
+
 @pytest.mark.parametrize(
     ("user", "password"),
     [

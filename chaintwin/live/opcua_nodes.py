@@ -25,7 +25,7 @@ its URI.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from typing import Any
 from urllib.parse import quote
@@ -524,7 +524,9 @@ class ConveyorReader:
                 sha,
                 profile,
                 (version, open_alarms),
-                state,
+                # its baselines and settings are what the values need again: its history
+                # (up to the store's 300 recordings per conveyor) is not kept
+                None if state is None else replace(state, history=[]),
                 series,
                 judged,
                 latest,

@@ -115,7 +115,8 @@ def clients_child(endpoint: str, count: int, conveyors: list[str], cert: str, ke
                 print(json.dumps(line), flush=True)
 
     async def one(k: int) -> Client:
-        client = Client(endpoint, timeout=30)
+        # a loaded machine answers late: asyncua's watchdog gives the server 1 s by default
+        client = Client(endpoint, timeout=120, watchdog_intervall=30.0)
         client.application_uri = "urn:chaintwin:bench"
         await client.set_security(
             SecurityPolicyBasic256Sha256, certificate=cert, private_key=key,
@@ -145,6 +146,42 @@ def clients_child(endpoint: str, count: int, conveyors: list[str], cert: str, ke
             await c.disconnect()
 
     asyncio.run(main())
+
+
+# ---------------------------------------------------------------- the profiled server
+def serve_profiled(out: str, argv: list[str]) -> None:
+    """``chaintwin serve`` with yappi (CPU clock, every thread) at hand: SIGUSR1 starts it
+    (the start of the measured window), SIGUSR2 stops it and writes the functions' own and
+    cumulative CPU time to ``out`` (the end of it)."""
+    import yappi
+
+    from chaintwin.cli import main as cli_main
+
+    def clear(*_: Any) -> None:
+        yappi.start(builtins=True, profile_threads=True)
+
+    def dump(*_: Any) -> None:
+        yappi.stop()
+        stats = yappi.get_func_stats()
+        lines = []
+        for key in ("tsub", "ttot"):
+            stats.sort(key, "desc")
+            lines.append(f"# by {key}: ncall tsub ttot  function (file:line)")
+            for f in list(stats)[:60]:
+                lines.append(
+                    f"{f.ncall:9d} {f.tsub:8.3f} {f.ttot:8.3f}  {f.name} "
+                    f"({Path(f.module).name}:{f.lineno})"
+                )
+        threads = yappi.get_thread_stats()
+        lines.append("# threads: name ttot")
+        lines += [f"{t.name} {t.ttot:.3f}" for t in threads]
+        Path(out).write_text("\n".join(lines) + "\n")
+
+    signal.signal(signal.SIGUSR1, clear)
+    signal.signal(signal.SIGUSR2, dump)
+    yappi.set_clock_type("cpu")
+    sys.argv = ["chaintwin", *argv]
+    cli_main()
 
 
 # ---------------------------------------------------------------- the store
@@ -224,12 +261,31 @@ def run(args: argparse.Namespace, work: Path) -> None:
     from chaintwin.store.store import Store
     from chaintwin.web.access import create_token
 
-    url, held = build_store(work, args.conveyors, args.history, args.recordings)
+    pristine, held_list = work / "plant-before-run.db", work / "held.json"
+    if args.keep is not None and pristine.exists() and held_list.exists():  # built before
+        shutil.copy(pristine, work / "plant.db")
+        for side in ("plant.db-wal", "plant.db-shm"):
+            (work / side).unlink(missing_ok=True)
+        url, held = (
+            f"sqlite:///{work / 'plant.db'}",
+            [Path(p) for p in json.loads(held_list.read_text())],
+        )
+        held = held[: args.recordings]
+        print(f"store: the one built before in {work}", flush=True)
+    else:
+        url, held = build_store(work, args.conveyors, args.history, args.recordings)
+        if args.keep is not None:  # kept for the next run with the same --keep
+            import sqlite3
+
+            with sqlite3.connect(work / "plant.db") as src, sqlite3.connect(pristine) as dst:
+                src.backup(dst)
+            held_list.write_text(json.dumps([str(p) for p in held]))
     profile = load_profile(ROOT / "chaintwin" / "examples" / "profiles" / "white-belt-01.yaml")
     store = Store(url)
-    token = create_token(store, "bench", "viewer")
+    user = f"bench-{int(time.time())}"  # a store kept from an earlier run has its own
+    token = create_token(store, user, "viewer")
     pki = work / "pki"
-    (pki / "trusted" / "certs").mkdir(parents=True)
+    (pki / "trusted" / "certs").mkdir(parents=True, exist_ok=True)
     cert, key = work / "client.der", work / "client.pem"
     asyncio.run(
         setup_self_signed_certificate(
@@ -241,9 +297,13 @@ def run(args: argparse.Namespace, work: Path) -> None:
     endpoint = f"opc.tcp://127.0.0.1:{_free_port()}"
     env = dict(os.environ, PYTHONPATH=str(ROOT), OPENBLAS_NUM_THREADS="1")
     log = work / "serve.log"
+    serve = ["serve", "--db", url, "--no-web", "--opcua-endpoint", endpoint,
+             "--opcua-cert-dir", str(pki)]  # fmt: skip
+    head = [sys.executable, "-m", "chaintwin"]
+    if args.profile is not None:
+        head = [sys.executable, __file__, "--serve-profiled", str(args.profile.resolve())]
     server = subprocess.Popen(
-        [sys.executable, "-m", "chaintwin", "serve", "--db", url, "--no-web",
-         "--opcua-endpoint", endpoint, "--opcua-cert-dir", str(pki)],
+        [*head, *serve],
         stdout=subprocess.DEVNULL, stderr=log.open("wb"), env=env, cwd=work,
     )  # fmt: skip
     clients = None
@@ -253,14 +313,23 @@ def run(args: argparse.Namespace, work: Path) -> None:
             if server.poll() is not None:
                 raise SystemExit(f"serve ended: {log.read_text()[-2000:]}")
             time.sleep(0.5)
-        print(f"server: listening after {time.perf_counter() - t0:.1f} s", flush=True)
+        listening = time.perf_counter() - t0
+        while "conveyors published in" not in log.read_text(errors="replace"):
+            if server.poll() is not None:
+                raise SystemExit(f"serve ended: {log.read_text()[-2000:]}")
+            time.sleep(0.5)
+        print(
+            f"server: listening after {listening:.1f} s, every conveyor published after "
+            f"{time.perf_counter() - t0:.1f} s",
+            flush=True,
+        )
         ids = [profile.id] + [f"{profile.id}-{k:03d}" for k in range(1, args.conveyors)]
         (work / "ids.json").write_text(json.dumps(ids))
         clients = subprocess.Popen(
             [sys.executable, __file__, "--clients-child", endpoint, str(args.clients),
              str(work / "ids.json"), str(cert), str(key)],
             stdout=subprocess.PIPE, stderr=(work / "clients.log").open("wb"), text=True,
-            env=dict(env, BENCH_USER="bench", BENCH_TOKEN=token),
+            env=dict(env, BENCH_USER=user, BENCH_TOKEN=token),
         )  # fmt: skip
         arrivals: list[dict[str, Any]] = []
         ready = threading.Event()
@@ -299,6 +368,8 @@ def run(args: argparse.Namespace, work: Path) -> None:
         memory.append((0.0, _rss_mb(server.pid)))
         sampler = threading.Thread(target=sample, daemon=True)
         sampler.start()
+        if args.profile is not None:
+            server.send_signal(signal.SIGUSR1)
         served0 = _cpu_s(server.pid)
         ingest_cpu = 0.0
         stored: list[str] = []
@@ -320,6 +391,8 @@ def run(args: argparse.Namespace, work: Path) -> None:
         time.sleep(max(args.interval, 3.0))  # the last data changes arrive
         served = _cpu_s(server.pid) - served0
         window = time.perf_counter() - wall0
+        if args.profile is not None:
+            server.send_signal(signal.SIGUSR2)
         # the rest of the memory run, without ingest
         while time.perf_counter() - start < args.minutes * 60.0:
             time.sleep(1.0)
@@ -381,6 +454,10 @@ def main() -> None:
         sys.path.insert(0, str(ROOT))
         clients_child(endpoint, int(count), json.loads(Path(ids).read_text()), cert, key)
         return
+    if len(sys.argv) > 1 and sys.argv[1] == "--serve-profiled":
+        sys.path.insert(0, str(ROOT))
+        serve_profiled(sys.argv[2], sys.argv[3:])
+        return
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--conveyors", type=int, default=200)
     ap.add_argument("--clients", type=int, default=20)
@@ -389,6 +466,10 @@ def main() -> None:
     ap.add_argument("--interval", type=float, default=3.0, help="s between two recordings")
     ap.add_argument("--warmup-s", type=float, default=20.0)
     ap.add_argument("--minutes", type=float, default=3.0, help="length of the memory run")
+    ap.add_argument(
+        "--profile", type=Path,
+        help="run the server under yappi and write its profile of the ingest window here",
+    )  # fmt: skip
     ap.add_argument("--keep", type=Path, help="work here and keep it (default: a temp folder)")
     args = ap.parse_args()
     if args.keep is not None:

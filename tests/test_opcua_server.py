@@ -163,7 +163,7 @@ def running(plant: Plant, tmp_path_factory: pytest.TempPathFactory) -> Iterator[
     loop = Loop()
     stop = asyncio.Event()
     task = asyncio.run_coroutine_threadsafe(server.run(stop), loop.loop)
-    assert server.ready.wait(120) or task.result(0), "the server did not start"
+    assert server.published.wait(120) or task.result(0), "the server did not start"
     yield Running(server, loop, endpoint, cert_dir, trusted, stranger, updates)
     loop.loop.call_soon_threadsafe(stop.set)
     task.result(30)
@@ -370,6 +370,97 @@ def test_a_conveyor_added_to_the_store_appears_without_restart(
     assert odd.id in got[1:] and PROFILE.id in got[1:]
 
 
+def test_a_conveyor_deleted_from_the_store_leaves_and_its_monitored_items_end(
+    plant: Plant, running: Running, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A conveyor deleted from the store: each subscribed value gets a last data change with
+    BadNodeIdUnknown, its nodes go (browse, read), the subscription goes on, its items are
+    deleted without error, and the server logs no error doing it."""
+    from sqlalchemy import delete
+    from sqlalchemy.orm import Session
+
+    from chaintwin.store.schema import ConveyorRow
+
+    doomed = PROFILE.model_copy(update={"id": "line-to-go"})
+    plant.store.put_profile(doomed)
+    while running.updates.get(timeout=30)[0] != doomed.id:  # it appeared
+        pass
+    changes: queue.Queue[tuple[str, int]] = queue.Queue()
+
+    class Handler:
+        def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
+            code = data.monitored_item.Value.StatusCode.value
+            changes.put((str(node.nodeid.Identifier), code))
+
+    paths = ("Identification/ConveyorId", "Monitoring/Payload")
+    state: dict[str, Any] = {}
+
+    async def subscribe() -> None:
+        client = await _client(running, plant.token_name, plant.token, running.trusted)
+        await client.connect()
+        ns = await client.get_namespace_index(NAMESPACE_URI)
+        sub = await client.create_subscription(100, Handler())
+        nodes = [client.get_node(_nid(ns, node_id(doomed.id, p))) for p in paths]
+        nodes.append(client.get_node(_nid(ns, node_id(PROFILE.id, "Monitoring/Health"))))
+        state.update(client=client, ns=ns, sub=sub, handles=await sub.subscribe_data_change(nodes))
+
+    async def after() -> tuple[list[str], ua.StatusCode, int]:
+        client, ns, sub = state["client"], state["ns"], state["sub"]
+        root = await client.nodes.objects.get_child([f"{ns}:Conveyors"])
+        names = [(await c.read_browse_name()).Name for c in await root.get_children()]
+        read = await client.uaclient.read_attributes(
+            [_nid(ns, node_id(doomed.id, "Identification/ConveyorId"))], ua.AttributeIds.Value
+        )
+        await sub.unsubscribe(state["handles"][:2])  # the gone items end without error
+        again = await sub.subscribe_data_change(  # the subscription goes on
+            client.get_node(_nid(ns, node_id(PROFILE.id, "Monitoring/Payload")))
+        )
+        return names, read[0].StatusCode, again
+
+    running.loop.run(subscribe())
+    try:
+        first = {changes.get(timeout=30)[0] for _ in range(3)}  # the initial values
+        gone = {node_id(doomed.id, p) for p in paths}
+        assert first == gone | {node_id(PROFILE.id, "Monitoring/Health")}
+        caplog.set_level("WARNING")
+        caplog.clear()  # what the server logs from here on
+        with Session(plant.store.engine) as s, s.begin():
+            s.execute(delete(ConveyorRow).where(ConveyorRow.id == doomed.id))
+        while running.updates.get(timeout=30)[0] != doomed.id:  # the server took it out
+            pass
+        last: dict[str, int] = {}
+        while set(last) != gone:
+            name, code = changes.get(timeout=30)
+            if name in gone:
+                last[name] = code
+        assert set(last.values()) == {ua.StatusCodes.BadNodeIdUnknown}
+        names, code, again = running.loop.run(after())
+        assert doomed.id not in names and PROFILE.id in names
+        assert code.value == ua.StatusCodes.BadNodeIdUnknown
+        assert again > 0
+        assert not [r for r in caplog.records if r.levelno >= 30], caplog.text
+        assert not any(n.startswith(conveyor_node_id(doomed.id)) for n in running.server._nodes)
+    finally:
+        running.loop.run(state["client"].disconnect())
+
+
+def test_values_read_again_in_part_agree_with_a_full_read(plant: Plant) -> None:
+    """The reader that keeps a conveyor's parts (its health model without its history)
+    gives the values a full read gives, when only the forecasts' key changed."""
+    from chaintwin.live.opcua_nodes import ConveyorReader, read_conveyor
+
+    server = ResultsServer(plant.store, "opc.tcp://127.0.0.1:4840", security="none")
+    key = server._keys()[PROFILE.id]
+    reader = ConveyorReader(plant.store)
+    full = read_conveyor(plant.store, PROFILE.id)
+    assert full is not None and any(p.startswith("Monitoring/Features/") for p in full)
+    assert reader.read(PROFILE.id, key) == full
+    kept = reader._parts[PROFILE.id]
+    assert kept.state is not None and kept.state.history == []  # the history not kept
+    again = (key[0], key[1], "a later refit", key[3])  # only the forecasts' time differs
+    assert reader.read(PROFILE.id, again) == full
+
+
 @pytest.mark.parametrize(
     ("user", "password"),
     [
@@ -568,12 +659,12 @@ def test_serve_runs_one_opcua_server_per_store_and_another_takes_over(
 
     try:
         up = [
-            _wait_for_line(log, "OPC UA server at", p, 0.1)
+            _wait_for_line(log, "conveyors published in", p, 0.1)
             for log, p in zip(logs, procs, strict=True)
         ]
         while not any(up):
             up = [
-                _wait_for_line(log, "OPC UA server at", p, 1)
+                _wait_for_line(log, "conveyors published in", p, 1)
                 for log, p in zip(logs, procs, strict=True)
             ]
             assert all(p.poll() is None for p in procs), [log.read_text() for log in logs]
@@ -583,7 +674,7 @@ def test_serve_runs_one_opcua_server_per_store_and_another_takes_over(
         assert "OPC UA server at" not in logs[other].read_text()  # it stands by
         procs[first].send_signal(signal.SIGTERM)
         assert procs[first].wait(60) == 0
-        assert _wait_for_line(logs[other], "OPC UA server at", procs[other])
+        assert _wait_for_line(logs[other], "conveyors published in", procs[other])
         assert asyncio.run(conveyor_id(ports[other])) == PROFILE.id
     finally:
         for p in procs:

@@ -294,7 +294,11 @@ def _worst(devs: dict[str, float]) -> tuple[float | None, str | None]:
     return devs[name], name
 
 
-def verdict(state: MonitorState | None, now: datetime | None = None) -> Verdict:
+def verdict(
+    state: MonitorState | None,
+    now: datetime | None = None,
+    series: DeviationSeries | None = None,
+) -> Verdict:
     """The conveyor's verdict from its stored health model (see the module notes).
 
     Parameters
@@ -304,6 +308,9 @@ def verdict(state: MonitorState | None, now: datetime | None = None) -> Verdict:
     now : datetime, optional
         The time to judge at (shelving and out-of-service windows end by
         themselves); default: the clock.
+    series : DeviationSeries, optional
+        ``deviation_series(state)`` when the caller has it already (worked
+        out here when None).
 
     Returns
     -------
@@ -320,7 +327,7 @@ def verdict(state: MonitorState | None, now: datetime | None = None) -> Verdict:
         return _make("out_of_service", None if window is None else window.get("from"))
     lifecycles = [(a, a.lifecycle(now)) for a in state.alarms]
     standing = [a for a, life in lifecycles if life not in ("closed", "shelved", "out_of_service")]
-    series = deviation_series(state)
+    series = deviation_series(state) if series is None else series
     deviation, worst = _worst(series.latest())
     if standing:
         first = _earliest([a.since for a in standing])

@@ -25,7 +25,7 @@ its URI.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from typing import Any
 from urllib.parse import quote
@@ -37,7 +37,13 @@ from chaintwin.diagnose.baseline import regressor_of
 from chaintwin.diagnose.features import feature_spec
 from chaintwin.diagnose.monitor_state import MonitorState
 from chaintwin.diagnose.records import as_number
-from chaintwin.diagnose.verdict import NE107, Verdict, deviation_series, verdict
+from chaintwin.diagnose.verdict import (
+    NE107,
+    DeviationSeries,
+    Verdict,
+    deviation_series,
+    verdict,
+)
 from chaintwin.errors import ChaintwinError
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.store.schema import AlarmRow, MonitorStateRow, ResultRow
@@ -49,6 +55,8 @@ __all__ = [
     "NAMESPACE_URI",
     "ROOT",
     "UNITS",
+    "ConveyorKey",
+    "ConveyorReader",
     "Unit",
     "Value",
     "conveyor_node_id",
@@ -256,6 +264,7 @@ def conveyor_values(
     latest: dict[str, Any] | None,
     open_alarms: list[dict[str, Any]],
     forecasts: list[dict[str, Any]] | None,
+    series: DeviationSeries | None = None,
 ) -> dict[str, Value]:
     """Every value of a conveyor's object, by path below it.
 
@@ -273,6 +282,8 @@ def conveyor_values(
         Its alarms not closed (``cause``, ``feature``).
     forecasts : list of dict or None
         Its stored forecasts (:mod:`chaintwin.store.derived`); None: never computed.
+    series : DeviationSeries, optional
+        ``deviation_series(state)`` when worked out already (the features' deviations).
     """
     out = identification(profile)
     no_rec = "no recording yet"
@@ -363,17 +374,20 @@ def conveyor_values(
         "Since when DeviceHealth holds",
         None if _time(judged.ne107_since) else "not known",
     )
-    out.update(_features(state, res))
+    out.update(_features(state, res, series))
     return out
 
 
-def _features(state: MonitorState | None, latest: dict[str, Any]) -> dict[str, Value]:
-    """Each monitored feature's latest value, baseline band and deviation."""
+def _features(
+    state: MonitorState | None, latest: dict[str, Any], series: DeviationSeries | None = None
+) -> dict[str, Value]:
+    """Each monitored feature's latest value, baseline band and deviation (``series``:
+    the state's deviation series, when worked out already)."""
     if state is None or not state.baselines:
         return {}
     z_limit = state.settings.z_limit
     feats = latest.get("features") or {}
-    devs = deviation_series(state).latest()
+    devs = (deviation_series(state) if series is None else series).latest()
     out: dict[str, Value] = {}
     for name, fb in state.baselines.items():
         spec = feature_spec(name)
@@ -431,12 +445,103 @@ def read_conveyor(store: Store, conveyor: str) -> dict[str, Value] | None:
     Reads its profile, latest result (not refused), alarms not closed, health
     model and stored forecasts: five small reads and the verdict's work.
     """
-    from chaintwin.store.derived import read_derived
+    return ConveyorReader(store).read(conveyor)
 
-    profile = store.profile(conveyor)
-    if profile is None:
-        return None
-    state = _readable_state(store, conveyor, profile)
+
+ConveyorKey = tuple[Any, Any, Any, Any]
+"""What a conveyor's values depend on: its profile's hash, its health model's version,
+when its forecasts were computed and its number of open alarms."""
+
+
+@dataclass
+class _Parts:
+    """What a conveyor's values were worked out from, by the key part each depends on."""
+
+    profile_sha: Any
+    profile: ConveyorProfile
+    health: tuple[Any, Any]
+    state: MonitorState | None
+    series: DeviationSeries | None
+    judged: Verdict
+    latest: dict[str, Any] | None
+    alarms: list[dict[str, Any]]
+    computed_at: Any
+    forecasts: list[dict[str, Any]] | None
+
+
+class ConveyorReader:
+    """Reads conveyors' values from the store, again only the parts whose key changed.
+
+    A recording changes the health model's version (the latest result, the
+    verdict, the features and the alarms are read and worked out again); the
+    forecasts' refit that follows changes only when they were computed (only
+    they are read again); a new profile changes everything.
+    """
+
+    def __init__(self, store: Store) -> None:
+        self.store = store
+        self._parts: dict[str, _Parts] = {}
+
+    def forget(self, conveyor: str) -> None:
+        """Drop what is kept of a conveyor (it left the store)."""
+        self._parts.pop(conveyor, None)
+
+    def read(self, conveyor: str, key: ConveyorKey | None = None) -> dict[str, Value] | None:
+        """Every value of a conveyor's object (None: no such conveyor).
+
+        ``key``: the conveyor's :data:`ConveyorKey` as read just before; the parts
+        read for an earlier key are used again where their part of it is the same
+        (None: everything is read, nothing kept).
+        """
+        from chaintwin.store.derived import read_derived
+
+        old = self._parts.get(conveyor) if key is not None else None
+        sha, version, computed_at, open_alarms = key if key is not None else (None,) * 4
+        if old is not None and old.profile_sha == sha:
+            profile = old.profile
+        else:
+            old = None  # a new profile: every value again
+            stored = self.store.profile(conveyor)
+            if stored is None:
+                self.forget(conveyor)
+                return None
+            profile = stored
+        if old is not None and old.health == (version, open_alarms):
+            state, series, judged = old.state, old.series, old.judged
+            latest, alarms = old.latest, old.alarms
+        else:
+            state = _readable_state(self.store, conveyor, profile)
+            series = deviation_series(state) if state is not None and state.baselines else None
+            judged = verdict(state, series=series)
+            latest, alarms = _latest_result(self.store, conveyor)
+        if old is not None and old.computed_at == computed_at:
+            forecasts = old.forecasts
+        else:
+            derived = read_derived(self.store, conveyor)
+            forecasts = None if derived is None else list(derived.content.get("forecasts") or [])
+        if key is not None:
+            self._parts[conveyor] = _Parts(
+                sha,
+                profile,
+                (version, open_alarms),
+                # its baselines and settings are what the values need again: its history
+                # (up to the store's 300 recordings per conveyor) is not kept
+                None if state is None else replace(state, history=[]),
+                series,
+                judged,
+                latest,
+                alarms,
+                computed_at,
+                forecasts,
+            )
+        return conveyor_values(profile, judged, state, latest, alarms, forecasts, series)
+
+
+def _latest_result(
+    store: Store, conveyor: str
+) -> tuple[dict[str, Any] | None, list[dict[str, Any]]]:
+    """A conveyor's latest result (not refused, not superseded; None: none yet) and its
+    alarms not closed."""
     with Session(store.engine) as s:
         row = s.execute(
             select(ResultRow.recorded_at, ResultRow.payload_kg, ResultRow.tlf, ResultRow.content)
@@ -458,6 +563,4 @@ def read_conveyor(store: Store, conveyor: str) -> dict[str, Value] | None:
     if row is not None:
         latest = dict(row.content or {})
         latest.update(recorded_at=row.recorded_at, payload_kg=row.payload_kg, tlf=row.tlf)
-    derived = read_derived(store, conveyor)
-    forecasts = None if derived is None else list(derived.content.get("forecasts") or [])
-    return conveyor_values(profile, verdict(state), state, latest, alarms, forecasts)
+    return latest, alarms

@@ -26,6 +26,7 @@ import hmac
 import logging
 import socket
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -38,6 +39,7 @@ from asyncua.common.utils import ServiceError
 from asyncua.crypto.permission_rules import User, UserRole
 from asyncua.server.server import Server
 from asyncua.server.user_managers import UserManager
+from asyncua.ua.attribute_ids import AttributeIds
 from asyncua.ua.object_ids import ObjectIds
 from asyncua.ua.status_codes import StatusCodes
 from sqlalchemy import func, select
@@ -58,10 +60,11 @@ from .opcua_nodes import (
     NAMESPACE_URI,
     ROOT,
     UNITS,
+    ConveyorKey,
+    ConveyorReader,
     Value,
     conveyor_node_id,
     node_id,
-    read_conveyor,
 )
 
 __all__ = [
@@ -303,13 +306,21 @@ class ResultsServer:
     """Called with a conveyor id after its values were written (tests, benchmarks)."""
     ready: threading.Event = field(default_factory=threading.Event)
     """Set once the server listens (other threads may wait on it)."""
+    published: threading.Event = field(default_factory=threading.Event)
+    """Set once the conveyors the store held at the start are in the address space (the
+    server listens before: clients see them appear)."""
     _known: dict[str, _Known] = field(default_factory=dict)
     _nodes: set[str] = field(default_factory=set)
+    _owned: dict[str, list[ua.NodeId]] = field(default_factory=dict)
+    """Per conveyor, the node ids made for it (its object first), for its removal."""
     _stamp: tuple[Any, ...] | None = None
     _trust_mtime: float = -1.0
     _trust: Any = None
+    _reader: ConveyorReader = field(init=False)
+    _stamp_query: Any = None
 
     def __post_init__(self) -> None:
+        self._reader = ConveyorReader(self.store)
         if self.security not in SECURITY:
             raise ConnectorError(
                 f"--opcua-security {self.security}: give one of {', '.join(SECURITY)}"
@@ -548,12 +559,13 @@ class ResultsServer:
         items = self._conveyor_items(conveyor, values)
         if items:
             await self._add(items)
+            self._owned.setdefault(conveyor, []).extend(i.RequestedNewNodeId for i in items)
         changed = 0
         stamp = cast(ua.DateTime, datetime.now(UTC))
         for path, value in values.items():
             if known is not None and known.values.get(path) == value:
                 continue
-            dv = ua.DataValue(
+            dv = _Written(
                 _variant(value),
                 StatusCode=ua.StatusCode(
                     ua.UInt32(
@@ -567,17 +579,70 @@ class ResultsServer:
             changed += 1
         return changed
 
+    async def remove(self, conveyor: str) -> int:
+        """Take a conveyor that left the store out of the address space; returns the nodes
+        removed.
+
+        Each monitored item of its values first gets a last data change with the status
+        ``BadNodeIdUnknown`` (and no value): a subscribed client learns that the node is
+        gone, and its subscription goes on with its other items.
+        """
+        assert self.server is not None
+        aspace = self.server.iserver.aspace
+        owned = self._owned.pop(conveyor, [])
+        gone = ua.DataValue(
+            ua.Variant(None, ua.VariantType.Null),
+            StatusCode=ua.StatusCode(ua.UInt32(StatusCodes.BadNodeIdUnknown)),
+            SourceTimestamp=cast(ua.DateTime, datetime.now(UTC)),
+            ServerTimestamp=cast(ua.DateTime, datetime.now(UTC)),
+        )
+        for nid in owned:
+            data = aspace.get(nid)
+            attr = None if data is None else data.attributes.get(AttributeIds.Value)
+            if attr is None or not attr.datachange_callbacks:
+                continue
+            await aspace.write_attribute_value(nid, AttributeIds.Value, gone)
+            # the callbacks told; asyncua's delete would call them again, unawaited
+            for handle in list(attr.datachange_callbacks):
+                aspace.delete_datachange_callback(handle)
+        session = self.server.iserver.isession
+        items = []
+        if owned:
+            # the only reference to its nodes from outside them: the conveyors' folder's
+            # (asyncua's DeleteTargetReferences would search every node of the server)
+            ref = ua.DeleteReferencesItem()
+            ref.SourceNodeId = _sid(ROOT, self.ns)
+            ref.ReferenceTypeId = _ns0(ObjectIds.Organizes)
+            ref.IsForward = True
+            ref.TargetNodeId = owned[0]
+            ref.DeleteBidirectional = False
+            await session.delete_references([ref])
+        for nid in reversed(owned):  # children before their parents
+            item = ua.DeleteNodesItem()
+            item.NodeId = nid
+            item.DeleteTargetReferences = False
+            items.append(item)
+        if items:
+            for code in await session.delete_nodes(ua.DeleteNodesParameters(items)):
+                code.check()
+        prefix = conveyor_node_id(conveyor)
+        self._nodes = {n for n in self._nodes if n != prefix and not n.startswith(prefix + "/")}
+        self._known.pop(conveyor, None)
+        self._reader.forget(conveyor)
+        return len(items)
+
     # ------------------------------------------------------------ the store
     def _stamp_now(self) -> tuple[Any, ...]:
         """A few numbers that change whenever anything the server shows may have changed."""
-        query = select(
-            *signature_columns(),
-            select(func.max(DerivedHealthRow.computed_at)).scalar_subquery(),
-        )
+        if self._stamp_query is None:  # built once: the poll runs it twice a second
+            self._stamp_query = select(
+                *signature_columns(),
+                select(func.max(DerivedHealthRow.computed_at)).scalar_subquery(),
+            )
         with self.store.engine.connect() as c:
-            return tuple(c.execute(query).one())
+            return tuple(c.execute(self._stamp_query).one())
 
-    def _keys(self) -> dict[str, tuple[Any, ...]]:
+    def _keys(self) -> dict[str, ConveyorKey]:
         """Per conveyor: what its values depend on (profile, health model version, forecasts,
         open alarms)."""
         with Session(self.store.engine) as s:
@@ -600,22 +665,33 @@ class ResultsServer:
             )
         return {str(r[0]): (r[1], r[2], r[3], alarms.get(r[0], 0)) for r in rows}
 
-    def changed(self) -> list[tuple[str, tuple[Any, ...]]]:
-        """The conveyors whose values may have changed since the last look (blocking I/O)."""
+    def changed(self) -> tuple[list[tuple[str, tuple[Any, ...]]], list[str]]:
+        """The conveyors whose values may have changed since the last look, and those that
+        left the store (blocking I/O)."""
         stamp = self._stamp_now()
         if stamp == self._stamp:
-            return []
+            return [], []
         keys = self._keys()
         self._stamp = stamp
-        return [(c, k) for c, k in keys.items() if (self._known.get(c) or _NONE).key != k]
+        gone = [c for c in self._owned if c not in keys]
+        return [(c, k) for c, k in keys.items() if (self._known.get(c) or _NONE).key != k], gone
 
     async def refresh(self) -> int:
-        """Look at the store once; publish what changed. Returns the conveyors updated."""
-        changed = await asyncio.to_thread(self.changed)
+        """Look at the store once; publish what changed, remove the conveyors that left it.
+        Returns the conveyors updated or removed."""
+        changed, gone = await asyncio.to_thread(self.changed)
         done = 0
+        for conveyor in gone:
+            await self.remove(conveyor)
+            log.info("OPC UA server: conveyor %s left the store; its nodes removed", conveyor)
+            done += 1
+            if self.on_update is not None:
+                self.on_update(conveyor)
         for conveyor, key in changed:
-            values = await asyncio.to_thread(read_conveyor, self.store, conveyor)
+            values = await asyncio.to_thread(self._reader.read, conveyor, key)
             if values is None:
+                if conveyor in self._owned:  # gone between the two looks
+                    await self.remove(conveyor)
                 continue
             await self.publish(conveyor, values)
             self._known[conveyor] = _Known(key, values)
@@ -626,9 +702,9 @@ class ResultsServer:
 
     # ------------------------------------------------------------ running
     async def run(self, stop: asyncio.Event) -> None:
-        """Serve until ``stop`` is set: build, publish the store's conveyors, listen, poll."""
+        """Serve until ``stop`` is set: build, listen, publish the store's conveyors (clients
+        see them appear), poll."""
         server = await self.build()
-        await self.refresh()
         try:
             await server.start()
         except OSError as exc:
@@ -639,6 +715,14 @@ class ResultsServer:
         log.info("OPC UA server at %s (%s)", self.endpoint, self.security)
         self.ready.set()
         try:
+            started = time.perf_counter()
+            count = await self.refresh()
+            self.published.set()
+            log.info(
+                "OPC UA server: %d conveyors published in %.1f s",
+                count,
+                time.perf_counter() - started,
+            )
             while not stop.is_set():
                 with contextlib.suppress(asyncio.TimeoutError):
                     await asyncio.wait_for(stop.wait(), self.poll_s)
@@ -652,10 +736,27 @@ class ResultsServer:
                     log.error("OPC UA server: cannot read the store (%s)", exc)
         finally:
             self.ready.clear()
+            self.published.clear()
             await server.stop()
 
 
 _NONE = _Known((), {})
+
+
+class _Written(ua.DataValue):
+    """A value the server writes and never changes afterwards: its own deep copy.
+
+    asyncua copies each value written once per monitored item of its node
+    (``copy.deepcopy``, against a caller changing it later): with 20 clients
+    watching a value that was most of the serving process's work per
+    recording. Every write makes a new one; none is changed once written.
+    """
+
+    __slots__ = ()
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> _Written:
+        return self
+
 
 HEALTH_TYPE = "DeviceHealthEnumeration"
 """The string node id of the server's copy of OPC 10000-100's ``DeviceHealthEnumeration``

@@ -206,13 +206,11 @@ def _share(x: np.ndarray, cond: np.ndarray) -> float:
 def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per protocol, condition and known-run mode: accuracy and honesty."""
     out = []
-    keys = sorted({(r["protocol"], r["condition"], r["known"]) for r in rows})
-    for protocol, condition, known in keys:
-        mine = [
-            r
-            for r in rows
-            if (r["protocol"], r["condition"], r["known"]) == (protocol, condition, known)
-        ]
+    groups: dict[tuple[Any, ...], list[dict[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault((r["protocol"], r["condition"], r["known"]), []).append(r)
+    for protocol, condition, known in sorted(groups):
+        mine = groups[(protocol, condition, known)]
         ok = [r for r in mine if r["payload_kg"] is not None]
         err = np.array([r["payload_kg"] - r["payload_true_kg"] for r in ok])
         u = np.array([r["uncertainty_kg"] for r in ok])
@@ -256,15 +254,12 @@ def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 def per_conveyor(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Largest error per conveyor (seed), protocol, condition and mode, with its noise floor."""
     out = []
-    keys = sorted(
-        {(r["seed"], r["conveyor"], r["protocol"], r["condition"], r["known"]) for r in rows}
-    )
-    for key in keys:
-        mine = [
-            r
-            for r in rows
-            if (r["seed"], r["conveyor"], r["protocol"], r["condition"], r["known"]) == key
-        ]
+    groups: dict[tuple[Any, ...], list[dict[str, Any]]] = {}
+    for r in rows:
+        key = (r["seed"], r["conveyor"], r["protocol"], r["condition"], r["known"])
+        groups.setdefault(key, []).append(r)
+    for key in sorted(groups):
+        mine = groups[key]
         errs = [
             abs(r["payload_kg"] - r["payload_true_kg"]) for r in mine if r["payload_kg"] is not None
         ]

@@ -370,8 +370,8 @@ def markdown(
             f"| {s['unweighable']:.0%} | {s['max_kg']:.2f} | {s['median_kg']:.2f} "
             f"| {_mark(s, 'within_1u', format(s['within_1u'], '.0%'))} "
             f"| {_mark(s, 'within_2u', format(s['within_2u'], '.0%'))} "
-            f"| {_mark(s, 'beyond_5u', format(s['beyond_5u'], '.1%'))} "
-            f"| {s['beyond_5u_exact']:.1%} "
+            f"| {_mark(s, 'beyond_5u', format(s['beyond_5u'], '.2%'))} "
+            f"| {s['beyond_5u_exact']:.2%} "
             f"| {_mark(s, 'u_over_error', format(s['u_over_error'], '.2f'))} "
             f"| {s['median_sigma']:.3f} | {', '.join(s['beyond_5u_conveyors']) or '-'} |"
         )
@@ -390,6 +390,12 @@ def markdown(
             f"{'' if t['exempt_within_fifth'] else ', over a fifth'}) "
             f"| {_fmt(t.get('median_median_kg'))} | {_fmt(t.get('median_max_kg'))} "
             f"| {_fmt(t.get('median_floor_kg'))} |"
+        )
+    lines += ["", "Exempt conveyors (their noise floor is above the target):", ""]
+    for t in targets:
+        lines.append(
+            f"* {t['protocol']}, {t['condition']}, known runs {'yes' if t['known'] else 'no'}: "
+            f"{', '.join(t.get('exempt_conveyors', [])) or 'none'}"
         )
     if convs:
         lines += [

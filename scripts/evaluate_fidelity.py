@@ -680,7 +680,8 @@ def main(argv: list[str] | None = None) -> int:
         type=int,
         nargs="+",
         default=None,
-        help="monitoring: run each of these seeds (default: --seed) and pool the tables",
+        help="monitoring, weighing --sequences: run each of these seeds (default: --seed) "
+        "and pool the tables",
     )
     parser.add_argument("--recordings", type=int, default=200, help="monitoring: per sequence")
     parser.add_argument("--workers", type=int, default=2, help="monitoring: processes")
@@ -691,6 +692,13 @@ def main(argv: list[str] | None = None) -> int:
         "--sequences",
         action="store_true",
         help="weighing: zero-tracking sequences (scripts/weighing_sequences.py) instead",
+    )
+    parser.add_argument(
+        "--cache",
+        type=Path,
+        default=None,
+        help="weighing --sequences: keep the weighings in this folder and reuse them "
+        "(for runs that change only the zero tracking)",
     )
     args = parser.parse_args(argv)
     args.json = args.json or EVALUATION / f"fidelity-{args.what}.json"

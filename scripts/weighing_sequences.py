@@ -32,10 +32,12 @@ the end.
 from __future__ import annotations
 
 import math
+import pickle
 import sys
 import time
 from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -47,8 +49,9 @@ from chaintwin.weigh import reweigh, weigh
 from chaintwin.weigh.drift import LossDrift
 from chaintwin.weigh.zero_tracking import ZeroTracker
 
-HELD_OUT_SEED = 73067
-"""The sequences' held-out seed: not used while developing."""
+HELD_OUT_SEED = 58213
+"""The sequences' held-out seed: not used while developing (chosen anew for the final
+per-condition evaluation, before anything ran on it)."""
 
 DAYS = 20
 PER_DAY = 5
@@ -102,18 +105,19 @@ def plan(rng: np.random.Generator, max_payload: float) -> list[tuple[float, floa
     return out
 
 
-def evaluate_sequences(
+def weigh_sequences(
     conv: Any, seed: int, calibration_runs: Callable[..., Any], run: Callable[..., Any]
-) -> list[dict[str, Any]]:
-    """Every scored weighing of one conveyor's sequences: a row per protocol, condition,
-    known-run mode and recording."""
+) -> tuple[dict[str, Any], dict[str, list[Any]]]:
+    """Calibrate one conveyor under every protocol and weigh every recording of its
+    sequences (the costly part): the calibrations' reference zeros per protocol, and per
+    condition ``(t s, payload kg, known, δ, {protocol: WeighResult})`` in recorded order."""
     cals = {}
     for protocol, recs in calibration_runs(conv, seed).items():
         try:
             cals[protocol] = calibrate(recs, conv.profile)
         except ChaintwinError:
             continue
-    rows: list[dict[str, Any]] = []
+    per_condition: dict[str, list[Any]] = {}
     for c, condition in enumerate(CONDITIONS):
         rng = np.random.default_rng([seed, c])
         delta = drift_of(condition, rng)
@@ -130,7 +134,35 @@ def evaluate_sequences(
             )
             ins = inspect_recording(rec, conv.profile)
             weighed.append((t, payload, known, d, {p: weigh(ins, cal) for p, cal in cals.items()}))
-        for protocol in cals:
+        per_condition[condition] = weighed
+    return {p: cal.zero_reference for p, cal in cals.items()}, per_condition
+
+
+def evaluate_sequences(
+    conv: Any,
+    seed: int,
+    calibration_runs: Callable[..., Any],
+    run: Callable[..., Any],
+    cache: Path | None = None,
+) -> list[dict[str, Any]]:
+    """Every scored weighing of one conveyor's sequences: a row per protocol, condition,
+    known-run mode and recording.
+
+    ``cache``: a file keeping the weighings (:func:`weigh_sequences`) between runs
+    that change only the tracking (read when present, written otherwise).
+    """
+    if cache is not None and cache.exists():
+        with cache.open("rb") as f:
+            references, per_condition = pickle.load(f)
+    else:
+        references, per_condition = weigh_sequences(conv, seed, calibration_runs, run)
+        if cache is not None:
+            cache.parent.mkdir(parents=True, exist_ok=True)
+            with cache.open("wb") as f:
+                pickle.dump((references, per_condition), f)
+    rows: list[dict[str, Any]] = []
+    for condition, weighed in per_condition.items():
+        for protocol in references:
             for with_known in (False, True):
                 tracker = ZeroTracker()
                 for t, payload, known, d, results in weighed:
@@ -141,7 +173,7 @@ def evaluate_sequences(
                         results[protocol],
                         at,
                         payload if known else None,
-                        cals[protocol].zero_reference,
+                        references[protocol],
                         known_runs=with_known,
                     )
                     if known:
@@ -161,6 +193,7 @@ def evaluate_sequences(
                             "loss_drift": res.loss_drift.to_dict(),
                             "since_known_run_s": res.since_known_run_s,
                             "exact_payload_kg": exact.payload_kg,
+                            "exact_uncertainty_kg": exact.uncertainty_kg,
                         }
                     )
     return rows
@@ -173,18 +206,30 @@ def _share(x: np.ndarray, cond: np.ndarray) -> float:
 def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per protocol, condition and known-run mode: accuracy and honesty."""
     out = []
-    keys = sorted({(r["protocol"], r["condition"], r["known"]) for r in rows})
-    for protocol, condition, known in keys:
-        mine = [
-            r
-            for r in rows
-            if (r["protocol"], r["condition"], r["known"]) == (protocol, condition, known)
-        ]
+    groups: dict[tuple[Any, ...], list[dict[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault((r["protocol"], r["condition"], r["known"]), []).append(r)
+    for protocol, condition, known in sorted(groups):
+        mine = groups[(protocol, condition, known)]
         ok = [r for r in mine if r["payload_kg"] is not None]
         err = np.array([r["payload_kg"] - r["payload_true_kg"] for r in ok])
         u = np.array([r["uncertainty_kg"] for r in ok])
         z = np.abs(err) / u if err.size else err
         med_err = float(np.median(np.abs(err))) if err.size else float("nan")
+        exact = [r for r in mine if r.get("exact_uncertainty_kg") is not None]
+        z_exact = np.array(
+            [
+                abs(r["exact_payload_kg"] - r["payload_true_kg"]) / r["exact_uncertainty_kg"]
+                for r in exact
+            ]
+        )
+        beyond = sorted(
+            {
+                f"{r['seed']}/{r['conveyor']}"
+                for r, zi in zip(ok, z, strict=True)
+                if zi > 5.0 and "seed" in r
+            }
+        )
         out.append(
             {
                 "protocol": protocol,
@@ -199,6 +244,8 @@ def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                 "beyond_5u": _share(z, z > 5.0),
                 "u_over_error": float(np.median(u)) / med_err if med_err > 0 else float("nan"),
                 "median_sigma": float(np.median([r["loss_drift"]["sigma"] for r in mine])),
+                "beyond_5u_exact": _share(z_exact, z_exact > 5.0),
+                "beyond_5u_conveyors": beyond,
             }
         )
     return out
@@ -207,15 +254,12 @@ def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 def per_conveyor(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Largest error per conveyor (seed), protocol, condition and mode, with its noise floor."""
     out = []
-    keys = sorted(
-        {(r["seed"], r["conveyor"], r["protocol"], r["condition"], r["known"]) for r in rows}
-    )
-    for key in keys:
-        mine = [
-            r
-            for r in rows
-            if (r["seed"], r["conveyor"], r["protocol"], r["condition"], r["known"]) == key
-        ]
+    groups: dict[tuple[Any, ...], list[dict[str, Any]]] = {}
+    for r in rows:
+        key = (r["seed"], r["conveyor"], r["protocol"], r["condition"], r["known"])
+        groups.setdefault(key, []).append(r)
+    for key in sorted(groups):
+        mine = groups[key]
         errs = [
             abs(r["payload_kg"] - r["payload_true_kg"]) for r in mine if r["payload_kg"] is not None
         ]
@@ -271,40 +315,118 @@ def judge(convs: list[dict[str, Any]]) -> list[dict[str, Any]]:
                 ],
             }
         )
+        med = [x["median_kg"] for x in mine if x["median_kg"] is not None]
+        big = [x["max_kg"] for x in mine if x["max_kg"] is not None]
+        floors = [x["floor_kg"] for x in mine if x["floor_kg"] is not None]
+        out[-1]["median_median_kg"] = float(np.median(med)) if med else None
+        out[-1]["median_max_kg"] = float(np.median(big)) if big else None
+        out[-1]["median_floor_kg"] = float(np.median(floors)) if floors else None
+        out[-1]["exempt_conveyors"] = [f"{x['seed']}/{x['conveyor']}" for x in exempt]
         if (protocol, condition) == MEDIAN_TARGET[:2]:
             meds = [x["median_kg"] for x in mine if x["median_kg"] is not None]
             out[-1]["median_of_medians_kg"] = float(np.median(meds)) if meds else None
     return out
 
 
-def markdown(summary: list[dict[str, Any]], targets: list[dict[str, Any]], title: str) -> str:
-    """The tables as markdown."""
+HONESTY = {"within_1u": (0.55, 0.80), "within_2u": (0.90, 1.0), "beyond_5u": (0.0, 0.0)}
+"""Per protocol and condition: the shares' target ranges."""
+U_OVER_ERROR_MAX = 2.2
+
+
+def honesty_misses(s: dict[str, Any]) -> list[str]:
+    """The honesty targets a summary row misses, named."""
+    out = [
+        name
+        for name, (lo, hi) in HONESTY.items()
+        if not (lo <= s[name] <= hi) and math.isfinite(s[name])
+    ]
+    if not s["u_over_error"] <= U_OVER_ERROR_MAX:
+        out.append("u_over_error")
+    return out
+
+
+def _mark(s: dict[str, Any], name: str, text: str) -> str:
+    return f"**{text}**" if name in honesty_misses(s) else text
+
+
+def markdown(
+    summary: list[dict[str, Any]],
+    targets: list[dict[str, Any]],
+    title: str,
+    convs: list[dict[str, Any]] | None = None,
+) -> str:
+    """The tables as markdown (a missed honesty target in bold)."""
     lines = [
         f"### {title}",
         "",
         "| protocol | condition | known runs | n | unweighable | max kg | median kg | <=1u "
-        "| <=2u | >5u | median u / median error | median sigma |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| <=2u | >5u | >5u, losses known | median u / median error | median sigma "
+        "| conveyors with >5u |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in summary:
         lines.append(
             f"| {s['protocol']} | {s['condition']} | {'yes' if s['known'] else 'no'} | {s['n']} "
             f"| {s['unweighable']:.0%} | {s['max_kg']:.2f} | {s['median_kg']:.2f} "
-            f"| {s['within_1u']:.0%} | {s['within_2u']:.0%} | {s['beyond_5u']:.1%} "
-            f"| {s['u_over_error']:.2f} | {s['median_sigma']:.3f} |"
+            f"| {_mark(s, 'within_1u', format(s['within_1u'], '.0%'))} "
+            f"| {_mark(s, 'within_2u', format(s['within_2u'], '.0%'))} "
+            f"| {_mark(s, 'beyond_5u', format(s['beyond_5u'], '.2%'))} "
+            f"| {s['beyond_5u_exact']:.2%} "
+            f"| {_mark(s, 'u_over_error', format(s['u_over_error'], '.2f'))} "
+            f"| {s['median_sigma']:.3f} | {', '.join(s['beyond_5u_conveyors']) or '-'} |"
         )
     lines += [
         "",
-        "| protocol | condition | known runs | target | met / judged | exempt (noise floor) |",
-        "|---|---|---|---|---|---|",
+        "| protocol | condition | known runs | target | met / judged | exempt (noise floor "
+        "above the target) | median per-conveyor median kg | median per-conveyor largest kg "
+        "| median noise floor kg |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for t in targets:
         lines.append(
             f"| {t['protocol']} | {t['condition']} | {'yes' if t['known'] else 'no'} "
             f"| <= {t['target_kg']:.1f} kg | {t['met']} / {t['judged']} "
-            f"| {t['exempt']} of {t['conveyors']} |"
+            f"| {t['exempt']} of {t['conveyors']} ({t['exempt'] / max(t['conveyors'], 1):.0%}"
+            f"{'' if t['exempt_within_fifth'] else ', over a fifth'}) "
+            f"| {_fmt(t.get('median_median_kg'))} | {_fmt(t.get('median_max_kg'))} "
+            f"| {_fmt(t.get('median_floor_kg'))} |"
         )
+    lines += ["", "Exempt conveyors (their noise floor is above the target):", ""]
+    for t in targets:
+        lines.append(
+            f"* {t['protocol']}, {t['condition']}, known runs {'yes' if t['known'] else 'no'}: "
+            f"{', '.join(t.get('exempt_conveyors', [])) or 'none'}"
+        )
+    if convs:
+        lines += [
+            "",
+            "Per conveyor (largest / median error, kg; noise floor: the largest error with "
+            "the losses known exactly), without drift and with a slow drift:",
+            "",
+            "| seed/conveyor | protocol | none, no known runs | none, known runs "
+            "| slow, no known runs | slow, known runs | noise floor (none) |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        by = {
+            (c["seed"], c["conveyor"], c["protocol"], c["condition"], c["known"]): c for c in convs
+        }
+        for seed, conv, protocol in sorted(
+            {(c["seed"], c["conveyor"], c["protocol"]) for c in convs}
+        ):
+            cells = []
+            for cond, known in (("none", False), ("none", True), ("slow", False), ("slow", True)):
+                c = by.get((seed, conv, protocol, cond, known))
+                cells.append("-" if c is None else f"{_fmt(c['max_kg'])} / {_fmt(c['median_kg'])}")
+            floor = by.get((seed, conv, protocol, "none", False))
+            lines.append(
+                f"| {seed}/{conv} | {protocol} | {' | '.join(cells)} "
+                f"| {_fmt(None if floor is None else floor['floor_kg'])} |"
+            )
     return "\n".join(lines) + "\n"
+
+
+def _fmt(x: float | None) -> str:
+    return "-" if x is None or not math.isfinite(x) else f"{x:.2f}"
 
 
 def run_sequences(
@@ -316,13 +438,20 @@ def run_sequences(
     """Draw the conveyors of every seed, run their sequences, summarise."""
     started = time.perf_counter()
     rows: list[dict[str, Any]] = []
-    for s in range(args.seeds):
-        seed = args.seed + s
+    seeds = args.seed_list or [args.seed + s for s in range(args.seeds)]
+    for seed in seeds:
         rng = np.random.default_rng(seed)
         for k in range(args.conveyors):
             conv = draw_conveyor(rng, k)
             try:
-                found = evaluate_sequences(conv, seed + 1000 * (k + 1), calibration_runs, run)
+                cache = (
+                    None
+                    if args.cache is None
+                    else args.cache / f"{seed}-{k}-{DAYS}x{PER_DAY}.pickle"
+                )
+                found = evaluate_sequences(
+                    conv, seed + 1000 * (k + 1), calibration_runs, run, cache
+                )
             except ChaintwinError as exc:
                 print(f"{conv.profile.id}: not evaluated ({exc})", file=sys.stderr)
                 continue
@@ -332,11 +461,19 @@ def run_sequences(
     convs = per_conveyor(rows)
     targets = judge(convs)
     title = (
-        f"Zero-tracking sequences over {args.conveyors} drawn conveyors x {args.seeds} seed(s) "
-        f"(from {args.seed}), {DAYS} days x {PER_DAY} recordings, every realism effect on"
+        f"Zero-tracking sequences over {args.conveyors} drawn conveyors x {len(seeds)} seed(s) "
+        f"({', '.join(map(str, seeds))}), {DAYS} days x {PER_DAY} recordings, every realism "
+        "effect on"
     )
-    text = markdown(summary, targets, title)
+    text = markdown(summary, targets, title, convs)
     print(text)
+    for row in summary:
+        misses = honesty_misses(row)
+        if misses:
+            print(
+                f"  honesty {row['protocol']}/{row['condition']}/known={row['known']}: "
+                f"missed {', '.join(misses)}"
+            )
     for t in targets:
         for miss in t["missed"]:
             print(f"  missed {t['protocol']}/{t['condition']}/known={t['known']}: {miss}")

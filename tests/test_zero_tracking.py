@@ -102,6 +102,52 @@ def test_without_known_runs_the_allowance_narrows_when_stable_and_widens_when_mo
     assert moving.sigma == pytest.approx(LOSS_DRIFT_REL) or moving.sigma > 0.05
 
 
+def test_the_history_narrows_by_its_own_scatter_not_the_claimed_variance() -> None:
+    """Known answer: each difference claims ±5 kg of inertia noise (the calibration's
+    model error, the same in every recording) but scatters by 0.3 kg (δ to ±0.8 %
+    with k_f 40 kg): a stable history narrows to the floor, a +6 % move widens it."""
+    rng = np.random.default_rng(8)
+
+    def sig(delta: float, payload: float) -> Signatures:
+        s = _sig(delta, payload, rng, 0.3)
+        return dataclasses.replace(s, inertia_var=5.0**2)
+
+    tracker = ZeroTracker()
+    at = DAY0
+    for _ in range(30):
+        tracker.observe(sig(0.0, rng.uniform(0.0, 50.0)), at)
+        at += timedelta(hours=3)
+    stable = tracker.allowance(at, known_runs=False)[0]
+    assert stable.sigma < 0.03
+    for _ in range(8):
+        tracker.observe(sig(0.06, rng.uniform(0.0, 50.0)), at)
+        at += timedelta(hours=3)
+    moving = tracker.allowance(at, known_runs=False)[0]
+    assert abs(0.06 - moving.mean) <= 1.5 * moving.sigma
+
+
+def test_known_runs_are_not_carried_to_an_inertia_signature_that_misreads_the_payload() -> None:
+    """Loaded recordings whose inertia signature reads half the payload (claiming ±1 kg)
+    disagree with the known empty runs beyond any warm-up: their allowance is the
+    history's, not the known runs' (a correct inertia signature keeps the tracked one)."""
+    for share, tracked in ((0.5, False), (1.0, True)):
+        rng = np.random.default_rng(9)
+        tracker = ZeroTracker()
+        for d in range(8):
+            start = DAY0 + timedelta(days=d)
+            assert tracker.learn_known(_sig(0.0, 0.0, rng, 1.0), 0.0, start)
+            for hours in (3, 7, 13):
+                payload = rng.uniform(20.0, 60.0)
+                s = _sig(0.0, payload, rng, 1.0)
+                s = dataclasses.replace(s, inertia_kg=share * payload + rng.normal(0.0, 1.0))
+                tracker.observe(s, start + timedelta(hours=hours))
+        at = DAY0 + timedelta(days=7, hours=15)
+        drift, since = tracker.allowance(at)
+        assert since == pytest.approx(15 * 3600.0)
+        history = tracker.allowance(at, known_runs=False)[0]
+        assert (drift == history) is not tracked, (share, drift, history)
+
+
 def _daily(
     tracker: ZeroTracker,
     delta_of: Callable[[float], float],

@@ -134,11 +134,24 @@ WARM_UP_REL = 0.03
 """How far the losses may move from a known run's within a few hours of it, 1
 (a gear warming up after a cold start)."""
 
+WARM_UP_LIMIT = 2.0 * WARM_UP_REL
+"""A warm-up offset fitted beyond this, 1, is no warm-up: the differences of the
+recordings with a payload disagree with the known runs (an inertia signature whose
+error is a share of the payload, beyond its calibrated model error), so the known
+runs' drift is not carried over to them and the allowance is the history's."""
+
 WARM_UP_S = 3600.0
 """Time constant of that movement, s."""
 
 HISTORY_FLOOR_REL = 0.02
 """The narrowest allowance the history alone gives (without known runs), 1."""
+
+HISTORY_SCATTER = True
+"""Without known runs, scale the history's variances to its own scatter (see
+:meth:`ZeroTracker._history_fit`)."""
+
+SCATTER_FLOOR = 1.0e-4
+"""The smallest factor the history's own scatter puts on its recordings' variances, 1."""
 
 HISTORY_MIN = 8
 """Recordings the history needs before it narrows the allowance."""
@@ -352,14 +365,30 @@ class ZeroTracker:
         )
         return float(beta[0]), float(cov[0, 0]), beta[1:], cov[1:, 1:]
 
-    def _history_fit(self) -> tuple[float, float, float, float] | None:
-        """The drift and the gain error with their variances from the history alone."""
+    def _history_fit(self) -> tuple[float, float, float, float, float] | None:
+        """The drift and the gain error with their variances from the history alone, and
+        the factor its own scatter puts on its recordings' variances.
+
+        A recording's difference carries the calibration model's error in its
+        variance; in operation that error is the same from recording to
+        recording and shows in the intercept, not in the scatter. The scatter
+        about the fit (χ²/dof, not below :data:`SCATTER_FLOOR`) is what
+        averages down over the history.
+        """
         if len(self.history) < HISTORY_MIN:
             return None
         rows = np.array(self.history)
         x = np.column_stack([np.ones(rows.shape[0]), rows[:, 2]])
-        beta, cov = _fit(x, rows[:, 0], rows[:, 1], (LOSS_DRIFT_REL, GAIN_PRIOR))
-        return float(beta[0]), float(cov[0, 0]), float(beta[1]), float(cov[1, 1])
+        prior = (LOSS_DRIFT_REL, GAIN_PRIOR)
+        var = rows[:, 1]
+        scale = 1.0
+        if HISTORY_SCATTER:
+            beta, _ = _fit(x, rows[:, 0], var, prior)
+            chi2 = float(np.sum((rows[:, 0] - x @ beta) ** 2 / var))
+            scale = max(chi2 / (rows.shape[0] - x.shape[1]), SCATTER_FLOOR)
+            var = var * scale
+        beta, cov = _fit(x, rows[:, 0], var, prior)
+        return float(beta[0]), float(cov[0, 0]), float(beta[1]), float(cov[1, 1]), scale
 
     def _without_known(self) -> LossDrift:
         """The allowance from the history alone: the default narrowed where the recent
@@ -367,11 +396,11 @@ class ZeroTracker:
         found = self._history_fit()
         if found is None:
             return LossDrift.unknown()
-        c, c_var, gain, gain_var = found
+        c, c_var, gain, gain_var, scale = found
         # the whole history and its most recent part: a move shows in the latter first
         recent = _weighted_mean(
             _corrected(
-                self.history[-HISTORY_MIN:],
+                [[d, v * scale, pk, ik] for d, v, pk, ik in self.history[-HISTORY_MIN:]],
                 np.array([gain, 0.0]),
                 np.diag([gain_var, 0.0]),
             )
@@ -394,6 +423,10 @@ class ZeroTracker:
             return LossDrift.unknown(), since
         x, p = self._predict(since)
         a, a_var, beta, cov = self._warm_fit()
+        if abs(a) > WARM_UP_LIMIT:
+            # the loaded recordings' differences disagree with the known runs beyond any
+            # warm-up: the known runs' drift does not carry over to them
+            return self._without_known(), since
         xw = _warm(since)
         mean = float(x[0]) + a * xw
         var = float(p[0, 0]) + xw * xw * a_var + self.reference_var

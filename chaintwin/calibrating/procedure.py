@@ -23,6 +23,7 @@ from chaintwin.errors import CalibrationError, ChaintwinError, EstimationError
 from chaintwin.identify.calibration import (
     INERTIA_GAIN_PRIOR_SIGMA,
     Calibration,
+    broken_invariant,
     identification_profile,
 )
 from chaintwin.identify.channels import choose_channel, measure_spreads, on_channel
@@ -512,11 +513,21 @@ def calibrate(
     EstimationError
         When a recording lacks ``payload_kg`` or the data cannot determine the model.
     CalibrationError
-        When ``friction_drift`` is not a share in [0, 1].
+        When ``friction_drift`` is not a share in [0, 1], or the recordings give a
+        physically impossible calibration (one its file could not hold: μ not
+        in (0, 2], say, from empty runs at one speed that cannot separate the
+        rail friction from the losses), which would weigh wrong numbers.
     """
     cal = _calibrate_channels(
         recordings, profile, estimator=estimator, version=version, friction_drift=friction_drift
     )
+    problem = broken_invariant(cal)
+    if problem is not None:
+        advice = cal.recommendation() or "record a run with a reference load"
+        raise CalibrationError(
+            f"conveyor '{profile.id}': these recordings give an impossible calibration: "
+            f"{problem}. What to do: {advice}"
+        )
     return replace(cal, zero_reference=_zero_reference(cal, recordings))
 
 

@@ -206,8 +206,8 @@ def _closure(
     friction-signature payload is compared with the load it was recorded
     with. The fit's statistics assume the rigid model holds; where it does
     not over these recordings (seen on a 21.7 m belt recorded by a 1 ms scope:
-    seven 2 s recordings, μ fitted 63 % high against a constant loss of
-    -0.58 N·m, every own recording read 20-39 kg light with ±5 kg stated),
+    seven 2 s recordings, μ fitted 34 % high, the own recordings read 32 kg
+    light on average, 8.7 times what they stated),
     the misreads exceed what they state. When their mean squared ratio to
     the stated uncertainty lies beyond the chi-square's
     :data:`CLOSURE_QUANTILE`, the excess mean square (kg²) is carried into

@@ -341,11 +341,15 @@ def evaluate_conveyor(conv: Conveyor, seed: int) -> list[dict[str, Any]]:
         try:
             cal = calibrate(recs, conv.profile)
         except ChaintwinError as exc:
-            for drift_, mode_ in CONDITIONS:
-                rows.append(
-                    {"conveyor": conv.profile.id, "protocol": protocol, "drift": drift_}
-                    | {"mode": mode_, "payload_kg": None, "error": str(exc)}
-                )
+            # refused: every test recording of this protocol goes unweighed
+            for condition, payload, scale, _ins in tests:
+                for mode_ in MODES:
+                    rows.append(
+                        {"conveyor": conv.profile.id, "protocol": protocol, "drift": condition}
+                        | {"loss_scale": scale, "payload_true_kg": payload, "mode": mode_}
+                        | {"payload_kg": None, "error": str(exc), "reason": str(exc)}
+                        | {"torque_channel": None}
+                    )
             continue
         mu_err = float(cal.parameters["mu"]) / truth_mu - 1.0
         heavy = _belt_mass_error(conv.profile, recs)
@@ -400,7 +404,7 @@ def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
             u = np.array([r["uncertainty_kg"] for r in weighed])
             ae = np.abs(err)
             z = ae / u if u.size else np.array([])
-            mu_errs = {r["conveyor"]: abs(r["mu_rel_error"]) for r in mine}
+            mu_errs = {r["conveyor"]: abs(r["mu_rel_error"]) for r in mine if "mu_rel_error" in r}
             out.append(
                 {
                     "protocol": protocol,

@@ -67,6 +67,7 @@ __all__ = [
     "CALIBRATION_FORMAT",
     "CALIBRATION_VERSION",
     "Calibration",
+    "broken_invariant",
     "identification_profile",
     "load_calibration",
     "sensitivity_nm_per_kg",
@@ -425,7 +426,7 @@ class Calibration:
                 f"{source}: the embedded profile does not match its hash; the file was "
                 "edited by hand. Calibrate again from the recordings"
             )
-        problem = _broken_invariant(cal)
+        problem = broken_invariant(cal)
         if problem is not None:
             raise CalibrationError(f"{source}: {problem}; calibrate again from the recordings")
         return cal
@@ -435,7 +436,7 @@ MAX_MU = 2.0
 """Largest friction coefficient a calibration may hold (belt on rails: 0.05-0.5)."""
 
 
-def _broken_invariant(cal: Calibration) -> str | None:
+def broken_invariant(cal: Calibration) -> str | None:
     """What is physically impossible in a calibration's numbers, or None.
 
     Positive drive inertia and inertia-signature gain, μ in (0, 2], a loss

@@ -50,6 +50,9 @@ def _columns(
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Residual z of the empty model, friction and inertia regressors per kg.
 
+    The inertia regressor is zero in windows at constant set point speed
+    (``wi.constant``): see the comment in the body.
+
     ``values`` is one parameter vector (J_d, μ, BmA, BmB, BmC), giving z and
     the friction regressor per window, or a stack of them (K × 5), giving
     K × n_windows arrays (the same arithmetic per element, so each row is
@@ -71,7 +74,16 @@ def _columns(
         + bmc * wi.speed_sq
     )
     xf = g_cos * mu * wi.gf_sign + g_sin * wi.gf
-    xi = r_over_i * wi.gf_accel
+    # where the set point holds the speed (a plateau window) the payload's
+    # inertia is not read: the measured Δω there is the encoder's noise, and
+    # the same noise, times the drive's inertia (J_d·(i/r)², hundreds of kg at
+    # the belt) and the belt's mass, is in z too. Read as acceleration, it
+    # biases the inertia payload by about -(J_d·(i/r)²·η + M)·Σσ²_Δω/ΣΔω²
+    # (errors in variables), a bias growing as 1/ω² as the plateau speed, and
+    # with it each ramp's Δω, falls (-8 kg at 500 rpm against +1 kg at 1400 rpm
+    # on an 8 m belt). The set point's Δω there is zero; z keeps the noise,
+    # now uncorrelated with every regressor.
+    xi = np.where(wi.constant, 0.0, r_over_i * wi.gf_accel)
     return wi.torque - base, xf, xi
 
 

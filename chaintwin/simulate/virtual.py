@@ -81,8 +81,7 @@ GEAR_MESH_RIPPLE = 0.003
 
 @dataclass(frozen=True, slots=True)
 class Realism:
-    """What the virtual conveyor adds to the rigid model; all on by default but
-    ``setpoint_noise``.
+    """What the virtual conveyor adds to the rigid model; all on by default.
 
     Parameters
     ----------
@@ -109,10 +108,7 @@ class Realism:
         The speed controller's reaction to its own speed measurement
         (encoder quantisation and ``speed_noise_rpm``) in the torque set
         point and, through the torque lag, in the actual torque
-        (:func:`setpoint_noise`). Off by default, unlike the others: the
-        known-answer tests' tolerances were set without it (it moves their
-        noise realisations); the weighing evaluation
-        (``scripts/evaluate_fidelity.py``) turns it on.
+        (:func:`setpoint_noise`).
     torque_noise : float
         Torque noise standard deviation, share of nominal torque.
     speed_noise_rpm : float
@@ -138,7 +134,7 @@ class Realism:
     gear_mesh: bool = True
     scope_limits: bool = True
     position_offset: bool = True
-    setpoint_noise: bool = False
+    setpoint_noise: bool = True
     torque_noise: float = 0.004
     speed_noise_rpm: float = 0.8
     speed_filter_s: float = 0.002

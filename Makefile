@@ -28,7 +28,8 @@ demo: $(VENV)/.installed-run
 	$(BIN)/chaintwin demo
 
 ## test: formatter check, linter, type checker, the layers contract (docs/design.md),
-## tests and doctests (warnings as errors) with a coverage floor; installs PostgreSQL and
+## tests and doctests (warnings as errors, one worker per core, a test file per worker)
+## with a coverage floor; installs PostgreSQL and
 ## Chromium if missing (the store's and the dashboard's tests use them)
 test: $(VENV)/.installed-dev
 	bash scripts/ensure_test_tools.sh
@@ -37,7 +38,7 @@ test: $(VENV)/.installed-dev
 	$(BIN)/mypy chaintwin
 	$(BIN)/lint-imports --no-cache
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
-	$(BIN)/pytest -q --cov --cov-report=term:skip-covered
+	$(BIN)/pytest -q -n auto --dist loadfile --cov --cov-report=term:skip-covered
 
 ## docs: the documentation site in site/ (mkdocs.yml; `$(BIN)/mkdocs serve` to read it live)
 docs: $(VENV)/.installed-dev

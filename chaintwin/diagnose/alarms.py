@@ -236,7 +236,7 @@ def judge(
     recording and loses at most one recording; an event stays alone.
 
     ``caught``: this recording shows an item caught (a drag the impact
-    search found, or a plateau whose level stepped:
+    search found, or where it could not look, a plateau whose level stepped:
     ``residual_step`` beyond its baseline); it implies ``confirm``. Events
     come one after another too (a 1 ms declined conveyor had items caught
     in four recordings in a row, which confirmed each other into an alarm),

@@ -629,6 +629,8 @@ def residual_step(
     model_torque_nm: FloatArray,
     phases: list[Phase],
     orders: Sequence[float] = (),
+    impacts: Sequence[Impact] = (),
+    margin_s: tuple[float, float] = (0.0, 0.0),
 ) -> float:
     """How far the constant-speed residual's level moves within a plateau, Nm.
 
@@ -643,6 +645,11 @@ def residual_step(
     impact search, has one too. A healthy conveyor's value is its noise
     and slow ripple averaged (a baseline learns it); a change of the load
     or the losses moves the whole plateau and leaves it as it was.
+
+    The samples of ``impacts`` the search found (from ``margin_s[0]``
+    before each to ``margin_s[1]`` after it) are set to the plateau's
+    median first: what the search explained (an obstacle's knock, which
+    keeps up to half its height in the average) is no step of the level.
 
     Returns
     -------
@@ -663,8 +670,11 @@ def residual_step(
         lo, hi = ph.start + settle, ph.stop - edge
         if ph.kind != "constant" or hi - lo < 2 * box:
             continue
-        r = residual[lo:hi]
-        flat = less_periodic(r - median(r), angle[lo:hi], orders)
+        r = residual[lo:hi] - median(residual[lo:hi])
+        t = recording.time[lo:hi]
+        for hit in impacts:
+            r[(t >= hit.t_s - margin_s[0]) & (t <= hit.t_s + hit.duration_s + margin_s[1])] = 0.0
+        flat = less_periodic(r, angle[lo:hi], orders)
         # only whole windows: the edges' partial averages would repeat the end samples
         level = uniform_filter1d(flat, size=box, mode="nearest")[
             box // 2 : flat.shape[0] - box // 2

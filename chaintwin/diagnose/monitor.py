@@ -619,11 +619,15 @@ class ConveyorMonitor:
             base.features = {k: finite_or_none(v) for k, v in values.items()}
             zs: dict[str, float] = {}
             # an item caught moves this recording's features alone: where the
-            # impact search found a drag or the plateau's level stepped (caught),
-            # or the search could look at no span (an event would go unnoticed),
-            # an exceedance waits for a neighbour to confirm it
+            # impact search found a drag, or could look at no span (an event
+            # would go unnoticed), an exceedance waits for a neighbour to confirm
+            # it; where it could not look, a step of the plateau's level is the
+            # drag it would have found (caught too; where it looked, its verdict
+            # stands: an obstacle's hit rings the belt, which steps the level)
             searched = values.get("belt_travel_m", 0.0) > 0.0
-            caught = (values.get("impact_drags") or 0.0) > 0.0 or self._stepped(values)
+            caught = (values.get("impact_drags") or 0.0) > 0.0 or (
+                not searched and self._stepped(values)
+            )
             met, change, exceeded = alarms.judge(
                 self.baselines,
                 judged,

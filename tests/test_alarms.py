@@ -365,3 +365,63 @@ def test_an_exceedance_no_impact_search_could_explain_counts_once_confirmed() ->
     # after a searched exceedance, an unsearched one counts at once
     win, _ = run([(hi, False), (hi, True)])
     assert win == [True, True]
+
+
+def test_caught_recordings_confirm_no_one() -> None:
+    """3 of 10 on a flat baseline 0.006 +- 0.00046 Nm: 0.012 exceeds, 0.006 does not.
+
+    Items caught in four recordings in a row (``caught``, the plateau's level
+    stepped) exceed four times and count none: a caught recording is
+    confirmed only by a neighbour that was not caught. Before the rule they
+    confirmed each other (``confirm`` alone): counted from the second on, met
+    at the third. A fault that grows and exceeds everywhere loses only the
+    caught recordings that no clean neighbour confirms.
+    """
+    from chaintwin.diagnose.alarms import judge
+    from chaintwin.diagnose.health import FeatureBaseline
+    from chaintwin.diagnose.records import MonitorSettings
+
+    fb = FeatureBaseline(0.006, 0.0, 0.00046, count=20, outliers=0, mean_payload_kg=25.0)
+    settings = MonitorSettings()
+    base = {"residual_std": fb}
+    when = datetime(2026, 3, 2, tzinfo=UTC)
+
+    def run(seq: list[tuple[float, bool, bool]]) -> tuple[list[bool], list[list[str]]]:
+        windows: dict[str, list[bool]] = {}
+        times: dict[str, list[str | None]] = {}
+        met_at = []
+        for k, (value, confirm, caught) in enumerate(seq):
+            met, _, _ = judge(
+                base,
+                {"residual_std": value, "payload_inertia_kg": 25.0},
+                windows,
+                times,
+                settings,
+                when + timedelta(hours=k),
+                confirm=confirm,
+                caught=caught,
+            )
+            met_at.append(met)
+        return windows["residual_std"], met_at
+
+    hi, lo = 0.012, 0.006
+    # four events in a row on unsearched (1 ms) recordings, each caught: nothing counts
+    events = [(hi, True, True)] * 4 + [(lo, True, False)] * 2
+    win, met = run(events)
+    assert win == [False] * 6 and not any(met)
+    # the same without the mark: they confirm each other, met at the third
+    win, met = run([(v, c, False) for v, c, _ in events])
+    assert win == [True, True, True, True, False, False] and met[2] == ["residual_std"]
+    # on searched recordings (6 ms) caught ones count no more than unsearched ones
+    win, met = run([(hi, False, True), (hi, False, True), (lo, False, False)])
+    assert win == [False, False, False] and not any(met)
+    # a clean exceedance confirms the caught one before it and counts itself
+    win, _ = run([(hi, False, True), (hi, False, False)])
+    assert win == [True, True]
+    # a caught exceedance after a clean one counts (the clean one confirms it) ...
+    win, _ = run([(hi, False, False), (hi, False, True)])
+    assert win == [True, True]
+    # ... but confirms no unsearched exceedance beside it: the first is confirmed
+    # by no one, the third waits for the fourth
+    win, _ = run([(hi, True, False), (hi, True, True), (hi, True, False), (hi, True, False)])
+    assert win == [False, True, True, True]

@@ -16,9 +16,11 @@ from chaintwin.diagnose.impacts import (
     less_periodic,
     periodic,
     pooled_hits,
+    residual_step,
+    scan_impacts,
 )
 from chaintwin.read.profile import ConveyorProfile
-from chaintwin.simulate.virtual import Realism, run_virtual
+from chaintwin.simulate.virtual import Realism, default_setpoints, run_virtual
 from chaintwin.validate import inspect_recording
 
 
@@ -213,3 +215,57 @@ def test_what_repeats_at_a_given_order_is_taken_away_and_a_single_hit_stays(
     x = np.sin(np.linspace(0.0, 40.0 * np.pi, 4000))
     flat = less_periodic(x, np.linspace(0.0, 40.0 * np.pi, 4000), [1.0])
     assert float(np.max(np.abs(flat))) < 0.05  # a pure line at the order goes
+
+
+def test_the_residual_step_is_a_drag_s_height_and_a_knock_s_share(
+    reference_profile: ConveyorProfile,
+) -> None:
+    """By hand: the residual averaged over STEP_BOX_S = 0.2 s steps by a drag's whole
+    height (0.3 Nm for 0.4 s), by a knock's share of the box (0.4 Nm for 4 of 33
+    samples: 0.048 Nm), and white noise of 0.01 Nm averaged stays near 0.002 Nm."""
+    ins, model = _steady(reference_profile)
+    rec = ins.recording  # type: ignore[attr-defined]
+    phases = list(ins.phases)  # type: ignore[attr-defined]
+    noise = np.random.default_rng(2).normal(0.0, 0.01, rec.samples)
+    plain = residual_step(_with(rec, model + noise), model, phases)
+    assert plain < 0.015
+    dragged = model + noise
+    dragged[(rec.time > 4.0) & (rec.time < 4.4)] += 0.3
+    assert residual_step(_with(rec, dragged), model, phases) == pytest.approx(0.3, abs=0.015)
+    knocked = model + noise
+    k = int(np.searchsorted(rec.time, 5.0))
+    knocked[k : k + 4] += 0.4
+    box = round(0.2 / rec.sample_time_s)
+    assert residual_step(_with(rec, knocked), model, phases) == pytest.approx(
+        0.4 * 4 / box, abs=0.015
+    )
+
+
+def test_a_1_ms_plateau_too_short_for_the_impact_search_has_a_residual_step(
+    reference_profile: ConveyorProfile,
+) -> None:
+    """A 1 ms scope of a whole move (2048 samples: 0.94 s at constant speed) is not
+    searched for impacts, but an item caught for 0.3 s of it steps its level."""
+    setpoints = default_setpoints(
+        reference_profile, duration_s=2.048, ramp_s=0.256, hold_s=0.936, direction=1
+    )
+    run = run_virtual(
+        reference_profile,
+        payload_kg=20.0,
+        seed=3,
+        realism=Realism.off(),
+        sample_time_s=0.001,
+        setpoints=setpoints,
+    )
+    ins = inspect_recording(run.recording, reference_profile)
+    rec, phases = ins.recording, list(ins.phases)
+    model = rec.torque.copy()
+    noise = np.random.default_rng(4).normal(0.0, 0.01, rec.samples)
+    (plateau,) = [p for p in phases if p.kind == "constant"]
+    mid = rec.time[(plateau.start + plateau.stop) // 2]
+    dragged = model + noise
+    dragged[(rec.time > mid - 0.15) & (rec.time < mid + 0.15)] += 0.3
+    impacts, spans = scan_impacts(_with(rec, dragged), model, phases)
+    assert spans == [] and impacts == []  # too short to be searched
+    assert residual_step(_with(rec, dragged), model, phases) == pytest.approx(0.3, abs=0.015)
+    assert residual_step(_with(rec, model + noise), model, phases) < 0.015

@@ -1024,3 +1024,24 @@ def test_a_conveyor_out_of_service_is_shown_not_judged_and_resumes_with_its_base
     # the window survives the state
     again = MonitorState.from_dict(mon.to_state().to_dict())
     assert again.out_of_service == mon.out_of_service
+
+
+def test_the_unexplained_peak_leaves_out_0_hz_s_mainlobe_as_any_line_s() -> None:
+    """A flat spectrum (1 everywhere, its baseline too) with a bump of 6 at a bin:
+    within GUARD_BINS (4) of 0 Hz it is the trend's (what changed the plateau's level
+    for a while), no peak (the ratio elsewhere: 1); at bin 6 it is the peak (6, at its
+    order: 6 bins of 0.1 Hz at 10 Hz shaft speed, order 0.06)."""
+    from chaintwin.diagnose.peaks import GUARD_BINS, unexplained_peak
+
+    x = np.arange(0.0, 50.0, 0.1)
+    base = np.ones_like(x)
+    for k, expected in ((3, (1.0, None)), (GUARD_BINS, (1.0, None)), (6, (6.0, 0.06))):
+        amp = base.copy()
+        amp[k] = 6.0
+        sp = Spectrum(
+            x=x, amplitude=amp, kind="frequency", resolution=0.1, channel="torque", speed_rpm=600.0
+        )
+        ratio, order = unexplained_peak(sp, x, base, 0.5, np.asarray([]))
+        assert ratio == pytest.approx(expected[0]), k
+        if expected[1] is not None:
+            assert order == pytest.approx(expected[1])

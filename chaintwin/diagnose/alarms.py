@@ -17,6 +17,7 @@ from .health import FeatureBaseline
 from .records import Alarm, Evidence, MonitorSettings, iso_utc
 
 __all__ = [
+    "CAUGHT_PREFIX",
     "LIMIT_PREFIX",
     "UNCONFIRMED_PREFIX",
     "close_quiet_alarms",
@@ -33,6 +34,11 @@ LIMIT_PREFIX = "limit:"
 UNCONFIRMED_PREFIX = "unconfirmed:"
 """Prefix of the windows that hold whether a feature's last exceedance awaits its
 confirmation (``unconfirmed:<feature>``, :func:`judge` with ``confirm``)."""
+
+
+CAUGHT_PREFIX = "caught:"
+"""Prefix of the windows that hold whether the recording a feature was last
+judged on was caught (``caught:<feature>``, :func:`judge` with ``caught``)."""
 
 
 def window_key(feature: str, kind: str = "statistical") -> str:
@@ -211,6 +217,7 @@ def judge(
     when: datetime | None,
     z_out: dict[str, float] | None = None,
     confirm: bool = False,
+    caught: bool = False,
 ) -> tuple[list[str], dict[str, float], list[str]]:
     """Check a recording's features against their baselines and apply the X-of-Y rule.
 
@@ -227,6 +234,15 @@ def judge(
     exceeds at the next one (which then counts both); until then it waits
     in ``unconfirmed:<feature>``. A fault that grows exceeds recording after
     recording and loses at most one recording; an event stays alone.
+
+    ``caught``: this recording shows an item caught (a drag the impact
+    search found, or where it could not look, a plateau whose level stepped:
+    ``residual_step`` beyond its baseline); it implies ``confirm``. Events
+    come one after another too (a 1 ms declined conveyor had items caught
+    in four recordings in a row, which confirmed each other into an alarm),
+    so a caught recording confirms no exceedance and is confirmed only by a
+    neighbour that was not caught: the recording before it, which exceeded,
+    or the next one, which exceeds.
 
     Returns
     -------
@@ -251,14 +267,20 @@ def judge(
         times = window_times.setdefault(name, [])
         waiting = windows.setdefault(UNCONFIRMED_PREFIX + name, [])
         waiting_at = window_times.setdefault(UNCONFIRMED_PREFIX + name, [])
-        before = bool(win and win[-1])
-        if ex.exceeded and waiting and waiting[-1] and win:
-            win[-1] = before = True  # the exceedance before, confirmed now
-        counted = ex.exceeded and (before or not confirm)
+        was_caught = windows.setdefault(CAUGHT_PREFIX + name, [])
+        caught_at = window_times.setdefault(CAUGHT_PREFIX + name, [])
+        held = bool(was_caught and was_caught[-1])
+        # the recording before exceeded (counted, or waiting for this one)
+        before = bool(win and win[-1]) or bool(waiting and waiting[-1] and win)
+        if ex.exceeded and not caught and waiting and waiting[-1] and win:
+            win[-1] = True  # the exceedance before, confirmed now
+        counted = ex.exceeded and (not (confirm or caught) or (before and not held))
         win.append(counted)
         times.append(at)
         waiting[:] = [ex.exceeded and not counted]
         waiting_at[:] = [at]
+        was_caught[:] = [caught]
+        caught_at[:] = [at]
         del win[: -settings.y]
         del times[: -settings.y]
         if ex.exceeded:

@@ -48,6 +48,7 @@ __all__ = [
     "hits_per_revolution",
     "impact_features",
     "periodic",
+    "residual_step",
 ]
 
 SYNC_MIN_PERIODS = 4.0
@@ -123,6 +124,12 @@ a tooth); longer ones drag, s.
 A tray hitting an obstacle fixed to the rail is over in a few tens of
 milliseconds; an item caught between a tray and a guide drags for a good
 part of a second (a ``payload_event``)."""
+
+
+STEP_BOX_S = 2.0 * KNOCK_MAX_S
+"""Averaging time of :func:`residual_step`, s: a knock (at most :data:`KNOCK_MAX_S`
+above half its peak) keeps at most half its height averaged over it, a drag
+lasting as long or longer keeps all of it."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -615,3 +622,63 @@ def hits_per_revolution(
             if float(stats.poisson.sf(hits - 1, expected)) >= BEYOND_BACKGROUND_P:
                 return 0.0
     return max(hits - expected, 0.0) / travel * loop_length_m
+
+
+def residual_step(
+    recording: Recording,
+    model_torque_nm: FloatArray,
+    phases: list[Phase],
+    orders: Sequence[float] = (),
+    impacts: Sequence[Impact] = (),
+    margin_s: tuple[float, float] = (0.0, 0.0),
+) -> float:
+    """How far the constant-speed residual's level moves within a plateau, Nm.
+
+    An item caught for part of a plateau (a drag) lifts the torque for its
+    duration: the residual (measured less model torque) averaged over
+    :data:`STEP_BOX_S` steps up and back down. This is the largest range
+    (highest less lowest) of that running average over the constant phases,
+    each less its first :data:`SETTLE_S` and last :data:`EDGE_S` and less
+    the speed-locked ``orders``' periodic content (:func:`less_periodic`,
+    as the impact search takes it away). It needs no quiet head and no
+    :data:`MIN_PLATEAU_S`, so a 1 ms scope's plateau, too short for the
+    impact search, has one too. A healthy conveyor's value is its noise
+    and slow ripple averaged (a baseline learns it); a change of the load
+    or the losses moves the whole plateau and leaves it as it was.
+
+    The samples of ``impacts`` the search found (from ``margin_s[0]``
+    before each to ``margin_s[1]`` after it) are set to the plateau's
+    median first: what the search explained (an obstacle's knock, which
+    keeps up to half its height in the average) is no step of the level.
+
+    Returns
+    -------
+    float
+        The range, Nm; NaN when no constant phase spans two averaging
+        windows after its edges.
+    """
+    dt = recording.sample_time_s
+    residual = recording.torque - model_torque_nm
+    edge = int(np.ceil(EDGE_S / dt))
+    settle = int(np.ceil(SETTLE_S / dt))
+    box = max(1, round(STEP_BOX_S / dt))
+    angle = recording.position
+    if angle is None:
+        angle = np.cumsum(recording.speed) * dt
+    best = float("nan")
+    for ph in phases:
+        lo, hi = ph.start + settle, ph.stop - edge
+        if ph.kind != "constant" or hi - lo < 2 * box:
+            continue
+        r = residual[lo:hi] - median(residual[lo:hi])
+        t = recording.time[lo:hi]
+        for hit in impacts:
+            r[(t >= hit.t_s - margin_s[0]) & (t <= hit.t_s + hit.duration_s + margin_s[1])] = 0.0
+        flat = less_periodic(r, angle[lo:hi], orders)
+        # only whole windows: the edges' partial averages would repeat the end samples
+        level = uniform_filter1d(flat, size=box, mode="nearest")[
+            box // 2 : flat.shape[0] - box // 2
+        ]
+        moved = float(np.max(level) - np.min(level))
+        best = moved if not best >= moved else best
+    return best

@@ -91,26 +91,32 @@ def conveyor_data_of(
     web: Any, conveyor_id: str, *, bands: bool = False, max_points: int | None = None
 ) -> Any:
     """A conveyor's :class:`~chaintwin.report.data.ConveyorData` for the pages and the API:
-    bounded, forecasts as stored, the verdict from the process's cache (404: no conveyor)."""
+    bounded, forecasts as stored, the verdict from the process's cache (404: no conveyor).
+
+    Every read shares one database session (:meth:`~chaintwin.store.store.Store.session`):
+    one connection checkout per request rather than one per read."""
     from chaintwin.report.data import conveyor_data
 
     store = web.store
-    try:
-        return conveyor_data(
-            store,
-            conveyor_id,
-            waterfall=0,
-            forecast_bands=bands,
-            max_points=PAGE_POINTS if max_points is None else max_points,
-            latest=False,
-            stored_forecasts=True,
-            known_verdict=fleet_health(web).verdict(store, conveyor_id),
-        )
-    except StoreError:
-        # the profile is read once, by conveyor_data (a round trip less on PostgreSQL)
-        if store.profile(conveyor_id) is None:
-            raise ApiError(404, "not_found", f"no conveyor '{conveyor_id}' in the store") from None
-        raise
+    with store.session():
+        try:
+            return conveyor_data(
+                store,
+                conveyor_id,
+                waterfall=0,
+                forecast_bands=bands,
+                max_points=PAGE_POINTS if max_points is None else max_points,
+                latest=False,
+                stored_forecasts=True,
+                known_verdict=fleet_health(web).verdict(store, conveyor_id),
+            )
+        except StoreError:
+            # the profile is read once, by conveyor_data (a round trip less on PostgreSQL)
+            if store.profile(conveyor_id) is None:
+                raise ApiError(
+                    404, "not_found", f"no conveyor '{conveyor_id}' in the store"
+                ) from None
+            raise
 
 
 @router.get(

@@ -1135,7 +1135,7 @@ def test_a_conveyors_page_detail_and_trends_read_through_one_connection(served: 
     event.listen(engine, "checkout", checkout)
     try:
         data = conveyor_data_of(served.app.state.web, PROFILE.id)
-        assert data.summary["forecasts"] is not None and data.open_alarms()
+        assert data.summary["forecasts"] and data.results  # forecasts, results, alarms ...
         assert len(taken) == 1, taken  # profile, results, model, forecasts, alarms, ...
         counts = {}
         for name, fetch in requests.items():

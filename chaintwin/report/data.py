@@ -211,7 +211,7 @@ def _time(text: str | None) -> datetime | None:
 
 
 def _number(x: Any) -> float:
-    return float(x) if isinstance(x, int | float) and x is not None else math.nan
+    return float(x) if isinstance(x, (int, float)) else math.nan
 
 
 def _trends(
@@ -226,33 +226,50 @@ def _trends(
     mean payload (:func:`_at_mean_payload`)."""
     wear = expected_wear or {}
     names: list[str] = []
+    seen: set[str] = set()
     for r in results:
         for k in r.get("features") or {}:
-            if k not in names and feature_spec(k).cause is not None:
-                names.append(k)
+            if k not in seen:
+                seen.add(k)
+                if feature_spec(k).cause is not None:
+                    names.append(k)
+    # one pass over the results, each feature's series filled from the features it has
+    # (the results are many on a long history: a pass per feature cost 5 times as much)
+    regressors = {
+        name: None if (fb := baselines.get(name)) is None else regressor_of(name, fb)
+        for name in names
+    }
+    series: dict[str, tuple[list[int], list[float], list[bool], list[bool], list[float]]] = {
+        name: ([], [], [], [], []) for name in names
+    }
+    for k, r in enumerate(results):
+        feats = r.get("features") or {}
+        used = _number(feats.get("usage_since_baseline_t_km"))
+        exceeded = r.get("exceeded") or ()
+        at = r.get("recorded_at")
+        # the baseline's own recordings are not judged against it either
+        learning = r.get("status") == "baseline"
+        judged_before = bool(learning or (baseline_since and at and at < baseline_since))
+        for name in feats:
+            kept = series.get(name)
+            if kept is None:
+                continue
+            idx, vals, exc, before, payloads = kept
+            v = _number(feats[name])
+            if name in wear and math.isfinite(used):
+                v -= wear[name] * used
+            if name in baselines:
+                regressor = regressors[name]
+                payloads.append(_number(feats.get(regressor)) if regressor else math.nan)
+            idx.append(k)
+            vals.append(v)
+            exc.append(name in exceeded)
+            before.append(judged_before)
     out = []
     for name in names:
         spec = feature_spec(name)
         fb = baselines.get(name)
-        idx, vals, exc, before, payloads = [], [], [], [], []
-        regressor = None if fb is None else regressor_of(name, fb)
-        for k, r in enumerate(results):
-            feats = r.get("features") or {}
-            if name not in feats:
-                continue
-            v = _number(feats.get(name))
-            used = _number(feats.get("usage_since_baseline_t_km"))
-            if name in wear and math.isfinite(used):
-                v -= wear[name] * used
-            if fb is not None:
-                payloads.append(_number(feats.get(regressor)) if regressor else math.nan)
-            idx.append(k)
-            vals.append(v)
-            exc.append(name in (r.get("exceeded") or []))
-            at = r.get("recorded_at")
-            # the baseline's own recordings are not judged against it either
-            learning = r.get("status") == "baseline"
-            before.append(bool(learning or (baseline_since and at and at < baseline_since)))
+        idx, vals, exc, before, payloads = series[name]
         if fb is not None:  # all the feature's values at once
             moved = _at_mean_payload(fb, np.asarray(vals), np.asarray(payloads), z_limit, spec)
             vals = [float(v) for v in moved]

@@ -668,10 +668,10 @@ def main() -> int:
     elif args.postgres:
         stores |= both("PostgreSQL", args.postgres, args, faults)
     work.cleanup()
-    kinds = next(
-        (m["fault_fleet_grown"]["kinds"] for m in stores.values() if m.get("fault_fleet_grown")),
-        args.fault_kinds or args.fault_conveyors,
-    )
+    kinds = args.fault_kinds or args.fault_conveyors
+    if args.fault_results and args.fault_template is not None and args.fault_template.exists():
+        with Store(f"sqlite:///{args.fault_template}", read_only=True) as template:
+            kinds = len(template.conveyors())  # the template's, also when a store is reused
     print(
         f"{args.conveyors} conveyors x {args.results} results each"
         + (

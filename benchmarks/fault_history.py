@@ -290,9 +290,9 @@ def grow(
             refit_s += time.perf_counter() - t0
         if store.engine.dialect.name == "postgresql":  # ids given: move the sequences
             with store.engine.begin() as c:
-                for table, last in (("recordings", rec_id), ("results", res_id)):
+                for seq_table, last in (("recordings", rec_id), ("results", res_id)):
                     c.exec_driver_sql(
-                        f"SELECT setval(pg_get_serial_sequence('{table}', 'id'), {last})"
+                        f"SELECT setval(pg_get_serial_sequence('{seq_table}', 'id'), {last})"
                     )
                 c.exec_driver_sql("ANALYZE")  # as autovacuum does; SQLite: none, as ingest
     return {

@@ -229,16 +229,16 @@ def test_in_a_browser_the_page_of_a_conveyor_in_alarm_draws_every_trend(
     assert broken == []
 
 
-def test_watch_shows_the_stored_forecasts_without_a_refit(
+def test_fleet_shows_the_stored_forecasts_without_a_refit(
     served: Served, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     from chaintwin.cli.app import main
-    from chaintwin.cli.watch_cmd import forecast_text
+    from chaintwin.cli.fleet_cmd import forecast_text
 
     stored = read_derived(served.store, PROFILE.id)
     assert stored is not None
     _no_refit(monkeypatch)
-    assert main(["watch", "--db", served.url, "--json"]) == 0
+    assert main(["fleet", "--db", served.url, "--json"]) == 0
     (row,) = json.loads(capsys.readouterr().out)
     # the forecasts as stored after ingest, and the fleet's verdict and alarms beside them
     assert row["forecasts"] == json.loads(json.dumps(json_ready(stored.content["forecasts"])))
@@ -247,7 +247,7 @@ def test_watch_shows_the_stored_forecasts_without_a_refit(
     (friction,) = [f for f in row["forecasts"] if f["feature"] == "friction"]
     assert friction["crossed"] is True  # the friction alarm is open: its limit was crossed
     monkeypatch.setenv("COLUMNS", "400")  # a line per conveyor
-    assert main(["watch", "--db", served.url, "--once"]) == 0
+    assert main(["fleet", "--db", served.url, "--once"]) == 0
     out = capsys.readouterr().out
     said = f"friction crossed {friction['limit']:.4g} since {friction['crosses_at'][:16]}"
     assert said in out and f"as of {stored.latest[:16]}" in out

@@ -1,4 +1,4 @@
-"""``chaintwin watch``: the fleet's health in the terminal, redrawn as the store changes.
+"""``chaintwin fleet``: the fleet's health in the terminal, redrawn as the store changes.
 
 Per conveyor: its verdict (health, NE 107, as the dashboard and the API give
 it), open alarms, latest payload and TLF, and its stored forecasts (the
@@ -21,7 +21,7 @@ from rich.table import Table
 
 from chaintwin.cli.common import DbOption, json_option, print_json
 
-__all__ = ["forecast_text", "register", "watch_rows"]
+__all__ = ["fleet_rows", "forecast_text", "register"]
 
 
 def _life(days: Any) -> float | None:
@@ -69,7 +69,7 @@ def forecast_text(forecasts: list[dict[str, Any]] | None) -> str:
     return "; ".join(parts) or "no feature is forecast to reach its limit"
 
 
-def watch_rows(store: Any) -> list[dict[str, Any]]:
+def fleet_rows(store: Any) -> list[dict[str, Any]]:
     """Per conveyor: the fleet's row (:class:`~chaintwin.web.fleet.FleetHealth`) with its
     stored ``forecasts`` (None: never computed) and ``forecasts_latest`` (the newest
     recording's time they were computed from)."""
@@ -98,7 +98,7 @@ def watch_rows(store: Any) -> list[dict[str, Any]]:
 
 
 def _table(rows: list[dict[str, Any]]) -> Table:
-    table = Table(title="chaintwin watch")
+    table = Table(title="chaintwin fleet")
     for col in ("conveyor", "health", "alarms", "payload [kg]", "TLF", "latest", "forecast"):
         table.add_column(col)
     for r in rows:
@@ -117,10 +117,10 @@ def _table(rows: list[dict[str, Any]]) -> Table:
 
 
 def register(app: typer.Typer) -> None:
-    """Add ``watch`` to the command line."""
+    """Add ``fleet`` to the command line."""
 
-    @app.command("watch")
-    def watch_cmd(
+    @app.command("fleet")
+    def fleet_cmd(
         db: DbOption = None,
         every: Annotated[
             float, typer.Option("--every", min=0.5, help="Look for changes this often, s.")
@@ -128,7 +128,7 @@ def register(app: typer.Typer) -> None:
         once: Annotated[bool, typer.Option("--once", help="Show the fleet once and exit.")] = False,
         as_json: Annotated[bool, json_option("Print the rows once as JSON and exit.")] = False,
     ) -> None:
-        """Watch the fleet's health, alarms and stored forecasts; redrawn as the store changes."""
+        """The fleet's health, alarms and stored forecasts; redrawn as the store changes."""
         from chaintwin.store.engine import store_url
         from chaintwin.store.queries import store_signature
         from chaintwin.store.store import Store
@@ -136,7 +136,7 @@ def register(app: typer.Typer) -> None:
         console = Console()
         with Store(store_url(db), create=False, read_only=True) as store:
             if as_json:
-                print_json(watch_rows(store))
+                print_json(fleet_rows(store))
                 return
             shown: tuple[str, str] | None = None
             while True:
@@ -145,7 +145,7 @@ def register(app: typer.Typer) -> None:
                 if key != shown:
                     if shown is not None:
                         console.clear()
-                    console.print(_table(watch_rows(store)))
+                    console.print(_table(fleet_rows(store)))
                     shown = key
                 if once:
                     return

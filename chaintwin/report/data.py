@@ -501,7 +501,7 @@ def conveyor_data(
     forecasts: list[dict[str, Any]] = []
     baselines: dict[str, FeatureBaseline] = {}
     z_limit = 5.0
-    calibration = store.calibration(conveyor)
+    calibration: Calibration | None = None  # the health model's, else the store's (below)
     baseline_since = None
     judged: MonitorState | None = None
     if state is not None and state.profile_sha256 != profile.content_hash():
@@ -533,6 +533,8 @@ def conveyor_data(
             z_limit = health.z_limit
             baseline_since = health.baseline_since
             judged = state
+    if calibration is None:
+        calibration = store.calibration(conveyor)
     data = ConveyorData(
         profile=profile,
         results=results,

@@ -65,3 +65,19 @@ class VerdictCache:
                     self._known[cid] = known
             out[cid] = known[1]
         return out
+
+    def verdict(self, store: Store, conveyor: str) -> Verdict | None:
+        """One conveyor's verdict, as :meth:`verdicts` gives it (None: no health model);
+        only its own model's version is read."""
+        with store.session() as s:
+            query = select(MonitorStateRow.version).where(MonitorStateRow.conveyor_id == conveyor)
+            version = s.scalar(query)
+        if version is None:
+            return None
+        with self._lock:
+            known = self._known.get(conveyor)
+        if known is None or known[0] != int(version):
+            known = (int(version), conveyor_verdict(store, conveyor))
+            with self._lock:
+                self._known[conveyor] = known
+        return known[1]

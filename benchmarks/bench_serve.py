@@ -492,6 +492,9 @@ def start_server(url: str, code: Path | None) -> tuple[subprocess.Popen[bytes], 
         [sys.executable, "-m", "chaintwin", "serve", "--db", url, "--port", str(port)],
         env=env,
         stderr=subprocess.DEVNULL,
+        # ``-m`` puts the working folder first on the path, before PYTHONPATH: run the
+        # other checkout's from its own folder, else both servers run this code
+        cwd=None if code is None else code,
     )
     base = f"http://127.0.0.1:{port}"
     deadline = time.monotonic() + 300

@@ -10,6 +10,16 @@ PostgreSQL binaries), on PostgreSQL. Beside them a fault fleet
 alarm opens) is filled through real ingest (simulated recordings, the
 calibration learned from their calibration runs), so that the pages of
 conveyors in alarm, with rising trends and forecasts, are measured too.
+At full size (``--fault-results 10000 --fault-conveyors 200``) the fault
+fleet is made by ``benchmarks/fault_history.py`` (its docstring says
+exactly how): ``--fault-kinds`` conveyors simulated and really ingested
+into ``--fault-template`` (a SQLite file, built once and reused), each
+copied under its own ids to make ``--fault-conveyors`` conveyors, and each
+one's history grown to ``--fault-results`` results by replicating its
+really ingested baseline backwards in time, written with the store's own
+tables, statements and serializer, its stored forecasts as the real
+ingest's refit left them (refitted where they are not current). Give
+``--conveyors 0`` to measure the fault fleet alone.
 ``chaintwin serve`` runs in its own process; this script is the clients.
 It prints, per store, the median time of
 
@@ -43,7 +53,12 @@ fresh SQLite stores without and with the forecasts' refit after ingest
 ``refit=True``: as now), alternately ``--compare-rounds`` times, and prints
 the seconds per recording of each and their ratio (target at most 1.10).
 
-Run: ``.venv/bin/python benchmarks/bench_serve.py --postgres auto``
+Run: ``.venv/bin/python benchmarks/bench_serve.py --postgres auto``; the
+fault fleet at full size alone: ``--conveyors 0 --seconds 0 --fault-conveyors 200
+--fault-results 10000 --fault-kinds 10 --fault-template /tmp/fault-template.db
+--sqlite-file /tmp/bench-fault.db`` (SQLite; the store is built once, about
+30 minutes on a loaded 2-core machine, and reused), then ``--no-sqlite
+--postgres auto`` with the same fault options (PostgreSQL, built each time)
 (about 3 minutes per store on a 2-core machine, plus the fault fleet's
 simulation and ingest).
 """
@@ -82,6 +97,9 @@ from chaintwin.store.store import Store
 from chaintwin.testing.postgres import free_port, postgres_binaries, throwaway_postgres
 from chaintwin.validate import load_recording
 from chaintwin.web.access import create_token
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import fault_history  # beside this script
 
 PROFILE = Path(__file__).resolve().parents[1] / "chaintwin/examples/profiles/white-belt-01.yaml"
 
@@ -314,6 +332,13 @@ def polling(
     return out
 
 
+def fault_conveyor_ids(args: argparse.Namespace, faults: FaultFleet | None) -> list[str]:
+    """The fault fleet's conveyors: grown (``--fault-results``) or ingested."""
+    if args.fault_results:
+        return [fault_history.fault_id(k) for k in range(args.fault_conveyors)]
+    return list(faults.profiles) if faults is not None else []
+
+
 def reuse(url: str) -> str:
     """A new admin token in a store built by an earlier run (``--sqlite-file``)."""
     with Store(url) as store:
@@ -332,9 +357,20 @@ def measure(
     token = reuse(url) if built_before else build(url, args.conveyors, args.results)
     built = time.perf_counter() - t0
     ingested = None
-    if faults is not None and not built_before:
+    grown = None
+    if args.fault_results and not built_before:
+        grown = fault_history.grow(
+            args.fault_template,
+            url,
+            args.fault_conveyors,
+            args.fault_results,
+            onset=fault_history.ONSET_DAY * args.fault_per_day,
+        )
+        print(f"fault fleet grown: {json.dumps(grown)}", file=sys.stderr)
+    elif faults is not None and not built_before:
         seconds, n = ingest_fault_fleet(url, faults)
         ingested = {"seconds": seconds, "recordings": n}
+    fault_ids = fault_conveyor_ids(args, faults)
     port = free_port()
     env = os.environ | {"OPENBLAS_NUM_THREADS": "1"}
     if code is not None:  # the server runs another checkout's chaintwin
@@ -364,8 +400,8 @@ def measure(
             n = args.repeat
             one = f"conveyor-{min(7, args.conveyors - 1):03d}" if args.conveyors else None
             if one is None:
-                assert faults is not None, "no conveyor to measure: give --conveyors"
-                one = next(iter(faults.profiles))
+                assert fault_ids, "no conveyor to measure: give --conveyors"
+                one = fault_ids[0]
             page = f"/api/v1/conveyors/{one}/recordings?limit=100"
             median_ms(c, "/api/v1/conveyors", 3)  # warm: the first fleet read fills caches
             health = median_ms(c, "/api/v1/health", n)
@@ -385,11 +421,11 @@ def measure(
                 ),
             }
             alarmed = None
-            for cid in faults.profiles if faults is not None else ():
+            for cid in fault_ids:
                 if c.get(f"/api/v1/conveyors/{cid}").json()["open_alarms"]:
                     alarmed = cid
                     break
-            if faults is not None:
+            if fault_ids:
                 assert alarmed is not None, "no conveyor of the fault fleet is in alarm"
                 rows |= {
                     f"GET /conveyors/{alarmed} (the page of a conveyor in alarm)": median_ms(
@@ -423,6 +459,7 @@ def measure(
     return {
         "built_s": built,
         "fault_fleet_ingest": ingested,
+        "fault_fleet_grown": grown,
         "health_ms": health,
         "rows": rows,
         "polls": polls,
@@ -455,6 +492,9 @@ def start_server(url: str, code: Path | None) -> tuple[subprocess.Popen[bytes], 
         [sys.executable, "-m", "chaintwin", "serve", "--db", url, "--port", str(port)],
         env=env,
         stderr=subprocess.DEVNULL,
+        # ``-m`` puts the working folder first on the path, before PYTHONPATH: run the
+        # other checkout's from its own folder, else both servers run this code
+        cwd=None if code is None else code,
     )
     base = f"http://127.0.0.1:{port}"
     deadline = time.monotonic() + 300
@@ -480,10 +520,11 @@ def paired(url: str, args: argparse.Namespace, faults: FaultFleet | None) -> dic
                              timeout=60)  # fmt: skip
             c.post("/login", data={"token": token})
             clients.append(c)
+        fault_ids = fault_conveyor_ids(args, faults)
         one = f"conveyor-{min(7, args.conveyors - 1):03d}" if args.conveyors else None
         if one is None:
-            assert faults is not None, "no conveyor to measure: give --conveyors"
-            one = next(iter(faults.profiles))
+            assert fault_ids, "no conveyor to measure: give --conveyors"
+            one = fault_ids[0]
         paths = {
             "GET /api/v1/health (reference)": "/api/v1/health",
             "GET /api/v1/conveyors": "/api/v1/conveyors",
@@ -493,7 +534,7 @@ def paired(url: str, args: argparse.Namespace, faults: FaultFleet | None) -> dic
             "GET /api/v1/conveyors/{id}": f"/api/v1/conveyors/{one}",
             "GET .../trends?feature=friction": f"/api/v1/conveyors/{one}/trends?feature=friction",
         }
-        for cid in faults.profiles if faults is not None else ():
+        for cid in fault_ids:
             if clients[0].get(f"/api/v1/conveyors/{cid}").json()["open_alarms"]:
                 paths |= {
                     "GET /conveyors/{id} (in alarm)": f"/conveyors/{cid}",
@@ -556,6 +597,26 @@ def main() -> int:
     parser.add_argument("--fault-days", type=int, default=6, help="simulated days of each")
     parser.add_argument("--fault-per-day", type=int, default=5, help="recordings a day of each")
     parser.add_argument(
+        "--fault-results",
+        type=int,
+        default=0,
+        help="grow each fault conveyor's history to this many results (benchmarks/"
+        "fault_history.py: --fault-kinds conveyors really ingested into --fault-template, "
+        "then copied to --fault-conveyors and their baseline replicated backwards); "
+        "0: ingest the fault fleet as it is",
+    )
+    parser.add_argument(
+        "--fault-kinds",
+        type=int,
+        help="with --fault-results: conveyors really ingested (default --fault-conveyors)",
+    )
+    parser.add_argument(
+        "--fault-template",
+        type=Path,
+        help="with --fault-results: the SQLite file of the really ingested fault fleet, built "
+        "there when missing (minutes), reused when present",
+    )
+    parser.add_argument(
         "--compare-ingest",
         action="store_true",
         help="also time the fault fleet's ingest without and with the forecasts' refit",
@@ -571,7 +632,19 @@ def main() -> int:
     args = parser.parse_args()
     work = tempfile.TemporaryDirectory()
     faults = None
-    if args.fault_conveyors > 0:
+    if args.fault_results and args.fault_conveyors > 0:
+        if args.fault_template is None:
+            args.fault_template = Path(work.name) / "fault-template.db"
+        if not args.fault_template.exists():
+            done = fault_history.build_template(
+                args.fault_template,
+                args.fault_kinds or args.fault_conveyors,
+                args.fault_days,
+                args.fault_per_day,
+                Path(work.name),
+            )
+            print(f"fault fleet template: {json.dumps(done)}", file=sys.stderr)
+    elif args.fault_conveyors > 0:
         t0 = time.perf_counter()
         faults = fault_fleet(
             Path(work.name), args.fault_conveyors, args.fault_days, args.fault_per_day
@@ -598,10 +671,19 @@ def main() -> int:
     elif args.postgres:
         stores |= both("PostgreSQL", args.postgres, args, faults)
     work.cleanup()
+    kinds = args.fault_kinds or args.fault_conveyors
+    if args.fault_results and args.fault_template is not None and args.fault_template.exists():
+        with Store(f"sqlite:///{args.fault_template}", read_only=True) as template:
+            kinds = len(template.conveyors())  # the template's, also when a store is reused
     print(
         f"{args.conveyors} conveyors x {args.results} results each"
         + (
             f", and a fault fleet of {args.fault_conveyors} conveyors x "
+            f"{args.fault_results} results (copies of {kinds} really ingested conveyors of "
+            f"{args.fault_days * args.fault_per_day} recordings, grown by "
+            "benchmarks/fault_history.py)"
+            if args.fault_results
+            else f", and a fault fleet of {args.fault_conveyors} conveyors x "
             f"{args.fault_days * args.fault_per_day} recordings ingested"
             if faults is not None
             else ""
@@ -618,6 +700,9 @@ def main() -> int:
         if "paired" in m:
             continue  # printed below
         print(f"\n{name} (store built in {m['built_s']:.0f} s)")
+        if m["fault_fleet_grown"] is not None:
+            fg = m["fault_fleet_grown"]
+            print(f"  fault fleet grown to {fg['results']} results in {fg['seconds']:.0f} s")
         if m["fault_fleet_ingest"] is not None:
             fi = m["fault_fleet_ingest"]
             print(

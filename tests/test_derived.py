@@ -227,3 +227,39 @@ def test_in_a_browser_the_page_of_a_conveyor_in_alarm_draws_every_trend(
     finally:
         served.close()
     assert broken == []
+
+
+def test_fleet_shows_the_stored_forecasts_without_a_refit(
+    served: Served, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from chaintwin.cli.app import main
+    from chaintwin.cli.fleet_cmd import forecast_text
+
+    stored = read_derived(served.store, PROFILE.id)
+    assert stored is not None
+    _no_refit(monkeypatch)
+    assert main(["fleet", "--db", served.url, "--json"]) == 0
+    (row,) = json.loads(capsys.readouterr().out)
+    # the forecasts as stored after ingest, and the fleet's verdict and alarms beside them
+    assert row["forecasts"] == json.loads(json.dumps(json_ready(stored.content["forecasts"])))
+    assert row["forecasts_latest"] == stored.latest
+    assert row["open_alarms"] and row["health"] == "alarm"
+    (friction,) = [f for f in row["forecasts"] if f["feature"] == "friction"]
+    assert friction["crossed"] is True  # the friction alarm is open: its limit was crossed
+    monkeypatch.setenv("COLUMNS", "400")  # a line per conveyor
+    assert main(["fleet", "--db", served.url, "--once"]) == 0
+    out = capsys.readouterr().out
+    said = f"friction crossed {friction['limit']:.4g} since {friction['crosses_at'][:16]}"
+    assert said in out and f"as of {stored.latest[:16]}" in out
+    assert forecast_text(row["forecasts"]) in out
+    # the remaining life of the one to reach its limit first, with its 90 % interval
+    ahead = [
+        {"feature": "a", "cause": "x", "limit": 2.0, "crossed": False,
+         "remaining_life_days": {"earliest": 3.0, "expected": 12.5, "latest": None}},
+        {"feature": "b", "cause": "y", "limit": 1.0, "crossed": False,
+         "remaining_life_days": {"earliest": 1.0, "expected": 4.25, "latest": 9.0}},
+    ]  # fmt: skip
+    assert forecast_text(ahead) == "b (y) reaches 1 in 4.2 d (90 %: 1.0 to 9.0 d)"
+    assert forecast_text(ahead[:1]) == "a (x) reaches 2 in 12.5 d (90 %: 3.0 to beyond a year d)"
+    assert forecast_text([]) == "no feature is forecast to reach its limit"
+    assert forecast_text(None) == "no forecast stored yet"

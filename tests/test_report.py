@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import base64
 import io
+import math
 import re
 import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -333,3 +335,93 @@ def test_a_missing_tlf_or_payload_is_said_in_words_never_an_empty_chart(
     # the fleet's TLF bars: only conveyors with one, no figure when none has
     assert figures.fleet_tlf_figure(["a", "b"], [math.nan, math.nan]) is None
     assert figures.fleet_tlf_figure(["a", "b"], [1.2, math.nan]) is not None
+
+
+def _trends_one_by_one(
+    results: list[dict[str, Any]],
+    baselines: dict[str, Any],
+    z_limit: float,
+    since: str | None,
+    wear: dict[str, float],
+) -> list[tuple[str, list[int], list[float], list[bool], list[bool]]]:
+    """The trends worked out one result and one value at a time (the reference)."""
+    from chaintwin.diagnose.baseline import regressor_of
+    from chaintwin.diagnose.features import feature_spec
+    from chaintwin.report.data import _at_mean_payload
+
+    def number(x: Any) -> float:
+        return float(x) if isinstance(x, (int, float)) else math.nan
+
+    names: list[str] = []
+    for r in results:
+        names += [k for k in r["features"] if k not in names and feature_spec(k).cause]
+    out = []
+    for name in names:
+        idx, vals, pays, exc, before = [], [], [], [], []
+        fb = baselines.get(name)
+        for k, r in enumerate(results):
+            f = r["features"]
+            if name not in f:
+                continue
+            v, used = number(f[name]), number(f.get("usage_since_baseline_t_km"))
+            if name in wear and math.isfinite(used):
+                v -= wear[name] * used
+            reg = None if fb is None else regressor_of(name, fb)
+            pays.append(number(f.get(reg)) if reg else math.nan)
+            idx.append(k)
+            vals.append(v)
+            exc.append(name in (r.get("exceeded") or ()))
+            at = r.get("recorded_at")
+            before.append(bool(r.get("status") == "baseline" or (since and at and at < since)))
+        if fb is not None:
+            moved = _at_mean_payload(
+                fb, np.array(vals), np.array(pays), z_limit, feature_spec(name)
+            )
+            vals = [float(v) for v in moved]
+        if any(math.isfinite(v) for v in vals):
+            out.append((name, idx, vals, exc, before))
+    return out
+
+
+def test_trends_built_by_columns_are_those_worked_out_value_by_value(plant_db: str) -> None:
+    """The faulty conveyor's real results, some of their features then missing, null,
+    text or a flag, and an expected wear taken off: the same series either way."""
+    from chaintwin.diagnose.monitor_state import read_health
+    from chaintwin.report.data import _trend_names, _trends, conveyor_data
+    from chaintwin.store.store import Store
+
+    with Store(plant_db) as store:
+        results = [r for r in store.results(FAULTY) if "error" not in r]
+        state = store.state(FAULTY)
+        assert state is not None
+        health = read_health(state, derived={"forecasts": [], "wear": []})
+        # the page's way (names only) names the trends the reports build
+        named = conveyor_data(store, FAULTY, waterfall=0, latest=False, trends=False)
+        built = conveyor_data(store, FAULTY, waterfall=0, latest=False)
+    assert named.trends == [] and named.feature_names == built.feature_names
+    assert len(built.trends) > 5
+    args = (health.baselines, health.z_limit, health.baseline_since)
+    wear = {"friction": 0.02}
+    edited = [dict(r, features=dict(r["features"])) for r in results]
+    for k, r in enumerate(edited):
+        f = r["features"]
+        if k % 7 == 3:
+            f.pop("friction")  # absent: no point
+        if k % 5 == 1:
+            f["speed_loss"] = None  # null: a point of unknown value
+        if k % 11 == 2:
+            f["usage_since_baseline_t_km"] = "n/a"  # not a number: no wear taken off
+        if k == 4:
+            f["crest_factor"] = True
+    for rows in (results, edited):
+        got = _trends(rows, *args, wear)
+        want = _trends_one_by_one(rows, *args, wear)
+        assert [(t.name, t.index, t.exceeded, t.before) for t in got] == [
+            (n, i, e, b) for n, i, _v, e, b in want
+        ]
+        for t, (_n, _i, values, _e, _b) in zip(got, want, strict=True):
+            np.testing.assert_array_equal(t.values, values)  # NaN where the reference has it
+        assert _trend_names(rows, health.baselines, health.z_limit, wear) == [t.name for t in got]
+    changed = {t.name: t for t in _trends(edited, *args, wear)}
+    assert len(changed["friction"].index) < len(results)
+    assert np.isnan(changed["speed_loss"].values[1])

@@ -1106,3 +1106,43 @@ def test_serve_keeps_more_database_connections_than_the_default(tmp_path: Path) 
     finally:
         default.close()
         served_store.close()
+
+
+def test_a_conveyors_page_detail_and_trends_read_through_one_connection(served: Served) -> None:
+    """Each of the conveyor's reads shares one session: one connection checkout per
+    request for them (beside the token's check), on SQLite and PostgreSQL alike."""
+    from sqlalchemy import event
+
+    from chaintwin.web.routes.conveyors import conveyor_data_of
+
+    engine = served.store.engine
+    taken: list[str] = []
+
+    def checkout(*_args: Any) -> None:
+        taken.append(threading.current_thread().name)
+
+    viewer = served.client("viewer")
+    browser = served.client()
+    assert browser.post("/login", data={"token": served.tokens["viewer"]}).status_code == 303
+    base = f"/api/v1/conveyors/{PROFILE.id}"
+    requests = {
+        "detail": lambda: viewer.get(base),
+        "trends": lambda: viewer.get(f"{base}/trends"),
+        "page": lambda: browser.get(f"/conveyors/{PROFILE.id}"),
+    }
+    for fetch in requests.values():  # warm: the verdict cache and the token key filled
+        assert fetch().status_code == 200
+    event.listen(engine, "checkout", checkout)
+    try:
+        data = conveyor_data_of(served.app.state.web, PROFILE.id)
+        assert data.summary["forecasts"] and data.results  # forecasts, results, alarms ...
+        assert len(taken) == 1, taken  # profile, results, model, forecasts, alarms, ...
+        counts = {}
+        for name, fetch in requests.items():
+            taken.clear()
+            assert fetch().status_code == 200
+            counts[name] = len(taken)
+    finally:
+        event.remove(engine, "checkout", checkout)
+    # the conveyor's reads one checkout, the token's (or the cookie's) check one more
+    assert counts == {"detail": 2, "trends": 2, "page": 2}, counts

@@ -73,6 +73,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "chaintwin.cli.spectrum_cmd",
     "chaintwin.cli.monitor_cmd",
     "chaintwin.cli.alarms_cmd",
+    "chaintwin.cli.fleet_cmd",
     "chaintwin.cli.store_cmd",
     "chaintwin.cli.report_cmd",
     "chaintwin.cli.db_cmd",

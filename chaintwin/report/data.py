@@ -16,9 +16,12 @@ from __future__ import annotations
 
 import math
 import statistics
+from collections import Counter
 from dataclasses import dataclass, field
 from datetime import datetime
 from functools import cached_property
+from itertools import chain
+from operator import itemgetter
 from typing import Any
 
 import numpy as np
@@ -125,6 +128,14 @@ class ConveyorData:
     """With ``max_points``: how many stored results each of ``results`` stands for."""
     verdict: Verdict = field(default_factory=lambda: verdict_of(None))
     """The conveyor's verdict (:func:`~chaintwin.diagnose.verdict.verdict`)."""
+    features: list[str] | None = None
+    """The names of the trends when they were not built (``trends`` is then empty);
+    None: they were (:attr:`feature_names`)."""
+
+    @property
+    def feature_names(self) -> list[str]:
+        """The names of the conveyor's trends (built or not)."""
+        return [t.name for t in self.trends] if self.features is None else self.features
 
     @property
     def recordings(self) -> int:
@@ -211,7 +222,115 @@ def _time(text: str | None) -> datetime | None:
 
 
 def _number(x: Any) -> float:
-    return float(x) if isinstance(x, int | float) and x is not None else math.nan
+    return float(x) if isinstance(x, (int, float)) else math.nan
+
+
+def _numbers(xs: list[Any]) -> FloatArray:
+    """Values as floats, NaN where not a number (as :func:`_number`, over a list at once)."""
+    nan = math.nan
+    return np.array([float(x) if isinstance(x, (int, float)) else nan for x in xs], dtype=float)
+
+
+@dataclass
+class _Series:
+    """One alarmed feature's values as judged, with what its trend needs besides."""
+
+    name: str
+    spec: FeatureSpec
+    baseline: FeatureBaseline | None
+    index: list[int]
+    values: FloatArray
+
+
+_USAGE = "usage_since_baseline_t_km"
+"""The feature the expected wear is a rate of (t·km carried since the baseline)."""
+
+_NUMBERS = frozenset({int, float, bool, type(None)})
+
+
+def _columns(feats_of: list[dict[str, Any]], keys: list[str]) -> dict[str, FloatArray]:
+    """The values over the results (NaN for null) of the keys every result holds,
+    converted at once, key by key; keys with a value neither a number nor null are
+    left out (then taken one by one, as :func:`_numbers` does)."""
+    counts = Counter(chain.from_iterable(feats_of))
+    full = [k for k in keys if counts[k] == len(feats_of)]
+    if not feats_of or not full:
+        return {}
+    getter = itemgetter(*full)
+    rows = list(map(getter, feats_of)) if len(full) > 1 else [(x,) for x in map(getter, feats_of)]
+    matrix = np.array(rows, dtype=object)
+    out = {}
+    for j, key in enumerate(full):
+        column = matrix[:, j]
+        if set(map(type, column)) <= _NUMBERS:
+            out[key] = column.astype(float)  # null: NaN
+    return out
+
+
+def _judged_series(
+    feats_of: list[dict[str, Any]],
+    baselines: dict[str, FeatureBaseline],
+    z_limit: float,
+    expected_wear: dict[str, float] | None,
+) -> list[_Series]:
+    """Each alarmed feature's values as judged (NaN where unknown), built column by
+    column over the results' ``features``; a feature never known is left out."""
+    wear = expected_wear or {}
+    # in order of first appearance; the features a cause is known for are alarmed
+    first_seen = dict.fromkeys(chain.from_iterable(feats_of))
+    names = [k for k in first_seen if feature_spec(k).cause is not None]
+    if not names:
+        return []
+    regressors = {
+        name: regressor_of(name, fb) for name in names if (fb := baselines.get(name)) is not None
+    }
+    # the features every result holds (as a rule all but a few) converted at once
+    columns = _columns(
+        feats_of, list(dict.fromkeys([*names, _USAGE, *filter(None, regressors.values())]))
+    )
+
+    def column(key: str, idx: list[int] | None) -> FloatArray:
+        """``key``'s values at the results ``idx`` (None: all of them), NaN where absent."""
+        full = columns.get(key)
+        if full is not None:
+            return full if idx is None else full[idx]
+        at = feats_of if idx is None else [feats_of[k] for k in idx]
+        return _numbers([feats.get(key) for feats in at])
+
+    used = column(_USAGE, None)
+    every = list(range(len(feats_of)))
+    out = []
+    for name in names:
+        spec = feature_spec(name)
+        fb = baselines.get(name)
+        if name in columns:
+            idx: list[int] | None = None
+            index = every
+        else:
+            idx = index = [k for k, feats in enumerate(feats_of) if name in feats]
+        values = column(name, idx)
+        if name in wear:  # the expected wear (rate × usage since the baseline) taken off
+            at_use = used if idx is None else used[idx]
+            known = np.isfinite(at_use)
+            values = np.where(known, values - wear[name] * np.where(known, at_use, 0.0), values)
+        if fb is not None:  # all the feature's values at once
+            regressor = regressors[name]
+            payloads = column(regressor, idx) if regressor else np.full(len(index), math.nan)
+            values = _at_mean_payload(fb, values, payloads, z_limit, spec)
+        if np.isfinite(values).any():  # else never known (a retired feature such as belt_bump)
+            out.append(_Series(name, spec, fb, index, values))
+    return out
+
+
+def _trend_names(
+    results: list[dict[str, Any]],
+    baselines: dict[str, FeatureBaseline],
+    z_limit: float,
+    expected_wear: dict[str, float] | None = None,
+) -> list[str]:
+    """The names of :func:`_trends`' trends, without building them."""
+    feats_of = [r.get("features") or {} for r in results]
+    return [s.name for s in _judged_series(feats_of, baselines, z_limit, expected_wear)]
 
 
 def _trends(
@@ -224,48 +343,30 @@ def _trends(
     """Each alarmed feature's series as judged: the profile's expected wear
     (rate × ``usage_since_baseline_t_km``) taken off, moved to the baseline's
     mean payload (:func:`_at_mean_payload`)."""
-    wear = expected_wear or {}
-    names: list[str] = []
-    for r in results:
-        for k in r.get("features") or {}:
-            if k not in names and feature_spec(k).cause is not None:
-                names.append(k)
+    feats_of = [r.get("features") or {} for r in results]
+    series = _judged_series(feats_of, baselines, z_limit, expected_wear)
+    if not series:
+        return []
+    exceeded_of = [r.get("exceeded") or () for r in results]
+    # the baseline's own recordings are not judged against it either
+    before_of = [
+        bool(
+            r.get("status") == "baseline"
+            or (baseline_since and (at := r.get("recorded_at")) and at < baseline_since)
+        )
+        for r in results
+    ]
     out = []
-    for name in names:
-        spec = feature_spec(name)
-        fb = baselines.get(name)
-        idx, vals, exc, before, payloads = [], [], [], [], []
-        regressor = None if fb is None else regressor_of(name, fb)
-        for k, r in enumerate(results):
-            feats = r.get("features") or {}
-            if name not in feats:
-                continue
-            v = _number(feats.get(name))
-            used = _number(feats.get("usage_since_baseline_t_km"))
-            if name in wear and math.isfinite(used):
-                v -= wear[name] * used
-            if fb is not None:
-                payloads.append(_number(feats.get(regressor)) if regressor else math.nan)
-            idx.append(k)
-            vals.append(v)
-            exc.append(name in (r.get("exceeded") or []))
-            at = r.get("recorded_at")
-            # the baseline's own recordings are not judged against it either
-            learning = r.get("status") == "baseline"
-            before.append(bool(learning or (baseline_since and at and at < baseline_since)))
-        if fb is not None:  # all the feature's values at once
-            moved = _at_mean_payload(fb, np.asarray(vals), np.asarray(payloads), z_limit, spec)
-            vals = [float(v) for v in moved]
-        if not any(math.isfinite(v) for v in vals):
-            continue  # never known (a retired feature such as belt_bump): no trend to draw
+    for s in series:
+        fb, spec, name = s.baseline, s.spec, s.name
         out.append(
             FeatureTrend(
                 name=name,
                 cause=spec.cause or "",
                 unit=spec.unit,
-                index=idx,
-                values=vals,
-                exceeded=exc,
+                index=s.index,
+                values=s.values.tolist(),
+                exceeded=[name in exceeded_of[k] for k in s.index],
                 expected=None if fb is None else fb.expected(fb.mean_payload_kg),
                 limit=None if fb is None else fb.limit(z_limit, spec.min_rel),
                 lower=(
@@ -273,7 +374,7 @@ def _trends(
                     if fb is not None and spec.two_sided and fb.slope == 0.0
                     else None
                 ),
-                before=before,
+                before=[before_of[k] for k in s.index],
             )
         )
     return out
@@ -329,6 +430,7 @@ def conveyor_data(
     latest: bool = True,
     stored_forecasts: bool = False,
     known_verdict: Verdict | None = None,
+    trends: bool = True,
 ) -> ConveyorData:
     """Gather a conveyor's page from the store.
 
@@ -362,6 +464,11 @@ def conveyor_data(
         The conveyor's verdict when the caller keeps it per version of the
         health model (:class:`~chaintwin.store.verdicts.VerdictCache`, the web
         service); None: worked out here from the model.
+    trends : bool
+        Build each feature's trend (``trends``); False: only name them
+        (``features``; ``trends`` is then empty, and with it the health index
+        and worst feature of :class:`ConveyorData`: the web's page and detail,
+        whose verdict carries both).
 
     Raises
     ------
@@ -394,7 +501,7 @@ def conveyor_data(
     forecasts: list[dict[str, Any]] = []
     baselines: dict[str, FeatureBaseline] = {}
     z_limit = 5.0
-    calibration = store.calibration(conveyor)
+    calibration: Calibration | None = None  # the health model's, else the store's (below)
     baseline_since = None
     judged: MonitorState | None = None
     if state is not None and state.profile_sha256 != profile.content_hash():
@@ -426,6 +533,8 @@ def conveyor_data(
             z_limit = health.z_limit
             baseline_since = health.baseline_since
             judged = state
+    if calibration is None:
+        calibration = store.calibration(conveyor)
     data = ConveyorData(
         profile=profile,
         results=results,
@@ -434,13 +543,20 @@ def conveyor_data(
         events=store.events(conveyor),
         summary=summary,
         forecasts=forecasts,
-        trends=_trends(results, baselines, z_limit, baseline_since, profile.expected_wear),
+        trends=(
+            _trends(results, baselines, z_limit, baseline_since, profile.expected_wear)
+            if trends
+            else []
+        ),
         calibration=calibration,
         baseline_since=baseline_since,
         notes=notes,
         total=total,
         represents=represents,
         verdict=verdict_of(judged) if known_verdict is None else known_verdict,
+        features=(
+            None if trends else _trend_names(results, baselines, z_limit, profile.expected_wear)
+        ),
     )
     if not latest and waterfall <= 0:
         return data

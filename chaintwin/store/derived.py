@@ -92,7 +92,7 @@ def read_derived(store: Store, conveyor: str) -> Derived | None:
         When the database fails.
     """
     try:
-        with Session(store.engine) as s:
+        with store.session() as s:
             row = s.get(DerivedHealthRow, conveyor)
             if row is None:
                 return None

@@ -106,7 +106,7 @@ def results_page(
                 and_(ResultRow.recorded_at == at, ResultRow.id < row_id),
             )
         )
-    with Session(store.engine) as s:
+    with store.session() as s:
         rows = []
         if at != _NULL_TIME:
             q = timed.order_by(ResultRow.recorded_at.desc(), ResultRow.id.desc())
@@ -130,7 +130,7 @@ def results_page(
 
 def recording_by_hash(store: Store, sha256: str) -> tuple[dict[str, Any], Recording] | None:
     """A stored recording's result (with ``recording_id``, ``stored_at``) and samples, or None."""
-    with Session(store.engine) as s:
+    with store.session() as s:
         found = s.execute(
             select(ResultRow, RecordingRow.id)
             .join(RecordingRow, RecordingRow.id == ResultRow.recording_id)
@@ -175,7 +175,7 @@ def fleet_rows(store: Store) -> list[dict[str, Any]]:
         .correlate(ConveyorRow)
         .scalar_subquery()
     )
-    with Session(store.engine) as s:
+    with store.session() as s:
         pairs = s.execute(select(ConveyorRow.id, latest_id).order_by(ConveyorRow.id)).all()
         wanted = [int(rid) for _cid, rid in pairs if rid is not None]
         columns = (
@@ -368,7 +368,7 @@ def trend_rows(store: Store, conveyor: str, max_points: int) -> TrendRows:
     recent = max_points // 2
     buckets = max_points - recent
     mine = ResultRow.conveyor_id == conveyor
-    with Session(store.engine) as s:
+    with store.session() as s:
         newest = s.execute(
             select(ResultRow.id, ResultRow.content)
             .where(mine, STANDING_RESULT)

@@ -16,9 +16,11 @@ gets :class:`StateConflict` and goes again from the newer model.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextvars import ContextVar
 from datetime import UTC, datetime
 from typing import Any, Self, TypeVar
 
@@ -77,6 +79,10 @@ T = TypeVar("T")
 
 _STORED = "store:"
 """Path prefix by which the health model finds a waiting recording kept in the store."""
+
+
+_READING: ContextVar[tuple[Store, Session] | None] = ContextVar("chaintwin_reading", default=None)
+"""The read session :meth:`Store.session` holds in this thread or task, with its store."""
 
 
 def _iso_time(recording: Recording) -> str | None:
@@ -215,6 +221,38 @@ class Store:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    @contextlib.contextmanager
+    def session(self) -> Iterator[Session]:
+        """One database session for every read of this store inside the block.
+
+        ``with store.session():`` around the reads of one request (a
+        conveyor's page: its profile, results, health model, forecasts,
+        alarms, events, verdict) makes them share one session, i.e. one
+        connection taken from the pool once, rather than a session and a
+        checkout per read (on PostgreSQL a round trip each to begin and end
+        its transaction). The reads of this store (its methods, and the
+        queries of :mod:`~chaintwin.store.queries`, :mod:`~chaintwin.store.derived`
+        and :mod:`~chaintwin.store.verdicts`) use the session held by the
+        current thread or task; a nested block shares the outer one. Writes
+        keep their own session and transaction. A session belongs to one
+        thread: hold it in synchronous code only, never across an ``await``.
+
+        Yields
+        ------
+        Session
+            The session (read with it; do not commit through it).
+        """
+        held = _READING.get()
+        if held is not None and held[0] is self:
+            yield held[1]
+            return
+        with Session(self.engine) as s:
+            token = _READING.set((self, s))
+            try:
+                yield s
+            finally:
+                _READING.reset(token)
+
     # ------------------------------------------------------------ conveyors
     def put_profile(self, profile: ConveyorProfile) -> None:
         """Add a conveyor, or update its profile.
@@ -261,7 +299,7 @@ class Store:
 
     def calibration(self, conveyor: str) -> Calibration | None:
         """The newest calibration of a conveyor, if any."""
-        with Session(self.engine) as s:
+        with self.session() as s:
             row = s.scalars(
                 select(CalibrationRow)
                 .where(CalibrationRow.conveyor_id == conveyor)
@@ -275,7 +313,7 @@ class Store:
         """Which of these content hashes are stored already."""
         wanted = list(hashes)
         out: set[str] = set()
-        with Session(self.engine) as s:
+        with self.session() as s:
             for k in range(0, len(wanted), 500):
                 chunk = wanted[k : k + 500]
                 out.update(
@@ -287,7 +325,7 @@ class Store:
         self, profile: ConveyorProfile, settings: MonitorSettings
     ) -> tuple[ConveyorMonitor | None, int]:
         """A conveyor's stored health model and its version (None, 0 when new)."""
-        with Session(self.engine) as s:
+        with self.session() as s:
             row = s.get(MonitorStateRow, profile.id)
             if row is None:
                 return None, 0
@@ -319,7 +357,7 @@ class Store:
         ]
         if not keys:
             return set()
-        with Session(self.engine) as s:
+        with self.session() as s:
             found = stored_partials(s, conveyor, (f for f, _ in keys))
         return {sha for key in keys for sha in found.get(key, [])}
 
@@ -329,13 +367,13 @@ class Store:
         One query per 500 names: an ingest asks this once per conveyor, and
         :meth:`partials` (a query per recording) only for the names found.
         """
-        with Session(self.engine) as s:
+        with self.session() as s:
             return {f for f, _at in stored_partials(s, conveyor, files)}
 
     def _stored(self, path: str) -> Recording:
         """A stored recording by its ``store:<sha256>`` path (the health model's loader)."""
         sha = path.removeprefix(_STORED)
-        with Session(self.engine) as s:
+        with self.session() as s:
             row = s.scalars(select(RecordingRow).where(RecordingRow.sha256 == sha)).first()
             if row is None:
                 raise StoreError(f"{safe_url(self.url)}: no stored recording {sha[:12]}")
@@ -501,7 +539,7 @@ class Store:
         ``stored_at``. A partial recording superseded by its complete
         version is left out (:mod:`~.supersede`).
         """
-        with Session(self.engine) as s:
+        with self.session() as s:
             q = (
                 select(ResultRow, RecordingRow.sha256)
                 .join(RecordingRow, RecordingRow.id == ResultRow.recording_id)
@@ -521,7 +559,7 @@ class Store:
         """A stored conveyor's profile, if the conveyor is stored."""
         from chaintwin.read.profile import parse_profile
 
-        with Session(self.engine) as s:
+        with self.session() as s:
             row = s.get(ConveyorRow, conveyor)
             if row is None:
                 return None
@@ -535,7 +573,7 @@ class Store:
         StoreError
             When the stored model is damaged.
         """
-        with Session(self.engine) as s:
+        with self.session() as s:
             row = s.get(MonitorStateRow, conveyor)
             if row is None:
                 return None
@@ -550,7 +588,7 @@ class Store:
         StoreError
             When a stored alarm is damaged.
         """
-        with Session(self.engine) as s:
+        with self.session() as s:
             q = select(AlarmRow).order_by(AlarmRow.since, AlarmRow.id)
             if conveyor is not None:
                 q = q.where(AlarmRow.conveyor_id == conveyor)
@@ -567,7 +605,7 @@ class Store:
         StoreError
             When a stored event is damaged.
         """
-        with Session(self.engine) as s:
+        with self.session() as s:
             q = select(EventRow).order_by(EventRow.at, EventRow.id)
             if conveyor is not None:
                 q = q.where(EventRow.conveyor_id == conveyor)
@@ -590,7 +628,7 @@ class Store:
         calibration are left out, and those whose samples retention dropped, and
         partial ones superseded by their complete version.
         """
-        with Session(self.engine) as s:
+        with self.session() as s:
             q = (
                 select(RecordingRow.id, RecordingRow.file, RecordingRow.recorded_at)
                 .join(ResultRow, ResultRow.recording_id == RecordingRow.id)
@@ -612,7 +650,7 @@ class Store:
         StoreError
             When there is no such recording.
         """
-        with Session(self.engine) as s:
+        with self.session() as s:
             row = s.get(RecordingRow, recording_id)
             if row is None:
                 raise StoreError(f"{safe_url(self.url)}: no recording with id {recording_id}")
@@ -683,7 +721,7 @@ class Store:
         StoreError
             When the store has no alarm with that id.
         """
-        with Session(self.engine) as s:
+        with self.session() as s:
             row = s.get(AlarmRow, alarm_id)
             alias = None if row is not None else s.get(AlarmAliasRow, alarm_id)
             if alias is not None:  # an alarm grouped into another: the other's conveyor
@@ -701,14 +739,14 @@ class Store:
 
     def conveyors(self) -> list[str]:
         """Ids of the stored conveyors."""
-        with Session(self.engine) as s:
+        with self.session() as s:
             return list(s.scalars(select(ConveyorRow.id).order_by(ConveyorRow.id)))
 
     def counts(self) -> dict[str, int]:
         """Rows per table (recordings, results, alarms, calibrations)."""
         from sqlalchemy import func
 
-        with Session(self.engine) as s:
+        with self.session() as s:
             return {
                 "recordings": s.scalar(select(func.count()).select_from(RecordingRow)) or 0,
                 "results": s.scalar(select(func.count()).select_from(ResultRow)) or 0,

@@ -13,7 +13,6 @@ from __future__ import annotations
 import threading
 
 from sqlalchemy import select
-from sqlalchemy.orm import Session
 
 from chaintwin.diagnose.monitor_state import MonitorState
 from chaintwin.diagnose.verdict import Verdict, verdict
@@ -29,7 +28,7 @@ def conveyor_verdict(store: Store, conveyor: str) -> Verdict:
     """A conveyor's verdict from its stored health model (``no_data`` without a readable one,
     or with one made with another version of its profile, as
     :func:`~chaintwin.report.data.conveyor_data` reads it)."""
-    with Session(store.engine) as s:
+    with store.session() as s:
         row = s.get(MonitorStateRow, conveyor)
         data = None if row is None else dict(row.state)
     if data is None:
@@ -53,7 +52,7 @@ class VerdictCache:
 
     def verdicts(self, store: Store) -> dict[str, Verdict]:
         """Per conveyor with a health model: its verdict."""
-        with Session(store.engine) as s:
+        with store.session() as s:
             query = select(MonitorStateRow.conveyor_id, MonitorStateRow.version)
             versions = {str(c): int(v) for c, v in s.execute(query).all()}
         out: dict[str, Verdict] = {}
@@ -66,3 +65,19 @@ class VerdictCache:
                     self._known[cid] = known
             out[cid] = known[1]
         return out
+
+    def verdict(self, store: Store, conveyor: str) -> Verdict | None:
+        """One conveyor's verdict, as :meth:`verdicts` gives it (None: no health model);
+        only its own model's version is read."""
+        with store.session() as s:
+            query = select(MonitorStateRow.version).where(MonitorStateRow.conveyor_id == conveyor)
+            version = s.scalar(query)
+        if version is None:
+            return None
+        with self._lock:
+            known = self._known.get(conveyor)
+        if known is None or known[0] != int(version):
+            known = (int(version), conveyor_verdict(store, conveyor))
+            with self._lock:
+                self._known[conveyor] = known
+        return known[1]

@@ -53,7 +53,7 @@ class FleetHealth:
         Worked out once per version of its health model: a conveyor's page
         and ``GET /api/v1/conveyors/{id}`` read the same as the fleet.
         """
-        return self.cache.verdicts(store).get(conveyor) or verdict(None)
+        return self.cache.verdict(store, conveyor) or verdict(None)
 
     def rows(self, store: Store) -> list[dict[str, Any]]:
         """:func:`~chaintwin.store.queries.fleet_rows` with the verdict's fields

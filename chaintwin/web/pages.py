@@ -135,9 +135,10 @@ def conveyor_page(request: Request, conveyor_id: str) -> HTMLResponse:
     p = _viewer(request)
     web = _web(request)
     # bounded (its status, health index and features need the newest results; the
-    # trends' charts fetch their own series from the API), the verdict the fleet's
+    # trends' charts fetch their own series from the API: only their names are
+    # worked out here), the verdict the fleet's
     try:
-        data = conveyor_data_of(web, conveyor_id)
+        data = conveyor_data_of(web, conveyor_id, trends=False)
     except ApiError as exc:  # no such conveyor
         return error_page(request, exc.status, exc.message)
     return _render(request, "conveyor.html.j2", p, conveyor_id=conveyor_id, data=data)

@@ -88,29 +88,44 @@ def fleet_health(web: Any) -> Any:
 
 
 def conveyor_data_of(
-    web: Any, conveyor_id: str, *, bands: bool = False, max_points: int | None = None
+    web: Any,
+    conveyor_id: str,
+    *,
+    bands: bool = False,
+    max_points: int | None = None,
+    trends: bool = True,
 ) -> Any:
     """A conveyor's :class:`~chaintwin.report.data.ConveyorData` for the pages and the API:
-    bounded, forecasts as stored, the verdict from the process's cache (404: no conveyor)."""
+    bounded, forecasts as stored, the verdict from the process's cache (404: no conveyor).
+
+    ``trends``: build the trends (False: only name them, ``feature_names``: the
+    conveyor's page and detail, which show no series).
+
+    Every read shares one database session (:meth:`~chaintwin.store.store.Store.session`):
+    one connection checkout per request rather than one per read."""
     from chaintwin.report.data import conveyor_data
 
     store = web.store
-    try:
-        return conveyor_data(
-            store,
-            conveyor_id,
-            waterfall=0,
-            forecast_bands=bands,
-            max_points=PAGE_POINTS if max_points is None else max_points,
-            latest=False,
-            stored_forecasts=True,
-            known_verdict=fleet_health(web).verdict(store, conveyor_id),
-        )
-    except StoreError:
-        # the profile is read once, by conveyor_data (a round trip less on PostgreSQL)
-        if store.profile(conveyor_id) is None:
-            raise ApiError(404, "not_found", f"no conveyor '{conveyor_id}' in the store") from None
-        raise
+    with store.session():
+        try:
+            return conveyor_data(
+                store,
+                conveyor_id,
+                waterfall=0,
+                forecast_bands=bands,
+                max_points=PAGE_POINTS if max_points is None else max_points,
+                latest=False,
+                stored_forecasts=True,
+                known_verdict=fleet_health(web).verdict(store, conveyor_id),
+                trends=trends,
+            )
+        except StoreError:
+            # the profile is read once, by conveyor_data (a round trip less on PostgreSQL)
+            if store.profile(conveyor_id) is None:
+                raise ApiError(
+                    404, "not_found", f"no conveyor '{conveyor_id}' in the store"
+                ) from None
+            raise
 
 
 @router.get(
@@ -175,21 +190,26 @@ def recordings(
     return fast_json({"items": page.items, "next_cursor": page.next_cursor})
 
 
-def _trend(data: Any, conveyor_id: str, trend: Any, max_points: int) -> dict[str, Any]:
-    """One feature's trend object (the ``trends`` endpoint's body for one ``feature``)."""
+def _trend(
+    data: Any, conveyor_id: str, trend: Any, max_points: int, times: list[str | None]
+) -> dict[str, Any]:
+    """One feature's trend object (the ``trends`` endpoint's body for one ``feature``).
+
+    ``times``: each result's ``recorded_at`` in ISO 8601 (:func:`_iso_times`), written
+    once per request for all its trends."""
     feature = trend.name
-    points = []
     represents = data.represents or [1] * len(data.results)
-    for k, v, ex in zip(trend.index, trend.values, trend.exceeded, strict=False):
-        t = data.times[k]
-        points.append(
-            {
-                "recorded_at": None if t is None else t.isoformat(),
-                "value": _finite(float(v)),
-                "exceeded": bool(ex),
-                "represents": represents[k],
-            }
-        )
+    finite = math.isfinite
+    # the values are floats (NaN where unknown: null) and the flags bools already
+    points = [
+        {
+            "recorded_at": times[k],
+            "value": v if finite(v) else None,
+            "exceeded": ex,
+            "represents": represents[k],
+        }
+        for k, v, ex in zip(trend.index, trend.values, trend.exceeded, strict=False)
+    ]
     marks = [
         {"id": a.id, "since": a.since, "closed_at": a.closed_at, "cause": a.cause}
         for a in data.alarms
@@ -211,6 +231,11 @@ def _trend(data: Any, conveyor_id: str, trend: Any, max_points: int) -> dict[str
         "recordings": data.recordings,
         "max_points": max_points,
     }
+
+
+def _iso_times(data: Any) -> list[str | None]:
+    """Each result's recording time in ISO 8601 (None: unknown), for :func:`_trend`."""
+    return [None if t is None else t.isoformat() for t in data.times]
 
 
 @router.get("/conveyors/{conveyor_id:path}/trends", response_model=Trend | Trends)
@@ -242,12 +267,13 @@ def trends(
     if unknown:
         names = ", ".join(by_name) or "none yet"
         raise ApiError(404, "not_found", f"no feature '{unknown[0]}' (tracked: {names})")
+    times = _iso_times(data)
     if feature is not None and len(feature) == 1:
-        return fast_json(_trend(data, conveyor_id, by_name[asked[0]], max_points))
+        return fast_json(_trend(data, conveyor_id, by_name[asked[0]], max_points, times))
     return fast_json(
         {
             "conveyor": conveyor_id,
-            "trends": [_trend(data, conveyor_id, by_name[f], max_points) for f in asked],
+            "trends": [_trend(data, conveyor_id, by_name[f], max_points, times) for f in asked],
             "recordings": data.recordings,
             "max_points": max_points,
             "as_of": data.summary.get("forecasts_as_of"),
@@ -359,7 +385,7 @@ def conveyor(request: Request, conveyor_id: str, _who: Viewer) -> Response:
     ``deviation`` and ``worst_feature`` are those of ``/conveyors``;
     ``status`` is the latest result's status.
     """
-    data = conveyor_data_of(web_of(request), conveyor_id)
+    data = conveyor_data_of(web_of(request), conveyor_id, trends=False)
     cal = data.calibration
     calibration = None
     if cal is not None:
@@ -384,7 +410,7 @@ def conveyor(request: Request, conveyor_id: str, _who: Viewer) -> Response:
             "forecasts": data.forecasts,
             **data.verdict.to_dict(),
             "status": _latest_status(data.results),
-            "features": [t.name for t in data.trends],
+            "features": data.feature_names,
             "open_alarms": [a.to_dict() for a in data.open_alarms()],
             "recordings": data.recordings,
             "notes": data.notes,

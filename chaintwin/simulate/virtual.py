@@ -317,6 +317,7 @@ def speed_filter_alpha(cycle_s: float, speed_filter_s: float) -> float:
 
 def setpoint_noise(
     position: FloatArray,
+    setpoint: FloatArray,
     plant: PlantParameters,
     realism: Realism,
     rng: np.random.Generator,
@@ -331,12 +332,16 @@ def setpoint_noise(
     that into torque: the set point carries ``-Kp·n`` unfiltered, the actual
     torque the same through the torque lag. The integral part's share
     (``Kp/Ti`` per second) is left out: at the controller cycle it is two
-    orders smaller.
+    orders smaller. The drive's torque limit clips the set point after the
+    controller: where the set point is held at the limit, its noise is cut
+    off there too (a saturated set point stays flat).
 
     Parameters
     ----------
     position : FloatArray
         Motor angle at every controller cycle, rad.
+    setpoint : FloatArray
+        Torque set point without the noise at every controller cycle, N·m.
     plant : PlantParameters
         Controller cycle, speed gain and torque time constant.
     realism : Realism
@@ -358,6 +363,8 @@ def setpoint_noise(
     measured += rng.normal(0.0, realism.speed_noise_rpm * RPM_TO_RAD_S, position.shape)
     filtered = _first_order(measured, dt, realism.speed_filter_s)
     du = -plant.speed_gain_nm_s_rad * filtered
+    limit = plant.torque_limit_nm
+    du = np.clip(setpoint + du, -limit, limit) - setpoint
     return du, _first_order(du, dt, plant.torque_time_constant_s)
 
 
@@ -537,7 +544,7 @@ def run_virtual(
         stream = np.random.default_rng(
             None if seed is None else [seed & 0xFFFFFFFF, SETPOINT_NOISE_STREAM]
         )
-        du, du_lagged = setpoint_noise(sim.position, plant, realism, stream)
+        du, du_lagged = setpoint_noise(sim.position, sim.torque_setpoint, plant, realism, stream)
         t_sp = t_sp + du[idx]
         tq = tq + du_lagged[idx]
     if realism.noise:

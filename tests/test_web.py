@@ -508,10 +508,13 @@ def test_the_fleet_answers_304_until_the_store_changes(served: Served, tmp_path:
 
 @pytest.fixture(scope="module")
 def rising(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
-    """A conveyor whose friction rises slowly from day 2: forecast, not yet in alarm."""
+    """A conveyor whose friction rises slowly from day 2: forecast, not yet in alarm.
+
+    A drawing (seed) in which the rise is significant by the last recording: in some
+    (seed 5 since the set point carries its noise) the forecaster does not yet see one."""
     folder = tmp_path_factory.mktemp("rising")
     generate(
-        PROFILE, folder, days=6, per_day=5, faults=[Fault("friction", 0.04)], onset_day=2, seed=5
+        PROFILE, folder, days=6, per_day=5, faults=[Fault("friction", 0.04)], onset_day=2, seed=9
     )
     s = Served(f"sqlite:///{tmp_path_factory.mktemp('rising-db') / 'plant.db'}", folder)
     yield s

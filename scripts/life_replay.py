@@ -124,6 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--check", action="store_true", help="compare with the run's forecasts")
     parser.add_argument("--per-fault", action="store_true", help="print per fault type too")
     parser.add_argument("--list", action="store_true", help="print every forecast, before and now")
+    parser.add_argument("--markdown", type=Path, default=None, help="write the tables here")
     parser.add_argument("--json", type=Path, default=None, help="write the summaries here")
     args = parser.parse_args(argv)
     entries = [e for p in args.caches for e in json.loads(p.read_text())]
@@ -136,16 +137,13 @@ def main(argv: list[str] | None = None) -> int:
             unique.append(e)
     rows = rows_of(unique)
     out: dict[str, Any] = {}
-    for method in ("line", "alarm", "hindsight"):
+    for method in METHODS:
         out[method] = life_summary(rows, method)
         for x in out[method]:
-            got = [
-                y if method == "alarm" else y[method]
-                for r in rows
-                for y in r["remaining_life"]
-                if y["lambda"] == x["lambda"]
-            ]
+            got = _got(rows, method, x["lambda"])
             x["median_width"] = width(got)
+            for f, c in x["by_fault"].items():
+                c["median_width"] = width(_got(rows, method, x["lambda"], f))
             print(
                 f"{method:9s} lambda {x['lambda']}: within {x['within']}/{x['sequences']}, "
                 f"covered {x['covered']}/{x['forecasts']}, crossed {x['crossed']}, "
@@ -183,9 +181,73 @@ def main(argv: list[str] | None = None) -> int:
                         differ += 1
                         print(f"differs: {r['key']} lambda {y['lambda']} {m}: {was} -> {now}")
         print(f"{differ} forecasts differ from the run's")
+    if args.markdown is not None:
+        args.markdown.write_text(markdown(out))
     if args.json is not None:
         args.json.write_text(json.dumps(out, indent=1))
     return 0
+
+
+METHODS = ("alarm", "line", "window", "hindsight")
+"""Judged: ``alarm`` the monitor's forecast now, ``line`` the line alone after the change
+point (the forecast before the curve and the model error), ``window`` the forecast before
+the alarm's opening was predicted (as the run judged it), ``hindsight`` the trend fitted
+up to the recordings after the alarm."""
+
+
+def _got(
+    rows: list[dict[str, Any]], method: str, lam: float, fault: str | None = None
+) -> list[dict[str, Any]]:
+    return [
+        y if method == "alarm" else y[method]
+        for r in rows
+        if fault is None or r["fault"] == fault
+        for y in r["remaining_life"]
+        if y["lambda"] == lam
+    ]
+
+
+def _pct(n: int, d: int) -> str:
+    return f"{n}/{d} ({n / d:.0%})" if d else "-"
+
+
+def markdown(out: dict[str, Any]) -> str:
+    """The tables: per method and lambda, and the monitor's forecast per fault type."""
+    lines = [
+        "| forecast | λ | with a forecast (crossed) | within ±20 % "
+        "| within, true life ≥ 5 recordings | band covers the truth "
+        "| median expected/true | median band width/true |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for m in METHODS:
+        for x in out[m]:
+            lines.append(
+                f"| {m} | {x['lambda']} | {x['forecasts']} ({x['crossed']}) "
+                f"| {_pct(x['within'], x['sequences'])} "
+                f"| {_pct(x['resolvable_within'], x['resolvable'])} "
+                f"| {_pct(x['covered'], x['forecasts'])} | {_f(x['median_ratio'])} "
+                f"| {_f(x['median_width'])} |"
+            )
+    lines += [
+        "",
+        "| fault | λ | alarm: within, covered, expected/true, width/true "
+        "| line: within, covered, expected/true, width/true |",
+        "|---|---|---|---|",
+    ]
+    faults = sorted({f for x in out["alarm"] for f in x["by_fault"]})
+    for f in faults:
+        for a, b in zip(out["alarm"], out["line"], strict=True):
+            cells = []
+            for x in (a, b):
+                c = x["by_fault"].get(f)
+                cells.append(
+                    "-"
+                    if c is None
+                    else f"{c['within']}/{c['sequences']}, {c['covered']}/{c['forecasts']}, "
+                    f"{_f(c['median_ratio'])}, {_f(c['median_width'])}"
+                )
+            lines.append(f"| {f.replace('_', ' ')} | {a['lambda']} | {cells[0]} | {cells[1]} |")
+    return "\n".join(lines) + "\n"
 
 
 def _band(x: dict[str, Any]) -> str:

@@ -698,8 +698,9 @@ def forecast_alarm(
     -------
     Forecast or None
         ``threshold`` is the median threshold of the last recordings (feature
-        units at the mean payload), ``model`` ``line`` with ``trend_since``
-        the change point; ``crossed`` with ``earliest`` = ``latest`` =
+        units at the mean payload), ``model`` ``line`` (the rise after the
+        change point, the line's and the curve's) with ``trend_since`` the
+        change point (the curve's when it is the likelier); ``crossed`` with ``earliest`` = ``latest`` =
         ``crosses_at`` when the alarm is open. None without a significant
         rise (unless open), or when the median future opens no alarm within
         the horizon.
@@ -774,9 +775,16 @@ def forecast_alarm(
         backtest_mae=None,
         last=last,
         band=band,
-        trend_since=t0 + rise.tau * day,
+        trend_since=t0 + _change_point(rise) * day,
         threshold=threshold,
     )
+
+
+def _change_point(rise: Rise) -> float:
+    """The change point of the likelier model (the curve's when its weight is above half), days."""
+    if rise.curve is not None and rise.curve_weight > 0.5:
+        return rise.curve.tau
+    return rise.tau
 
 
 def _opening_quantiles(

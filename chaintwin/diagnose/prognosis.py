@@ -700,10 +700,10 @@ def forecast_alarm(
         ``threshold`` is the median threshold of the last recordings (feature
         units at the mean payload), ``model`` ``line`` (the rise after the
         change point, the line's and the curve's) with ``trend_since`` the
-        change point (the curve's when it is the likelier); ``crossed`` with ``earliest`` = ``latest`` =
-        ``crosses_at`` when the alarm is open. None without a significant
-        rise (unless open), or when the median future opens no alarm within
-        the horizon.
+        change point (the curve's when it is the likelier); ``crossed`` with
+        ``earliest`` = ``latest`` = ``crosses_at`` when the alarm is open.
+        None without a significant rise (unless open), or when the median
+        future opens no alarm within the horizon.
     """
     if len(times) < 2:
         return None

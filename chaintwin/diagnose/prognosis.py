@@ -611,24 +611,25 @@ def _openings(
     if tail:
         flags[:, -len(tail) :] = np.asarray(tail, dtype=np.int64)
     opened = np.full(PATHS, np.inf)
+    active = np.arange(PATHS)  # the futures whose alarm has not opened yet
     done = 0
     chunk = CHUNK
-    while done < steps:
+    while done < steps and active.size:
         j = np.arange(done + 1, min(steps, done + chunk) + 1, dtype=np.float64)
         chunk = min(2 * chunk, MAX_CHUNK)
-        s = np.maximum(0.0, (t_last + j * step)[None, :] - tau[:, None])
-        values = coef[:, :1] + (coef[:, 1:] + curv[:, None] * s) * s
-        values += sigma[:, None] * rng.standard_normal((PATHS, j.shape[0]))
-        limit = healthy + margins[rng.integers(0, margins.shape[0], (PATHS, j.shape[0]))]
+        a, n = active, j.shape[0]
+        s = np.maximum(0.0, (t_last + j * step)[None, :] - tau[a, None])
+        values = coef[a, :1] + (coef[a, 1:] + curv[a, None] * s) * s
+        values += sigma[a, None] * rng.standard_normal((a.size, n))
+        limit = healthy + margins[rng.integers(0, margins.shape[0], (a.size, n))]
         ex = np.concatenate((flags, (values > limit).astype(np.int64)), axis=1)
-        csum = np.concatenate((np.zeros((PATHS, 1), dtype=np.int64), np.cumsum(ex, axis=1)), 1)
+        csum = np.concatenate((np.zeros((a.size, 1), dtype=np.int64), np.cumsum(ex, axis=1)), 1)
         counts = csum[:, y:] - csum[:, :-y] if y > 1 else csum[:, 1:] - csum[:, :-1]
-        counts = counts[:, -j.shape[0] :]
-        met = counts >= x
-        first = np.where(met.any(axis=1), np.argmax(met, axis=1), -1)
-        new = np.isinf(opened) & (first >= 0)
-        opened[new] = j[first[new]]
-        flags = ex[:, -(y - 1) :] if y > 1 else flags
+        met = counts[:, -n:] >= x
+        hit = met.any(axis=1)
+        opened[a[hit]] = j[np.argmax(met[hit], axis=1)]
+        flags = ex[~hit][:, ex.shape[1] - (y - 1) :]
+        active = a[~hit]
         done = int(j[-1])
         known = np.isfinite(opened)
         if all(known[g].mean() >= 0.5 + 0.5 * level for g in (on, ~on) if g.any()):

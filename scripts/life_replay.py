@@ -2,7 +2,8 @@
 
 Run::
 
-    PYTHONPATH=. python scripts/life_replay.py runs/cache/*.json [--check] [--per-fault]
+    PYTHONPATH=. python scripts/life_replay.py runs/cache/*.json [--check] [--per-fault] \
+        [--list] [--markdown FILE] [--json FILE]
 
 Each argument is a cache the monitoring evaluation wrote
 (``scripts/evaluate_fidelity.py monitoring ... --life-cache FILE``): per
@@ -14,7 +15,13 @@ are made again with the package's :func:`~chaintwin.diagnose.prognosis.
 forecast_alarm` as it is now and judged as the evaluation judges them
 (:func:`fidelity_monitoring.life_summary`): within +-20 % of the true
 remaining life, the band covering it, and the band's width over the true
-remaining life. ``--check`` compares the forecasts made now with those
+remaining life (:data:`METHODS`: the monitor's forecast, the line alone
+after the change point as before the curve, the window forecast as the run
+judged it, and the trend known in hindsight). A sequence in two caches (the
+same seed's runs with another ``--per-fault`` share their first conveyor)
+counts once. ``--list`` prints every forecast (earliest < expected < latest,
+``*`` where the band holds the truth), ``--markdown`` writes the tables of
+the evaluation page, ``--check`` compares the forecasts made now with those
 the run judged (the same code must give the same answers).
 """
 

@@ -693,6 +693,13 @@ def main(argv: list[str] | None = None) -> int:
         "--only", nargs="*", default=None, help="monitoring: fault types (or healthy) to run"
     )
     parser.add_argument(
+        "--life-cache",
+        type=Path,
+        default=None,
+        help="monitoring: write each alarmed sequence's remaining-life forecast inputs "
+        "(per lambda) to this JSON, for scripts/life_replay.py",
+    )
+    parser.add_argument(
         "--sequences",
         action="store_true",
         help="weighing: zero-tracking sequences (scripts/weighing_sequences.py) instead",

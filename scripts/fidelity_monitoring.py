@@ -40,6 +40,7 @@ the coverage is the share of those forecasts whose band holds the truth.
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from collections.abc import Callable
@@ -51,9 +52,10 @@ import numpy as np
 
 from chaintwin.calibrating.procedure import calibrate
 from chaintwin.diagnose import baseline
+from chaintwin.diagnose.features import feature_spec
 from chaintwin.diagnose.health import FeatureBaseline
 from chaintwin.diagnose.monitor import ConveyorMonitor
-from chaintwin.diagnose.prognosis import fit_rise, forecast_alarm
+from chaintwin.diagnose.prognosis import RECENT, fit_rise, forecast_alarm
 from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.errors import ChaintwinError
 from chaintwin.simulate.faults import Fault, expected_causes, fault_type
@@ -214,7 +216,8 @@ def _sequence(task: dict[str, Any]) -> dict[str, Any]:
         for a in monitor.alarms
         if healthy or index_at.get(a.opened_at or "", n) < onset
     ]
-    life = _remaining_life(monitor, baselines_at, onset, first_alarm, first_feature)
+    inputs: list[dict[str, Any]] = []
+    life = _remaining_life(monitor, baselines_at, onset, first_alarm, first_feature, inputs)
     return {
         "fault": fault,
         "conveyor": profile.id,
@@ -241,6 +244,7 @@ def _sequence(task: dict[str, Any]) -> dict[str, Any]:
         "payload_z_after": _median_abs([z for i, _, z in errors if i >= onset]),
         "weighing_before_fault": _promise(promised, unweighable, promise_z),
         "remaining_life": life,
+        "forecast_inputs": inputs,
     }
 
 
@@ -331,12 +335,88 @@ def _hindsight(
     return None if fc is None else fc.to_dict()
 
 
+def _alarm_inputs(
+    feature: str,
+    fb: FeatureBaseline | None,
+    history: list[dict[str, Any]],
+    since: str,
+    monitor: ConveyorMonitor,
+) -> dict[str, Any] | None:
+    """What :func:`chaintwin.diagnose.baseline.forecasts` hands ``forecast_alarm`` (the cache).
+
+    The recordings' times (ISO), values at the mean payload, the last
+    :data:`~chaintwin.diagnose.prognosis.RECENT` margins, the exceedances, the
+    healthy value and the limit: a forecasting variant re-scored from these
+    (``scripts/life_replay.py``) sees what the monitor's forecast saw.
+    """
+    if fb is None:
+        return None
+    rows = [
+        h
+        for h in history
+        if h.get("status") == "monitored" and h.get("recorded_at") and h["recorded_at"] >= since
+    ]
+    if len(rows) < 8:
+        return None
+    spec = feature_spec(feature)
+    vals, _ = baseline.values_at_mean_payload(feature, fb, rows)
+    margins, _ = baseline.alarm_margins(feature, fb, rows[-RECENT:], monitor.settings.z_limit)
+    return {
+        "times": [h["recorded_at"] for h in rows],
+        "values": [float(v) for v in vals],
+        "margins": [float(m) for m in margins],
+        "exceeded": [feature in (h.get("exceeded") or ()) for h in rows],
+        "healthy": fb.expected(fb.mean_payload_kg),
+        "limit": fb.limit(monitor.settings.z_limit, spec.min_rel),
+        "x": monitor.settings.x,
+        "y": monitor.settings.y,
+        "forecastable": spec.cause is not None and feature not in baseline.NO_FORECAST,
+    }
+
+
+def _hindsight_inputs(
+    feature: str,
+    fb: FeatureBaseline | None,
+    history: list[dict[str, Any]],
+    whole: list[dict[str, Any]],
+    since: str,
+    monitor: ConveyorMonitor,
+) -> dict[str, Any] | None:
+    """What :func:`_hindsight` hands ``fit_rise`` and ``forecast_alarm`` (the cache)."""
+    if fb is None:
+        return None
+
+    def monitored(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        return [
+            h
+            for h in rows
+            if h.get("status") == "monitored" and h.get("recorded_at") and h["recorded_at"] >= since
+        ]
+
+    past, every = monitored(history), monitored(whole)
+    if len(past) < 8 or not every:
+        return None
+    vals, _ = baseline.values_at_mean_payload(feature, fb, past)
+    v_all, _ = baseline.values_at_mean_payload(feature, fb, every)
+    margins, exceeded = baseline.alarm_margins(feature, fb, past, monitor.settings.z_limit)
+    return {
+        "times": [h["recorded_at"] for h in past],
+        "values": [float(v) for v in vals],
+        "margins": [float(m) for m in margins],
+        "exceeded": [bool(e) for e in exceeded],
+        "healthy": fb.expected(fb.mean_payload_kg),
+        "whole_times": [h["recorded_at"] for h in every],
+        "whole_values": [float(v) for v in v_all],
+    }
+
+
 def _remaining_life(
     monitor: ConveyorMonitor,
     baselines_at: dict[int, dict[str, FeatureBaseline]],
     onset: int,
     alarm: int | None,
     feature: str | None,
+    inputs: list[dict[str, Any]] | None = None,
 ) -> list[dict[str, Any]]:
     """The alarmed feature's remaining life forecast at each of :data:`LAMBDAS`.
 
@@ -347,7 +427,9 @@ def _remaining_life(
     whether its expected remaining life is within +-:data:`ALPHA` of the
     truth (False without a forecast), ``covered`` whether the truth lies in
     its band (earliest .. latest; no latest: beyond the horizon, open).
-    The other :data:`METHODS` are judged alike under their names.
+    The other :data:`METHODS` are judged alike under their names. ``inputs``
+    (when given) gets each lambda's forecast inputs (:func:`_alarm_inputs`,
+    :func:`_hindsight_inputs`) beside the truth, for re-scoring variants.
     """
     if alarm is None or feature is None or alarm <= onset:
         return []
@@ -389,6 +471,21 @@ def _remaining_life(
         for method in METHODS[1:]:
             row[method] = _judged(found[method], lam, k, feature, true_days)
         out.append(row)
+        if inputs is not None:
+            fb = baselines_at.get(k, {}).get(feature)
+            inputs.append(
+                {
+                    "lambda": lam,
+                    "recording": k,
+                    "onset": onset,
+                    "alarm_recording": alarm,
+                    "feature": feature,
+                    "true_days": true_days,
+                    "alarm": _alarm_inputs(feature, fb, history, since, monitor),
+                    "hindsight": _hindsight_inputs(feature, fb, history, whole, since, monitor),
+                    "judged": row,
+                }
+            )
     return out
 
 
@@ -545,6 +642,16 @@ def run_monitoring(
             rows = list(ex.map(_run_task, tasks))
     seconds = time.perf_counter() - started
     rows = [r | {"seed": args.seed} for r in rows]
+    cache = [
+        {"seed": args.seed, "fault": r["fault"], "conveyor": r["conveyor"]}
+        | {"sample_time_ms": r.get("sample_time_ms")}
+        | x
+        for r in rows
+        for x in r.pop("forecast_inputs", [])
+    ]
+    if getattr(args, "life_cache", None) is not None:
+        args.life_cache.parent.mkdir(parents=True, exist_ok=True)
+        args.life_cache.write_text(json.dumps(cache, allow_nan=True))
     found = table(rows)
     _print(found, rows, args, seconds)
     return {

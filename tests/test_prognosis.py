@@ -9,7 +9,14 @@ import numpy as np
 import pytest
 
 from chaintwin.diagnose.health import FeatureBaseline, x_of_y
-from chaintwin.diagnose.prognosis import MIN_F, alarm_open, fit_rise, forecast_alarm
+from chaintwin.diagnose.prognosis import (
+    MIN_F,
+    alarm_open,
+    fit_curve,
+    fit_rise,
+    forecast_alarm,
+    model_error,
+)
 
 T0 = datetime(2026, 1, 1, tzinfo=UTC)
 STEP = 0.125  # days: a recording every 3 hours
@@ -28,6 +35,8 @@ def _sequence(
     after = np.maximum(0.0, k - onset)
     if rise == "linear":
         true = 1.0 + per_rec * after
+    elif rise == "quadratic":  # the same rise after 60 recordings, from a standstill
+        true = 1.0 + per_rec * 60.0 * (after / 60.0) ** 2
     else:  # exponential: the same rise after 60 recordings, accelerating
         true = 1.0 + per_rec * 60.0 * (np.exp(after / 60.0) - 1.0) / (math.e - 1.0)
     values = true + rng.normal(0.0, 0.01, n)
@@ -95,36 +104,133 @@ def test_the_rule_s_margin_is_the_one_check_applies_by_hand() -> None:
         assert not below.exceeded and above.exceeded
 
 
-@pytest.mark.parametrize("rise", ["linear", "exponential"])
+def _judged(
+    rise: str, lam: float, curved: bool = True, seeds: int = 30
+) -> tuple[list[float], int, int, list[float], list[float]]:
+    """Forecasts made ``lam`` of the way from the onset to the alarm's opening, judged.
+
+    Expected over true remaining life, forecasts whose band holds the truth,
+    forecasts made, band widths over the true remaining life, change points
+    (recordings).
+    """
+    ratios: list[float] = []
+    widths: list[float] = []
+    taus: list[float] = []
+    covered = made = 0
+    for seed in range(seeds):
+        values, margins, exceeded, alarm = _sequence(seed, rise=rise)
+        k = 100 + round(lam * (alarm - 100))
+        fc = forecast_alarm(
+            "friction",
+            _times(k + 1),
+            values[: k + 1],
+            margins[: k + 1],
+            exceeded[: k + 1],
+            1.0,
+            curved=curved,
+        )
+        if fc is None or fc.crossed:
+            continue
+        made += 1
+        life = fc.to_dict()["remaining_life_days"]
+        true = (alarm - k) * STEP
+        ratios.append(life["expected"] / true)
+        covered += life["earliest"] <= true <= (life["latest"] or math.inf)
+        widths.append(((life["latest"] or math.inf) - life["earliest"]) / true)
+        assert fc.trend_since is not None
+        taus.append((fc.trend_since - T0).total_seconds() / 86400.0 / STEP)
+        assert fc.threshold == pytest.approx(1.0 + np.median(margins[k - 29 : k + 1]))
+        assert fc.limit == fc.threshold  # no limit given
+    return ratios, covered, made, widths, taus
+
+
+@pytest.mark.parametrize("rise", ["linear", "exponential", "quadratic"])
 def test_a_rise_after_a_change_point_gives_the_alarm_s_opening_within_its_band(
     rise: str,
 ) -> None:
     """Known answer: the alarm rule applied to simulated values that rise after an onset;
     the forecast made 80 % of the way from the onset to the alarm's opening."""
-    ratios, covered, taus = [], 0, []
-    seeds = range(30)
-    for seed in seeds:
-        values, margins, exceeded, alarm = _sequence(seed, rise=rise)
-        k = 100 + round(0.8 * (alarm - 100))
-        fc = forecast_alarm(
-            "friction", _times(k + 1), values[: k + 1], margins[: k + 1], exceeded[: k + 1], 1.0
-        )
-        assert fc is not None and not fc.crossed
-        life = fc.to_dict()["remaining_life_days"]
-        true = (alarm - k) * STEP
-        ratios.append(life["expected"] / true)
-        covered += life["earliest"] <= true <= (life["latest"] or math.inf)
-        assert fc.trend_since is not None
-        taus.append((fc.trend_since - T0).total_seconds() / 86400.0 / STEP)
-        assert fc.threshold == pytest.approx(1.0 + np.median(margins[k - 29 : k + 1]))
-        assert fc.limit == fc.threshold  # no limit given
-    # the 90 % band holds the truth in most sequences (27 of 30 expected)
-    assert covered >= 23, covered
-    # a line after the change point follows a linear rise; an accelerating one it puts
-    # late (measured: median 1.32 of the truth), its band still holding the truth
-    high = 1.25 if rise == "linear" else 1.5
-    assert 0.8 <= float(np.median(ratios)) <= high, ratios
+    ratios, covered, made, _, taus = _judged(rise, 0.8)
+    assert made >= 28, made
+    # the 90 % band holds the truth in most sequences (27 of 30 expected; measured 28-29)
+    assert covered >= 0.8 * made, (covered, made)
+    # the line and the curve follow a linear rise; an accelerating one they put a little
+    # late (measured: median 1.00 linear, 1.08 exponential, 1.16 quadratic)
+    high = 1.15 if rise == "linear" else 1.3
+    assert 0.85 <= float(np.median(ratios)) <= high, ratios
     assert abs(float(np.median(taus)) - 100.0) <= 15.0, taus
+
+
+@pytest.mark.parametrize("rise", ["exponential", "quadratic"])
+def test_an_accelerating_rise_is_forecast_earlier_and_covered_where_the_line_alone_was_late(
+    rise: str,
+) -> None:
+    """Known answer by two methods: on a rise that accelerates after its change point the
+    line alone puts the opening late (measured median 1.32-1.55 of the truth); with the
+    curve beside it the forecast comes nearer the truth (1.08-1.30) and its band holds the
+    truth at least as often (22-30 of 24-30), at both lambdas."""
+    for lam in (0.5, 0.8):
+        now, covered, made, _, _ = _judged(rise, lam)
+        line, covered_line, made_line, _, _ = _judged(rise, lam, curved=False)
+        assert float(np.median(line)) > 1.25, (lam, line)
+        assert abs(float(np.median(now)) - 1.0) < abs(float(np.median(line)) - 1.0) - 0.05
+        assert covered / made >= covered_line / made_line - 0.05, (covered, covered_line)
+        assert covered >= 0.85 * made, (lam, covered, made)
+
+
+def test_a_linear_rise_s_band_is_not_much_wider_than_the_line_s() -> None:
+    """No wider than it must be: on a straight rise the curve and the model-error check
+    widen the band by at most a factor 1.5 over the line alone's (measured 1.13-1.28)."""
+    for lam in (0.5, 0.8):
+        _, _, _, widths, _ = _judged("linear", lam)
+        _, _, _, before, _ = _judged("linear", lam, curved=False)
+        assert float(np.median(widths)) <= 1.5 * float(np.median(before)), (widths, before)
+
+
+def test_a_curved_rise_gives_its_curvature_and_change_point_back() -> None:
+    t = np.arange(80) * STEP
+    s = np.maximum(0.0, t - t[40])
+    y = 2.0 + 0.05 * s + 0.02 * s * s + np.tile([1e-4, -1e-4], 40)
+    curve = fit_curve(t, y)
+    assert curve is not None
+    assert curve.tau == pytest.approx(t[40], abs=STEP)
+    assert curve.coef == pytest.approx([2.0, 0.05, 0.02], rel=0.02, abs=1e-3)
+    assert curve.weights.sum() == pytest.approx(1.0)
+    rise = fit_rise(t, y)
+    assert rise is not None and rise.curve is not None
+    # the curve explains the values far better: the evidence is all on its side
+    assert rise.curve_weight > 0.99
+    # fitted without the curve, the line misses the last recordings by far more than
+    # it claimed: its covariance is widened
+    assert model_error(t, y, rise.tau, None, 0.0) > 10.0
+
+
+def test_the_model_error_check_leaves_a_right_line_about_alone() -> None:
+    """On straight rises with white noise the out-of-sample check widens by 1 in most
+    series and its mean stays near that of a squared standard normal above 1
+    (E[max(1, z²)] = 1.57)."""
+    rng = np.random.default_rng(8)
+    t = np.arange(120) * STEP
+    found = []
+    for _ in range(200):
+        y = 1.0 + 0.02 * np.maximum(0.0, t - t[60]) + rng.normal(0.0, 0.01, 120)
+        rise = fit_rise(t, y, curved=False)
+        assert rise is not None
+        found.append(model_error(t, y, rise.tau, None, 0.0))
+    assert np.mean(np.asarray(found) == 1.0) > 0.5
+    assert float(np.mean(found)) < 2.2, np.mean(found)
+
+
+def test_white_noise_seldom_gives_a_forecast() -> None:
+    """The curve is weighed only beside a significant rise: white noise with the rule's
+    margins still seldom says an alarm will open (the F gate's 2 %; measured 3 of 150)."""
+    rng = np.random.default_rng(11)
+    said = 0
+    for _ in range(150):
+        v = rng.normal(1.0, 0.01, 120)
+        margins = np.full(120, 0.03)
+        said += forecast_alarm("f", _times(120), v, margins, v > 1.03, 1.0) is not None
+    assert said <= 8, said
 
 
 def test_an_open_alarm_is_crossed_since_its_window_s_first_exceedance() -> None:

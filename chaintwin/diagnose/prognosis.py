@@ -21,16 +21,27 @@ threshold and confirmation, instead of where a trend meets a single limit:
    series).
 3. **Trend and its uncertainty**: the line after ``tau`` (intercept and slope
    by ordinary least squares over every recording, the flat part fixing the
-   level), its covariance and the residuals' scatter.
+   level), its covariance and the residuals' scatter; beside it a curved rise
+   (:func:`fit_curve`: flat, then ``a + b·s + c·s²`` with ``c > 0``, every
+   change point weighed alike), the two weighed by their Akaike weights
+   (AICc). **Model error**: the rise's own out-of-sample check
+   (:func:`model_error`: fitted without the last third of the recordings
+   since the change point, how far it missed their mean against the
+   uncertainty it claimed) widens the covariances when it missed by more;
+   the scatter since the change point, when larger than over all the values,
+   widens the futures' noise.
 4. **The alarm rule ahead**: :data:`PATHS` futures are drawn (the line's
    parameters from their covariance, the scatter from its chi-square
-   distribution, each recording's noise and margin), one recording per mean
-   spacing of the recent ones; a future's alarm opens at the first recording
-   where X of the last Y exceeded (the window continues the recordings' own
-   exceedances). ``crosses_at`` is the median opening, ``earliest`` and
-   ``latest`` its 5 % and 95 % quantiles (the 90 % band; ``latest`` None when
-   more than 5 % of the futures stay quiet for the horizon). None when the
-   median future stays quiet.
+   distribution, each recording's noise and margin; with a curve, half of
+   them from the curve), one recording per mean spacing of the recent ones;
+   a future's alarm opens at the first recording where X of the last Y
+   exceeded (the window continues the recordings' own exceedances).
+   ``crosses_at`` is the median opening (the models' futures weighed by their
+   weights), ``earliest`` the earliest of the models' 5 % quantiles and
+   ``latest`` the latest of their 95 % quantiles (the 90 % band holds the
+   futures of whichever model is right; ``latest`` None when more than 5 %
+   of a model's futures stay quiet for the horizon). None when the median
+   future stays quiet.
 5. **Crossed**: when the alarm rule holds the feature's alarm open at the
    last recording (opened by X of Y, not yet Y recordings without an
    exceedance), the forecast says so, dated from the first exceedance of the
@@ -41,27 +52,32 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import datetime, timedelta
 from statistics import NormalDist
 
 import numpy as np
 
-from chaintwin._types import FloatArray
+from chaintwin._types import BoolArray, FloatArray
 
 from .forecasting import line_slope
 from .health import Forecast, ForecastBand
 
 __all__ = [
+    "HELD_OUT",
     "MIN_AFTER",
     "MIN_F",
     "MIN_POINTS",
+    "NOISE_AFTER",
     "PATHS",
     "RECENT",
+    "Curve",
     "Rise",
     "alarm_open",
+    "fit_curve",
     "fit_rise",
     "forecast_alarm",
+    "model_error",
 ]
 
 MIN_POINTS = 12
@@ -92,6 +108,13 @@ once the band is known)."""
 
 MAX_CHUNK = 2048
 """Most recordings ahead drawn at a time (memory: paths × this)."""
+
+NOISE_AFTER = 6
+"""Fewest recordings since the change point whose scatter widens the futures' noise."""
+
+HELD_OUT = (1.0 / 3.0,)
+"""Shares of the recordings since the change point left out, each in turn, to check the
+rise's forecast of them (:func:`model_error`)."""
 
 BAND_POINTS = 120
 """Most points of a forecast's band kept for plotting."""
@@ -126,6 +149,17 @@ class Rise:
         Its covariance at each (k × 2 × 2).
     sigmas : FloatArray
         Its scatter at each (k).
+    curve : Curve or None
+        The curved rise fitted beside the line (None: none rising faster).
+    curve_weight : float
+        How much the curve is to be believed against the line (their Akaike
+        weights, 0 without a curve).
+    inflation : float
+        The factor (1 or more) the covariances above were widened by for the
+        rise's model error (:func:`model_error`).
+    noise_ratio : float
+        How much larger the scatter is since the change point than over all
+        the values (1 or more): the futures' noise is widened by it.
     """
 
     tau: float
@@ -139,20 +173,166 @@ class Rise:
     coefs: FloatArray
     covs: FloatArray
     sigmas: FloatArray
+    curve: Curve | None = None
+    curve_weight: float = 0.0
+    inflation: float = 1.0
+    noise_ratio: float = 1.0
 
     def mean(self, t: FloatArray) -> FloatArray:
-        """The best line at times ``t`` (days), feature units."""
+        """The expected value at times ``t`` (days): the best line's and curve's by their weights.
+
+        Feature units.
+        """
         s = np.maximum(0.0, np.asarray(t, dtype=np.float64) - self.tau)
-        return np.asarray(self.coef[0] + self.coef[1] * s, dtype=np.float64)
+        line = self.coef[0] + self.coef[1] * s
+        if self.curve is None:
+            return np.asarray(line, dtype=np.float64)
+        w = self.curve_weight
+        return np.asarray((1.0 - w) * line + w * self.curve.mean(t), dtype=np.float64)
 
     def spread(self, t: FloatArray) -> FloatArray:
-        """Standard deviation of a new value at times ``t``: the best line's and the scatter's."""
+        """Standard deviation of a new value at times ``t``, feature units.
+
+        The best line's and the scatter's; with a curve, the mixture's (each
+        model's own spread and the distance between them).
+        """
         s = np.maximum(0.0, np.asarray(t, dtype=np.float64) - self.tau)
         var = self.cov[0, 0] + 2.0 * self.cov[0, 1] * s + self.cov[1, 1] * s * s
+        var = np.maximum(var, 0.0) + self.sigma**2
+        if self.curve is not None:
+            w = self.curve_weight
+            line = self.coef[0] + self.coef[1] * s
+            curve = self.curve.mean(t)
+            var = (
+                (1.0 - w) * var
+                + w * self.curve.spread(t) ** 2
+                + w * (1.0 - w) * (curve - line) ** 2
+            )
+        return np.asarray(np.sqrt(var), dtype=np.float64)
+
+
+@dataclass(frozen=True, slots=True)
+class Curve:
+    """A flat-then-curved rise: flat until ``tau``, then ``a + b·s + c·s²`` (s days since ``tau``).
+
+    Attributes
+    ----------
+    tau : float
+        The change point of the best fit, days.
+    coef : FloatArray
+        Its level (feature units), slope (per day) and curvature (per day²).
+    cov : FloatArray
+        Their covariance (3 × 3).
+    sigma : float
+        Scatter of the values about the curve (feature units).
+    dof : int
+        Residual degrees of freedom.
+    taus, weights, coefs, covs, sigmas : FloatArray
+        Every change point with a curve rising ever faster (k), its
+        probability given the values (as :class:`Rise`'s), fit (k × 3),
+        covariance (k × 3 × 3) and scatter (k).
+    """
+
+    tau: float
+    coef: FloatArray
+    cov: FloatArray
+    sigma: float
+    dof: int
+    taus: FloatArray
+    weights: FloatArray
+    coefs: FloatArray
+    covs: FloatArray
+    sigmas: FloatArray
+
+    def mean(self, t: FloatArray) -> FloatArray:
+        """The best curve at times ``t`` (days), feature units."""
+        s = np.maximum(0.0, np.asarray(t, dtype=np.float64) - self.tau)
+        return np.asarray(self.coef[0] + self.coef[1] * s + self.coef[2] * s * s, dtype=np.float64)
+
+    def spread(self, t: FloatArray) -> FloatArray:
+        """Standard deviation of a new value at times ``t``: the best curve's and the scatter's."""
+        s = np.maximum(0.0, np.asarray(t, dtype=np.float64) - self.tau)
+        x = np.stack((np.ones_like(s), s, s * s), axis=-1)
+        var = np.einsum("...i,ij,...j->...", x, self.cov, x)
         return np.asarray(np.sqrt(np.maximum(var, 0.0) + self.sigma**2), dtype=np.float64)
 
 
-def fit_rise(t: FloatArray, y: FloatArray) -> Rise | None:
+def _aicc(sse: float, n: int, k: int) -> float:
+    """The corrected Akaike information criterion of a least-squares fit with ``k`` parameters."""
+    return n * math.log(sse / n) + 2.0 * k + 2.0 * k * (k + 1) / max(n - k - 1, 1)
+
+
+def fit_curve(t: FloatArray, y: FloatArray) -> Curve | None:
+    """The flat-then-curved rises through (t, y) at every change point, if any rises ever faster.
+
+    Parameters
+    ----------
+    t : FloatArray
+        Times, days, ascending.
+    y : FloatArray
+        Finite values, feature units.
+
+    Returns
+    -------
+    Curve or None
+        Over the change points that leave at least :data:`MIN_AFTER` + 1
+        recordings after them and give a positive curvature; None when there
+        are none (or fewer than :data:`MIN_POINTS` values).
+    """
+    t = np.asarray(t, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    n = t.shape[0]
+    if n < MIN_POINTS:
+        return None
+    yc = y - float(y.mean())
+    sst = float(yc @ yc)
+    if not sst > 0.0:
+        return None
+    taus = t[: n - MIN_AFTER - 1]
+    s = np.maximum(0.0, t[None, :] - taus[:, None])
+    s2 = s * s
+    gram = np.empty((taus.shape[0], 3, 3))
+    gram[:, 0, 0] = n
+    gram[:, 0, 1] = gram[:, 1, 0] = s.sum(axis=1)
+    gram[:, 0, 2] = gram[:, 2, 0] = gram[:, 1, 1] = s2.sum(axis=1)
+    gram[:, 1, 2] = gram[:, 2, 1] = np.einsum("ij,ij->i", s2, s)
+    gram[:, 2, 2] = np.einsum("ij,ij->i", s2, s2)
+    rhs = np.column_stack((np.full(taus.shape[0], yc.sum()), s @ yc, s2 @ yc))
+    det = np.linalg.det(gram)
+    keep = det > 1e-12 * np.maximum(gram[:, 2, 2] * gram[:, 1, 1] * n, 1e-300)
+    if not keep.any():
+        return None
+    taus, gram, rhs, det = taus[keep], gram[keep], rhs[keep], det[keep]
+    inv = np.linalg.inv(gram)
+    beta = np.einsum("kij,kj->ki", inv, rhs)
+    keep = beta[:, 2] > 0.0
+    if not keep.any():
+        return None
+    taus, inv, rhs, det, beta = taus[keep], inv[keep], rhs[keep], det[keep], beta[keep]
+    dof = n - 3
+    sse = np.maximum(sst - np.einsum("ki,ki->k", beta, rhs), 1e-300 * max(sst, 1.0))
+    sigma2 = sse / dof
+    log_w = -0.5 * np.log(det) - 0.5 * dof * np.log(sse)
+    w = np.exp(log_w - log_w.max())
+    coefs = beta.copy()
+    coefs[:, 0] += float(y.mean())
+    covs = inv * sigma2[:, None, None]
+    best = int(np.argmin(sse))
+    return Curve(
+        float(taus[best]),
+        coefs[best],
+        covs[best],
+        math.sqrt(float(sigma2[best])),
+        dof,
+        taus,
+        w / w.sum(),
+        coefs,
+        covs,
+        np.sqrt(sigma2),
+    )
+
+
+def fit_rise(t: FloatArray, y: FloatArray, *, curved: bool = True) -> Rise | None:
     """The two-segment lines through (t, y), if the best is a significant rise.
 
     Every change point is kept with its probability, so that the futures
@@ -164,6 +344,9 @@ def fit_rise(t: FloatArray, y: FloatArray) -> Rise | None:
         Times, days, ascending.
     y : FloatArray
         Finite values, feature units.
+    curved : bool
+        Fit the curved rise beside the line (:func:`fit_curve`) and weigh
+        the two by their Akaike weights.
 
     Returns
     -------
@@ -211,6 +394,19 @@ def fit_rise(t: FloatArray, y: FloatArray) -> Rise | None:
     log_w = -0.5 * np.log(n * sxx) - 0.5 * dof * np.log(sse)
     w = np.exp(log_w - log_w.max())
     coefs = np.column_stack((intercept, slope))
+    curve = fit_curve(t, y) if curved else None
+    curve_weight = 0.0
+    if curve is not None:
+        sse_curve = float(curve.sigmas.min()) ** 2 * curve.dof
+        gap = _aicc(sse_curve, n, 5) - _aicc(float(sse[best]), n, 4)
+        curve_weight = 1.0 / (1.0 + math.exp(min(gap / 2.0, 700.0)))
+    inflation = noise_ratio = 1.0
+    if curved:
+        inflation = model_error(t, y, float(taus[best]), curve, curve_weight)
+        noise_ratio = _noise_after(t, y, float(taus[best]), coefs[best], float(sigma2[best]))
+        covs = covs * inflation
+        if curve is not None:
+            curve = replace(curve, cov=curve.cov * inflation, covs=curve.covs * inflation)
     return Rise(
         float(taus[best]),
         coefs[best],
@@ -223,7 +419,110 @@ def fit_rise(t: FloatArray, y: FloatArray) -> Rise | None:
         coefs,
         covs,
         np.sqrt(sigma2),
+        curve,
+        curve_weight,
+        inflation,
+        noise_ratio,
     )
+
+
+def _noise_after(
+    t: FloatArray, y: FloatArray, tau: float, coef: FloatArray, sigma2: float
+) -> float:
+    """The scatter about the line since ``tau`` over the scatter over all values (1 or more).
+
+    A feature often scatters more as its fault grows; the scatter of the
+    healthy recordings would draw the futures too calm. With fewer than
+    :data:`NOISE_AFTER` recordings since ``tau``: 1.
+    """
+    after = t > tau
+    m = int(np.count_nonzero(after))
+    if m < NOISE_AFTER or not sigma2 > 0.0:
+        return 1.0
+    r = y[after] - (coef[0] + coef[1] * (t[after] - tau))
+    return max(1.0, math.sqrt(float(r @ r) / (m - 2) / sigma2))
+
+
+def _held_out(
+    t: FloatArray, y: FloatArray, tau: float, cut: int, degree: int
+) -> tuple[float, float] | None:
+    """The mean of the values from ``cut`` on as a rise fitted before it predicts it.
+
+    The rise is flat until ``tau`` and then a polynomial of ``degree`` in the
+    time since; fitted to the values before ``cut``. Returns the predicted
+    mean and its variance (the fit's and the scatter's), or None when the
+    values before ``cut`` cannot fix the fit.
+    """
+    s = np.maximum(0.0, t - tau)
+    x = np.vander(s, degree + 1, increasing=True)
+    fit_x, fit_y = x[:cut], y[:cut]
+    dof = cut - degree - 1
+    if dof < 1:
+        return None
+    gram = fit_x.T @ fit_x
+    if np.linalg.cond(gram) > 1e12:
+        return None
+    inv = np.linalg.inv(gram)
+    beta = inv @ (fit_x.T @ fit_y)
+    r = fit_y - fit_x @ beta
+    sigma2 = float(r @ r) / dof
+    xbar = x[cut:].mean(axis=0)
+    k = t.shape[0] - cut
+    return float(xbar @ beta), sigma2 * float(xbar @ inv @ xbar) + sigma2 / k
+
+
+def model_error(
+    t: FloatArray, y: FloatArray, tau: float, curve: Curve | None, curve_weight: float
+) -> float:
+    """How much further the rise missed its last recordings than its uncertainty promised.
+
+    The rise's own out-of-sample check: the line (and the curve, by their
+    weights) fitted without the last third of the recordings since the
+    change point (at least :data:`MIN_AFTER`) predicts their mean; the squared
+    miss over the predicted variance (the fit's, the scatter's and the two
+    models' spread) is the factor the trend's covariance is widened by when
+    above 1. A right model misses by about its uncertainty (the factor stays
+    near 1); a straight line on an accelerating rise falls behind it.
+
+    Parameters
+    ----------
+    t, y : FloatArray
+        The values the rise was fitted to (days, feature units).
+    tau : float
+        The line's change point, days.
+    curve : Curve or None
+        The curved rise beside it.
+    curve_weight : float
+        The curve's weight.
+
+    Returns
+    -------
+    float
+        1 or more (1 when too few recordings follow the change point).
+    """
+    after = int(np.count_nonzero(t > tau))
+    misses = []
+    for share in HELD_OUT:
+        k = max(MIN_AFTER, round(after * share))
+        cut = t.shape[0] - k
+        if after - k < MIN_AFTER:
+            continue
+        line = _held_out(t, y, tau, cut, 1)
+        if line is None:
+            continue
+        mean, var = line
+        if curve is not None and curve_weight > 0.0:
+            bent = _held_out(t, y, curve.tau, cut, 2)
+            if bent is not None:
+                w = curve_weight
+                mean, var = (
+                    (1.0 - w) * line[0] + w * bent[0],
+                    (1.0 - w) * line[1] + w * bent[1] + w * (1.0 - w) * (bent[0] - line[0]) ** 2,
+                )
+        if var > 0.0:
+            miss = float(y[cut:].mean()) - mean
+            misses.append(miss * miss / var)
+    return max(1.0, float(np.mean(misses))) if misses else 1.0
 
 
 def alarm_open(exceeded: Sequence[bool], x: int, y: int) -> tuple[bool, int | None]:
@@ -271,8 +570,12 @@ def _openings(
     y: int,
     level: float,
     rng: np.random.Generator,
-) -> FloatArray:
-    """The recordings ahead at which each drawn future's alarm opens (inf: not within)."""
+) -> tuple[FloatArray, BoolArray]:
+    """The recordings ahead at which each drawn future's alarm opens (inf: not within).
+
+    And which futures were drawn from the curve (half of them when there is
+    one, none without).
+    """
     pick = rng.choice(rise.taus.shape[0], size=PATHS, p=rise.weights)
     tau = rise.taus[pick]
     cov = rise.covs[pick]
@@ -285,33 +588,53 @@ def _openings(
     coef[:, 0] += l00 * z[:, 0]
     coef[:, 1] += l10 * z[:, 0] + l11 * z[:, 1]
     sigma = rise.sigmas[pick] * np.sqrt(rise.dof / rng.chisquare(rise.dof, PATHS))
+    sigma *= rise.noise_ratio
+    curv = np.zeros(PATHS)
+    curve = rise.curve
+    on = np.zeros(PATHS, dtype=bool)
+    if curve is not None:
+        # half the futures drawn from the curve: each model's own band is known
+        on[: PATHS // 2] = True
+        k = int(on.sum())
+        pick_c = rng.choice(curve.taus.shape[0], size=k, p=curve.weights)
+        val, vec = np.linalg.eigh(curve.covs[pick_c])
+        root = vec * np.sqrt(np.maximum(val, 0.0))[:, None, :]
+        drawn = curve.coefs[pick_c] + np.einsum("kij,kj->ki", root, rng.standard_normal((k, 3)))
+        tau[on] = curve.taus[pick_c]
+        coef[on] = drawn[:, :2]
+        # a wearing part does not heal: the curvature drawn is not below zero
+        curv[on] = np.maximum(drawn[:, 2], 0.0)
+        sigma[on] = curve.sigmas[pick_c] * np.sqrt(curve.dof / rng.chisquare(curve.dof, k))
+        sigma[on] *= rise.noise_ratio
     flags = np.zeros((PATHS, y - 1), dtype=np.int64)
     tail = [bool(e) for e in carried][-(y - 1) :] if y > 1 else []
     if tail:
         flags[:, -len(tail) :] = np.asarray(tail, dtype=np.int64)
     opened = np.full(PATHS, np.inf)
+    active = np.arange(PATHS)  # the futures whose alarm has not opened yet
     done = 0
     chunk = CHUNK
-    while done < steps:
+    while done < steps and active.size:
         j = np.arange(done + 1, min(steps, done + chunk) + 1, dtype=np.float64)
         chunk = min(2 * chunk, MAX_CHUNK)
-        s = np.maximum(0.0, (t_last + j * step)[None, :] - tau[:, None])
-        values = coef[:, :1] + coef[:, 1:] * s
-        values += sigma[:, None] * rng.standard_normal((PATHS, j.shape[0]))
-        limit = healthy + margins[rng.integers(0, margins.shape[0], (PATHS, j.shape[0]))]
+        a, n = active, j.shape[0]
+        s = np.maximum(0.0, (t_last + j * step)[None, :] - tau[a, None])
+        values = coef[a, :1] + (coef[a, 1:] + curv[a, None] * s) * s
+        values += sigma[a, None] * rng.standard_normal((a.size, n))
+        limit = healthy + margins[rng.integers(0, margins.shape[0], (a.size, n))]
         ex = np.concatenate((flags, (values > limit).astype(np.int64)), axis=1)
-        csum = np.concatenate((np.zeros((PATHS, 1), dtype=np.int64), np.cumsum(ex, axis=1)), 1)
+        csum = np.concatenate((np.zeros((a.size, 1), dtype=np.int64), np.cumsum(ex, axis=1)), 1)
         counts = csum[:, y:] - csum[:, :-y] if y > 1 else csum[:, 1:] - csum[:, :-1]
-        counts = counts[:, -j.shape[0] :]
-        met = counts >= x
-        first = np.where(met.any(axis=1), np.argmax(met, axis=1), -1)
-        new = np.isinf(opened) & (first >= 0)
-        opened[new] = j[first[new]]
-        flags = ex[:, -(y - 1) :] if y > 1 else flags
+        met = counts[:, -n:] >= x
+        hit = met.any(axis=1)
+        opened[a[hit]] = j[np.argmax(met[hit], axis=1)]
+        flags = ex[~hit][:, ex.shape[1] - (y - 1) :]
+        active = a[~hit]
         done = int(j[-1])
-        if np.mean(np.isfinite(opened)) >= 0.5 + 0.5 * level:
+        known = np.isfinite(opened)
+        if all(known[g].mean() >= 0.5 + 0.5 * level for g in (on, ~on) if g.any()):
             break
-    return opened
+    return opened, on
 
 
 def forecast_alarm(
@@ -329,6 +652,7 @@ def forecast_alarm(
     seed: int = 0,
     trend: Rise | None = None,
     limit: float | None = None,
+    curved: bool = True,
 ) -> Forecast | None:
     """Forecast when a feature's alarm opens: its rise after the change point, the rule ahead.
 
@@ -367,16 +691,20 @@ def forecast_alarm(
     limit : float, optional
         The limit to report as the forecast's ``limit`` (the baseline's at its
         mean payload, as the trends show it); default the median threshold.
+    curved : bool
+        Weigh a curved rise beside the line (:func:`fit_rise`); False: the
+        line alone, as the forecasts were before the curve.
 
     Returns
     -------
     Forecast or None
         ``threshold`` is the median threshold of the last recordings (feature
-        units at the mean payload), ``model`` ``line`` with ``trend_since``
-        the change point; ``crossed`` with ``earliest`` = ``latest`` =
-        ``crosses_at`` when the alarm is open. None without a significant
-        rise (unless open), or when the median future opens no alarm within
-        the horizon.
+        units at the mean payload), ``model`` ``line`` (the rise after the
+        change point, the line's and the curve's) with ``trend_since`` the
+        change point (the curve's when it is the likelier); ``crossed`` with
+        ``earliest`` = ``latest`` = ``crosses_at`` when the alarm is open.
+        None without a significant rise (unless open), or when the median
+        future opens no alarm within the horizon.
     """
     if len(times) < 2:
         return None
@@ -403,7 +731,10 @@ def forecast_alarm(
         )
     if not recent_m.size:
         return None
-    rise = fit_rise(t_all[ok][-FIT_POINTS:], v[ok][-FIT_POINTS:]) if trend is None else trend
+    if trend is None:
+        rise = fit_rise(t_all[ok][-FIT_POINTS:], v[ok][-FIT_POINTS:], curved=curved)
+    else:
+        rise = trend
     if rise is None:
         return None
     recent_t = t_all[-RECENT:]
@@ -412,12 +743,10 @@ def forecast_alarm(
         return None
     steps = max(1, math.ceil(horizon_days / step))
     rng = np.random.default_rng(seed)
-    opened = _openings(
+    opened, on = _openings(
         rise, float(t_all[-1]), step, steps, healthy, recent_m, list(exceeded), x, y, level, rng
     )
-    lo_q, hi_q = 0.5 - 0.5 * level, 0.5 + 0.5 * level
-    # quantiles that are drawn openings (recordings), no interpolation with "never"
-    mid, lo, hi = (float(q) for q in np.quantile(opened, [0.5, lo_q, hi_q], method="inverted_cdf"))
+    mid, lo, hi = _opening_quantiles(opened, on, rise.curve_weight, level)
     if not math.isfinite(mid):
         return None
     tl = float(t_all[-1])
@@ -447,9 +776,41 @@ def forecast_alarm(
         backtest_mae=None,
         last=last,
         band=band,
-        trend_since=t0 + rise.tau * day,
+        trend_since=t0 + _change_point(rise) * day,
         threshold=threshold,
     )
+
+
+def _change_point(rise: Rise) -> float:
+    """The change point of the likelier model (the curve's when its weight is above half), days."""
+    if rise.curve is not None and rise.curve_weight > 0.5:
+        return rise.curve.tau
+    return rise.tau
+
+
+def _opening_quantiles(
+    opened: FloatArray, on: BoolArray, curve_weight: float, level: float
+) -> tuple[float, float, float]:
+    """The expected opening and the band's ends, in recordings ahead (inf: never).
+
+    The expected opening is the median of the futures weighted by their
+    model's weight (the line's futures by ``1 - curve_weight``, the curve's by
+    ``curve_weight``); the band reaches from the earliest of the models' lower
+    quantiles to the latest of their upper ones, so that it holds the futures
+    of whichever model is right (the model error the weights cannot tell yet).
+    Quantiles are drawn openings (no interpolation with "never").
+    """
+    lo_q, hi_q = 0.5 - 0.5 * level, 0.5 + 0.5 * level
+    groups = [g for g in (~on, on) if g.any()]
+    if len(groups) == 1:
+        mid, lo, hi = np.quantile(opened, [0.5, lo_q, hi_q], method="inverted_cdf")
+        return float(mid), float(lo), float(hi)
+    weight = np.where(on, curve_weight / on.sum(), (1.0 - curve_weight) / (~on).sum())
+    order = np.argsort(opened, kind="stable")
+    cum = np.cumsum(weight[order])
+    mid = float(opened[order][min(int(np.searchsorted(cum, 0.5 * cum[-1])), order.size - 1)])
+    ends = [np.quantile(opened[g], [lo_q, hi_q], method="inverted_cdf") for g in groups]
+    return mid, float(min(e[0] for e in ends)), float(max(e[1] for e in ends))
 
 
 def _z(level: float) -> float:

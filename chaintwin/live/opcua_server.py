@@ -732,8 +732,9 @@ class ResultsServer:
                 time.perf_counter() - started,
             )
             while not stop.is_set():
-                with contextlib.suppress(asyncio.TimeoutError):
-                    await asyncio.wait_for(stop.wait(), self.poll_s)
+                # a plain sleep (a stop is seen within one poll): waiting on ``stop`` with a
+                # timeout made a task and a timer twice a second
+                await asyncio.sleep(self.poll_s)
                 if stop.is_set():
                     break
                 try:

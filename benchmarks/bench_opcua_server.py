@@ -24,6 +24,10 @@ stores ``--recordings`` new recordings of the real conveyor, one every
    5 s, and its slope (least squares, MB/min; target at most 0.1 over an
    hour: run ``--minutes 60`` for that, the default run is a few minutes).
 
+``--idle-s S`` keeps the server idle with its clients for S s after the
+warm-up and prints its CPU rate (with ``--profile``, that window is the one
+profiled); ``--recordings 0`` stops there.
+
 Run: ``.venv/bin/python benchmarks/bench_opcua_server.py`` (about 5 minutes
 on a 2-core machine: the simulation, the ingest of the history, the
 server's start, the run).

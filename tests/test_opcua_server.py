@@ -750,15 +750,17 @@ def test_an_idle_subscription_sleeps_yet_sends_its_keep_alives_and_wakes_for_a_c
         running.loop.run(watch())
         for _ in range(3):
             assert keep_alives.acquire(timeout=60), "no keep-alive on an idle subscription"
-        # asyncua's loop: 10 calls per keep-alive (30 in all); the quiet one: one each
-        assert len(calls) <= 5, f"{len(calls)} wake-ups for 3 keep-alives"
+        # asyncua's loop: 10 calls per keep-alive (30 in all); the quiet one: one each (and a
+        # few more should a Publish request be late: it then ticks until one comes)
+        assert len(calls) < 15, f"{len(calls)} wake-ups for 3 keep-alives"
 
         before = len(calls)
         sentinel = 1234.5
 
         async def write(value: float | None) -> None:
             assert running.server.server is not None
-            dv = ua.DataValue(ua.Variant(value, ua.VariantType.Double))
+            kind = ua.VariantType.Null if value is None else ua.VariantType.Double
+            dv = ua.DataValue(ua.Variant(value, kind))
             await running.server.server.write_attribute_value(_nid(state["ns"], nid), dv)
 
         known = running.server._known[PROFILE.id].values["Monitoring/Payload"].value

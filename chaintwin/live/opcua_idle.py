@@ -17,10 +17,10 @@ whether or not anything happens:
   :func:`quiet_session_watchdogs` has it look every :data:`WATCHDOG_S` (or
   half the session timeout, when shorter).
 
-:func:`quiet_subscriptions` and :func:`quiet_session_watchdogs` put them into a server:
-documented patches of asyncua's internals, tested against the versions in
-:data:`TESTED` (outside them the server keeps asyncua's own loops and says
-so in the log).
+:func:`quiet_subscriptions` and :func:`quiet_session_watchdogs` put them
+into a server: documented patches of asyncua's internals, tested against
+the versions in :data:`TESTED` (outside them the server keeps asyncua's own
+loops and says so in the log).
 """
 
 from __future__ import annotations

@@ -24,6 +24,10 @@ stores ``--recordings`` new recordings of the real conveyor, one every
    5 s, and its slope (least squares, MB/min; target at most 0.1 over an
    hour: run ``--minutes 60`` for that, the default run is a few minutes).
 
+``--idle-s S`` keeps the server idle with its clients for S s after the
+warm-up and prints its CPU rate (with ``--profile``, that window is the one
+profiled); ``--recordings 0`` stops there.
+
 Run: ``.venv/bin/python benchmarks/bench_opcua_server.py`` (about 5 minutes
 on a 2-core machine: the simulation, the ingest of the history, the
 server's start, the run).
@@ -273,13 +277,16 @@ def run(args: argparse.Namespace, work: Path) -> None:
         held = held[: args.recordings]
         print(f"store: the one built before in {work}", flush=True)
     else:
-        url, held = build_store(work, args.conveyors, args.history, args.recordings)
+        # a kept store holds back at least 40 recordings for later runs
+        extra = max(args.recordings, 40) if args.keep is not None else args.recordings
+        url, held = build_store(work, args.conveyors, args.history, extra)
         if args.keep is not None:  # kept for the next run with the same --keep
             import sqlite3
 
             with sqlite3.connect(work / "plant.db") as src, sqlite3.connect(pristine) as dst:
                 src.backup(dst)
             held_list.write_text(json.dumps([str(p) for p in held]))
+        held = held[: args.recordings]
     profile = load_profile(ROOT / "chaintwin" / "examples" / "profiles" / "white-belt-01.yaml")
     store = Store(url)
     user = f"bench-{int(time.time())}"  # a store kept from an earlier run has its own
@@ -357,6 +364,20 @@ def run(args: argparse.Namespace, work: Path) -> None:
         idle0, idle_t0 = _cpu_s(server.pid), time.perf_counter()
         time.sleep(args.warmup_s)
         idle_rate = (_cpu_s(server.pid) - idle0) / (time.perf_counter() - idle_t0)
+        if args.idle_s > 0:  # the idle server alone: its rate, profiled with --profile
+            if args.profile is not None:
+                server.send_signal(signal.SIGUSR1)
+            idle0, idle_t0 = _cpu_s(server.pid), time.perf_counter()
+            time.sleep(args.idle_s)
+            long_rate = (_cpu_s(server.pid) - idle0) / (time.perf_counter() - idle_t0)
+            if args.profile is not None:
+                server.send_signal(signal.SIGUSR2)
+                time.sleep(5.0)  # the profile written before the next window starts
+            print(
+                f"idle: {long_rate:.4f} CPU s/s over {args.idle_s:g} s with the clients "
+                f"connected and no recording (the warm-up's: {idle_rate:.4f})",
+                flush=True,
+            )
         memory: list[tuple[float, float]] = []
         start = time.perf_counter()
         stop_sampling = threading.Event()
@@ -368,7 +389,7 @@ def run(args: argparse.Namespace, work: Path) -> None:
         memory.append((0.0, _rss_mb(server.pid)))
         sampler = threading.Thread(target=sample, daemon=True)
         sampler.start()
-        if args.profile is not None:
+        if args.profile is not None and args.idle_s <= 0:
             server.send_signal(signal.SIGUSR1)
         served0 = _cpu_s(server.pid)
         ingest_cpu = 0.0
@@ -391,7 +412,7 @@ def run(args: argparse.Namespace, work: Path) -> None:
         time.sleep(max(args.interval, 3.0))  # the last data changes arrive
         served = _cpu_s(server.pid) - served0
         window = time.perf_counter() - wall0
-        if args.profile is not None:
+        if args.profile is not None and args.idle_s <= 0:
             server.send_signal(signal.SIGUSR2)
         # the rest of the memory run, without ingest
         while time.perf_counter() - start < args.minutes * 60.0:
@@ -408,6 +429,8 @@ def run(args: argparse.Namespace, work: Path) -> None:
                     proc.kill()
         store.close()
     n = len(held)
+    if n == 0:
+        return
     per_served, per_ingest = served / n, ingest_cpu / n
     per_work = (served - idle_rate * window) / n
     print(
@@ -469,6 +492,11 @@ def main() -> None:
     ap.add_argument(
         "--profile", type=Path,
         help="run the server under yappi and write its profile of the ingest window here",
+    )  # fmt: skip
+    ap.add_argument(
+        "--idle-s", type=float, default=0.0,
+        help="after the warm-up, this long with no recording: the idle rate printed, and "
+        "profiled instead of the ingest window with --profile",
     )  # fmt: skip
     ap.add_argument("--keep", type=Path, help="work here and keep it (default: a temp folder)")
     args = ap.parse_args()

@@ -685,3 +685,150 @@ def test_serve_runs_one_opcua_server_per_store_and_another_takes_over(
                 except subprocess.TimeoutExpired:
                     p.kill()
                     p.wait(10)
+
+
+# ------------------------------------------------------------------ quiet while idle
+def test_an_idle_subscription_sleeps_yet_sends_its_keep_alives_and_wakes_for_a_change(
+    plant: Plant, running: Running
+) -> None:
+    """asyncua's loop wakes every publishing interval; the patched one only when a value
+    is queued or the keep-alive is due, and the keep-alives still come in time."""
+    from chaintwin.live.opcua_idle import QuietSubscription, QuietSubscriptionService
+
+    assert running.server.server is not None
+    iserver = running.server.server.iserver
+    assert isinstance(iserver.subscription_service, QuietSubscriptionService)
+    changes: queue.Queue[Any] = queue.Queue()
+    keep_alives = threading.Semaphore(0)
+    calls: list[float] = []
+
+    class Handler:
+        def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
+            changes.put(val)
+
+    state: dict[str, Any] = {}
+    nid = node_id(PROFILE.id, "Monitoring/Payload")
+
+    async def subscribe() -> None:
+        client = await _client(running, plant.token_name, plant.token, running.trusted)
+        await client.connect()
+        state["client"] = client
+        ns = await client.get_namespace_index(NAMESPACE_URI)
+        params = ua.CreateSubscriptionParameters(
+            RequestedPublishingInterval=50,  # ms: a keep-alive every 10 intervals, 0.5 s
+            RequestedLifetimeCount=300,
+            RequestedMaxKeepAliveCount=10,
+            MaxNotificationsPerPublish=0,
+            PublishingEnabled=True,
+            Priority=0,
+        )
+        sub = await client.create_subscription(params, Handler())
+        await sub.subscribe_data_change(client.get_node(_nid(ns, nid)))
+        internal = iserver.subscription_service.subscriptions[sub.subscription_id]
+        state["internal"], state["ns"] = internal, ns
+
+    running.loop.run(subscribe())
+    try:
+        internal = state["internal"]
+        assert isinstance(internal, QuietSubscription)
+        changes.get(timeout=30)  # the initial value
+
+        async def watch() -> None:
+            publish, send = internal.publish_results, internal.pub_result_callback
+
+            async def counted(requestdata: Any = None) -> bool:
+                calls.append(time.monotonic())
+                return bool(await publish(requestdata))
+
+            async def sent(result: ua.PublishResult, *rest: Any) -> None:
+                if not result.NotificationMessage.NotificationData:
+                    keep_alives.release()
+                await send(result, *rest)
+
+            internal.publish_results, internal.pub_result_callback = counted, sent
+
+        running.loop.run(watch())
+        for _ in range(3):
+            assert keep_alives.acquire(timeout=60), "no keep-alive on an idle subscription"
+        # asyncua's loop: 10 calls per keep-alive (30 in all); the quiet one: one each (and a
+        # few more should a Publish request be late: it then ticks until one comes)
+        assert len(calls) < 15, f"{len(calls)} wake-ups for 3 keep-alives"
+
+        before = len(calls)
+        sentinel = 1234.5
+
+        async def write(value: float | None) -> None:
+            assert running.server.server is not None
+            kind = ua.VariantType.Null if value is None else ua.VariantType.Double
+            dv = ua.DataValue(ua.Variant(value, kind))
+            await running.server.server.write_attribute_value(_nid(state["ns"], nid), dv)
+
+        known = running.server._known[PROFILE.id].values["Monitoring/Payload"].value
+        running.loop.run(write(sentinel))
+        try:
+            assert changes.get(timeout=30) == sentinel
+            # woken by the value: one publish at the next interval (and at most a keep-alive)
+            assert len(calls) - before <= 2
+        finally:
+            running.loop.run(write(known))
+    finally:
+        running.loop.run(state["client"].disconnect())
+
+
+def test_the_session_watchdogs_of_connected_clients_are_quiet(
+    plant: Plant, running: Running
+) -> None:
+    from chaintwin.live.opcua_idle import WATCHDOG_S
+
+    async def look() -> list[float]:
+        client = await _client(running, plant.token_name, plant.token, running.trusted)
+        await client.connect()
+        try:
+            assert running.server.server is not None
+            bserver = running.server.server.bserver
+            assert bserver is not None
+            return [p.processor._watchdog_interval for p in bserver.clients if p.processor]
+        finally:
+            await client.disconnect()
+
+    intervals = running.loop.run(look())
+    assert intervals and all(i == WATCHDOG_S for i in intervals)
+
+
+def test_the_store_watch_sees_another_connection_s_commit_and_only_then(
+    tmp_path: Path,
+) -> None:
+    import sqlite3
+
+    from chaintwin.live.store_watch import StoreWatch
+
+    db = tmp_path / "w.db"
+    with sqlite3.connect(db) as c:
+        c.execute("PRAGMA journal_mode=WAL")
+        c.execute("CREATE TABLE t (x INTEGER)")
+    watch = StoreWatch(f"sqlite:///{db}")
+    assert watch.moved()  # the first look
+    assert not watch.moved()
+    with sqlite3.connect(db) as c:
+        c.execute("INSERT INTO t VALUES (1)")
+    assert watch.moved()
+    assert not watch.moved()
+    watch.close()
+    assert StoreWatch("postgresql://u@h/db").moved()  # another database: always asked
+    assert StoreWatch(f"sqlite:///{tmp_path / 'missing' / 'x.db'}").moved()
+
+
+def test_the_asyncua_pin_is_the_range_the_idle_patches_are_tested_against() -> None:
+    import importlib.metadata
+    import re
+    import tomllib
+
+    from chaintwin.live.opcua_idle import TESTED
+
+    root = Path(__file__).resolve().parents[1]
+    live = tomllib.loads((root / "pyproject.toml").read_text())["project"]["optional-dependencies"]
+    pin = next(d for d in live["live"] if d.startswith("asyncua"))
+    low, high = TESTED
+    assert pin == f"asyncua>={low[0]}.{low[1]},<{high[0]}.{high[1]}"
+    installed = tuple(int(x) for x in re.findall(r"\d+", importlib.metadata.version("asyncua"))[:2])
+    assert low <= installed < high  # the patches apply here (the tests above use them)

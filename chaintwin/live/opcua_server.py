@@ -55,6 +55,7 @@ from chaintwin.store.schema import (
 )
 from chaintwin.store.store import Store
 
+from .opcua_idle import quiet_session_watchdogs, quiet_subscriptions
 from .opcua_nodes import (
     DEVICE_HEALTH,
     NAMESPACE_URI,
@@ -66,6 +67,7 @@ from .opcua_nodes import (
     conveyor_node_id,
     node_id,
 )
+from .store_watch import StoreWatch
 
 __all__ = [
     "POLL_S",
@@ -317,10 +319,12 @@ class ResultsServer:
     _trust_mtime: float = -1.0
     _trust: Any = None
     _reader: ConveyorReader = field(init=False)
+    _watch: StoreWatch = field(init=False)
     _stamp_query: Any = None
 
     def __post_init__(self) -> None:
         self._reader = ConveyorReader(self.store)
+        self._watch = StoreWatch(str(self.store.engine.url))
         if self.security not in SECURITY:
             raise ConnectorError(
                 f"--opcua-security {self.security}: give one of {', '.join(SECURITY)}"
@@ -338,6 +342,7 @@ class ResultsServer:
         self.users = TokenUsers(self.store, self.token_check, self.anonymous)
         server = Server(user_manager=self.users)
         await server.init()
+        quiet_subscriptions(server)
         server.set_endpoint(self.endpoint)
         server.set_server_name("chaintwin results")
         server.product_uri = "urn:chaintwin"
@@ -679,6 +684,8 @@ class ResultsServer:
     async def refresh(self) -> int:
         """Look at the store once; publish what changed, remove the conveyors that left it.
         Returns the conveyors updated or removed."""
+        if self._stamp is not None and not self._watch.moved():
+            return 0  # nothing committed since the last look (a SQLite store says so)
         changed, gone = await asyncio.to_thread(self.changed)
         done = 0
         for conveyor in gone:
@@ -712,6 +719,7 @@ class ResultsServer:
                 f"--opcua-endpoint {self.endpoint}: cannot listen ({exc.strerror or exc}); "
                 "give a free port"
             ) from None
+        quiet_session_watchdogs(server)
         log.info("OPC UA server at %s (%s)", self.endpoint, self.security)
         self.ready.set()
         try:
@@ -724,8 +732,9 @@ class ResultsServer:
                 time.perf_counter() - started,
             )
             while not stop.is_set():
-                with contextlib.suppress(asyncio.TimeoutError):
-                    await asyncio.wait_for(stop.wait(), self.poll_s)
+                # a plain sleep (a stop is seen within one poll): waiting on ``stop`` with a
+                # timeout made a task and a timer twice a second
+                await asyncio.sleep(self.poll_s)
                 if stop.is_set():
                     break
                 try:
@@ -737,6 +746,7 @@ class ResultsServer:
         finally:
             self.ready.clear()
             self.published.clear()
+            self._watch.close()
             await server.stop()
 
 

@@ -47,7 +47,9 @@ __all__ = [
     "WATERFALL_RECORDINGS",
     "ConveyorData",
     "FeatureTrend",
+    "HealthPart",
     "conveyor_data",
+    "health_part",
 ]
 
 WATERFALL_RECORDINGS = 40
@@ -420,6 +422,90 @@ def _spread(n: int, k: int) -> list[int]:
     return sorted({round(float(x)) for x in np.linspace(0, n - 1, k)})
 
 
+@dataclass
+class HealthPart:
+    """What a conveyor's page takes from its health model (:func:`health_part`).
+
+    Attributes
+    ----------
+    summary : dict
+        :func:`~chaintwin.diagnose.monitor_state.read_health`'s summary, with
+        ``forecasts_as_of`` when the forecasts are the stored ones.
+    forecasts : list of dict
+        The trend forecasts (``summary["forecasts"]``).
+    baselines : dict
+        Each feature's baseline.
+    z_limit : float
+        The alarm limit in standard deviations.
+    baseline_since : str or None
+        When the current baseline starts (ISO 8601).
+    judged : MonitorState or None
+        The health model, when readable and made with the conveyor's profile.
+    calibration : Calibration or None
+        The health model's calibration.
+    notes : list of str
+        Why the health model could not be read.
+    """
+
+    summary: dict[str, Any] = field(default_factory=lambda: {"baseline": {"complete": False}})
+    forecasts: list[dict[str, Any]] = field(default_factory=list)
+    baselines: dict[str, FeatureBaseline] = field(default_factory=dict)
+    z_limit: float = 5.0
+    baseline_since: str | None = None
+    judged: MonitorState | None = None
+    calibration: Calibration | None = None
+    notes: list[str] = field(default_factory=list)
+
+
+def health_part(
+    store: Store,
+    conveyor: str,
+    profile: ConveyorProfile,
+    *,
+    stored_forecasts: bool = False,
+    forecast_bands: bool = False,
+) -> tuple[MonitorState | None, HealthPart]:
+    """A conveyor's health model as stored (None: none, or damaged) and what its
+    page takes from it (:func:`conveyor_data`'s ``stored_forecasts`` and
+    ``forecast_bands``); the monitor is not rebuilt."""
+    part = HealthPart()
+    try:
+        state = store.state(conveyor)
+    except StoreError as exc:  # the page shows what else the store holds
+        part.notes.append(f"health model not readable: {exc}")
+        return None, part
+    if state is not None and state.profile_sha256 != profile.content_hash():
+        part.notes.append(
+            "health model not readable: it was made with another version of the profile"
+        )
+    elif state is not None:
+        try:
+            # forecasts are fitted after ingest, not per page: the pages read them
+            # (a conveyor never refitted, in a store written before, is refitted
+            # once here); a report fits them here, as the monitor says them
+            derived = read_derived(store, conveyor) if stored_forecasts else None
+            if stored_forecasts and derived is None:
+                derived = refit(store, conveyor, state, trends=False)
+            health = read_health(
+                state,
+                bands=forecast_bands,
+                derived=None if derived is None else derived.content,
+            )
+        except (ChaintwinError, KeyError, TypeError, ValueError) as exc:
+            part.notes.append(f"health model not readable: {exc!r}")
+        else:
+            part.calibration = health.calibration
+            part.summary = health.summary
+            if derived is not None:
+                part.summary["forecasts_as_of"] = derived.as_of(state)
+            part.forecasts = part.summary["forecasts"]
+            part.baselines = health.baselines
+            part.z_limit = health.z_limit
+            part.baseline_since = health.baseline_since
+            part.judged = state
+    return state, part
+
+
 def conveyor_data(
     store: Store,
     conveyor: str,
@@ -491,50 +577,19 @@ def conveyor_data(
         # the newest RECENT at least in full: the health index and status are exact
         bounded = trend_rows(store, conveyor, max(max_points, 2 * RECENT))
         results, represents, total = bounded.results, bounded.represents, bounded.total
-    notes: list[str] = []
-    try:
-        state = store.state(conveyor)
-    except StoreError as exc:  # the page shows what else the store holds
-        state = None
-        notes.append(f"health model not readable: {exc}")
-    summary: dict[str, Any] = {"baseline": {"complete": False}}
-    forecasts: list[dict[str, Any]] = []
-    baselines: dict[str, FeatureBaseline] = {}
-    z_limit = 5.0
-    calibration: Calibration | None = None  # the health model's, else the store's (below)
-    baseline_since = None
-    judged: MonitorState | None = None
-    if state is not None and state.profile_sha256 != profile.content_hash():
-        notes.append("health model not readable: it was made with another version of the profile")
-    elif state is not None:
-        # read what the store holds; the monitor is not rebuilt for a page
-        try:
-            # forecasts are fitted after ingest, not per page: the pages read them
-            # (a conveyor never refitted, in a store written before, is refitted
-            # once here); a report fits them here, as the monitor says them
-            derived = read_derived(store, conveyor) if stored_forecasts else None
-            if stored_forecasts and derived is None:
-                derived = refit(store, conveyor, state)
-            health = read_health(
-                state,
-                bands=forecast_bands,
-                derived=None if derived is None else derived.content,
-            )
-            if health.calibration is not None:
-                calibration = health.calibration
-        except (ChaintwinError, KeyError, TypeError, ValueError) as exc:
-            notes.append(f"health model not readable: {exc!r}")
-        else:
-            summary = health.summary
-            if derived is not None:
-                summary["forecasts_as_of"] = derived.as_of(state)
-            forecasts = summary["forecasts"]
-            baselines = health.baselines
-            z_limit = health.z_limit
-            baseline_since = health.baseline_since
-            judged = state
+    _state, health = health_part(
+        store,
+        conveyor,
+        profile,
+        stored_forecasts=stored_forecasts,
+        forecast_bands=forecast_bands,
+    )
+    calibration = health.calibration
     if calibration is None:
         calibration = store.calibration(conveyor)
+    summary, forecasts, notes = health.summary, health.forecasts, health.notes
+    baselines, z_limit, baseline_since = health.baselines, health.z_limit, health.baseline_since
+    judged = health.judged
     data = ConveyorData(
         profile=profile,
         results=results,

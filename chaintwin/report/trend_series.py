@@ -43,6 +43,7 @@ from chaintwin.diagnose.records import Alarm
 from chaintwin.errors import StoreError
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.store.engine import safe_url
+from chaintwin.store.queries import TREND_POINTS
 from chaintwin.store.schema import ResultRow, TrendSeriesRow
 from chaintwin.store.store import Store
 
@@ -64,11 +65,6 @@ __all__ = [
     "stored_from",
     "trend_object",
 ]
-
-TREND_POINTS = 1000
-"""Default ``max_points`` of a trend: the newest 500 results in full, the older history
-thinned to 500 (:func:`~chaintwin.store.queries.trend_rows`); the trends stored are
-built at this bound."""
 
 FORMAT = 1
 """Version of the stored layout (a new one makes every stored series stale)."""

@@ -29,6 +29,7 @@ from chaintwin.store.store import Store
 from chaintwin.store.supersede import STANDING, STANDING_RESULT
 
 __all__ = [
+    "TREND_POINTS",
     "Page",
     "Signature",
     "TrendRows",
@@ -39,6 +40,11 @@ __all__ = [
     "store_signature",
     "trend_rows",
 ]
+
+TREND_POINTS = 1000
+"""Default ``max_points`` of a trend: the newest 500 results in full, the older history
+thinned to 500 (:func:`trend_rows`); the trends stored after ingest are built at this
+bound (:mod:`chaintwin.report.trend_series`)."""
 
 _NULL_TIME = ""
 """Sort key of a recording without a time (oldest)."""

@@ -19,8 +19,7 @@ from chaintwin import __version__
 from chaintwin.diagnose.alarm_actions import clear_out_of_service, set_out_of_service
 from chaintwin.diagnose.state import add_maintenance
 from chaintwin.errors import StoreError
-from chaintwin.report.trend_series import TREND_POINTS
-from chaintwin.store.queries import results_page, store_signature
+from chaintwin.store.queries import TREND_POINTS, results_page, store_signature
 from chaintwin.web.access import audit
 from chaintwin.web.deps import require_role, web_of
 from chaintwin.web.models import (

@@ -119,6 +119,9 @@ def test_stored_trends_answer_as_built_and_a_new_result_is_never_shown_stale(
     one = ingest([str(late_file)], {PROFILE.id: PROFILE}, store, settings=settings, refit=False)
     assert one.processed == 1
     assert _key(served) != key and stored_from(store, PROFILE.id) == key
+    # the detail (its bounded results kept in the process) counts the new one at once
+    after = viewer.get(f"/api/v1/conveyors/{PROFILE.id}").json()
+    assert after["recordings"] == detail["recordings"] + 1 == 31
     builds.count = 0
     behind = _answers(served, asks)
     assert builds.count == len(asks)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import statistics
+import threading
 from collections import Counter
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -506,6 +507,29 @@ def health_part(
     return state, part
 
 
+@dataclass(frozen=True)
+class _PageRows:
+    """What a conveyor's page and detail read from its results (:func:`conveyor_data`
+    with ``max_points`` and without ``trends``)."""
+
+    results: list[dict[str, Any]]
+    """Shared by every request that finds them: read, never changed."""
+    represents: list[int] | None
+    total: int | None
+    features: list[str]
+
+
+_PAGE_ROWS: dict[tuple[Any, ...], _PageRows] = {}
+"""Per (store URL, conveyor, bound, profile, :func:`~chaintwin.store.queries.read_version`):
+the bounded results and the names of their trends. Kept in the process, read again when
+the conveyor's newest result, number of results, health model or profile changes."""
+
+_PAGE_ROWS_KEPT = 16
+"""Conveyors whose page rows are kept (each their 200 results; the first kept goes first)."""
+
+_PAGE_ROWS_LOCK = threading.Lock()
+
+
 def conveyor_data(
     store: Store,
     conveyor: str,
@@ -554,7 +578,11 @@ def conveyor_data(
         Build each feature's trend (``trends``); False: only name them
         (``features``; ``trends`` is then empty, and with it the health index
         and worst feature of :class:`ConveyorData`: the web's page and detail,
-        whose verdict carries both).
+        whose verdict carries both). With ``max_points``, the bounded results
+        and the trends' names are then kept in the process and read again only
+        when the conveyor's newest result, number of results, health model
+        (its version, raised by every write) or profile changes: the
+        ``results`` of such a ConveyorData are shared, to be read only.
 
     Raises
     ------
@@ -569,14 +597,29 @@ def conveyor_data(
         )
     total: int | None = None
     represents: list[int] | None = None
+    kept: _PageRows | None = None
+    key: tuple[Any, ...] | None = None
     if max_points is None:
         results = [r for r in store.results(conveyor) if "error" not in r]
     else:
-        from chaintwin.store.queries import trend_rows
+        from chaintwin.store.queries import read_version, trend_rows
 
         # the newest RECENT at least in full: the health index and status are exact
-        bounded = trend_rows(store, conveyor, max(max_points, 2 * RECENT))
-        results, represents, total = bounded.results, bounded.represents, bounded.total
+        bound = max(max_points, 2 * RECENT)
+        if not trends:  # the page and the detail: kept while nothing they show changes
+            key = (
+                store.url,
+                conveyor,
+                bound,
+                profile.content_hash(),
+                read_version(store, conveyor),
+            )
+            kept = _PAGE_ROWS.get(key)
+        if kept is not None:
+            results, represents, total = kept.results, kept.represents, kept.total
+        else:
+            bounded = trend_rows(store, conveyor, bound)
+            results, represents, total = bounded.results, bounded.represents, bounded.total
     _state, health = health_part(
         store,
         conveyor,
@@ -609,10 +652,22 @@ def conveyor_data(
         total=total,
         represents=represents,
         verdict=verdict_of(judged) if known_verdict is None else known_verdict,
-        features=(
-            None if trends else _trend_names(results, baselines, z_limit, profile.expected_wear)
-        ),
+        features=None,
     )
+    if not trends:
+        if kept is None:
+            kept = _PageRows(
+                results,
+                represents,
+                total,
+                _trend_names(results, baselines, z_limit, profile.expected_wear),
+            )
+            if key is not None:
+                with _PAGE_ROWS_LOCK:
+                    if len(_PAGE_ROWS) >= _PAGE_ROWS_KEPT:
+                        _PAGE_ROWS.pop(next(iter(_PAGE_ROWS)))  # the first kept
+                    _PAGE_ROWS[key] = kept
+        data.features = list(kept.features)
     if not latest and waterfall <= 0:
         return data
     index = store.recording_index(conveyor)

@@ -34,6 +34,7 @@ __all__ = [
     "Signature",
     "TrendRows",
     "fleet_rows",
+    "read_version",
     "recording_by_hash",
     "results_page",
     "signature_columns",
@@ -334,6 +335,28 @@ def _not_refused(s: Session, store: Store, conveyor: str, newest_id: int) -> int
         _TOTALS.clear()
     _TOTALS[key] = (every, newest_id, total)
     return total
+
+
+def read_version(store: Store, conveyor: str) -> tuple[int | None, int, int | None]:
+    """What changes whenever a conveyor's bounded results or its health model do, in one
+    round trip: its newest result id, its number of results (a seek and a count of the
+    ``(conveyor_id, id)`` index) and its health model's version (raised by every write
+    of the model; None: none)."""
+    mine = ResultRow.conveyor_id == conveyor
+    version = (
+        select(MonitorStateRow.version)
+        .where(MonitorStateRow.conveyor_id == conveyor)
+        .scalar_subquery()
+    )
+    with store.session() as s:
+        newest, count, model = s.execute(
+            select(func.max(ResultRow.id), func.count(), version).where(mine)
+        ).one()
+    return (
+        None if newest is None else int(newest),
+        int(count),
+        None if model is None else int(model),
+    )
 
 
 _STRETCHES = text(

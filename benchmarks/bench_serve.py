@@ -72,6 +72,7 @@ import contextlib
 import json
 import math
 import os
+import sqlite3
 import statistics
 import subprocess
 import sys
@@ -711,8 +712,10 @@ def main() -> int:
     work.cleanup()
     kinds = args.fault_kinds or args.fault_conveyors
     if args.fault_results and args.fault_template is not None and args.fault_template.exists():
-        with Store(f"sqlite:///{args.fault_template}", read_only=True) as template:
-            kinds = len(template.conveyors())  # the template's, also when a store is reused
+        # the template's, also when a store is reused (read as a plain file: it may be at
+        # an older revision than this code's)
+        with sqlite3.connect(f"file:{args.fault_template}?mode=ro", uri=True) as template:
+            kinds = int(template.execute("SELECT count(*) FROM conveyors").fetchone()[0])
     print(
         f"{args.conveyors} conveyors x {args.results} results each"
         + (

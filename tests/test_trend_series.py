@@ -64,7 +64,7 @@ def _built(
 ) -> dict[str, bytes]:
     """The answers built from the results (the stored trends not read)."""
     with monkeypatch.context() as m:
-        m.setattr(trend_series, "read_series", lambda *_a, **_k: None)
+        m.setattr(trend_series, "current_series", lambda *_a, **_k: None)
         return _answers(served, asks)
 
 

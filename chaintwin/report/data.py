@@ -31,7 +31,7 @@ from chaintwin._types import FloatArray
 from chaintwin.diagnose.baseline import regressor_of
 from chaintwin.diagnose.features import FeatureSpec, feature_spec
 from chaintwin.diagnose.health import FeatureBaseline
-from chaintwin.diagnose.monitor_state import MonitorState, read_health
+from chaintwin.diagnose.monitor_state import MonitorState, derived_inputs, read_health
 from chaintwin.diagnose.records import Alarm, Event
 from chaintwin.diagnose.verdict import Verdict
 from chaintwin.diagnose.verdict import verdict as verdict_of
@@ -446,6 +446,9 @@ class HealthPart:
         The health model's calibration.
     notes : list of str
         Why the health model could not be read.
+    inputs : str or None
+        :func:`~chaintwin.diagnose.monitor_state.derived_inputs` of the health
+        model (None: none, or not readable).
     """
 
     summary: dict[str, Any] = field(default_factory=lambda: {"baseline": {"complete": False}})
@@ -456,6 +459,7 @@ class HealthPart:
     judged: MonitorState | None = None
     calibration: Calibration | None = None
     notes: list[str] = field(default_factory=list)
+    inputs: str | None = None
 
 
 def health_part(
@@ -475,6 +479,8 @@ def health_part(
     except StoreError as exc:  # the page shows what else the store holds
         part.notes.append(f"health model not readable: {exc}")
         return None, part
+    if state is not None:
+        part.inputs = derived_inputs(state)
     if state is not None and state.profile_sha256 != profile.content_hash():
         part.notes.append(
             "health model not readable: it was made with another version of the profile"
@@ -498,7 +504,7 @@ def health_part(
             part.calibration = health.calibration
             part.summary = health.summary
             if derived is not None:
-                part.summary["forecasts_as_of"] = derived.as_of(state)
+                part.summary["forecasts_as_of"] = derived.as_of(state, part.inputs)
             part.forecasts = part.summary["forecasts"]
             part.baselines = health.baselines
             part.z_limit = health.z_limit

@@ -28,6 +28,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -56,6 +57,7 @@ __all__ = [
     "answer_of",
     "build_and_store",
     "built_from",
+    "current_series",
     "forecast_of",
     "iso_times",
     "read_series",
@@ -291,12 +293,13 @@ def built_from(
     profile: ConveyorProfile,
     state: MonitorState | None,
     max_points: int = TREND_POINTS,
+    inputs: str | None = None,
 ) -> str:
     """SHA-256 of what a conveyor's trends are built from: its newest result and number
     of results (one seek and one count of the ``(conveyor_id, id)`` index), its health
     model's inputs (:func:`~chaintwin.diagnose.monitor_state.derived_inputs`: the
     baselines, their start, the z limit, the model's newest result), its profile and
-    ``max_points``.
+    ``max_points``. ``inputs``: ``derived_inputs(state)`` when the caller has it.
 
     Raises
     ------
@@ -314,9 +317,46 @@ def built_from(
         raise StoreError(
             f"{safe_url(store.url)}: cannot read the results of '{conveyor}' ({exc.orig})"
         ) from None
-    model = None if state is None else [state.profile_sha256, derived_inputs(state)]
+    if state is not None and inputs is None:
+        inputs = derived_inputs(state)
+    model = None if state is None else [state.profile_sha256, inputs]
     parts = [FORMAT, max_points, newest, int(count), profile.content_hash(), model]
     return hashlib.sha256(json.dumps(parts).encode()).hexdigest()
+
+
+_KEPT: dict[tuple[str, str], TrendSeries] = {}
+"""Per (store URL, conveyor): its stored trends as last read (each some MB)."""
+
+_KEPT_MOST = 8
+"""Conveyors whose stored trends are kept in the process (the first kept goes first)."""
+
+_KEPT_LOCK = threading.Lock()
+
+
+def current_series(store: Store, conveyor: str, built: str) -> TrendSeries | None:
+    """A conveyor's stored trends when built from ``built`` (None: none, or built from
+    something else). Those last read are kept in the process while their fingerprint
+    stays the stored one: only the fingerprint is read then.
+
+    Raises
+    ------
+    StoreError
+        When the database fails.
+    """
+    if stored_from(store, conveyor) != built:
+        return None
+    key = (store.url, conveyor)
+    kept = _KEPT.get(key)
+    if kept is not None and kept.built_from == built:
+        return kept
+    found = read_series(store, conveyor, built)
+    if found is not None:
+        with _KEPT_LOCK:
+            _KEPT.pop(key, None)
+            if len(_KEPT) >= _KEPT_MOST:
+                _KEPT.pop(next(iter(_KEPT)))
+            _KEPT[key] = found
+    return found
 
 
 def read_series(store: Store, conveyor: str, built: str | None = None) -> TrendSeries | None:

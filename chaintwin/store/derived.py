@@ -56,12 +56,13 @@ class Derived:
     latest: str | None
     computed_at: str
 
-    def as_of(self, state: MonitorState) -> dict[str, Any]:
+    def as_of(self, state: MonitorState, inputs: str | None = None) -> dict[str, Any]:
         """How current it is for ``state``: ``computed_at``, ``latest``, ``current``
         (computed from this very model) and ``recordings_behind`` (results the
         model took after the newest it was computed from; all the model keeps
-        when that one is no longer among them)."""
-        current = self.inputs == derived_inputs(state)
+        when that one is no longer among them). ``inputs``: ``derived_inputs(state)``
+        when the caller has it."""
+        current = self.inputs == (derived_inputs(state) if inputs is None else inputs)
         behind = 0
         if not current:
             keys = [_key(h) for h in state.history]

@@ -224,8 +224,8 @@ def trends(
         answer_of,
         build_and_store,
         built_from,
+        current_series,
         iso_times,
-        read_series,
         stored_from,
         trend_object,
     )
@@ -246,8 +246,8 @@ def trends(
             state, health = health_part(
                 store, conveyor_id, profile, stored_forecasts=True, forecast_bands=True
             )
-            current = built_from(store, conveyor_id, profile, state)
-            series = read_series(store, conveyor_id, current)
+            current = built_from(store, conveyor_id, profile, state, inputs=health.inputs)
+            series = current_series(store, conveyor_id, current)
             if series is not None:  # built from these very results and health model
                 _asked(series.names, feature)
                 body = series.answer(

@@ -122,6 +122,7 @@ def test_stored_trends_answer_as_built_and_a_new_result_is_never_shown_stale(
     # the detail (its bounded results kept in the process) counts the new one at once
     after = viewer.get(f"/api/v1/conveyors/{PROFILE.id}").json()
     assert after["recordings"] == detail["recordings"] + 1 == 31
+    assert after["summary"]["forecasts_as_of"]["recordings_behind"] == 1
     builds.count = 0
     behind = _answers(served, asks)
     assert builds.count == len(asks)
@@ -135,6 +136,8 @@ def test_stored_trends_answer_as_built_and_a_new_result_is_never_shown_stale(
     refitter.mark(one.stored_for)
     assert refitter.refit_marked() == [PROFILE.id]
     assert stored_from(store, PROFILE.id) == _key(served) != key
+    as_of = viewer.get(f"/api/v1/conveyors/{PROFILE.id}").json()["summary"]["forecasts_as_of"]
+    assert as_of["current"] is True and as_of["recordings_behind"] == 0
     builds.count = 0
     again = _answers(served, asks)
     assert builds.count == 0

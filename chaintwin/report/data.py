@@ -472,7 +472,55 @@ def health_part(
 ) -> tuple[MonitorState | None, HealthPart]:
     """A conveyor's health model as stored (None: none, or damaged) and what its
     page takes from it (:func:`conveyor_data`'s ``stored_forecasts`` and
-    ``forecast_bands``); the monitor is not rebuilt."""
+    ``forecast_bands``); the monitor is not rebuilt.
+
+    With ``stored_forecasts`` (the web pages) both are kept in the process
+    and read again only when the health model's version (raised by every
+    write of it), the stored forecasts (when they were computed) or the
+    profile change: one query tells. What is returned then is shared: read
+    it, never change it.
+    """
+    if not stored_forecasts:
+        return _health_part(store, conveyor, profile, stored_forecasts, forecast_bands)
+    from chaintwin.store.queries import health_version
+
+    key = (
+        store.url,
+        conveyor,
+        profile.content_hash(),
+        forecast_bands,
+        health_version(store, conveyor),
+    )
+    kept = _HEALTH.get(key)
+    if kept is not None:
+        return kept
+    found = _health_part(store, conveyor, profile, stored_forecasts, forecast_bands)
+    if key[-1][1] is not None:  # forecasts stored before the read: they are the ones read
+        with _HEALTH_LOCK:
+            if len(_HEALTH) >= _HEALTH_KEPT:
+                _HEALTH.pop(next(iter(_HEALTH)))  # the first kept
+            _HEALTH[key] = found
+    return found
+
+
+_HEALTH: dict[tuple[Any, ...], tuple[MonitorState | None, HealthPart]] = {}
+"""Per (store URL, conveyor, profile, bands, :func:`~chaintwin.store.queries.health_version`):
+:func:`health_part`'s answer for the web pages."""
+
+_HEALTH_KEPT = 32
+"""Conveyors (and with or without bands) whose health part is kept (the first kept goes first)."""
+
+_HEALTH_LOCK = threading.Lock()
+
+
+def _health_part(
+    store: Store,
+    conveyor: str,
+    profile: ConveyorProfile,
+    stored_forecasts: bool,
+    forecast_bands: bool,
+) -> tuple[MonitorState | None, HealthPart]:
+    """:func:`health_part`, read."""
     part = HealthPart()
     try:
         state = store.state(conveyor)

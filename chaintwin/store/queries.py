@@ -21,6 +21,7 @@ from chaintwin.read.recording import Recording
 from chaintwin.store.schema import (
     AlarmRow,
     ConveyorRow,
+    DerivedHealthRow,
     MonitorStateRow,
     RecordingRow,
     ResultRow,
@@ -34,6 +35,7 @@ __all__ = [
     "Signature",
     "TrendRows",
     "fleet_rows",
+    "health_version",
     "read_version",
     "recording_by_hash",
     "results_page",
@@ -356,6 +358,34 @@ def read_version(store: Store, conveyor: str) -> tuple[int | None, int, int | No
         None if newest is None else int(newest),
         int(count),
         None if model is None else int(model),
+    )
+
+
+def health_version(store: Store, conveyor: str) -> tuple[int | None, str | None, str | None]:
+    """What changes whenever a conveyor's health model or stored forecasts do, in one
+    round trip: the model's version (raised by every write of it; None: none) and the
+    stored forecasts' ``computed_at`` and ``inputs`` (None: none stored)."""
+    version = (
+        select(MonitorStateRow.version)
+        .where(MonitorStateRow.conveyor_id == conveyor)
+        .scalar_subquery()
+    )
+    computed = (
+        select(DerivedHealthRow.computed_at)
+        .where(DerivedHealthRow.conveyor_id == conveyor)
+        .scalar_subquery()
+    )
+    inputs = (
+        select(DerivedHealthRow.inputs)
+        .where(DerivedHealthRow.conveyor_id == conveyor)
+        .scalar_subquery()
+    )
+    with store.session() as s:
+        model, at, fingerprint = s.execute(select(version, computed, inputs)).one()
+    return (
+        None if model is None else int(model),
+        None if at is None else str(at),
+        None if fingerprint is None else str(fingerprint),
     )
 
 

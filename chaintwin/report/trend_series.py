@@ -44,7 +44,7 @@ from chaintwin.diagnose.records import Alarm
 from chaintwin.errors import StoreError
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.store.engine import safe_url
-from chaintwin.store.queries import TREND_POINTS
+from chaintwin.store.queries import TREND_POINTS, read_version
 from chaintwin.store.schema import ResultRow, TrendSeriesRow
 from chaintwin.store.store import Store
 
@@ -453,11 +453,14 @@ def build_and_store(
     profile: ConveyorProfile,
     build: Callable[[], ConveyorData],
     *,
+    built: str | None = None,
     replace: bool = True,
 ) -> tuple[ConveyorData, TrendSeries | None]:
     """Build a conveyor's :class:`ConveyorData` with ``build()`` (read at
     :data:`TREND_POINTS`) and store its trends when nothing changed meanwhile
-    (the fingerprint read before and after is the same; else nothing is stored).
+    (its newest result, number of results and health model version are the same
+    before and after: :func:`~chaintwin.store.queries.read_version`; else nothing is
+    stored). ``built``: :func:`built_from` now, when the caller has it.
     ``replace``: as :func:`store_series`.
 
     Raises
@@ -465,9 +468,12 @@ def build_and_store(
     StoreError
         When the database fails.
     """
-    before = built_from(store, conveyor, profile, _state(store, conveyor))
+    version = read_version(store, conveyor)
+    before = built
+    if before is None:
+        before = built_from(store, conveyor, profile, _state(store, conveyor))
     data = build()
-    if built_from(store, conveyor, profile, _state(store, conveyor)) != before:
+    if read_version(store, conveyor) != version:
         return data, None
     series = series_of(data, before)
     store_series(store, conveyor, series, replace=replace)
@@ -504,4 +510,4 @@ def refit_trends(store: Store, conveyor: str) -> bool:
             stored_forecasts=True,
         )
 
-    return build_and_store(store, conveyor, profile, build)[1] is not None
+    return build_and_store(store, conveyor, profile, build, built=current)[1] is not None

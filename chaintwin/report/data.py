@@ -485,7 +485,7 @@ def health_part(
     from chaintwin.store.queries import health_version
 
     key = (
-        store.url,
+        store.cache_key,
         conveyor,
         profile.content_hash(),
         forecast_bands,
@@ -662,7 +662,7 @@ def conveyor_data(
         bound = max(max_points, 2 * RECENT)
         if not trends:  # the page and the detail: kept while nothing they show changes
             key = (
-                store.url,
+                store.cache_key,
                 conveyor,
                 bound,
                 profile.content_hash(),

@@ -324,7 +324,7 @@ def built_from(
     return hashlib.sha256(json.dumps(parts).encode()).hexdigest()
 
 
-_KEPT: dict[tuple[str, str], TrendSeries] = {}
+_KEPT: dict[tuple[tuple[str, int], str], TrendSeries] = {}
 """Per (store URL, conveyor): its stored trends as last read (each some MB)."""
 
 _KEPT_MOST = 8
@@ -345,7 +345,7 @@ def current_series(store: Store, conveyor: str, built: str) -> TrendSeries | Non
     """
     if stored_from(store, conveyor) != built:
         return None
-    key = (store.url, conveyor)
+    key = (store.cache_key, conveyor)
     kept = _KEPT.get(key)
     if kept is not None and kept.built_from == built:
         return kept

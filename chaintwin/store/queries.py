@@ -304,7 +304,7 @@ class TrendRows:
     total: int
 
 
-_TOTALS: dict[tuple[str, str], tuple[int, int, int]] = {}
+_TOTALS: dict[tuple[tuple[str, int], str], tuple[int, int, int]] = {}
 """Per (store URL, conveyor): (its results, highest result id, those not refused)."""
 
 _TOTALS_KEPT = 1000
@@ -321,7 +321,7 @@ def _not_refused(s: Session, store: Store, conveyor: str, newest_id: int) -> int
     """
     mine = ResultRow.conveyor_id == conveyor
     every = int(s.scalar(select(func.count()).select_from(ResultRow).where(mine)) or 0)
-    key = (store.url, conveyor)
+    key = (store.cache_key, conveyor)
     known = _TOTALS.get(key)
     if known is not None and known[:2] == (every, newest_id):
         return known[2]

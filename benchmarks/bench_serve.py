@@ -58,7 +58,8 @@ fault fleet at full size alone: ``--conveyors 0 --seconds 0 --fault-conveyors 20
 --fault-results 10000 --fault-kinds 10 --fault-template /tmp/fault-template.db
 --sqlite-file /tmp/bench-fault.db`` (SQLite; the store is built once, about
 30 minutes on a loaded 2-core machine, and reused), then ``--no-sqlite
---postgres auto`` with the same fault options (PostgreSQL, built each time)
+--postgres auto`` with the same fault options (PostgreSQL, built each time;
+``--postgres URL`` builds into that database once and reuses it afterwards)
 (about 3 minutes per store on a 2-core machine, plus the fault fleet's
 simulation and ingest).
 """
@@ -71,6 +72,7 @@ import contextlib
 import json
 import math
 import os
+import sqlite3
 import statistics
 import subprocess
 import sys
@@ -340,9 +342,36 @@ def fault_conveyor_ids(args: argparse.Namespace, faults: FaultFleet | None) -> l
 
 
 def reuse(url: str) -> str:
-    """A new admin token in a store built by an earlier run (``--sqlite-file``)."""
+    """A new admin token in a store built by an earlier run (``--sqlite-file``, or
+    ``--postgres URL`` holding the fault fleet)."""
     with Store(url) as store:
         return create_token(store, f"bench-{time.time_ns()}", "admin")
+
+
+def holds_fault_fleet(url: str, args: argparse.Namespace) -> bool:
+    """Whether the store at ``url`` already holds the fault fleet's conveyors (then reused)."""
+    if not args.fault_results or args.fault_conveyors <= 0:
+        return False
+    with Store(url) as store:
+        held = set(store.conveyors())
+    return all(fault_history.fault_id(k) in held for k in range(args.fault_conveyors))
+
+
+def refit_reused(url: str, ids: list[str]) -> dict[str, Any]:
+    """Refit a reused store's fault conveyors, as ingest does after it
+    (:func:`chaintwin.store.derived.refit`: forecasts and stored trends; nothing is
+    computed where they are current): a store filled by older code gets what this
+    code stores after ingest. Seconds, and how many conveyors had their trends built."""
+    from chaintwin.report.trend_series import refit_trends
+    from chaintwin.store.derived import refit
+
+    t0 = time.perf_counter()
+    built = 0
+    with Store(url) as store:
+        for cid in ids:
+            refit(store, cid, trends=False)
+            built += refit_trends(store, cid)
+    return {"seconds": time.perf_counter() - t0, "conveyors": len(ids), "trends_built": built}
 
 
 def measure(
@@ -371,6 +400,10 @@ def measure(
         seconds, n = ingest_fault_fleet(url, faults)
         ingested = {"seconds": seconds, "recordings": n}
     fault_ids = fault_conveyor_ids(args, faults)
+    refitted = None
+    if built_before and fault_ids and code is None:
+        refitted = refit_reused(url, fault_ids)
+        print(f"reused store refitted: {json.dumps(refitted)}", file=sys.stderr)
     port = free_port()
     env = os.environ | {"OPENBLAS_NUM_THREADS": "1"}
     if code is not None:  # the server runs another checkout's chaintwin
@@ -460,6 +493,7 @@ def measure(
         "built_s": built,
         "fault_fleet_ingest": ingested,
         "fault_fleet_grown": grown,
+        "reused_refit": refitted,
         "health_ms": health,
         "rows": rows,
         "polls": polls,
@@ -575,14 +609,18 @@ def main() -> int:
     parser.add_argument("--repeat", type=int, default=21)
     parser.add_argument("--no-sqlite", action="store_true", help="PostgreSQL only")
     parser.add_argument(
-        "--postgres", help="an empty PostgreSQL database's URL, or 'auto': a private server"
+        "--postgres",
+        help="a PostgreSQL database's URL: built there when empty, reused (not rebuilt) when "
+        "it already holds the fault fleet's conveyors (--fault-results), as --sqlite-file; "
+        "or 'auto': a private server, built each time",
     )
     parser.add_argument(
         "--sqlite-file",
         type=Path,
         help="the SQLite store's file: built there when missing, reused (not rebuilt) when "
         "present, so that repeated runs skip the build (its --conveyors/--results are the "
-        "first run's)",
+        "first run's); a reused store's fault conveyors are refitted first, as ingest "
+        "does (forecasts and stored trends, where not current)",
     )
     parser.add_argument(
         "--trace-ms",
@@ -669,12 +707,15 @@ def main() -> int:
         with private_postgres() as url:
             stores |= both("PostgreSQL", url, args, faults)
     elif args.postgres:
-        stores |= both("PostgreSQL", args.postgres, args, faults)
+        reused = holds_fault_fleet(args.postgres, args)
+        stores |= both("PostgreSQL", args.postgres, args, faults, built_before=reused)
     work.cleanup()
     kinds = args.fault_kinds or args.fault_conveyors
     if args.fault_results and args.fault_template is not None and args.fault_template.exists():
-        with Store(f"sqlite:///{args.fault_template}", read_only=True) as template:
-            kinds = len(template.conveyors())  # the template's, also when a store is reused
+        # the template's, also when a store is reused (read as a plain file: it may be at
+        # an older revision than this code's)
+        with sqlite3.connect(f"file:{args.fault_template}?mode=ro", uri=True) as template:
+            kinds = int(template.execute("SELECT count(*) FROM conveyors").fetchone()[0])
     print(
         f"{args.conveyors} conveyors x {args.results} results each"
         + (
@@ -703,6 +744,12 @@ def main() -> int:
         if m["fault_fleet_grown"] is not None:
             fg = m["fault_fleet_grown"]
             print(f"  fault fleet grown to {fg['results']} results in {fg['seconds']:.0f} s")
+        if m.get("reused_refit") is not None:
+            rr = m["reused_refit"]
+            print(
+                f"  reused store: {rr['conveyors']} conveyors refitted in {rr['seconds']:.0f} s "
+                f"({rr['trends_built']} had their trends built)"
+            )
         if m["fault_fleet_ingest"] is not None:
             fi = m["fault_fleet_ingest"]
             print(

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import statistics
+import threading
 from collections import Counter
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -30,7 +31,7 @@ from chaintwin._types import FloatArray
 from chaintwin.diagnose.baseline import regressor_of
 from chaintwin.diagnose.features import FeatureSpec, feature_spec
 from chaintwin.diagnose.health import FeatureBaseline
-from chaintwin.diagnose.monitor_state import MonitorState, read_health
+from chaintwin.diagnose.monitor_state import MonitorState, derived_inputs, read_health
 from chaintwin.diagnose.records import Alarm, Event
 from chaintwin.diagnose.verdict import Verdict
 from chaintwin.diagnose.verdict import verdict as verdict_of
@@ -47,7 +48,9 @@ __all__ = [
     "WATERFALL_RECORDINGS",
     "ConveyorData",
     "FeatureTrend",
+    "HealthPart",
     "conveyor_data",
+    "health_part",
 ]
 
 WATERFALL_RECORDINGS = 40
@@ -420,6 +423,167 @@ def _spread(n: int, k: int) -> list[int]:
     return sorted({round(float(x)) for x in np.linspace(0, n - 1, k)})
 
 
+@dataclass
+class HealthPart:
+    """What a conveyor's page takes from its health model (:func:`health_part`).
+
+    Attributes
+    ----------
+    summary : dict
+        :func:`~chaintwin.diagnose.monitor_state.read_health`'s summary, with
+        ``forecasts_as_of`` when the forecasts are the stored ones.
+    forecasts : list of dict
+        The trend forecasts (``summary["forecasts"]``).
+    baselines : dict
+        Each feature's baseline.
+    z_limit : float
+        The alarm limit in standard deviations.
+    baseline_since : str or None
+        When the current baseline starts (ISO 8601).
+    judged : MonitorState or None
+        The health model, when readable and made with the conveyor's profile.
+    calibration : Calibration or None
+        The health model's calibration.
+    notes : list of str
+        Why the health model could not be read.
+    inputs : str or None
+        :func:`~chaintwin.diagnose.monitor_state.derived_inputs` of the health
+        model (None: none, or not readable).
+    """
+
+    summary: dict[str, Any] = field(default_factory=lambda: {"baseline": {"complete": False}})
+    forecasts: list[dict[str, Any]] = field(default_factory=list)
+    baselines: dict[str, FeatureBaseline] = field(default_factory=dict)
+    z_limit: float = 5.0
+    baseline_since: str | None = None
+    judged: MonitorState | None = None
+    calibration: Calibration | None = None
+    notes: list[str] = field(default_factory=list)
+    inputs: str | None = None
+
+
+def health_part(
+    store: Store,
+    conveyor: str,
+    profile: ConveyorProfile,
+    *,
+    stored_forecasts: bool = False,
+    forecast_bands: bool = False,
+) -> tuple[MonitorState | None, HealthPart]:
+    """A conveyor's health model as stored (None: none, or damaged) and what its
+    page takes from it (:func:`conveyor_data`'s ``stored_forecasts`` and
+    ``forecast_bands``); the monitor is not rebuilt.
+
+    With ``stored_forecasts`` (the web pages) both are kept in the process
+    and read again only when the health model's version (raised by every
+    write of it), the stored forecasts (when they were computed) or the
+    profile change: one query tells. What is returned then is shared: read
+    it, never change it.
+    """
+    if not stored_forecasts:
+        return _health_part(store, conveyor, profile, stored_forecasts, forecast_bands)
+    from chaintwin.store.queries import health_version
+
+    key = (
+        store.cache_key,
+        conveyor,
+        profile.content_hash(),
+        forecast_bands,
+        health_version(store, conveyor),
+    )
+    kept = _HEALTH.get(key)
+    if kept is not None:
+        return kept
+    found = _health_part(store, conveyor, profile, stored_forecasts, forecast_bands)
+    if key[-1][1] is not None:  # forecasts stored before the read: they are the ones read
+        with _HEALTH_LOCK:
+            if len(_HEALTH) >= _HEALTH_KEPT:
+                _HEALTH.pop(next(iter(_HEALTH)))  # the first kept
+            _HEALTH[key] = found
+    return found
+
+
+_HEALTH: dict[tuple[Any, ...], tuple[MonitorState | None, HealthPart]] = {}
+"""Per (store URL, conveyor, profile, bands, :func:`~chaintwin.store.queries.health_version`):
+:func:`health_part`'s answer for the web pages."""
+
+_HEALTH_KEPT = 32
+"""Conveyors (and with or without bands) whose health part is kept (the first kept goes first)."""
+
+_HEALTH_LOCK = threading.Lock()
+
+
+def _health_part(
+    store: Store,
+    conveyor: str,
+    profile: ConveyorProfile,
+    stored_forecasts: bool,
+    forecast_bands: bool,
+) -> tuple[MonitorState | None, HealthPart]:
+    """:func:`health_part`, read."""
+    part = HealthPart()
+    try:
+        state = store.state(conveyor)
+    except StoreError as exc:  # the page shows what else the store holds
+        part.notes.append(f"health model not readable: {exc}")
+        return None, part
+    if state is not None:
+        part.inputs = derived_inputs(state)
+    if state is not None and state.profile_sha256 != profile.content_hash():
+        part.notes.append(
+            "health model not readable: it was made with another version of the profile"
+        )
+    elif state is not None:
+        try:
+            # forecasts are fitted after ingest, not per page: the pages read them
+            # (a conveyor never refitted, in a store written before, is refitted
+            # once here); a report fits them here, as the monitor says them
+            derived = read_derived(store, conveyor) if stored_forecasts else None
+            if stored_forecasts and derived is None:
+                derived = refit(store, conveyor, state, trends=False)
+            health = read_health(
+                state,
+                bands=forecast_bands,
+                derived=None if derived is None else derived.content,
+            )
+        except (ChaintwinError, KeyError, TypeError, ValueError) as exc:
+            part.notes.append(f"health model not readable: {exc!r}")
+        else:
+            part.calibration = health.calibration
+            part.summary = health.summary
+            if derived is not None:
+                part.summary["forecasts_as_of"] = derived.as_of(state, part.inputs)
+            part.forecasts = part.summary["forecasts"]
+            part.baselines = health.baselines
+            part.z_limit = health.z_limit
+            part.baseline_since = health.baseline_since
+            part.judged = state
+    return state, part
+
+
+@dataclass(frozen=True)
+class _PageRows:
+    """What a conveyor's page and detail read from its results (:func:`conveyor_data`
+    with ``max_points`` and without ``trends``)."""
+
+    results: list[dict[str, Any]]
+    """Shared by every request that finds them: read, never changed."""
+    represents: list[int] | None
+    total: int | None
+    features: list[str]
+
+
+_PAGE_ROWS: dict[tuple[Any, ...], _PageRows] = {}
+"""Per (store URL, conveyor, bound, profile, :func:`~chaintwin.store.queries.read_version`):
+the bounded results and the names of their trends. Kept in the process, read again when
+the conveyor's newest result, number of results, health model or profile changes."""
+
+_PAGE_ROWS_KEPT = 16
+"""Conveyors whose page rows are kept (each their 200 results; the first kept goes first)."""
+
+_PAGE_ROWS_LOCK = threading.Lock()
+
+
 def conveyor_data(
     store: Store,
     conveyor: str,
@@ -468,7 +632,11 @@ def conveyor_data(
         Build each feature's trend (``trends``); False: only name them
         (``features``; ``trends`` is then empty, and with it the health index
         and worst feature of :class:`ConveyorData`: the web's page and detail,
-        whose verdict carries both).
+        whose verdict carries both). With ``max_points``, the bounded results
+        and the trends' names are then kept in the process and read again only
+        when the conveyor's newest result, number of results, health model
+        (its version, raised by every write) or profile changes: the
+        ``results`` of such a ConveyorData are shared, to be read only.
 
     Raises
     ------
@@ -483,58 +651,42 @@ def conveyor_data(
         )
     total: int | None = None
     represents: list[int] | None = None
+    kept: _PageRows | None = None
+    key: tuple[Any, ...] | None = None
     if max_points is None:
         results = [r for r in store.results(conveyor) if "error" not in r]
     else:
-        from chaintwin.store.queries import trend_rows
+        from chaintwin.store.queries import read_version, trend_rows
 
         # the newest RECENT at least in full: the health index and status are exact
-        bounded = trend_rows(store, conveyor, max(max_points, 2 * RECENT))
-        results, represents, total = bounded.results, bounded.represents, bounded.total
-    notes: list[str] = []
-    try:
-        state = store.state(conveyor)
-    except StoreError as exc:  # the page shows what else the store holds
-        state = None
-        notes.append(f"health model not readable: {exc}")
-    summary: dict[str, Any] = {"baseline": {"complete": False}}
-    forecasts: list[dict[str, Any]] = []
-    baselines: dict[str, FeatureBaseline] = {}
-    z_limit = 5.0
-    calibration: Calibration | None = None  # the health model's, else the store's (below)
-    baseline_since = None
-    judged: MonitorState | None = None
-    if state is not None and state.profile_sha256 != profile.content_hash():
-        notes.append("health model not readable: it was made with another version of the profile")
-    elif state is not None:
-        # read what the store holds; the monitor is not rebuilt for a page
-        try:
-            # forecasts are fitted after ingest, not per page: the pages read them
-            # (a conveyor never refitted, in a store written before, is refitted
-            # once here); a report fits them here, as the monitor says them
-            derived = read_derived(store, conveyor) if stored_forecasts else None
-            if stored_forecasts and derived is None:
-                derived = refit(store, conveyor, state)
-            health = read_health(
-                state,
-                bands=forecast_bands,
-                derived=None if derived is None else derived.content,
+        bound = max(max_points, 2 * RECENT)
+        if not trends:  # the page and the detail: kept while nothing they show changes
+            key = (
+                store.cache_key,
+                conveyor,
+                bound,
+                profile.content_hash(),
+                read_version(store, conveyor),
             )
-            if health.calibration is not None:
-                calibration = health.calibration
-        except (ChaintwinError, KeyError, TypeError, ValueError) as exc:
-            notes.append(f"health model not readable: {exc!r}")
+            kept = _PAGE_ROWS.get(key)
+        if kept is not None:
+            results, represents, total = kept.results, kept.represents, kept.total
         else:
-            summary = health.summary
-            if derived is not None:
-                summary["forecasts_as_of"] = derived.as_of(state)
-            forecasts = summary["forecasts"]
-            baselines = health.baselines
-            z_limit = health.z_limit
-            baseline_since = health.baseline_since
-            judged = state
+            bounded = trend_rows(store, conveyor, bound)
+            results, represents, total = bounded.results, bounded.represents, bounded.total
+    _state, health = health_part(
+        store,
+        conveyor,
+        profile,
+        stored_forecasts=stored_forecasts,
+        forecast_bands=forecast_bands,
+    )
+    calibration = health.calibration
     if calibration is None:
         calibration = store.calibration(conveyor)
+    summary, forecasts, notes = health.summary, health.forecasts, health.notes
+    baselines, z_limit, baseline_since = health.baselines, health.z_limit, health.baseline_since
+    judged = health.judged
     data = ConveyorData(
         profile=profile,
         results=results,
@@ -554,10 +706,22 @@ def conveyor_data(
         total=total,
         represents=represents,
         verdict=verdict_of(judged) if known_verdict is None else known_verdict,
-        features=(
-            None if trends else _trend_names(results, baselines, z_limit, profile.expected_wear)
-        ),
+        features=None,
     )
+    if not trends:
+        if kept is None:
+            kept = _PageRows(
+                results,
+                represents,
+                total,
+                _trend_names(results, baselines, z_limit, profile.expected_wear),
+            )
+            if key is not None:
+                with _PAGE_ROWS_LOCK:
+                    if len(_PAGE_ROWS) >= _PAGE_ROWS_KEPT:
+                        _PAGE_ROWS.pop(next(iter(_PAGE_ROWS)))  # the first kept
+                    _PAGE_ROWS[key] = kept
+        data.features = list(kept.features)
     if not latest and waterfall <= 0:
         return data
     index = store.recording_index(conveyor)

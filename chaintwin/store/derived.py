@@ -8,7 +8,9 @@ by :class:`~chaintwin.live.refit.Refitter`, at most
 fingerprint of the model's inputs (:func:`~chaintwin.diagnose.monitor_state.derived_inputs`).
 Pages and the API read them (:func:`read_derived`), never refit them: what
 they show may be behind the newest recording by what the refit has not yet
-reached, and says so (``as_of``).
+reached, and says so (``as_of``). The same refit stores the conveyor's trends
+(:mod:`chaintwin.report.trend_series`), which the trends endpoint reads only
+while no newer result has come (else it builds them: never stale points).
 """
 
 from __future__ import annotations
@@ -54,12 +56,13 @@ class Derived:
     latest: str | None
     computed_at: str
 
-    def as_of(self, state: MonitorState) -> dict[str, Any]:
+    def as_of(self, state: MonitorState, inputs: str | None = None) -> dict[str, Any]:
         """How current it is for ``state``: ``computed_at``, ``latest``, ``current``
         (computed from this very model) and ``recordings_behind`` (results the
         model took after the newest it was computed from; all the model keeps
-        when that one is no longer among them)."""
-        current = self.inputs == derived_inputs(state)
+        when that one is no longer among them). ``inputs``: ``derived_inputs(state)``
+        when the caller has it."""
+        current = self.inputs == (derived_inputs(state) if inputs is None else inputs)
         behind = 0
         if not current:
             keys = [_key(h) for h in state.history]
@@ -103,11 +106,16 @@ def read_derived(store: Store, conveyor: str) -> Derived | None:
         ) from None
 
 
-def refit(store: Store, conveyor: str, state: MonitorState | None = None) -> Derived | None:
+def refit(
+    store: Store, conveyor: str, state: MonitorState | None = None, *, trends: bool = True
+) -> Derived | None:
     """Compute a conveyor's forecasts and wear rates from its stored health model; store them.
 
     Nothing is computed when the stored ones were computed from the same
     inputs. ``state``: the conveyor's health model as stored (read when None).
+    ``trends``: then build and store its trends as well
+    (:func:`chaintwin.report.trend_series.refit_trends`: nothing is built when
+    the stored ones were built from the same results and health model).
 
     Returns
     -------
@@ -123,6 +131,16 @@ def refit(store: Store, conveyor: str, state: MonitorState | None = None) -> Der
         state = store.state(conveyor)
         if state is None:
             return None
+    found = _refit_derived(store, conveyor, state)
+    if trends:
+        from chaintwin.report.trend_series import refit_trends
+
+        refit_trends(store, conveyor)
+    return found
+
+
+def _refit_derived(store: Store, conveyor: str, state: MonitorState) -> Derived:
+    """:func:`refit`'s forecasts and wear rates."""
     inputs = derived_inputs(state)
     known = read_derived(store, conveyor)
     if known is not None and known.inputs == inputs:

@@ -21,6 +21,7 @@ from chaintwin.read.recording import Recording
 from chaintwin.store.schema import (
     AlarmRow,
     ConveyorRow,
+    DerivedHealthRow,
     MonitorStateRow,
     RecordingRow,
     ResultRow,
@@ -29,16 +30,24 @@ from chaintwin.store.store import Store
 from chaintwin.store.supersede import STANDING, STANDING_RESULT
 
 __all__ = [
+    "TREND_POINTS",
     "Page",
     "Signature",
     "TrendRows",
     "fleet_rows",
+    "health_version",
+    "read_version",
     "recording_by_hash",
     "results_page",
     "signature_columns",
     "store_signature",
     "trend_rows",
 ]
+
+TREND_POINTS = 1000
+"""Default ``max_points`` of a trend: the newest 500 results in full, the older history
+thinned to 500 (:func:`trend_rows`); the trends stored after ingest are built at this
+bound (:mod:`chaintwin.report.trend_series`)."""
 
 _NULL_TIME = ""
 """Sort key of a recording without a time (oldest)."""
@@ -295,7 +304,7 @@ class TrendRows:
     total: int
 
 
-_TOTALS: dict[tuple[str, str], tuple[int, int, int]] = {}
+_TOTALS: dict[tuple[tuple[str, int], str], tuple[int, int, int]] = {}
 """Per (store URL, conveyor): (its results, highest result id, those not refused)."""
 
 _TOTALS_KEPT = 1000
@@ -312,7 +321,7 @@ def _not_refused(s: Session, store: Store, conveyor: str, newest_id: int) -> int
     """
     mine = ResultRow.conveyor_id == conveyor
     every = int(s.scalar(select(func.count()).select_from(ResultRow).where(mine)) or 0)
-    key = (store.url, conveyor)
+    key = (store.cache_key, conveyor)
     known = _TOTALS.get(key)
     if known is not None and known[:2] == (every, newest_id):
         return known[2]
@@ -328,6 +337,56 @@ def _not_refused(s: Session, store: Store, conveyor: str, newest_id: int) -> int
         _TOTALS.clear()
     _TOTALS[key] = (every, newest_id, total)
     return total
+
+
+def read_version(store: Store, conveyor: str) -> tuple[int | None, int, int | None]:
+    """What changes whenever a conveyor's bounded results or its health model do, in one
+    round trip: its newest result id, its number of results (a seek and a count of the
+    ``(conveyor_id, id)`` index) and its health model's version (raised by every write
+    of the model; None: none)."""
+    mine = ResultRow.conveyor_id == conveyor
+    version = (
+        select(MonitorStateRow.version)
+        .where(MonitorStateRow.conveyor_id == conveyor)
+        .scalar_subquery()
+    )
+    with store.session() as s:
+        newest, count, model = s.execute(
+            select(func.max(ResultRow.id), func.count(), version).where(mine)
+        ).one()
+    return (
+        None if newest is None else int(newest),
+        int(count),
+        None if model is None else int(model),
+    )
+
+
+def health_version(store: Store, conveyor: str) -> tuple[int | None, str | None, str | None]:
+    """What changes whenever a conveyor's health model or stored forecasts do, in one
+    round trip: the model's version (raised by every write of it; None: none) and the
+    stored forecasts' ``computed_at`` and ``inputs`` (None: none stored)."""
+    version = (
+        select(MonitorStateRow.version)
+        .where(MonitorStateRow.conveyor_id == conveyor)
+        .scalar_subquery()
+    )
+    computed = (
+        select(DerivedHealthRow.computed_at)
+        .where(DerivedHealthRow.conveyor_id == conveyor)
+        .scalar_subquery()
+    )
+    inputs = (
+        select(DerivedHealthRow.inputs)
+        .where(DerivedHealthRow.conveyor_id == conveyor)
+        .scalar_subquery()
+    )
+    with store.session() as s:
+        model, at, fingerprint = s.execute(select(version, computed, inputs)).one()
+    return (
+        None if model is None else int(model),
+        None if at is None else str(at),
+        None if fingerprint is None else str(fingerprint),
+    )
 
 
 _STRETCHES = text(

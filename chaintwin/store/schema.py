@@ -21,6 +21,10 @@ table              what a row holds
                    (trend forecasts with their bands, wear rates), with the
                    fingerprint of the model's inputs it was computed from, so
                    that pages read it rather than refit it
+``trend_series``   each conveyor's trends as built after ingest (every tracked
+                   feature's points, pre-serialised JSON, and its fixed
+                   fields), with the fingerprint of what they were built
+                   from, so that the trends endpoint reads them
 ``alarms``         alarms with their life: opened, acknowledged, closed
 ``alarm_aliases``  alarm ids that now name another alarm (alarms of one cause
                    grouped into one): old id, the alarm's id
@@ -90,6 +94,7 @@ __all__ = [
     "SchemaRow",
     "SecretRow",
     "TokenRow",
+    "TrendSeriesRow",
     "WebSessionRow",
 ]
 
@@ -193,6 +198,20 @@ class DerivedHealthRow(Base):
     """recorded_at of the newest result it was computed from."""
     computed_at: Mapped[str] = mapped_column(String(40))
     content: Mapped[dict[str, Any]] = mapped_column(JSON)
+
+
+class TrendSeriesRow(Base):
+    """A conveyor's trends as built after ingest (:mod:`chaintwin.report.trend_series`)."""
+
+    __tablename__ = "trend_series"
+    conveyor_id: Mapped[str] = mapped_column(ForeignKey("conveyors.id"), primary_key=True)
+    built_from: Mapped[str] = mapped_column(String(64))
+    """SHA-256 of what they were built from (:func:`chaintwin.report.trend_series.built_from`)."""
+    computed_at: Mapped[str] = mapped_column(String(40))
+    header: Mapped[dict[str, Any]] = mapped_column(JSON)
+    """Each feature's fixed fields and where its points lie in ``points``."""
+    points: Mapped[bytes] = mapped_column(LargeBinary)
+    """Every feature's points, one JSON array after another."""
 
 
 class AlarmRow(Base):

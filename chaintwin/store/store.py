@@ -17,6 +17,7 @@ gets :class:`StateConflict` and goes again from the newer model.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import os
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -69,6 +70,9 @@ __all__ = [
     "Store",
     "Waiting",
 ]
+
+_STORES_OPENED = itertools.count()
+"""Numbers each :class:`Store` made in the process (:attr:`Store.cache_key`)."""
 
 HISTORY_IN_STATE = 300
 """Recent results kept inside a stored health model (for trend forecasts); all
@@ -153,6 +157,10 @@ class Store:
         sqlite_cache_kib: int | None = None,
     ) -> None:
         self.url = url
+        # what the process's caches of this store's reads are keyed by: its URL and this
+        # object (a file recreated at the same path, or two in-memory databases, are
+        # other stores)
+        self.cache_key: tuple[str, int] = (url, next(_STORES_OPENED))
         path = sqlite_path(url)
         if (not create or read_only) and path is not None and not os.path.exists(path):
             raise StoreError(

@@ -10,7 +10,6 @@ its health model), the same the fleet shows.
 
 from __future__ import annotations
 
-import math
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
@@ -20,7 +19,7 @@ from chaintwin import __version__
 from chaintwin.diagnose.alarm_actions import clear_out_of_service, set_out_of_service
 from chaintwin.diagnose.state import add_maintenance
 from chaintwin.errors import StoreError
-from chaintwin.store.queries import results_page, store_signature
+from chaintwin.store.queries import TREND_POINTS, results_page, store_signature
 from chaintwin.web.access import audit
 from chaintwin.web.deps import require_role, web_of
 from chaintwin.web.models import (
@@ -55,17 +54,10 @@ router = make_router("conveyors")
 Viewer = Annotated[Principal, Depends(require_role("viewer"))]
 Maintainer = Annotated[Principal, Depends(require_role("maintainer", changes=True))]
 
-TREND_POINTS = 1000
-"""Default ``max_points`` of a trend: the newest 500 results in full, the older history
-thinned to 500 (:func:`~chaintwin.store.queries.trend_rows`)."""
 
 PAGE_POINTS = 200
 """Results a conveyor's page and ``GET /api/v1/conveyors/{id}`` read (status, health
 index, features): the newest 100 and 100 of the older history."""
-
-
-def _finite(x: Any) -> Any:
-    return None if isinstance(x, float) and not math.isfinite(x) else x
 
 
 def fleet_etag(store: Any) -> str:
@@ -190,52 +182,12 @@ def recordings(
     return fast_json({"items": page.items, "next_cursor": page.next_cursor})
 
 
-def _trend(
-    data: Any, conveyor_id: str, trend: Any, max_points: int, times: list[str | None]
-) -> dict[str, Any]:
-    """One feature's trend object (the ``trends`` endpoint's body for one ``feature``).
-
-    ``times``: each result's ``recorded_at`` in ISO 8601 (:func:`_iso_times`), written
-    once per request for all its trends."""
-    feature = trend.name
-    represents = data.represents or [1] * len(data.results)
-    finite = math.isfinite
-    # the values are floats (NaN where unknown: null) and the flags bools already
-    points = [
-        {
-            "recorded_at": times[k],
-            "value": v if finite(v) else None,
-            "exceeded": ex,
-            "represents": represents[k],
-        }
-        for k, v, ex in zip(trend.index, trend.values, trend.exceeded, strict=False)
-    ]
-    marks = [
-        {"id": a.id, "since": a.since, "closed_at": a.closed_at, "cause": a.cause}
-        for a in data.alarms
-        if a.feature == feature
-    ]
-    forecast = next((dict(f) for f in data.forecasts if f["feature"] == feature), None)
-    return {
-        "conveyor": conveyor_id,
-        "feature": feature,
-        "cause": trend.cause,
-        "unit": trend.unit,
-        "expected": trend.expected,
-        "limit": trend.limit,
-        "lower_limit": trend.lower,
-        "points": points,
-        "alarms": marks,
-        "health_index": _finite(float(trend.health_index())),
-        "forecast": forecast,
-        "recordings": data.recordings,
-        "max_points": max_points,
-    }
-
-
-def _iso_times(data: Any) -> list[str | None]:
-    """Each result's recording time in ISO 8601 (None: unknown), for :func:`_trend`."""
-    return [None if t is None else t.isoformat() for t in data.times]
+def _asked(names: list[str], feature: list[str] | None) -> None:
+    """404 for a feature asked that the conveyor does not track."""
+    unknown = [f for f in dict.fromkeys(feature or []) if f not in names]
+    if unknown:
+        tracked = ", ".join(names) or "none yet"
+        raise ApiError(404, "not_found", f"no feature '{unknown[0]}' (tracked: {tracked})")
 
 
 @router.get("/conveyors/{conveyor_id:path}/trends", response_model=Trend | Trends)
@@ -259,25 +211,73 @@ def trends(
     newest results, as without a bound. Raise ``max_points`` to get every
     result of a long history. The forecasts are those computed after ingest
     (``as_of``: when, and how many recordings they are behind).
+
+    At the default ``max_points`` the series are those built after ingest
+    (:mod:`chaintwin.report.trend_series`), used only while no result or
+    health model came since they were built; else (the refit not yet run,
+    at most one refit round behind the newest recording) they are built
+    from the results here: the points are never behind the newest result.
+    The answer is the same either way, byte for byte.
     """
-    data = conveyor_data_of(web_of(request), conveyor_id, bands=True, max_points=max_points)
-    by_name = {t.name: t for t in data.trends}
-    asked = list(dict.fromkeys(feature)) if feature else list(by_name)
-    unknown = [f for f in asked if f not in by_name]
-    if unknown:
-        names = ", ".join(by_name) or "none yet"
-        raise ApiError(404, "not_found", f"no feature '{unknown[0]}' (tracked: {names})")
-    times = _iso_times(data)
-    if feature is not None and len(feature) == 1:
-        return fast_json(_trend(data, conveyor_id, by_name[asked[0]], max_points, times))
+    from chaintwin.report.data import health_part
+    from chaintwin.report.trend_series import (
+        answer_of,
+        build_and_store,
+        built_from,
+        current_series,
+        iso_times,
+        stored_from,
+        trend_object,
+    )
+
+    web = web_of(request)
+    store = web.store
+
+    def build() -> Any:
+        return conveyor_data_of(web, conveyor_id, bands=True, max_points=max_points)
+
+    with store.session():  # one connection checkout for every read
+        profile = store.profile(conveyor_id)
+        if profile is None:
+            raise ApiError(404, "not_found", f"no conveyor '{conveyor_id}' in the store")
+        if max_points != TREND_POINTS:
+            data = build()
+        else:
+            state, health = health_part(
+                store, conveyor_id, profile, stored_forecasts=True, forecast_bands=True
+            )
+            current = built_from(store, conveyor_id, profile, state, inputs=health.inputs)
+            series = current_series(store, conveyor_id, current)
+            if series is not None:  # built from these very results and health model
+                _asked(series.names, feature)
+                body = series.answer(
+                    conveyor_id,
+                    feature,
+                    store.alarms(conveyor_id),
+                    health.forecasts,
+                    health.summary.get("forecasts_as_of"),
+                )
+                return Response(body, media_type="application/json")
+            if stored_from(store, conveyor_id) is None:
+                # none stored yet (a store written before them): built once here and stored
+                data = build_and_store(store, conveyor_id, profile, build, replace=False)[0]
+            else:  # behind the newest result or health model: built, never stale points
+                data = build()
+    _asked([t.name for t in data.trends], feature)
+    times = iso_times(data)
+    objects = {
+        t.name: (lambda t=t: trend_object(data, conveyor_id, t, max_points, times))
+        for t in data.trends
+    }
     return fast_json(
-        {
-            "conveyor": conveyor_id,
-            "trends": [_trend(data, conveyor_id, by_name[f], max_points, times) for f in asked],
-            "recordings": data.recordings,
-            "max_points": max_points,
-            "as_of": data.summary.get("forecasts_as_of"),
-        }
+        answer_of(
+            conveyor_id,
+            feature,
+            objects,
+            data.recordings,
+            max_points,
+            data.summary.get("forecasts_as_of"),
+        )
     )
 
 

@@ -46,10 +46,14 @@ from chaintwin.diagnose.prognosis import fit_rise, forecast_alarm
 Variant = Callable[[dict[str, Any]], dict[str, Any] | None]
 
 
-def alarm(entry: dict[str, Any], curved: bool = True) -> dict[str, Any] | None:
+def alarm(
+    entry: dict[str, Any], curved: bool = True, confirmed: bool = True
+) -> dict[str, Any] | None:
     """The monitor's forecast (as :func:`chaintwin.diagnose.baseline.forecasts` makes it).
 
     ``curved`` False: the line alone after the change point (the forecast before the curve).
+    ``confirmed`` False: every exceedance counts, as the forecast did before it counted them
+    as the monitor does (a cache without ``confirm`` is read so too).
     """
     a = entry["alarm"]
     if a is None or not a["forecastable"]:
@@ -65,6 +69,8 @@ def alarm(entry: dict[str, Any], curved: bool = True) -> dict[str, Any] | None:
         y=a["y"],
         limit=a["limit"],
         curved=curved,
+        confirm=a.get("confirm") if confirmed else None,
+        caught=a.get("caught") if confirmed else None,
     )
     return None if fc is None else fc.to_dict()
 
@@ -93,6 +99,8 @@ def hindsight(entry: dict[str, Any]) -> dict[str, Any] | None:
         x=a["x"] if a else 3,
         y=a["y"] if a else 10,
         trend=trend,
+        confirm=h.get("confirm"),
+        caught=h.get("caught"),
     )
     return None if fc is None else fc.to_dict()
 

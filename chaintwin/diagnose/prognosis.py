@@ -35,7 +35,11 @@ threshold and confirmation, instead of where a trend meets a single limit:
    distribution, each recording's noise and margin; with a curve, half of
    them from the curve), one recording per mean spacing of the recent ones;
    a future's alarm opens at the first recording where X of the last Y
-   exceeded (the window continues the recordings' own exceedances).
+   exceedances counted (the window continues the recordings' exceedances as
+   the monitor counted them, :func:`counted`; a future recording's
+   exceedance counts as the monitor will count it, :func:`window_counts`:
+   beside another where it needs a neighbour's confirmation, as often as
+   the last :data:`RECENT` recordings needed one).
    ``crosses_at`` is the median opening (the models' futures weighed by their
    weights), ``earliest`` the earliest of the models' 5 % quantiles and
    ``latest`` the latest of their 95 % quantiles (the 90 % band holds the
@@ -43,9 +47,10 @@ threshold and confirmation, instead of where a trend meets a single limit:
    of a model's futures stay quiet for the horizon). None when the median
    future stays quiet.
 5. **Crossed**: when the alarm rule holds the feature's alarm open at the
-   last recording (opened by X of Y, not yet Y recordings without an
-   exceedance), the forecast says so, dated from the first exceedance of the
-   window that opened it (as the alarm's ``since``).
+   last recording (opened by X of Y counted exceedances, not yet Y
+   recordings without one: the monitor's alarm is open), the forecast says
+   so, dated from the first exceedance of the window that opened it (as the
+   alarm's ``since``).
 """
 
 from __future__ import annotations

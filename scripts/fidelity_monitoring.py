@@ -323,6 +323,7 @@ def _hindsight(
     vals, _ = baseline.values_at_mean_payload(feature, fb, past)
     margins, exceeded = baseline.alarm_margins(feature, fb, past, z_limit)
     confirm, caught = baseline.confirmations(past, steps)
+    noted = baseline.noted_events(feature, past)
     fc = forecast_alarm(
         feature,
         [datetime.fromisoformat(h["recorded_at"]) for h in past],
@@ -335,6 +336,7 @@ def _hindsight(
         trend=trend,
         confirm=confirm,
         caught=caught,
+        noted=noted,
     )
     return None if fc is None else fc.to_dict()
 
@@ -379,6 +381,7 @@ def _alarm_inputs(
         "forecastable": spec.cause is not None and feature not in baseline.NO_FORECAST,
         "confirm": confirm,
         "caught": caught,
+        "noted": baseline.noted_events(feature, rows),
     }
 
 
@@ -419,6 +422,7 @@ def _hindsight_inputs(
         "whole_values": [float(v) for v in v_all],
         "confirm": confirm,
         "caught": caught,
+        "noted": baseline.noted_events(feature, past),
     }
 
 

@@ -54,8 +54,9 @@ def alarm(
     """The monitor's forecast (as :func:`chaintwin.diagnose.baseline.forecasts` makes it).
 
     ``curved`` False: the line alone after the change point (the forecast before the curve).
-    ``confirmed`` False: every exceedance counts, as the forecast did before it counted them
-    as the monitor does (a cache without ``confirm`` is read so too).
+    ``confirmed`` False: every exceedance counts and every rule met opens the alarm, as the
+    forecast did before it counted them as the monitor does (a cache without ``confirm`` and
+    ``noted`` is read so too).
     """
     a = entry["alarm"]
     if a is None or not a["forecastable"]:
@@ -73,6 +74,7 @@ def alarm(
         curved=curved,
         confirm=a.get("confirm") if confirmed else None,
         caught=a.get("caught") if confirmed else None,
+        noted=a.get("noted") if confirmed else None,
     )
     return None if fc is None else fc.to_dict()
 
@@ -103,6 +105,7 @@ def hindsight(entry: dict[str, Any]) -> dict[str, Any] | None:
         trend=trend,
         confirm=h.get("confirm"),
         caught=h.get("caught"),
+        noted=h.get("noted"),
     )
     return None if fc is None else fc.to_dict()
 

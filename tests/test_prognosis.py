@@ -368,3 +368,19 @@ def test_confirmation_delays_the_forecast_opening() -> None:
     assert ms1.crosses_at >= plain.crosses_at
     assert ms1.latest is None or plain.latest is None or ms1.latest >= plain.latest
     assert _monitor_opens(exceeded) >= alarm
+
+
+def test_a_rule_met_where_the_monitor_noted_an_event_opens_no_alarm() -> None:
+    """Known answer: where the monitor noted an item caught instead of alarming, the rule
+    met there opens nothing; the next recording that meets it without a note opens the
+    alarm (as the monitor's), and a forecast there is not yet ``crossed``."""
+    e = [False, True, False, True, True, False, False]
+    assert alarm_open(e[:5], 3, 10) == (True, 1)
+    assert alarm_open(e[:5], 3, 10, noted=[False] * 4 + [True]) == (False, None)
+    assert alarm_open(e, 3, 10, noted=[False] * 4 + [True, False, False]) == (True, 1)
+    values, margins, exceeded, alarm = _sequence(1)
+    n = alarm + 1
+    args = ("f", _times(n), values[:n], margins[:n], exceeded[:n], 1.0)
+    fc = forecast_alarm(*args, noted=[False] * alarm + [True])
+    assert fc is not None and not fc.crossed
+    assert fc.crosses_at > _times(n)[-1]

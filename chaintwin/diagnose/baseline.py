@@ -12,6 +12,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from .causes import NOTE_CAUSES
 from .confirmation import needs_confirmation
 from .features import DRIFT_OF, feature_spec, is_tracked
 from .forecasting import forecast_feature
@@ -278,6 +279,21 @@ def confirmations(
     return confirm, caught
 
 
+def noted_events(name: str, rows: Sequence[Mapping[str, Any]]) -> list[bool]:
+    """Whether the monitor noted an event of operation on the feature at each result.
+
+    An item caught, an impulsive residual (:data:`~chaintwin.diagnose.causes.
+    NOTE_CAUSES`): the feature's rule was met there, and no alarm opened.
+    """
+    return [
+        any(
+            c.get("feature") == name and c.get("cause") in NOTE_CAUSES
+            for c in (h.get("causes") or ())
+        )
+        for h in rows
+    ]
+
+
 def forecasts(
     baselines: dict[str, FeatureBaseline],
     history: Sequence[dict[str, Any]],
@@ -345,6 +361,7 @@ def forecasts(
             # the margins of the last recordings stand for those ahead
             margins, _ = alarm_margins(name, fb, rows[-RECENT:], z_limit)
             exceeded = [name in (h.get("exceeded") or ()) for h in rows]
+            noted = noted_events(name, rows)
             healthy = fb.expected(fb.mean_payload_kg)
             limit = fb.limit(z_limit, spec.min_rel)
             fc = forecast_alarm(
@@ -359,6 +376,7 @@ def forecasts(
                 limit=limit,
                 confirm=confirm,
                 caught=caught,
+                noted=noted,
             )
         if fc is not None:
             used = [src for src, v in zip(sources, vals, strict=True) if math.isfinite(v)]

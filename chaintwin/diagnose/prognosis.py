@@ -535,7 +535,11 @@ def model_error(
 
 
 def alarm_open(
-    exceeded: Sequence[bool], x: int, y: int, late: Sequence[bool] | None = None
+    exceeded: Sequence[bool],
+    x: int,
+    y: int,
+    late: Sequence[bool] | None = None,
+    noted: Sequence[bool] | None = None,
 ) -> tuple[bool, int | None]:
     """Whether the X-of-Y rule holds an alarm open after the last recording, and since when.
 
@@ -552,6 +556,9 @@ def alarm_open(
         Whether each exceedance counted only from the next recording on (a
         neighbour's confirmation, :func:`counted`): at its own recording it
         did not count yet.
+    noted : sequence of bool, optional
+        Whether the monitor noted an event of operation on the feature
+        instead of alarming (an item caught): the rule met there opens no alarm.
 
     Returns
     -------
@@ -561,6 +568,7 @@ def alarm_open(
     """
     ex = [bool(e) for e in exceeded]
     pending = [bool(e) for e in late] if late is not None else [False] * len(ex)
+    note = [bool(e) for e in noted] if noted is not None else [False] * len(ex)
     # after y recordings without an exceedance any alarm is closed: start after the last such
     start, quiet = 0, 0
     for i in range(len(ex) - 1, -1, -1):
@@ -574,7 +582,7 @@ def alarm_open(
         lo = max(start, i - y + 1)
         window = ex[lo : i + 1]
         window[-1] = window[-1] and not pending[i]  # as the window stood at recording i
-        if not is_open and sum(window) >= x:
+        if not is_open and sum(window) >= x and not note[i]:
             is_open = True
             since = lo + window.index(True)
         elif is_open and i + 1 >= y and not any([*ex[max(0, i - y + 1) : i], window[-1]]):
@@ -814,6 +822,7 @@ def forecast_alarm(
     curved: bool = True,
     confirm: Sequence[bool] | None = None,
     caught: Sequence[bool] | None = None,
+    noted: Sequence[bool] | None = None,
 ) -> Forecast | None:
     """Forecast when a feature's alarm opens: its rise after the change point, the rule ahead.
 
@@ -863,6 +872,10 @@ def forecast_alarm(
         (:func:`~chaintwin.diagnose.confirmation.needs_confirmation`; None:
         none did). The share of the last :data:`RECENT` that needed it is
         the chance that a recording ahead needs it (1 on a 1 ms scope).
+    noted : sequence of bool, optional
+        Per recording, whether the monitor noted an event of operation on
+        the feature instead of alarming (its rule met there opened no alarm;
+        :func:`alarm_open`).
 
     Returns
     -------
@@ -886,7 +899,7 @@ def forecast_alarm(
     if ok.sum() < MIN_POINTS or float(np.ptp(t_all)) <= 0.0:
         return None
     past = counted(exceeded, confirm, caught)
-    is_open, since = alarm_open(past.counted, x, y, past.late)
+    is_open, since = alarm_open(past.counted, x, y, past.late, noted)
     recent_m = m[-RECENT:][np.isfinite(m[-RECENT:])]
     threshold = healthy + float(np.median(recent_m)) if recent_m.size else math.nan
     limit = threshold if limit is None else limit

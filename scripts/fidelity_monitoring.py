@@ -291,6 +291,7 @@ def _hindsight(
     whole: list[dict[str, Any]],
     since: str,
     monitor: ConveyorMonitor,
+    steps: dict[str, FeatureBaseline],
 ) -> dict[str, Any] | None:
     """The alarm's opening after ``history``'s last recording, the trend fitted to ``whole``."""
     if fb is None:
@@ -321,6 +322,8 @@ def _hindsight(
         return None
     vals, _ = baseline.values_at_mean_payload(feature, fb, past)
     margins, exceeded = baseline.alarm_margins(feature, fb, past, z_limit)
+    confirm, caught = baseline.confirmations(past, steps)
+    noted = baseline.noted_events(feature, past)
     fc = forecast_alarm(
         feature,
         [datetime.fromisoformat(h["recorded_at"]) for h in past],
@@ -331,6 +334,9 @@ def _hindsight(
         x=x,
         y=y,
         trend=trend,
+        confirm=confirm,
+        caught=caught,
+        noted=noted,
     )
     return None if fc is None else fc.to_dict()
 
@@ -341,6 +347,7 @@ def _alarm_inputs(
     history: list[dict[str, Any]],
     since: str,
     monitor: ConveyorMonitor,
+    steps: dict[str, FeatureBaseline],
 ) -> dict[str, Any] | None:
     """What :func:`chaintwin.diagnose.baseline.forecasts` hands ``forecast_alarm`` (the cache).
 
@@ -361,6 +368,7 @@ def _alarm_inputs(
     spec = feature_spec(feature)
     vals, _ = baseline.values_at_mean_payload(feature, fb, rows)
     margins, _ = baseline.alarm_margins(feature, fb, rows[-RECENT:], monitor.settings.z_limit)
+    confirm, caught = baseline.confirmations(rows, steps)
     return {
         "times": [h["recorded_at"] for h in rows],
         "values": [float(v) for v in vals],
@@ -371,6 +379,9 @@ def _alarm_inputs(
         "x": monitor.settings.x,
         "y": monitor.settings.y,
         "forecastable": spec.cause is not None and feature not in baseline.NO_FORECAST,
+        "confirm": confirm,
+        "caught": caught,
+        "noted": baseline.noted_events(feature, rows),
     }
 
 
@@ -381,6 +392,7 @@ def _hindsight_inputs(
     whole: list[dict[str, Any]],
     since: str,
     monitor: ConveyorMonitor,
+    steps: dict[str, FeatureBaseline],
 ) -> dict[str, Any] | None:
     """What :func:`_hindsight` hands ``fit_rise`` and ``forecast_alarm`` (the cache)."""
     if fb is None:
@@ -399,6 +411,7 @@ def _hindsight_inputs(
     vals, _ = baseline.values_at_mean_payload(feature, fb, past)
     v_all, _ = baseline.values_at_mean_payload(feature, fb, every)
     margins, exceeded = baseline.alarm_margins(feature, fb, past, monitor.settings.z_limit)
+    confirm, caught = baseline.confirmations(past, steps)
     return {
         "times": [h["recorded_at"] for h in past],
         "values": [float(v) for v in vals],
@@ -407,6 +420,9 @@ def _hindsight_inputs(
         "healthy": fb.expected(fb.mean_payload_kg),
         "whole_times": [h["recorded_at"] for h in every],
         "whole_values": [float(v) for v in v_all],
+        "confirm": confirm,
+        "caught": caught,
+        "noted": baseline.noted_events(feature, past),
     }
 
 
@@ -464,8 +480,9 @@ def _remaining_life(
                 ),
                 None,
             )
+        at_k = baselines_at.get(k, {})
         found["hindsight"] = _hindsight(
-            feature, baselines_at.get(k, {}).get(feature), history, whole, since, monitor
+            feature, at_k.get(feature), history, whole, since, monitor, at_k
         )
         row = _judged(found["alarm"], lam, k, feature, true_days)
         for method in METHODS[1:]:
@@ -481,8 +498,10 @@ def _remaining_life(
                     "alarm_recording": alarm,
                     "feature": feature,
                     "true_days": true_days,
-                    "alarm": _alarm_inputs(feature, fb, history, since, monitor),
-                    "hindsight": _hindsight_inputs(feature, fb, history, whole, since, monitor),
+                    "alarm": _alarm_inputs(feature, fb, history, since, monitor, at_k),
+                    "hindsight": _hindsight_inputs(
+                        feature, fb, history, whole, since, monitor, at_k
+                    ),
                     "judged": row,
                 }
             )

@@ -22,7 +22,9 @@ same seed's runs with another ``--per-fault`` share their first conveyor)
 counts once. ``--list`` prints every forecast (earliest < expected < latest,
 ``*`` where the band holds the truth), ``--markdown`` writes the tables of
 the evaluation page, ``--check`` compares the forecasts made now with those
-the run judged (the same code must give the same answers).
+the run judged (the same code must give the same answers). ``plain`` is the monitor's forecast
+with every exceedance counting (a cache written before the recordings' ``confirm`` and
+``caught`` were kept reads so throughout).
 """
 
 from __future__ import annotations
@@ -46,10 +48,15 @@ from chaintwin.diagnose.prognosis import fit_rise, forecast_alarm
 Variant = Callable[[dict[str, Any]], dict[str, Any] | None]
 
 
-def alarm(entry: dict[str, Any], curved: bool = True) -> dict[str, Any] | None:
+def alarm(
+    entry: dict[str, Any], curved: bool = True, confirmed: bool = True
+) -> dict[str, Any] | None:
     """The monitor's forecast (as :func:`chaintwin.diagnose.baseline.forecasts` makes it).
 
     ``curved`` False: the line alone after the change point (the forecast before the curve).
+    ``confirmed`` False: every exceedance counts and every rule met opens the alarm, as the
+    forecast did before it counted them as the monitor does (a cache without ``confirm`` and
+    ``noted`` is read so too).
     """
     a = entry["alarm"]
     if a is None or not a["forecastable"]:
@@ -65,6 +72,9 @@ def alarm(entry: dict[str, Any], curved: bool = True) -> dict[str, Any] | None:
         y=a["y"],
         limit=a["limit"],
         curved=curved,
+        confirm=a.get("confirm") if confirmed else None,
+        caught=a.get("caught") if confirmed else None,
+        noted=a.get("noted") if confirmed else None,
     )
     return None if fc is None else fc.to_dict()
 
@@ -93,6 +103,9 @@ def hindsight(entry: dict[str, Any]) -> dict[str, Any] | None:
         x=a["x"] if a else 3,
         y=a["y"] if a else 10,
         trend=trend,
+        confirm=h.get("confirm"),
+        caught=h.get("caught"),
+        noted=h.get("noted"),
     )
     return None if fc is None else fc.to_dict()
 
@@ -108,6 +121,7 @@ def rows_of(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
         judged["hindsight"] = _judged(hindsight(e), *args)
         judged["window"] = e["judged"]["window"]
         judged["line"] = _judged(alarm(e, curved=False), *args)
+        judged["plain"] = _judged(alarm(e, confirmed=False), *args)
         judged["before"] = e["judged"]
         row["remaining_life"].append(judged)
     return list(rows.values())
@@ -171,7 +185,8 @@ def main(argv: list[str] | None = None) -> int:
                 print(
                     f"{r['key'][0]} {r['key'][1]} {r['fault']:13s} {y['lambda']} "
                     f"{y['feature']:24s} "
-                    f"true {y['true_days']:6.2f}  line {_band(b)}  now {_band(y)}  "
+                    f"true {y['true_days']:6.2f}  line {_band(b)}  plain {_band(y['plain'])}  "
+                    f"now {_band(y)}  "
                     f"hindsight {_band(y['hindsight'])}"
                 )
     if args.check:
@@ -195,11 +210,12 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-METHODS = ("alarm", "line", "window", "hindsight")
-"""Judged: ``alarm`` the monitor's forecast now, ``line`` the line alone after the change
-point (the forecast before the curve and the model error), ``window`` the forecast before
-the alarm's opening was predicted (as the run judged it), ``hindsight`` the trend fitted
-up to the recordings after the alarm."""
+METHODS = ("alarm", "plain", "line", "window", "hindsight")
+"""Judged: ``alarm`` the monitor's forecast now, ``plain`` the same with every exceedance
+counting (plain X-of-Y, as before it counted them as the monitor does), ``line`` the line
+alone after the change point (the forecast before the curve and the model error),
+``window`` the forecast before the alarm's opening was predicted (as the run judged it),
+``hindsight`` the trend fitted up to the recordings after the alarm."""
 
 
 def _got(
@@ -237,15 +253,14 @@ def markdown(out: dict[str, Any]) -> str:
             )
     lines += [
         "",
-        "| fault | λ | alarm: within, covered, expected/true, width/true "
-        "| line: within, covered, expected/true, width/true |",
-        "|---|---|---|---|",
+        "| fault | λ | alarm: within, covered, expected/true, width/true | plain | line |",
+        "|---|---|---|---|---|",
     ]
     faults = sorted({f for x in out["alarm"] for f in x["by_fault"]})
     for f in faults:
-        for a, b in zip(out["alarm"], out["line"], strict=True):
+        for a, p, b in zip(out["alarm"], out["plain"], out["line"], strict=True):
             cells = []
-            for x in (a, b):
+            for x in (a, p, b):
                 c = x["by_fault"].get(f)
                 cells.append(
                     "-"
@@ -253,7 +268,7 @@ def markdown(out: dict[str, Any]) -> str:
                     else f"{c['within']}/{c['sequences']}, {c['covered']}/{c['forecasts']}, "
                     f"{_f(c['median_ratio'])}, {_f(c['median_width'])}"
                 )
-            lines.append(f"| {f.replace('_', ' ')} | {a['lambda']} | {cells[0]} | {cells[1]} |")
+            lines.append(f"| {f.replace('_', ' ')} | {a['lambda']} | {' | '.join(cells)} |")
     return "\n".join(lines) + "\n"
 
 

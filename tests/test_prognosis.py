@@ -8,14 +8,17 @@ from datetime import UTC, datetime, timedelta
 import numpy as np
 import pytest
 
+from chaintwin.diagnose.confirmation import count_exceedance
 from chaintwin.diagnose.health import FeatureBaseline, x_of_y
 from chaintwin.diagnose.prognosis import (
     MIN_F,
     alarm_open,
+    counted,
     fit_curve,
     fit_rise,
     forecast_alarm,
     model_error,
+    window_counts,
 )
 
 T0 = datetime(2026, 1, 1, tzinfo=UTC)
@@ -266,3 +269,118 @@ def test_alarm_open_agrees_with_the_rule_recording_by_recording() -> None:
             elif state and i >= 9 and not any(window):
                 state, since = False, None
         assert alarm_open(e, 3, 10) == (state, since), e
+
+
+def _monitor_counts(
+    past: list[bool], need: list[bool], hit: list[bool], ahead: list[bool], ahead_need: list[bool]
+) -> list[int]:
+    """The monitor's window count at each recording ahead, one recording at a time
+    (:func:`count_exceedance` as :func:`chaintwin.diagnose.alarms.judge` applies it)."""
+    window: list[bool] = []
+    waiting: list[bool] = []
+    was_caught: list[bool] = []
+    for e, c, k in zip(past, need, hit, strict=True):
+        count_exceedance(window, waiting, was_caught, e, confirm=c, caught=k)
+        del window[:-10]
+    out = []
+    for e, c in zip(ahead, ahead_need, strict=True):
+        count_exceedance(window, waiting, was_caught, e, confirm=c)
+        del window[:-10]
+        out.append(sum(window))
+    return out
+
+
+def test_the_futures_count_exceedances_as_the_monitor_does() -> None:
+    """Known answer by a second method: the vectorised window counts of the futures equal
+    the monitor's rule replayed one recording at a time, on random pasts (some recordings
+    needing a neighbour, some caught) and random futures, carried over two chunks as the
+    forecast draws them."""
+    rng = np.random.default_rng(8)
+    y = 10
+    for _ in range(300):
+        m = int(rng.integers(2, 40))
+        past = list(rng.random(m) < rng.uniform(0.1, 0.6))
+        need = list(rng.random(m) < rng.uniform(0.0, 1.0))
+        hit = [n and bool(rng.random() < 0.3) for n in need]
+        state = counted(past, need, hit)
+        flags = np.zeros((1, y - 1), dtype=np.int64)
+        tail = state.counted[-(y - 1) :]
+        flags[:, -len(tail) :] = np.asarray(tail, dtype=np.int64)
+        before = np.array([bool(state.counted[-1]) or state.waiting])
+        waiting = np.array([state.waiting])
+        n1, n2 = int(rng.integers(1, 15)), int(rng.integers(1, 15))
+        new = rng.random((1, n1 + n2)) < rng.uniform(0.1, 0.7)
+        needs = rng.random((1, n1 + n2)) < rng.uniform(0.0, 1.0)
+        c1, ex, wait = window_counts(new[:, :n1], needs[:, :n1], flags, before, waiting, state.held)
+        c2, _, _ = window_counts(
+            new[:, n1:], needs[:, n1:], ex[:, -(y - 1) :], new[:, n1 - 1], wait[:, -1], False
+        )
+        want = _monitor_counts(past, need, hit, list(new[0]), list(needs[0]))
+        assert [*c1[0].tolist(), *c2[0].tolist()] == want, (past, need, hit, new, needs)
+
+
+def _monitor_opens(exceeded: np.ndarray, x: int = 3, y: int = 10) -> int:
+    """The recording at which the monitor's alarm opens, every recording needing a
+    neighbour's confirmation (a 1 ms scope)."""
+    window: list[bool] = []
+    waiting: list[bool] = []
+    was_caught: list[bool] = []
+    for i, e in enumerate(exceeded):
+        count_exceedance(window, waiting, was_caught, bool(e), confirm=True)
+        del window[:-y]
+        if sum(window) >= x:
+            return i
+    return len(exceeded)
+
+
+def test_crossed_never_precedes_the_monitor_s_opening_on_1ms_like_sequences() -> None:
+    """On sequences whose every recording needs a neighbour's confirmation (a 1 ms scope),
+    the forecast says ``crossed`` only once the monitor's alarm is open. Given the raw
+    exceedances with plain X-of-Y it said crossed earlier on some (the test can fail)."""
+    early_raw = 0
+    for seed in range(12):
+        values, margins, exceeded, _ = _sequence(seed, per_rec=0.0006)
+        opens = _monitor_opens(exceeded)
+        for k in range(max(20, opens - 30), min(len(values), opens + 3)):
+            n = k + 1
+            args = ("f", _times(n), values[:n], margins[:n], exceeded[:n], 1.0)
+            fc = forecast_alarm(*args, confirm=[True] * n, caught=[False] * n)
+            if fc is not None and fc.crossed:
+                assert k >= opens, (seed, k, opens)
+            if k == opens:
+                assert fc is not None and fc.crossed, (seed, k)
+            raw = alarm_open(list(exceeded[:n]), 3, 10)[0]
+            early_raw += bool(raw and k < opens)
+    assert early_raw > 0
+
+
+def test_confirmation_delays_the_forecast_opening() -> None:
+    """The same rise on a 1 ms scope (every exceedance needing a neighbour) opens its
+    alarm later than where every exceedance counts: the forecast says so, and the
+    opening replayed over the later recordings agrees in direction."""
+    values, margins, exceeded, alarm = _sequence(3, per_rec=0.0006)
+    k = alarm - 25
+    n = k + 1
+    args = ("f", _times(n), values[:n], margins[:n], exceeded[:n], 1.0)
+    plain = forecast_alarm(*args)
+    ms1 = forecast_alarm(*args, confirm=[True] * n, caught=[False] * n)
+    assert plain is not None and ms1 is not None and not plain.crossed and not ms1.crossed
+    assert ms1.crosses_at >= plain.crosses_at
+    assert ms1.latest is None or plain.latest is None or ms1.latest >= plain.latest
+    assert _monitor_opens(exceeded) >= alarm
+
+
+def test_a_rule_met_where_the_monitor_noted_an_event_opens_no_alarm() -> None:
+    """Known answer: where the monitor noted an item caught instead of alarming, the rule
+    met there opens nothing; the next recording that meets it without a note opens the
+    alarm (as the monitor's), and a forecast there is not yet ``crossed``."""
+    e = [False, True, False, True, True, False, False]
+    assert alarm_open(e[:5], 3, 10) == (True, 1)
+    assert alarm_open(e[:5], 3, 10, noted=[False] * 4 + [True]) == (False, None)
+    assert alarm_open(e, 3, 10, noted=[False] * 4 + [True, False, False]) == (True, 1)
+    values, margins, exceeded, alarm = _sequence(1)
+    n = alarm + 1
+    args = ("f", _times(n), values[:n], margins[:n], exceeded[:n], 1.0)
+    fc = forecast_alarm(*args, noted=[False] * alarm + [True])
+    assert fc is not None and not fc.crossed
+    assert fc.crosses_at > _times(n)[-1]

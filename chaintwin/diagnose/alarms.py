@@ -12,6 +12,7 @@ import uuid
 from datetime import datetime
 
 from .baseline import judge_inputs
+from .confirmation import count_exceedance
 from .features import feature_spec
 from .health import FeatureBaseline
 from .records import Alarm, Evidence, MonitorSettings, iso_utc
@@ -269,17 +270,9 @@ def judge(
         waiting_at = window_times.setdefault(UNCONFIRMED_PREFIX + name, [])
         was_caught = windows.setdefault(CAUGHT_PREFIX + name, [])
         caught_at = window_times.setdefault(CAUGHT_PREFIX + name, [])
-        held = bool(was_caught and was_caught[-1])
-        # the recording before exceeded (counted, or waiting for this one)
-        before = bool(win and win[-1]) or bool(waiting and waiting[-1] and win)
-        if ex.exceeded and not caught and waiting and waiting[-1] and win:
-            win[-1] = True  # the exceedance before, confirmed now
-        counted = ex.exceeded and (not (confirm or caught) or (before and not held))
-        win.append(counted)
+        count_exceedance(win, waiting, was_caught, ex.exceeded, confirm=confirm, caught=caught)
         times.append(at)
-        waiting[:] = [ex.exceeded and not counted]
         waiting_at[:] = [at]
-        was_caught[:] = [caught]
         caught_at[:] = [at]
         del win[: -settings.y]
         del times[: -settings.y]

@@ -12,6 +12,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+from .causes import NOTE_CAUSES
+from .confirmation import needs_confirmation
 from .features import DRIFT_OF, feature_spec, is_tracked
 from .forecasting import forecast_feature
 from .health import FeatureBaseline, fit_baseline, robust_scale
@@ -24,6 +26,7 @@ __all__ = [
     "WEIGHED_SOURCES",
     "alarm_margins",
     "at_mean_payload",
+    "confirmations",
     "fit_features",
     "forecasts",
     "judge_inputs",
@@ -254,6 +257,43 @@ def alarm_margins(
     return margins, [name in (h.get("exceeded") or ()) for h in rows]
 
 
+def confirmations(
+    rows: Sequence[Mapping[str, Any]], baselines: Mapping[str, FeatureBaseline]
+) -> tuple[list[bool], list[bool]]:
+    """Whether each result's exceedances needed a neighbour's confirmation, and was caught.
+
+    :func:`~chaintwin.diagnose.confirmation.needs_confirmation` of each
+    result's ``features``, with the ``residual_step`` baseline of
+    ``baselines`` (the monitor's judgement of each recording, redone).
+    """
+    step = baselines.get("residual_step")
+    confirm: list[bool] = []
+    caught: list[bool] = []
+    for h in rows:
+        feats = {
+            k: math.nan if v is None else float(v) for k, v in (h.get("features") or {}).items()
+        }
+        c, k = needs_confirmation(feats, step)
+        confirm.append(c)
+        caught.append(k)
+    return confirm, caught
+
+
+def noted_events(name: str, rows: Sequence[Mapping[str, Any]]) -> list[bool]:
+    """Whether the monitor noted an event of operation on the feature at each result.
+
+    An item caught, an impulsive residual (:data:`~chaintwin.diagnose.causes.
+    NOTE_CAUSES`): the feature's rule was met there, and no alarm opened.
+    """
+    return [
+        any(
+            c.get("feature") == name and c.get("cause") in NOTE_CAUSES
+            for c in (h.get("causes") or ())
+        )
+        for h in rows
+    ]
+
+
 def forecasts(
     baselines: dict[str, FeatureBaseline],
     history: Sequence[dict[str, Any]],
@@ -309,6 +349,7 @@ def forecasts(
     if len(rows) < 8:
         return []
     times = [datetime.fromisoformat(h["recorded_at"]) for h in rows]
+    confirm, caught = confirmations(rows, baselines) if method == "alarm" else ([], [])
     for name, fb in baselines.items():
         spec = feature_spec(name)
         if spec.cause is None or name in NO_FORECAST:
@@ -320,10 +361,22 @@ def forecasts(
             # the margins of the last recordings stand for those ahead
             margins, _ = alarm_margins(name, fb, rows[-RECENT:], z_limit)
             exceeded = [name in (h.get("exceeded") or ()) for h in rows]
+            noted = noted_events(name, rows)
             healthy = fb.expected(fb.mean_payload_kg)
             limit = fb.limit(z_limit, spec.min_rel)
             fc = forecast_alarm(
-                name, times, vals, margins, exceeded, healthy, x=x, y=y, limit=limit
+                name,
+                times,
+                vals,
+                margins,
+                exceeded,
+                healthy,
+                x=x,
+                y=y,
+                limit=limit,
+                confirm=confirm,
+                caught=caught,
+                noted=noted,
             )
         if fc is not None:
             used = [src for src, v in zip(sources, vals, strict=True) if math.isfinite(v)]

@@ -58,7 +58,8 @@ from .causes import (
     resolve_causes,
     shaft_harmonic,
 )
-from .features import CAUGHT_Z, RecordingFeatures, feature_spec, is_tracked
+from .confirmation import needs_confirmation
+from .features import RecordingFeatures, feature_spec, is_tracked
 from .features import recording_features as extract
 from .health import FeatureBaseline
 from .impacts import POOL, hits_per_revolution, pooled_hits
@@ -428,16 +429,6 @@ class ConveyorMonitor:
         bx, ba, floor = self._baseline_arrays(self.baseline_spectrum)
         return unexplained_peak(spectrum, bx, ba, floor, self._line_orders(self.calibration))
 
-    def _stepped(self, values: Mapping[str, float]) -> bool:
-        """Whether the plateau's level stepped beyond its baseline (``residual_step``
-        beyond :data:`~chaintwin.diagnose.features.CAUGHT_Z` scales): an item caught."""
-        fb = (self.baselines or {}).get("residual_step")
-        value = values.get("residual_step", float("nan"))
-        if fb is None or not math.isfinite(value):
-            return False
-        spec = feature_spec("residual_step")
-        return fb.check(value, float("nan"), CAUGHT_Z, spec.min_rel).exceeded
-
     def _output_harmonic(self, spectrum: Spectrum | None, order: float) -> bool:
         """Whether an unexplained peak lies on the output shaft's comb (:func:`shaft_harmonic`)."""
         if spectrum is None or self.calibration is None or not math.isfinite(order):
@@ -624,9 +615,8 @@ class ConveyorMonitor:
             # it; where it could not look, a step of the plateau's level is the
             # drag it would have found (caught too; where it looked, its verdict
             # stands: an obstacle's hit rings the belt, which steps the level)
-            searched = values.get("belt_travel_m", 0.0) > 0.0
-            caught = (values.get("impact_drags") or 0.0) > 0.0 or (
-                not searched and self._stepped(values)
+            confirm, caught = needs_confirmation(
+                values, (self.baselines or {}).get("residual_step")
             )
             met, change, exceeded = alarms.judge(
                 self.baselines,
@@ -636,7 +626,7 @@ class ConveyorMonitor:
                 self.settings,
                 when,
                 zs,
-                confirm=caught or not searched,
+                confirm=confirm,
                 caught=caught,
             )
             base.exceeded.extend(exceeded)

@@ -35,7 +35,11 @@ threshold and confirmation, instead of where a trend meets a single limit:
    distribution, each recording's noise and margin; with a curve, half of
    them from the curve), one recording per mean spacing of the recent ones;
    a future's alarm opens at the first recording where X of the last Y
-   exceeded (the window continues the recordings' own exceedances).
+   exceedances counted (the window continues the recordings' exceedances as
+   the monitor counted them, :func:`counted`; a future recording's
+   exceedance counts as the monitor will count it, :func:`window_counts`:
+   beside another where it needs a neighbour's confirmation, as often as
+   the last :data:`RECENT` recordings needed one).
    ``crosses_at`` is the median opening (the models' futures weighed by their
    weights), ``earliest`` the earliest of the models' 5 % quantiles and
    ``latest`` the latest of their 95 % quantiles (the 90 % band holds the
@@ -43,9 +47,10 @@ threshold and confirmation, instead of where a trend meets a single limit:
    of a model's futures stay quiet for the horizon). None when the median
    future stays quiet.
 5. **Crossed**: when the alarm rule holds the feature's alarm open at the
-   last recording (opened by X of Y, not yet Y recordings without an
-   exceedance), the forecast says so, dated from the first exceedance of the
-   window that opened it (as the alarm's ``since``).
+   last recording (opened by X of Y counted exceedances, not yet Y
+   recordings without one: the monitor's alarm is open), the forecast says
+   so, dated from the first exceedance of the window that opened it (as the
+   alarm's ``since``).
 """
 
 from __future__ import annotations
@@ -58,8 +63,9 @@ from statistics import NormalDist
 
 import numpy as np
 
-from chaintwin._types import BoolArray, FloatArray
+from chaintwin._types import BoolArray, FloatArray, IntArray
 
+from .confirmation import count_exceedance
 from .forecasting import line_slope
 from .health import Forecast, ForecastBand
 
@@ -71,13 +77,16 @@ __all__ = [
     "NOISE_AFTER",
     "PATHS",
     "RECENT",
+    "Counted",
     "Curve",
     "Rise",
     "alarm_open",
+    "counted",
     "fit_curve",
     "fit_rise",
     "forecast_alarm",
     "model_error",
+    "window_counts",
 ]
 
 MIN_POINTS = 12
@@ -525,11 +534,31 @@ def model_error(
     return max(1.0, float(np.mean(misses))) if misses else 1.0
 
 
-def alarm_open(exceeded: Sequence[bool], x: int, y: int) -> tuple[bool, int | None]:
+def alarm_open(
+    exceeded: Sequence[bool],
+    x: int,
+    y: int,
+    late: Sequence[bool] | None = None,
+    noted: Sequence[bool] | None = None,
+) -> tuple[bool, int | None]:
     """Whether the X-of-Y rule holds an alarm open after the last recording, and since when.
 
     The alarm opens at a recording where X of the last Y exceeded and closes
     after Y recordings without an exceedance (as the monitor's alarms).
+
+    Parameters
+    ----------
+    exceeded : sequence of bool
+        Whether each recording's exceedance counts (:func:`counted`).
+    x, y : int
+        The X-of-Y rule.
+    late : sequence of bool, optional
+        Whether each exceedance counted only from the next recording on (a
+        neighbour's confirmation, :func:`counted`): at its own recording it
+        did not count yet.
+    noted : sequence of bool, optional
+        Whether the monitor noted an event of operation on the feature
+        instead of alarming (an item caught): the rule met there opens no alarm.
 
     Returns
     -------
@@ -538,6 +567,8 @@ def alarm_open(exceeded: Sequence[bool], x: int, y: int) -> tuple[bool, int | No
         opened it (None when not open).
     """
     ex = [bool(e) for e in exceeded]
+    pending = [bool(e) for e in late] if late is not None else [False] * len(ex)
+    note = [bool(e) for e in noted] if noted is not None else [False] * len(ex)
     # after y recordings without an exceedance any alarm is closed: start after the last such
     start, quiet = 0, 0
     for i in range(len(ex) - 1, -1, -1):
@@ -550,12 +581,132 @@ def alarm_open(exceeded: Sequence[bool], x: int, y: int) -> tuple[bool, int | No
     for i in range(start, len(ex)):
         lo = max(start, i - y + 1)
         window = ex[lo : i + 1]
-        if not is_open and sum(window) >= x:
+        window[-1] = window[-1] and not pending[i]  # as the window stood at recording i
+        if not is_open and sum(window) >= x and not note[i]:
             is_open = True
             since = lo + window.index(True)
-        elif is_open and i + 1 >= y and not any(ex[max(0, i - y + 1) : i + 1]):
+        elif is_open and i + 1 >= y and not any([*ex[max(0, i - y + 1) : i], window[-1]]):
             is_open, since = False, None
     return is_open, since
+
+
+@dataclass(frozen=True)
+class Counted:
+    """A feature's exceedances as the monitor counted them (:func:`counted`).
+
+    Attributes
+    ----------
+    counted : list of bool
+        Whether each recording's exceedance counts (after its neighbours).
+    late : list of bool
+        Whether it counted only from the next recording on.
+    waiting : bool
+        The last recording's exceedance waits for the next one to confirm it.
+    held : bool
+        The last recording was caught (it confirms no exceedance).
+    share : float
+        The share of the last :data:`RECENT` recordings whose exceedances
+        needed a neighbour's confirmation (1 on a 1 ms scope), for the
+        recordings ahead.
+    """
+
+    counted: list[bool]
+    late: list[bool]
+    waiting: bool
+    held: bool
+    share: float
+
+
+def counted(
+    exceeded: Sequence[bool],
+    confirm: Sequence[bool] | None = None,
+    caught: Sequence[bool] | None = None,
+) -> Counted:
+    """Replay the monitor's confirmation (:func:`~chaintwin.diagnose.confirmation.
+    count_exceedance`) over a feature's exceedances.
+
+    ``confirm`` and ``caught`` per recording as
+    :func:`~chaintwin.diagnose.confirmation.needs_confirmation` gives them
+    (None: no recording needed a neighbour, every exceedance counts).
+    """
+    n = len(exceeded)
+    need = [False] * n if confirm is None else [bool(c) for c in confirm]
+    hit = [False] * n if caught is None else [bool(c) for c in caught]
+    if len(need) != n or len(hit) != n:
+        raise ValueError(
+            f"confirm and caught need one entry per recording ({n}), got {len(need)} and {len(hit)}"
+        )
+    window: list[bool] = []
+    waiting: list[bool] = []
+    was_caught: list[bool] = []
+    now: list[bool] = []  # whether each counted at its own recording
+    for i, e in enumerate(exceeded):
+        now.append(
+            count_exceedance(window, waiting, was_caught, bool(e), confirm=need[i], caught=hit[i])
+        )
+    late = [w and not m for w, m in zip(window, now, strict=True)]
+    recent = need[-RECENT:]
+    return Counted(
+        counted=window,
+        late=late,
+        waiting=bool(waiting and waiting[-1]),
+        held=bool(was_caught and was_caught[-1]),
+        share=sum(recent) / len(recent) if recent else 0.0,
+    )
+
+
+def window_counts(
+    new: BoolArray,
+    need: BoolArray,
+    flags: IntArray,
+    before: BoolArray,
+    waiting: BoolArray,
+    held: bool,
+) -> tuple[IntArray, IntArray, BoolArray]:
+    """The monitor's count of counted exceedances in each window, over many futures at once.
+
+    The vectorised :func:`~chaintwin.diagnose.confirmation.count_exceedance`
+    for recordings that are not caught: an exceedance that needs a
+    neighbour's confirmation counts beside the exceedance before it (not a
+    caught one) and is confirmed late by the next one.
+
+    Parameters
+    ----------
+    new : (paths, n) bool array
+        Whether each recording ahead exceeded.
+    need : (paths, n) bool array
+        Whether its exceedance needs a neighbour's confirmation.
+    flags : (paths, y - 1) int array
+        The window's counted exceedances before the first of ``new`` (0/1).
+    before, waiting : (paths,) bool array
+        The recording before exceeded (counted or waiting); its exceedance waits.
+    held : bool
+        The recording before was caught.
+
+    Returns
+    -------
+    (int array, int array, bool array)
+        The count of the window at each recording of ``new`` as it stands
+        then (paths × n), the window's flags with those of ``new``
+        (paths × (y - 1 + n), the last ones as they stand after the last
+        recording), and whether each exceedance waits after its recording.
+    """
+    paths, n = new.shape
+    y = flags.shape[1] + 1
+    prev = np.concatenate((before[:, None], new[:, :-1]), axis=1)
+    prev[:, 0] &= not held
+    now = new & (~need | prev)  # counts at its own recording
+    wait = new & ~now
+    # counted once the next recording exceeded too (the last: not yet)
+    final = now | (wait & np.concatenate((new[:, 1:], np.zeros((paths, 1), bool)), axis=1))
+    carried = flags.copy()
+    if y > 1:
+        carried[:, -1] |= (waiting & new[:, 0]).astype(np.int64)
+    ex = np.concatenate((carried, final.astype(np.int64)), axis=1)
+    csum = np.concatenate((np.zeros((paths, 1), dtype=np.int64), np.cumsum(ex, axis=1)), axis=1)
+    # at recording k: the y - 1 before it as they stand then, and its own as it counts then
+    counts = csum[:, y - 1 : y - 1 + n] - csum[:, :n] + now
+    return counts, ex, wait
 
 
 def _openings(
@@ -565,7 +716,7 @@ def _openings(
     steps: int,
     healthy: float,
     margins: FloatArray,
-    carried: Sequence[bool],
+    past: Counted,
     x: int,
     y: int,
     level: float,
@@ -574,7 +725,11 @@ def _openings(
     """The recordings ahead at which each drawn future's alarm opens (inf: not within).
 
     And which futures were drawn from the curve (half of them when there is
-    one, none without).
+    one, none without). A future recording's exceedance counts as the
+    monitor counts it (:func:`~chaintwin.diagnose.confirmation.
+    count_exceedance`): where it needs a neighbour's confirmation (drawn
+    with ``past.share``; the futures are of a wear, not of items caught),
+    only beside another exceedance, the next one confirming it late.
     """
     pick = rng.choice(rise.taus.shape[0], size=PATHS, p=rise.weights)
     tau = rise.taus[pick]
@@ -607,9 +762,13 @@ def _openings(
         sigma[on] = curve.sigmas[pick_c] * np.sqrt(curve.dof / rng.chisquare(curve.dof, k))
         sigma[on] *= rise.noise_ratio
     flags = np.zeros((PATHS, y - 1), dtype=np.int64)
-    tail = [bool(e) for e in carried][-(y - 1) :] if y > 1 else []
+    tail = past.counted[-(y - 1) :] if y > 1 else []
     if tail:
         flags[:, -len(tail) :] = np.asarray(tail, dtype=np.int64)
+    # the last recording's state: exceeded (counted or waiting), waiting, caught
+    before = np.full(PATHS, bool(past.counted and past.counted[-1]) or past.waiting)
+    waiting = np.full(PATHS, past.waiting)
+    held = past.held
     opened = np.full(PATHS, np.inf)
     active = np.arange(PATHS)  # the futures whose alarm has not opened yet
     done = 0
@@ -622,13 +781,21 @@ def _openings(
         values = coef[a, :1] + (coef[a, 1:] + curv[a, None] * s) * s
         values += sigma[a, None] * rng.standard_normal((a.size, n))
         limit = healthy + margins[rng.integers(0, margins.shape[0], (a.size, n))]
-        ex = np.concatenate((flags, (values > limit).astype(np.int64)), axis=1)
-        csum = np.concatenate((np.zeros((a.size, 1), dtype=np.int64), np.cumsum(ex, axis=1)), 1)
-        counts = csum[:, y:] - csum[:, :-y] if y > 1 else csum[:, 1:] - csum[:, :-1]
-        met = counts[:, -n:] >= x
+        new = values > limit
+        if past.share >= 1.0:
+            need = np.ones((a.size, n), dtype=bool)
+        elif past.share > 0.0:
+            need = rng.random((a.size, n)) < past.share
+        else:
+            need = np.zeros((a.size, n), dtype=bool)
+        counts, ex, wait = window_counts(new, need, flags, before, waiting, held)
+        met = counts >= x
         hit = met.any(axis=1)
         opened[a[hit]] = j[np.argmax(met[hit], axis=1)]
         flags = ex[~hit][:, ex.shape[1] - (y - 1) :]
+        before = new[~hit, -1]
+        waiting = wait[~hit, -1]
+        held = False
         active = a[~hit]
         done = int(j[-1])
         known = np.isfinite(opened)
@@ -653,6 +820,9 @@ def forecast_alarm(
     trend: Rise | None = None,
     limit: float | None = None,
     curved: bool = True,
+    confirm: Sequence[bool] | None = None,
+    caught: Sequence[bool] | None = None,
+    noted: Sequence[bool] | None = None,
 ) -> Forecast | None:
     """Forecast when a feature's alarm opens: its rise after the change point, the rule ahead.
 
@@ -672,7 +842,9 @@ def forecast_alarm(
         NaN: unknown; the last :data:`RECENT` are used), feature units.
     exceeded : sequence of bool
         Whether each recording exceeded on the feature (the alarm rule's own
-        judgement, for the window ahead and whether the alarm is open).
+        judgement, for the window ahead and whether the alarm is open),
+        counted as the monitor counts them with ``confirm`` and ``caught``
+        (:func:`counted`).
     healthy : float
         The baseline's value at its mean payload, feature units.
     x, y : int
@@ -694,6 +866,16 @@ def forecast_alarm(
     curved : bool
         Weigh a curved rise beside the line (:func:`fit_rise`); False: the
         line alone, as the forecasts were before the curve.
+    confirm, caught : sequence of bool, optional
+        Per recording, whether its exceedances needed a neighbour's
+        confirmation and whether it was caught
+        (:func:`~chaintwin.diagnose.confirmation.needs_confirmation`; None:
+        none did). The share of the last :data:`RECENT` that needed it is
+        the chance that a recording ahead needs it (1 on a 1 ms scope).
+    noted : sequence of bool, optional
+        Per recording, whether the monitor noted an event of operation on
+        the feature instead of alarming (its rule met there opened no alarm;
+        :func:`alarm_open`).
 
     Returns
     -------
@@ -716,7 +898,8 @@ def forecast_alarm(
     ok = np.isfinite(v)
     if ok.sum() < MIN_POINTS or float(np.ptp(t_all)) <= 0.0:
         return None
-    is_open, since = alarm_open(list(exceeded), x, y)
+    past = counted(exceeded, confirm, caught)
+    is_open, since = alarm_open(past.counted, x, y, past.late, noted)
     recent_m = m[-RECENT:][np.isfinite(m[-RECENT:])]
     threshold = healthy + float(np.median(recent_m)) if recent_m.size else math.nan
     limit = threshold if limit is None else limit
@@ -744,7 +927,7 @@ def forecast_alarm(
     steps = max(1, math.ceil(horizon_days / step))
     rng = np.random.default_rng(seed)
     opened, on = _openings(
-        rise, float(t_all[-1]), step, steps, healthy, recent_m, list(exceeded), x, y, level, rng
+        rise, float(t_all[-1]), step, steps, healthy, recent_m, past, x, y, level, rng
     )
     mid, lo, hi = _opening_quantiles(opened, on, rise.curve_weight, level)
     if not math.isfinite(mid):

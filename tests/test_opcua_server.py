@@ -370,6 +370,30 @@ def test_a_conveyor_added_to_the_store_appears_without_restart(
     assert odd.id in got[1:] and PROFILE.id in got[1:]
 
 
+def test_a_look_at_the_store_that_fails_is_repeated_until_it_publishes(
+    plant: Plant, running: Running, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A commit seen while the store cannot be read (locked for a moment) is published at a
+    later look, with no further commit to wake the watch."""
+    failed = threading.Event()
+    keys = running.server._keys
+
+    def locked_once() -> Any:
+        if not failed.is_set():
+            failed.set()
+            raise OSError("database is locked")
+        return keys()
+
+    monkeypatch.setattr(running.server, "_keys", locked_once)
+    late = PROFILE.model_copy(update={"id": "late-line-9"})
+    plant.store.put_profile(late)  # the only commit: its look fails once
+    assert failed.wait(30)
+    while True:
+        conveyor, _at = running.updates.get(timeout=30)
+        if conveyor == late.id:
+            break
+
+
 def test_a_conveyor_deleted_from_the_store_leaves_and_its_monitored_items_end(
     plant: Plant, running: Running, caplog: pytest.LogCaptureFixture
 ) -> None:

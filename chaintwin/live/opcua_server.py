@@ -45,7 +45,7 @@ from asyncua.ua.status_codes import StatusCodes
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from chaintwin.errors import ConnectorError, StoreError
+from chaintwin.errors import ConnectorError
 from chaintwin.store.queries import signature_columns
 from chaintwin.store.schema import (
     AlarmRow,
@@ -681,6 +681,13 @@ class ResultsServer:
         gone = [c for c in self._owned if c not in keys]
         return [(c, k) for c, k in keys.items() if (self._known.get(c) or _NONE).key != k], gone
 
+    def forget_looks(self) -> None:
+        """Make the next :meth:`refresh` look at the store again in full: after a look
+        that failed part-way, what was committed before it is not yet published (the
+        store's change counter and stamp already moved past it)."""
+        self._watch.close()
+        self._stamp = None
+
     async def refresh(self) -> int:
         """Look at the store once; publish what changed, remove the conveyors that left it.
         Returns the conveyors updated or removed."""
@@ -739,10 +746,9 @@ class ResultsServer:
                     break
                 try:
                     await self.refresh()
-                except (StoreError, OSError, ConnectorError) as exc:
+                except Exception as exc:  # ours, or SQLAlchemy's: the store away for a moment
                     log.error("OPC UA server: cannot read the store (%s)", exc)
-                except Exception as exc:  # SQLAlchemy's: the store away for a moment
-                    log.error("OPC UA server: cannot read the store (%s)", exc)
+                    self.forget_looks()
         finally:
             self.ready.clear()
             self.published.clear()

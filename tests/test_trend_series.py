@@ -165,3 +165,49 @@ def test_trends_of_a_store_written_before_them_are_built_once_and_stored(
     assert series is not None and series.built_from == _key(served)
     assert _answers(served, asks) == first
     assert builds.count == 1
+
+
+def test_a_recording_superseded_without_a_new_result_is_a_change_of_what_they_are_built_from(
+    served: Served,
+) -> None:
+    """A partial recording superseded by a complete one still waiting for its result adds no
+    result and does not touch the health model, yet leaves the trends: the stored ones are
+    then no longer current."""
+    from sqlalchemy import select, update
+    from sqlalchemy.orm import Session
+
+    from chaintwin.store.schema import RecordingRow
+
+    store = served.store
+    before = _key(served)
+    with Session(store.engine) as s, s.begin():
+        first = s.scalar(
+            select(RecordingRow.id)
+            .where(RecordingRow.conveyor_id == PROFILE.id)
+            .order_by(RecordingRow.id)
+            .limit(1)
+        )
+        s.execute(update(RecordingRow).where(RecordingRow.id == first).values(superseded_by=first))
+    try:
+        assert _key(served) != before
+    finally:
+        with Session(store.engine) as s, s.begin():
+            s.execute(
+                update(RecordingRow).where(RecordingRow.id == first).values(superseded_by=None)
+            )
+    assert _key(served) == before
+
+
+def test_a_conveyor_under_live_ingest_holds_one_entry_of_the_page_caches() -> None:
+    """Each new version of a conveyor's reads replaces the one kept before it; other
+    conveyors' entries stay until the cache is full (then the first kept goes)."""
+    from chaintwin.report.data import _keep
+
+    cache: dict[tuple[Any, ...], Any] = {}
+    for version in range(5):
+        _keep(cache, (("db", 0), "a", "profile", version), version, 3)
+    _keep(cache, (("db", 0), "b", "profile", 0), "b", 3)
+    assert cache == {(("db", 0), "a", "profile", 4): 4, (("db", 0), "b", "profile", 0): "b"}
+    _keep(cache, (("db", 0), "c", "profile", 0), "c", 3)
+    _keep(cache, (("db", 0), "d", "profile", 0), "d", 3)
+    assert [k[1] for k in cache] == ["b", "c", "d"]

@@ -497,10 +497,19 @@ def health_part(
     found = _health_part(store, conveyor, profile, stored_forecasts, forecast_bands)
     if key[-1][1] is not None:  # forecasts stored before the read: they are the ones read
         with _HEALTH_LOCK:
-            if len(_HEALTH) >= _HEALTH_KEPT:
-                _HEALTH.pop(next(iter(_HEALTH)))  # the first kept
-            _HEALTH[key] = found
+            _keep(_HEALTH, key, found, _HEALTH_KEPT)
     return found
+
+
+def _keep(cache: dict[tuple[Any, ...], Any], key: tuple[Any, ...], value: Any, most: int) -> None:
+    """Keep ``value`` under ``key`` (whose last part is the version read): the entries
+    of other versions of the same key go, so a conveyor under live ingest holds one
+    entry; at ``most`` entries the first kept goes. Call it holding the cache's lock."""
+    for old in [k for k in cache if k[:-1] == key[:-1]]:
+        del cache[old]
+    if len(cache) >= most:
+        cache.pop(next(iter(cache)))
+    cache[key] = value
 
 
 _HEALTH: dict[tuple[Any, ...], tuple[MonitorState | None, HealthPart]] = {}
@@ -718,9 +727,7 @@ def conveyor_data(
             )
             if key is not None:
                 with _PAGE_ROWS_LOCK:
-                    if len(_PAGE_ROWS) >= _PAGE_ROWS_KEPT:
-                        _PAGE_ROWS.pop(next(iter(_PAGE_ROWS)))  # the first kept
-                    _PAGE_ROWS[key] = kept
+                    _keep(_PAGE_ROWS, key, kept, _PAGE_ROWS_KEPT)
         data.features = list(kept.features)
     if not latest and waterfall <= 0:
         return data

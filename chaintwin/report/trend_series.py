@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import math
 import threading
 from collections.abc import Callable
@@ -36,7 +37,7 @@ from typing import Any
 
 import orjson
 from sqlalchemy import func, select
-from sqlalchemy.exc import IntegrityError, OperationalError
+from sqlalchemy.exc import IntegrityError, OperationalError, SQLAlchemyError
 from sqlalchemy.orm import Session
 
 from chaintwin.diagnose.monitor_state import MonitorState, derived_inputs
@@ -45,7 +46,7 @@ from chaintwin.errors import StoreError
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.store.engine import safe_url
 from chaintwin.store.queries import TREND_POINTS, read_version
-from chaintwin.store.schema import ResultRow, TrendSeriesRow
+from chaintwin.store.schema import RecordingRow, ResultRow, TrendSeriesRow
 from chaintwin.store.store import Store
 
 from .data import ConveyorData, FeatureTrend, conveyor_data
@@ -67,6 +68,8 @@ __all__ = [
     "stored_from",
     "trend_object",
 ]
+
+log = logging.getLogger(__name__)
 
 FORMAT = 1
 """Version of the stored layout (a new one makes every stored series stale)."""
@@ -296,7 +299,8 @@ def built_from(
     inputs: str | None = None,
 ) -> str:
     """SHA-256 of what a conveyor's trends are built from: its newest result and number
-    of results (one seek and one count of the ``(conveyor_id, id)`` index), its health
+    of results (one seek and one count of the ``(conveyor_id, id)`` index), the number
+    of its recordings superseded (partial ones replaced by complete ones), its health
     model's inputs (:func:`~chaintwin.diagnose.monitor_state.derived_inputs`: the
     baselines, their start, the z limit, the model's newest result), its profile and
     ``max_points``. ``inputs``: ``derived_inputs(state)`` when the caller has it.
@@ -313,6 +317,14 @@ def built_from(
                     ResultRow.conveyor_id == conveyor
                 )
             ).one()
+            # a partial recording superseded by a complete one still waiting for its
+            # result leaves the trends (a seek on the index of ``superseded_by``)
+            superseded = s.scalar(
+                select(func.count()).where(
+                    RecordingRow.superseded_by.is_not(None),
+                    RecordingRow.conveyor_id == conveyor,
+                )
+            )
     except OperationalError as exc:
         raise StoreError(
             f"{safe_url(store.url)}: cannot read the results of '{conveyor}' ({exc.orig})"
@@ -320,7 +332,15 @@ def built_from(
     if state is not None and inputs is None:
         inputs = derived_inputs(state)
     model = None if state is None else [state.profile_sha256, inputs]
-    parts = [FORMAT, max_points, newest, int(count), profile.content_hash(), model]
+    parts = [
+        FORMAT,
+        max_points,
+        newest,
+        int(count),
+        int(superseded or 0),
+        profile.content_hash(),
+        model,
+    ]
     return hashlib.sha256(json.dumps(parts).encode()).hexdigest()
 
 
@@ -476,7 +496,16 @@ def build_and_store(
     if read_version(store, conveyor) != version:
         return data, None
     series = series_of(data, before)
-    store_series(store, conveyor, series, replace=replace)
+    if replace:
+        store_series(store, conveyor, series)
+        return data, series
+    # a reader's: what it built is its answer even when storing it fails (the store busy
+    # for a moment, no connection free); the next refit stores them
+    try:
+        store_series(store, conveyor, series, replace=False)
+    except (StoreError, SQLAlchemyError) as exc:
+        log.warning("the trends of '%s' built but not stored: %s", conveyor, exc)
+        return data, None
     return data, series
 
 

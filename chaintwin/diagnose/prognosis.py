@@ -71,6 +71,7 @@ from .health import Forecast, ForecastBand
 
 __all__ = [
     "HELD_OUT",
+    "MAX_STEPS",
     "MIN_AFTER",
     "MIN_F",
     "MIN_POINTS",
@@ -91,6 +92,14 @@ __all__ = [
 
 MIN_POINTS = 12
 """Fewest recordings a rise is fitted to."""
+
+MAX_STEPS = 20_000
+"""Most future recordings a future is drawn over: where the horizon holds more (recordings
+closer than 26 minutes over a year), every ``k``-th is drawn and the alarm rule applied to
+those, so that a slow rise costs at most this many steps per future (a forecast of a
+rise opening in 200 days at one recording every 25 s took 4.6 CPU s without it, 0.14 s
+with it). The opening then comes a little late (fewer chances for X of Y among the drawn
+recordings: 3 % of the time ahead with every 18th drawn)."""
 
 MIN_AFTER = 3
 """Fewest recordings after a change point."""
@@ -925,6 +934,12 @@ def forecast_alarm(
     if not step > 0.0:
         return None
     steps = max(1, math.ceil(horizon_days / step))
+    if steps > MAX_STEPS:
+        # recordings closer than the horizon over MAX_STEPS (26 min for a year): the futures
+        # are drawn at every ``stride``-th recording, the rule applied to those
+        stride = math.ceil(steps / MAX_STEPS)
+        step *= stride
+        steps = max(1, math.ceil(horizon_days / step))
     rng = np.random.default_rng(seed)
     opened, on = _openings(
         rise, float(t_all[-1]), step, steps, healthy, recent_m, past, x, y, level, rng

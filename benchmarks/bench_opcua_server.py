@@ -24,6 +24,12 @@ stores ``--recordings`` new recordings of the real conveyor, one every
    5 s, and its slope (least squares, MB/min; target at most 0.1 over an
    hour: run ``--minutes 60`` for that, the default run is a few minutes).
 
+``--clients N`` sets the number of subscribed clients (0: none, the serving
+process's own work alone) and ``--security none`` serves and connects
+without encryption (the token user's password then crosses in clear: for
+measuring what encryption costs, not for a plant), so a sweep of both gives
+the fixed and the per-client cost of a recording.
+
 ``--idle-s S`` keeps the server idle with its clients for S s after the
 warm-up and prints its CPU rate (with ``--profile``, that window is the one
 profiled); ``--recordings 0`` stops there.
@@ -98,9 +104,12 @@ def _slope_mb_min(samples: list[tuple[float, float]]) -> float:
 
 
 # ---------------------------------------------------------------- the clients' process
-def clients_child(endpoint: str, count: int, conveyors: list[str], cert: str, key: str) -> None:
+def clients_child(
+    endpoint: str, count: int, conveyors: list[str], cert: str, key: str, security: str
+) -> None:
     """``count`` clients subscribed to every conveyor's values; one JSON line per
-    ``LastRecordedAt`` change of the first conveyor (client, value, arrival time)."""
+    ``LastRecordedAt`` change of the first conveyor (client, value, arrival time).
+    ``security`` is the server's ``--opcua-security`` (``none``: no certificate)."""
     from asyncua import Client, ua
     from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
@@ -122,10 +131,11 @@ def clients_child(endpoint: str, count: int, conveyors: list[str], cert: str, ke
         # a loaded machine answers late: asyncua's watchdog gives the server 1 s by default
         client = Client(endpoint, timeout=120, watchdog_intervall=30.0)
         client.application_uri = "urn:chaintwin:bench"
-        await client.set_security(
-            SecurityPolicyBasic256Sha256, certificate=cert, private_key=key,
-            mode=ua.MessageSecurityMode.SignAndEncrypt,
-        )  # fmt: skip
+        if security != "none":
+            await client.set_security(
+                SecurityPolicyBasic256Sha256, certificate=cert, private_key=key,
+                mode=ua.MessageSecurityMode.SignAndEncrypt,
+            )  # fmt: skip
         client.set_user(user)
         client.set_password(token)
         await client.connect()
@@ -305,7 +315,7 @@ def run(args: argparse.Namespace, work: Path) -> None:
     env = dict(os.environ, PYTHONPATH=str(ROOT), OPENBLAS_NUM_THREADS="1")
     log = work / "serve.log"
     serve = ["serve", "--db", url, "--no-web", "--opcua-endpoint", endpoint,
-             "--opcua-cert-dir", str(pki)]  # fmt: skip
+             "--opcua-cert-dir", str(pki), "--opcua-security", args.security]  # fmt: skip
     head = [sys.executable, "-m", "chaintwin"]
     if args.profile is not None:
         head = [sys.executable, __file__, "--serve-profiled", str(args.profile.resolve())]
@@ -334,7 +344,7 @@ def run(args: argparse.Namespace, work: Path) -> None:
         (work / "ids.json").write_text(json.dumps(ids))
         clients = subprocess.Popen(
             [sys.executable, __file__, "--clients-child", endpoint, str(args.clients),
-             str(work / "ids.json"), str(cert), str(key)],
+             str(work / "ids.json"), str(cert), str(key), args.security],
             stdout=subprocess.PIPE, stderr=(work / "clients.log").open("wb"), text=True,
             env=dict(env, BENCH_USER=user, BENCH_TOKEN=token),
         )  # fmt: skip
@@ -473,9 +483,9 @@ def run(args: argparse.Namespace, work: Path) -> None:
 
 def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "--clients-child":
-        endpoint, count, ids, cert, key = sys.argv[2:7]
+        endpoint, count, ids, cert, key, security = sys.argv[2:8]
         sys.path.insert(0, str(ROOT))
-        clients_child(endpoint, int(count), json.loads(Path(ids).read_text()), cert, key)
+        clients_child(endpoint, int(count), json.loads(Path(ids).read_text()), cert, key, security)
         return
     if len(sys.argv) > 1 and sys.argv[1] == "--serve-profiled":
         sys.path.insert(0, str(ROOT))
@@ -497,6 +507,10 @@ def main() -> None:
         "--idle-s", type=float, default=0.0,
         help="after the warm-up, this long with no recording: the idle rate printed, and "
         "profiled instead of the ingest window with --profile",
+    )  # fmt: skip
+    ap.add_argument(
+        "--security", choices=("basic256sha256", "none"), default="basic256sha256",
+        help="the server's --opcua-security and the clients' (none: no certificate)",
     )  # fmt: skip
     ap.add_argument("--keep", type=Path, help="work here and keep it (default: a temp folder)")
     args = ap.parse_args()

@@ -567,12 +567,19 @@ for sub in sorted(p for p in folder.iterdir() if p.is_dir()):
     cals[prof.id] = calibrate(recs, prof)
 kw = {} if refit else {"refit": False}
 in_refit = [0.0]  # CPU seconds inside the refit (this tree's; the old one has none)
-try:
-    import chaintwin.store.derived as derived
+try:  # what ingest calls after it: forecasts and trends (this tree), forecasts (older ones)
+    import chaintwin.report.trend_series as derived
+
+    REFIT = "refit_with_trends"
 except ImportError:
-    derived = None
+    try:
+        import chaintwin.store.derived as derived
+
+        REFIT = "refit"
+    except ImportError:
+        derived = None
 if derived is not None:
-    plain = derived.refit
+    plain = getattr(derived, REFIT)
 
     def timed_refit(*args, **kwargs):
         c = time.process_time()
@@ -581,7 +588,7 @@ if derived is not None:
         finally:
             in_refit[0] += time.process_time() - c
 
-    derived.refit = timed_refit
+    setattr(derived, REFIT, timed_refit)
 with tempfile.TemporaryDirectory() as tmp:
     stores = []
     for name in ("warm", "timed"):

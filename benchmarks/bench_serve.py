@@ -359,9 +359,10 @@ def holds_fault_fleet(url: str, args: argparse.Namespace) -> bool:
 
 def refit_reused(url: str, ids: list[str]) -> dict[str, Any]:
     """Refit a reused store's fault conveyors, as ingest does after it
-    (:func:`chaintwin.store.derived.refit`: forecasts and stored trends; nothing is
-    computed where they are current): a store filled by older code gets what this
-    code stores after ingest. Seconds, and how many conveyors had their trends built."""
+    (its forecasts, ``chaintwin.store.derived.refit``, and its stored trends,
+    ``refit_trends``; nothing is computed where they are current): a store filled by
+    older code gets what this code stores after ingest. Seconds, and how many conveyors
+    had their trends built."""
     from chaintwin.report.trend_series import refit_trends
     from chaintwin.store.derived import refit
 
@@ -369,7 +370,7 @@ def refit_reused(url: str, ids: list[str]) -> dict[str, Any]:
     built = 0
     with Store(url) as store:
         for cid in ids:
-            refit(store, cid, trends=False)
+            refit(store, cid)
             built += refit_trends(store, cid)
     return {"seconds": time.perf_counter() - t0, "conveyors": len(ids), "trends_built": built}
 

@@ -28,7 +28,7 @@ Ingesting 200 conveyors x 10 000 recordings one by one would take days here
    ``insert(ResultRow)`` as :meth:`~chaintwin.store.store.Store.commit_recordings`
    writes them), the older copies first, so that ids grow in recorded order
    as ingest writes them, with the same indexes. Then each conveyor's
-   forecasts are refitted and stored (:func:`chaintwin.store.derived.refit`)
+   forecasts are refitted and stored (:func:`chaintwin.report.trend_series.refit_with_trends`)
    as ingest does after it.
 
 What is not as a real 10 000-recording ingest: the health model (baseline,
@@ -54,9 +54,9 @@ from chaintwin.diagnose.records import MonitorSettings
 from chaintwin.identify.calibration import identification_profile
 from chaintwin.ingest.pipeline import ingest
 from chaintwin.read.profile import ConveyorProfile, load_profile
+from chaintwin.report.trend_series import refit_with_trends as refit
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate
-from chaintwin.store.derived import refit
 from chaintwin.store.engine import _to_json as to_json
 from chaintwin.store.schema import (
     AlarmAliasRow,

@@ -308,9 +308,9 @@ class _Conveyor:
         self.flush()
         self.summary.new_alarms += len({a.id for a in self.monitor.alarms} - self.opened)
         if self.refit:
-            from chaintwin.store.derived import refit
+            from chaintwin.report.trend_series import refit_with_trends
 
-            refit(self.store, self.profile.id)
+            refit_with_trends(self.store, self.profile.id)
 
 
 SCAN_CHUNK = 128

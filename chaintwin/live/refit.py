@@ -2,7 +2,8 @@
 
 Each recording the live service stores marks its conveyor; every
 :data:`REFIT_EVERY_S` the marked conveyors' forecasts and wear rates are
-refitted (:func:`~chaintwin.store.derived.refit`, in a thread) and stored.
+refitted and their trends built (:func:`~chaintwin.report.trend_series.refit_with_trends`,
+in a thread) and stored.
 A page therefore shows forecasts at most :data:`REFIT_EVERY_S` plus one
 refit round behind the newest recording (``forecasts_as_of`` says by how
 many recordings), and a conveyor receiving a recording every few seconds
@@ -56,14 +57,14 @@ class Refitter:
 
         A conveyor that fails is logged and marked again for the next round.
         """
-        from chaintwin.store.derived import refit
+        from chaintwin.report.trend_series import refit_with_trends
 
         with self._lock:
             todo, self._marked = sorted(self._marked), set()
         done = []
         for conveyor in todo:
             try:
-                refit(self.store, conveyor)
+                refit_with_trends(self.store, conveyor)
             except Exception as exc:  # a round goes on; the conveyor is tried again
                 log.error("refitting the forecasts of %s: %s", conveyor, exc)
                 self.mark([conveyor])

@@ -549,7 +549,7 @@ def _health_part(
             # once here); a report fits them here, as the monitor says them
             derived = read_derived(store, conveyor) if stored_forecasts else None
             if stored_forecasts and derived is None:
-                derived = refit(store, conveyor, state, trends=False)
+                derived = refit(store, conveyor, state)
             health = read_health(
                 state,
                 bands=forecast_bands,

@@ -3,8 +3,8 @@
 The trends endpoint's answer is mostly each feature's points (1000 a
 feature at the default ``max_points``, 18 features: 1.7 MB of JSON), which
 change only with a new result or a new health model. They are built after
-ingest, with the forecasts (:func:`~chaintwin.store.derived.refit` calls
-:func:`refit_trends`; in the live service at most
+ingest, after the forecasts (:func:`refit_with_trends`, called by ingest; in
+the live service at most
 :data:`~chaintwin.live.refit.REFIT_EVERY_S` behind), and kept in
 ``trend_series``: each feature's points as one JSON array (one after the
 other in ``points``) and its fixed fields (cause, unit, baseline level,
@@ -44,6 +44,7 @@ from chaintwin.diagnose.monitor_state import MonitorState, derived_inputs
 from chaintwin.diagnose.records import Alarm
 from chaintwin.errors import StoreError
 from chaintwin.read.profile import ConveyorProfile
+from chaintwin.store.derived import Derived
 from chaintwin.store.engine import safe_url
 from chaintwin.store.queries import TREND_POINTS, read_version
 from chaintwin.store.schema import RecordingRow, ResultRow, TrendSeriesRow
@@ -63,6 +64,7 @@ __all__ = [
     "iso_times",
     "read_series",
     "refit_trends",
+    "refit_with_trends",
     "series_of",
     "store_series",
     "stored_from",
@@ -512,7 +514,7 @@ def build_and_store(
 def refit_trends(store: Store, conveyor: str) -> bool:
     """Build and store a conveyor's trends unless those stored are current.
 
-    Called by :func:`~chaintwin.store.derived.refit` after its forecasts.
+    Called by :func:`refit_with_trends` after the forecasts.
     Returns whether they were built and stored now (False: those stored are
     current, no such conveyor, or results came while building: the next
     refit stores them).
@@ -540,3 +542,27 @@ def refit_trends(store: Store, conveyor: str) -> bool:
         )
 
     return build_and_store(store, conveyor, profile, build, built=current)[1] is not None
+
+
+def refit_with_trends(store: Store, conveyor: str) -> Derived | None:
+    """After ingest: a conveyor's forecasts and wear rates
+    (:func:`~chaintwin.store.derived.refit`), then its trends (:func:`refit_trends`);
+    nothing is computed where the stored ones are current.
+
+    Returns
+    -------
+    Derived or None
+        The forecasts stored now; None when the conveyor has no health model (no
+        trends are stored then either).
+
+    Raises
+    ------
+    StoreError
+        When the database fails or the stored model is damaged.
+    """
+    from chaintwin.store import derived
+
+    found = derived.refit(store, conveyor)
+    if found is not None:
+        refit_trends(store, conveyor)
+    return found

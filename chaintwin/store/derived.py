@@ -8,9 +8,10 @@ by :class:`~chaintwin.live.refit.Refitter`, at most
 fingerprint of the model's inputs (:func:`~chaintwin.diagnose.monitor_state.derived_inputs`).
 Pages and the API read them (:func:`read_derived`), never refit them: what
 they show may be behind the newest recording by what the refit has not yet
-reached, and says so (``as_of``). The same refit stores the conveyor's trends
-(:mod:`chaintwin.report.trend_series`), which the trends endpoint reads only
-while no newer result has come (else it builds them: never stale points).
+reached, and says so (``as_of``). Ingest and the live service then store the
+conveyor's trends as well (``chaintwin.report.trend_series.refit_with_trends``,
+a layer above this one), which the trends endpoint reads only while no newer
+result has come (else it builds them: never stale points).
 """
 
 from __future__ import annotations
@@ -106,16 +107,11 @@ def read_derived(store: Store, conveyor: str) -> Derived | None:
         ) from None
 
 
-def refit(
-    store: Store, conveyor: str, state: MonitorState | None = None, *, trends: bool = True
-) -> Derived | None:
+def refit(store: Store, conveyor: str, state: MonitorState | None = None) -> Derived | None:
     """Compute a conveyor's forecasts and wear rates from its stored health model; store them.
 
     Nothing is computed when the stored ones were computed from the same
     inputs. ``state``: the conveyor's health model as stored (read when None).
-    ``trends``: then build and store its trends as well
-    (:func:`chaintwin.report.trend_series.refit_trends`: nothing is built when
-    the stored ones were built from the same results and health model).
 
     Returns
     -------
@@ -131,12 +127,7 @@ def refit(
         state = store.state(conveyor)
         if state is None:
             return None
-    found = _refit_derived(store, conveyor, state)
-    if trends:
-        from chaintwin.report.trend_series import refit_trends
-
-        refit_trends(store, conveyor)
-    return found
+    return _refit_derived(store, conveyor, state)
 
 
 def _refit_derived(store: Store, conveyor: str, state: MonitorState) -> Derived:

@@ -25,12 +25,13 @@ reached: ``as_of``).
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
 import math
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
@@ -292,6 +293,17 @@ def series_of(data: ConveyorData, built: str, max_points: int = TREND_POINTS) ->
     return TrendSeries(built, header, b"".join(chunks), datetime.now(UTC).isoformat())
 
 
+@contextlib.contextmanager
+def _reading(store: Store, what: str) -> Iterator[Session]:
+    """The store's session for a read of ``what``; a database failure as
+    :class:`~chaintwin.errors.StoreError` naming it."""
+    try:
+        with store.session() as s:
+            yield s
+    except OperationalError as exc:
+        raise StoreError(f"{safe_url(store.url)}: cannot read {what} ({exc.orig})") from None
+
+
 def built_from(
     store: Store,
     conveyor: str,
@@ -312,25 +324,18 @@ def built_from(
     StoreError
         When the database fails.
     """
-    try:
-        with store.session() as s:
-            newest, count = s.execute(
-                select(func.max(ResultRow.id), func.count()).where(
-                    ResultRow.conveyor_id == conveyor
-                )
-            ).one()
-            # a partial recording superseded by a complete one still waiting for its
-            # result leaves the trends (a seek on the index of ``superseded_by``)
-            superseded = s.scalar(
-                select(func.count()).where(
-                    RecordingRow.superseded_by.is_not(None),
-                    RecordingRow.conveyor_id == conveyor,
-                )
+    with _reading(store, f"the results of '{conveyor}'") as s:
+        newest, count = s.execute(
+            select(func.max(ResultRow.id), func.count()).where(ResultRow.conveyor_id == conveyor)
+        ).one()
+        # a partial recording superseded by a complete one still waiting for its
+        # result leaves the trends (a seek on the index of ``superseded_by``)
+        superseded = s.scalar(
+            select(func.count()).where(
+                RecordingRow.superseded_by.is_not(None),
+                RecordingRow.conveyor_id == conveyor,
             )
-    except OperationalError as exc:
-        raise StoreError(
-            f"{safe_url(store.url)}: cannot read the results of '{conveyor}' ({exc.orig})"
-        ) from None
+        )
     if state is not None and inputs is None:
         inputs = derived_inputs(state)
     model = None if state is None else [state.profile_sha256, inputs]
@@ -390,19 +395,14 @@ def read_series(store: Store, conveyor: str, built: str | None = None) -> TrendS
     StoreError
         When the database fails.
     """
-    try:
-        with store.session() as s:
-            q = select(TrendSeriesRow).where(TrendSeriesRow.conveyor_id == conveyor)
-            if built is not None:
-                q = q.where(TrendSeriesRow.built_from == built)
-            row = s.scalars(q).one_or_none()
-            if row is None:
-                return None
-            return TrendSeries(row.built_from, dict(row.header), bytes(row.points), row.computed_at)
-    except OperationalError as exc:
-        raise StoreError(
-            f"{safe_url(store.url)}: cannot read the trends of '{conveyor}' ({exc.orig})"
-        ) from None
+    with _reading(store, f"the trends of '{conveyor}'") as s:
+        q = select(TrendSeriesRow).where(TrendSeriesRow.conveyor_id == conveyor)
+        if built is not None:
+            q = q.where(TrendSeriesRow.built_from == built)
+        row = s.scalars(q).one_or_none()
+        if row is None:
+            return None
+        return TrendSeries(row.built_from, dict(row.header), bytes(row.points), row.computed_at)
 
 
 def stored_from(store: Store, conveyor: str) -> str | None:
@@ -413,15 +413,10 @@ def stored_from(store: Store, conveyor: str) -> str | None:
     StoreError
         When the database fails.
     """
-    try:
-        with store.session() as s:
-            found = s.scalar(
-                select(TrendSeriesRow.built_from).where(TrendSeriesRow.conveyor_id == conveyor)
-            )
-    except OperationalError as exc:
-        raise StoreError(
-            f"{safe_url(store.url)}: cannot read the trends of '{conveyor}' ({exc.orig})"
-        ) from None
+    with _reading(store, f"the trends of '{conveyor}'") as s:
+        found = s.scalar(
+            select(TrendSeriesRow.built_from).where(TrendSeriesRow.conveyor_id == conveyor)
+        )
     return None if found is None else str(found)
 
 

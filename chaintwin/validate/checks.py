@@ -98,15 +98,21 @@ def check_sampling(recording: Recording) -> list[RecordingWarning]:
     return out
 
 
+def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the starts and lengths of the runs of True values."""
+    padded = np.concatenate(([False], mask, [False])).astype(np.int8)
+    edges = np.flatnonzero(np.diff(padded))
+    starts, stops = edges[0::2], edges[1::2]
+    return starts, stops - starts
+
+
 def _longest_run(mask: np.ndarray) -> tuple[int, int]:
     """Return (start, length) of the longest run of True values."""
     if not mask.any():
         return 0, 0
-    padded = np.concatenate(([False], mask, [False])).astype(np.int8)
-    edges = np.flatnonzero(np.diff(padded))
-    starts, stops = edges[0::2], edges[1::2]
-    k = int(np.argmax(stops - starts))
-    return int(starts[k]), int(stops[k] - starts[k])
+    starts, lengths = _runs(mask)
+    k = int(np.argmax(lengths))
+    return int(starts[k]), int(lengths[k])
 
 
 def check_torque_saturation(
@@ -146,7 +152,9 @@ def check_torque_saturation(
             extreme = float(np.max(np.abs(tsp)))
             if extreme <= 0.0 or not np.isfinite(extreme):
                 return []
-            flat = np.abs(tsp) >= extreme * (1.0 - 2e-3)
+            # the clamped set point carries the scope's noise and rounding
+            # (0.01 Nm at 7.5 Nm): 0.5 % keeps a clamp one run
+            flat = np.abs(tsp) >= extreme * (1.0 - 5e-3)
             peak = float(np.max(np.abs(wsp)))
             lag = np.abs(wsp - recording.speed) > max(0.02 * peak, 2.0 * RPM_TO_RAD_S)
             at_limit = flat & lag
@@ -163,7 +171,15 @@ def check_torque_saturation(
             "the drive could not deliver the torque asked for, so the speed did not follow",
         )
     ]
-    return out + _windup(recording, start + length)
+    # a ramp up and a ramp down can both clamp: the windup follows whichever
+    # (the longest run is reported, every long-enough run is looked after)
+    starts, lengths = _runs(at_limit)
+    for s, n in zip(starts, lengths, strict=True):
+        if n >= need:
+            windup = _windup(recording, int(s + n))
+            if windup:
+                return out + windup
+    return out
 
 
 def _windup(recording: Recording, after: int) -> list[RecordingWarning]:

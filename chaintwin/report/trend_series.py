@@ -38,7 +38,7 @@ from typing import Any
 
 import orjson
 from sqlalchemy import func, select
-from sqlalchemy.exc import IntegrityError, OperationalError, SQLAlchemyError
+from sqlalchemy.exc import OperationalError, SQLAlchemyError
 from sqlalchemy.orm import Session
 
 from chaintwin.diagnose.monitor_state import MonitorState, derived_inputs
@@ -50,6 +50,7 @@ from chaintwin.store.engine import safe_url
 from chaintwin.store.queries import TREND_POINTS, read_version
 from chaintwin.store.schema import RecordingRow, ResultRow, TrendSeriesRow
 from chaintwin.store.store import Store
+from chaintwin.store.upsert import upsert_conveyor_row
 
 from .data import ConveyorData, FeatureTrend, conveyor_data
 
@@ -435,25 +436,7 @@ def store_series(store: Store, conveyor: str, series: TrendSeries, *, replace: b
         "header": series.header,
         "points": series.points,
     }
-    for _attempt in range(2):
-        try:
-            with Session(store.engine) as s, s.begin():
-                row = s.get(TrendSeriesRow, conveyor)
-                if row is None:
-                    s.add(TrendSeriesRow(conveyor_id=conveyor, **values))
-                elif replace:
-                    for k, v in values.items():
-                        setattr(row, k, v)
-            return
-        except IntegrityError:
-            if not replace:
-                return  # a refit stored them meanwhile
-            continue  # another refit inserted the row first: update it
-        except OperationalError as exc:
-            raise StoreError(
-                f"{safe_url(store.url)}: cannot store the trends of '{conveyor}' "
-                f"({exc.orig}); run the ingest again"
-            ) from None
+    upsert_conveyor_row(store, TrendSeriesRow, conveyor, values, what="the trends", replace=replace)
 
 
 def _state(store: Store, conveyor: str) -> MonitorState | None:

@@ -20,9 +20,7 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
 
-from sqlalchemy import select
-from sqlalchemy.exc import IntegrityError, OperationalError
-from sqlalchemy.orm import Session
+from sqlalchemy.exc import OperationalError
 
 from chaintwin.diagnose.monitor_state import MonitorState, derived_inputs, derived_of
 from chaintwin.errors import StoreError
@@ -30,6 +28,7 @@ from chaintwin.errors import StoreError
 from .engine import safe_url
 from .schema import DerivedHealthRow
 from .store import Store
+from .upsert import upsert_conveyor_row
 
 __all__ = ["Derived", "read_derived", "refit"]
 
@@ -145,23 +144,5 @@ def _refit_derived(store: Store, conveyor: str, state: MonitorState) -> Derived:
         "computed_at": found.computed_at,
         "content": found.content,  # null for NaN: the column's serializer
     }
-    for _attempt in range(2):
-        try:
-            with Session(store.engine) as s, s.begin():
-                row = s.execute(
-                    select(DerivedHealthRow).where(DerivedHealthRow.conveyor_id == conveyor)
-                ).scalar_one_or_none()
-                if row is None:
-                    s.add(DerivedHealthRow(conveyor_id=conveyor, **values))
-                else:
-                    for k, v in values.items():
-                        setattr(row, k, v)
-            return found
-        except IntegrityError:
-            continue  # another refit inserted the row first: update it
-        except OperationalError as exc:
-            raise StoreError(
-                f"{safe_url(store.url)}: cannot store the derived health of '{conveyor}' "
-                f"({exc.orig}); run the ingest again"
-            ) from None
+    upsert_conveyor_row(store, DerivedHealthRow, conveyor, values, what="the derived health")
     return found

@@ -284,59 +284,35 @@ def _judged(
     }
 
 
-def _hindsight(
-    feature: str,
-    fb: FeatureBaseline | None,
-    history: list[dict[str, Any]],
-    whole: list[dict[str, Any]],
-    since: str,
-    monitor: ConveyorMonitor,
-    steps: dict[str, FeatureBaseline],
+def hindsight_forecast(
+    feature: str, h: dict[str, Any] | None, x: int, y: int
 ) -> dict[str, Any] | None:
-    """The alarm's opening after ``history``'s last recording, the trend fitted to ``whole``."""
-    if fb is None:
+    """The alarm's opening after the last recording of ``h`` (:func:`_hindsight_inputs`), the
+    trend fitted to the recordings after the alarm too."""
+    if h is None:
         return None
-    z_limit, x, y = monitor.settings.z_limit, monitor.settings.x, monitor.settings.y
-
-    def monitored(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-        return [
-            h
-            for h in rows
-            if h.get("status") == "monitored" and h.get("recorded_at") and h["recorded_at"] >= since
-        ]
-
-    past, every = monitored(history), monitored(whole)
-    if len(past) < 8 or not every:
-        return None
-    t0 = datetime.fromisoformat(past[0]["recorded_at"])
-
-    def days(rows: list[dict[str, Any]]) -> np.ndarray:
-        return np.array(
-            [(datetime.fromisoformat(h["recorded_at"]) - t0).total_seconds() / 86400 for h in rows]
-        )
-
-    v_all = np.asarray(baseline.values_at_mean_payload(feature, fb, every)[0])
-    ok = np.isfinite(v_all)
-    trend = fit_rise(days(every)[ok], v_all[ok])
+    t0 = datetime.fromisoformat(h["times"][0])
+    days = np.array(
+        [(datetime.fromisoformat(t) - t0).total_seconds() / 86400 for t in h["whole_times"]]
+    )
+    v = np.asarray(h["whole_values"], dtype=np.float64)
+    ok = np.isfinite(v)
+    trend = fit_rise(days[ok], v[ok])
     if trend is None:
         return None
-    vals, _ = baseline.values_at_mean_payload(feature, fb, past)
-    margins, exceeded = baseline.alarm_margins(feature, fb, past, z_limit)
-    confirm, caught = baseline.confirmations(past, steps)
-    noted = baseline.noted_events(feature, past)
     fc = forecast_alarm(
         feature,
-        [datetime.fromisoformat(h["recorded_at"]) for h in past],
-        vals,
-        margins,
-        exceeded,
-        fb.expected(fb.mean_payload_kg),
+        [datetime.fromisoformat(t) for t in h["times"]],
+        h["values"],
+        h["margins"],
+        h["exceeded"],
+        h["healthy"],
         x=x,
         y=y,
         trend=trend,
-        confirm=confirm,
-        caught=caught,
-        noted=noted,
+        confirm=h.get("confirm"),
+        caught=h.get("caught"),
+        noted=h.get("noted"),
     )
     return None if fc is None else fc.to_dict()
 
@@ -394,7 +370,7 @@ def _hindsight_inputs(
     monitor: ConveyorMonitor,
     steps: dict[str, FeatureBaseline],
 ) -> dict[str, Any] | None:
-    """What :func:`_hindsight` hands ``fit_rise`` and ``forecast_alarm`` (the cache)."""
+    """What :func:`hindsight_forecast` is made from (kept in the cache)."""
     if fb is None:
         return None
 
@@ -481,15 +457,16 @@ def _remaining_life(
                 None,
             )
         at_k = baselines_at.get(k, {})
-        found["hindsight"] = _hindsight(
-            feature, at_k.get(feature), history, whole, since, monitor, at_k
+        fb = at_k.get(feature)
+        hindsight = _hindsight_inputs(feature, fb, history, whole, since, monitor, at_k)
+        found["hindsight"] = hindsight_forecast(
+            feature, hindsight, monitor.settings.x, monitor.settings.y
         )
         row = _judged(found["alarm"], lam, k, feature, true_days)
         for method in METHODS[1:]:
             row[method] = _judged(found[method], lam, k, feature, true_days)
         out.append(row)
         if inputs is not None:
-            fb = baselines_at.get(k, {}).get(feature)
             inputs.append(
                 {
                     "lambda": lam,
@@ -499,9 +476,7 @@ def _remaining_life(
                     "feature": feature,
                     "true_days": true_days,
                     "alarm": _alarm_inputs(feature, fb, history, since, monitor, at_k),
-                    "hindsight": _hindsight_inputs(
-                        feature, fb, history, whole, since, monitor, at_k
-                    ),
+                    "hindsight": hindsight,
                     "judged": row,
                 }
             )

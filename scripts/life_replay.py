@@ -41,9 +41,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from fidelity_monitoring import _judged, life_summary
+from fidelity_monitoring import _judged, hindsight_forecast, life_summary
 
-from chaintwin.diagnose.prognosis import fit_rise, forecast_alarm
+from chaintwin.diagnose.prognosis import forecast_alarm
 
 Variant = Callable[[dict[str, Any]], dict[str, Any] | None]
 
@@ -81,33 +81,10 @@ def alarm(
 
 def hindsight(entry: dict[str, Any]) -> dict[str, Any] | None:
     """The forecast with the rise fitted up to the recordings after the alarm."""
-    h, a = entry["hindsight"], entry["alarm"]
-    if h is None:
-        return None
-    t0 = datetime.fromisoformat(h["times"][0])
-    days = np.array(
-        [(datetime.fromisoformat(t) - t0).total_seconds() / 86400 for t in h["whole_times"]]
+    a = entry["alarm"]
+    return hindsight_forecast(
+        entry["feature"], entry["hindsight"], a["x"] if a else 3, a["y"] if a else 10
     )
-    v = np.asarray(h["whole_values"], dtype=np.float64)
-    ok = np.isfinite(v)
-    trend = fit_rise(days[ok], v[ok])
-    if trend is None:
-        return None
-    fc = forecast_alarm(
-        entry["feature"],
-        [datetime.fromisoformat(t) for t in h["times"]],
-        h["values"],
-        h["margins"],
-        h["exceeded"],
-        h["healthy"],
-        x=a["x"] if a else 3,
-        y=a["y"] if a else 10,
-        trend=trend,
-        confirm=h.get("confirm"),
-        caught=h.get("caught"),
-        noted=h.get("noted"),
-    )
-    return None if fc is None else fc.to_dict()
 
 
 def rows_of(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:

@@ -280,6 +280,24 @@ def _aicc(sse: float, n: int, k: int) -> float:
     return n * math.log(sse / n) + 2.0 * k + 2.0 * k * (k + 1) / max(n - k - 1, 1)
 
 
+def _centred(
+    t: FloatArray, y: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray, float] | None:
+    """``t`` and ``y`` as float arrays, ``y`` less its mean and its sum of squares about it.
+
+    None with fewer than :data:`MIN_POINTS` values or no spread (no rise to fit).
+    """
+    t = np.asarray(t, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    if t.shape[0] < MIN_POINTS:
+        return None
+    yc = y - float(y.mean())
+    sst = float(yc @ yc)
+    if not sst > 0.0:
+        return None
+    return t, y, yc, sst
+
+
 def fit_curve(t: FloatArray, y: FloatArray) -> Curve | None:
     """The flat-then-curved rises through (t, y) at every change point, if any rises ever faster.
 
@@ -297,15 +315,11 @@ def fit_curve(t: FloatArray, y: FloatArray) -> Curve | None:
         recordings after them and give a positive curvature; None when there
         are none (or fewer than :data:`MIN_POINTS` values).
     """
-    t = np.asarray(t, dtype=np.float64)
-    y = np.asarray(y, dtype=np.float64)
+    centred = _centred(t, y)
+    if centred is None:
+        return None
+    t, y, yc, sst = centred
     n = t.shape[0]
-    if n < MIN_POINTS:
-        return None
-    yc = y - float(y.mean())
-    sst = float(yc @ yc)
-    if not sst > 0.0:
-        return None
     taus = t[: n - MIN_AFTER - 1]
     s = np.maximum(0.0, t[None, :] - taus[:, None])
     s2 = s * s
@@ -372,16 +386,12 @@ def fit_rise(t: FloatArray, y: FloatArray, *, curved: bool = True) -> Rise | Non
         None with fewer than :data:`MIN_POINTS` values, no spread, a slope
         not positive or an F statistic below :data:`MIN_F`.
     """
-    t = np.asarray(t, dtype=np.float64)
-    y = np.asarray(y, dtype=np.float64)
+    centred = _centred(t, y)
+    if centred is None:
+        return None
+    t, y, yc, sst = centred
     n = t.shape[0]
-    if n < MIN_POINTS:
-        return None
     ybar = float(y.mean())
-    yc = y - ybar
-    sst = float(yc @ yc)
-    if not sst > 0.0:
-        return None
     taus = t[: n - MIN_AFTER]
     s = np.maximum(0.0, t[None, :] - taus[:, None])
     sbar = s.mean(axis=1)

@@ -330,7 +330,7 @@ def built_from(
             select(func.max(ResultRow.id), func.count()).where(ResultRow.conveyor_id == conveyor)
         ).one()
         # a partial recording superseded by a complete one still waiting for its
-        # result leaves the trends (a seek on the index of ``superseded_by``)
+        # result leaves the trends (counted from ix_recordings_conveyor_superseded alone)
         superseded = s.scalar(
             select(func.count()).where(
                 RecordingRow.superseded_by.is_not(None),

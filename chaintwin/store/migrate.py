@@ -53,7 +53,7 @@ __all__ = [
     "upgrade",
 ]
 
-HEAD_REVISION = "0012"
+HEAD_REVISION = "0013"
 """The revision of the tables this chaintwin reads and writes."""
 
 BASELINE_REVISION = "0001"

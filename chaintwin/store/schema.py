@@ -150,7 +150,12 @@ class RecordingRow(Base):
     samples: Mapped[bytes] = mapped_column(LargeBinary)
     superseded_by: Mapped[int | None] = mapped_column(Integer, nullable=True, index=True)
     """The id of the complete recording that replaced this partial one (same conveyor,
-    file name and recorded time); None while it stands. Revision 0008."""
+    file name and recorded time); None while it stands. Revision 0010."""
+
+    __table_args__ = (
+        # a conveyor's superseded recordings counted from the index alone (revision 0013)
+        Index("ix_recordings_conveyor_superseded", "conveyor_id", "superseded_by"),
+    )
 
 
 class ResultRow(Base):

@@ -154,7 +154,7 @@ def check_torque_saturation(
                 return []
             # the clamped set point carries the scope's noise and rounding
             # (0.01 Nm at 7.5 Nm): 0.5 % keeps a clamp one run
-            flat = np.abs(tsp) >= extreme * (1.0 - 5e-3)
+            flat = np.abs(tsp) >= extreme * (1.0 - 2e-3)
             peak = float(np.max(np.abs(wsp)))
             lag = np.abs(wsp - recording.speed) > max(0.02 * peak, 2.0 * RPM_TO_RAD_S)
             at_limit = flat & lag

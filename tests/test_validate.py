@@ -213,6 +213,43 @@ def test_a_hard_ramp_at_12_ms_is_flagged_saturated_and_wound_up(
             assert "torque_saturated" not in found and "speed_windup" not in found, (seed, found)
 
 
+@pytest.mark.parametrize(
+    ("name", "payload_kg", "ramp_s"),
+    [("white-belt-01", 0.0, 0.1), ("incline-line-02", 60.0, 0.25)],
+)
+def test_a_normal_ramp_without_a_profile_is_not_called_saturated(
+    name: str, payload_kg: float, ramp_s: float
+) -> None:
+    """A ramp's flat torque with the speed lagging a little is no clamp.
+
+    At 1 ms these ramps stay clear of the limit (the check with the profile's
+    limit finds nothing) while their torque set point is flat within 0.5 %
+    for a few samples and the speed lags by 2-4 % of the top speed: the check
+    without a profile called most of them saturated (and wound up after).
+    """
+    from conftest import EXAMPLES
+
+    from chaintwin.read.profile import load_profile
+    from chaintwin.simulate.virtual import Realism, default_setpoints, run_virtual
+    from chaintwin.validate.checks import check_torque_saturation
+
+    profile = load_profile(EXAMPLES / "profiles" / f"{name}.yaml")
+    realism, dt = Realism(), 0.001
+    sp = default_setpoints(
+        profile, duration_s=realism.max_samples * dt, ramp_s=ramp_s, lead_s=realism.pretrigger_s
+    )
+    clear = 0
+    for seed in range(8):
+        rec = run_virtual(
+            profile, payload_kg=payload_kg, sample_time_s=dt, seed=seed, setpoints=sp
+        ).recording
+        if check_torque_saturation(rec, profile.torque_limit_nm):
+            continue  # this one does touch the limit
+        clear += 1
+        assert check_torque_saturation(rec, None) == [], (name, seed)
+    assert clear >= 6
+
+
 def test_two_samples_at_the_limit_are_enough(reference_profile: ConveyorProfile) -> None:
     import dataclasses
 

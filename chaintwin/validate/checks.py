@@ -152,15 +152,18 @@ def check_torque_saturation(
             extreme = float(np.max(np.abs(tsp)))
             if extreme <= 0.0 or not np.isfinite(extreme):
                 return []
-            # the clamped set point carries the scope's noise and rounding
-            # (0.01 Nm at 7.5 Nm): 0.5 % keeps a clamp one run
-            flat = np.abs(tsp) >= extreme * (1.0 - 2e-3)
+            # the clamped set point carries the scope's noise and rounding (up to
+            # 0.025 Nm at 7.5 Nm at 12 ms): within 0.5 % keeps a clamp one run. A
+            # normal ramp's torque is flat too and its speed lags a little: a
+            # clamp's lag is over 5 % of the top speed for SATURATION_MIN_S and
+            # 2 samples (docs/data-contract.md)
+            flat = np.abs(tsp) >= extreme * (1.0 - 5e-3)
             peak = float(np.max(np.abs(wsp)))
-            lag = np.abs(wsp - recording.speed) > max(0.02 * peak, 2.0 * RPM_TO_RAD_S)
+            lag = np.abs(wsp - recording.speed) > max(0.05 * peak, 2.0 * RPM_TO_RAD_S)
             at_limit = flat & lag
             what = "torque set point (held flat at its extreme while the speed lags)"
             level = extreme
-            need = 2
+            need = max(2, int(np.ceil(SATURATION_MIN_S / dt - 1e-9)))
     start, length = _longest_run(at_limit)
     if length < need:
         return []

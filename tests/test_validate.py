@@ -266,3 +266,16 @@ def test_two_samples_at_the_limit_are_enough(reference_profile: ConveyorProfile)
     ins = inspect_recording(clamped, reference_profile)
     w = next(w for w in ins.warnings if w.code == "torque_saturated")
     assert "for 24 ms" in w.message
+
+
+def test_the_data_contract_lists_every_recording_warning_code() -> None:
+    """The table of warning codes in docs/data-contract.md is WARNING_CODES, both ways."""
+    import re
+    from pathlib import Path
+
+    from chaintwin.read.recording import WARNING_CODES
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "data-contract.md").read_text()
+    table = text[text.index("| code | when |") : text.index("WARNING_CODES` is the list")]
+    documented = set(re.findall(r"^\| `([a-z_]+)` \|", table, flags=re.M))
+    assert documented == set(WARNING_CODES)

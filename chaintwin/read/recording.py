@@ -29,6 +29,7 @@ __all__ = [
 WarningCode = Literal[
     "incomplete_cycle",
     "torque_saturated",
+    "speed_windup",
     "no_motion",
     "irregular_sample_time",
     "payload_changed",
@@ -41,6 +42,7 @@ WarningCode = Literal[
 WARNING_CODES: Mapping[str, str] = {
     "incomplete_cycle": "the recording does not hold a whole movement (starts or ends in motion)",
     "torque_saturated": "the torque set point sits at the torque limit for a noticeable time",
+    "speed_windup": "after a saturation the speed overshoots its set point (controllers wound up)",
     "no_motion": "the speed never leaves standstill",
     "irregular_sample_time": "the time steps are not uniform",
     "payload_changed": "(from weighing) the load changed during the movement",

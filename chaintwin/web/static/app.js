@@ -335,15 +335,19 @@ window.chaintwin = (function () {
       });
     });
     const body = document.querySelector("table.alarms tbody");
+    // asked before the request and again when its answer is in: a reason typed (or a
+    // field entered) while the request was under way must not be replaced by it
+    const typing = () =>
+      body.contains(document.activeElement) ||
+      Array.from(body.querySelectorAll("input:not([type=hidden])")).some((i) => i.value);
     live(async () => {
-      const typing = Array.from(body.querySelectorAll("input:not([type=hidden])")).some((i) => i.value);
-      if (typing) return;
+      if (typing()) return;
       const r = await fetch("/alarms", { credentials: "same-origin" });
       if (r.status === 401 || r.redirected) { window.location = "/login"; return; }
       if (!r.ok) return;
       const page = new DOMParser().parseFromString(await r.text(), "text/html");
       const fresh = page.querySelector("table.alarms tbody");
-      if (fresh) body.replaceChildren(...Array.from(fresh.childNodes).map((n) => document.adoptNode(n)));
+      if (fresh && !typing()) body.replaceChildren(...Array.from(fresh.childNodes).map((n) => document.adoptNode(n)));
     });
   }
 

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from datetime import UTC, datetime, timedelta
 
 import httpx
 import pytest
-from test_web import PROFILE, Served, _error
+from test_web import PROFILE, Served, _error, expect_connected
 
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate
@@ -229,7 +230,7 @@ def test_in_a_browser_a_reason_typed_while_the_list_reloads_is_kept(served: Serv
         page.click("form.login button")
         page.wait_for_url(served.base + "/")
         page.goto(served.base + "/alarms")
-        page.wait_for_function("window.chaintwin.updates >= 0")
+        expect_connected(page)
         tr = f"tr[data-alarm='{alarm['id']}']"
         field = page.locator(f"{tr} form.comment input[name=text]")
         field.wait_for()
@@ -239,7 +240,9 @@ def test_in_a_browser_a_reason_typed_while_the_list_reloads_is_kept(served: Serv
             f"/api/v1/alarms/{alarm['id']}/comments", json={"text": "from the API"}
         )
         assert done.status_code == 200, done.text
+        deadline = time.monotonic() + 30.0
         while not held:  # the change reaches the page within a poll of the store
+            assert time.monotonic() < deadline, "the alarm list did not reload on the change"
             page.wait_for_timeout(50)
         field.fill("chain guide worn")
         with page.expect_response(served.base + "/alarms"):

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from chaintwin.errors import ModelError
@@ -165,6 +165,7 @@ def test_fold_known_answers(f_hz: float, sample_time_s: float, expected: float) 
     f_hz=st.floats(min_value=0.0, max_value=1.0e5, allow_nan=False),
     sample_time_s=st.floats(min_value=1.0e-5, max_value=1.0),
 )
+@settings(deadline=None)  # a pause of the loaded CI machine is no failure of the property
 def test_fold_stays_in_band(f_hz: float, sample_time_s: float) -> None:
     apparent = fold_frequency(f_hz, sample_time_s)
     nyquist = 0.5 / sample_time_s

@@ -128,6 +128,14 @@ def served(
     s.close()
 
 
+def expect_connected(page: Any, timeout_s: float = 30.0) -> None:
+    """Wait until the page's event stream is open (``window.chaintwin.connected``)."""
+    deadline = time.monotonic() + timeout_s
+    while not page.evaluate("window.chaintwin.connected === true"):
+        assert time.monotonic() < deadline, f"{page.url}: its event stream did not open"
+        page.wait_for_timeout(50)
+
+
 def _error(response: httpx.Response, status: int, code: str) -> str:
     assert response.status_code == status, response.text
     body = response.json()
@@ -839,6 +847,9 @@ def test_in_a_browser_log_in_see_charts_acknowledge_and_a_viewer_refused(
             before = row.text_content()
             assert before
             page.evaluate("window.notReloaded = true")
+            # the stream listens before the store changes (a change before it started is
+            # shown by the page's first refresh on "ready", not counted as an update)
+            expect_connected(page)
             late = run_virtual(PROFILE, payload_kg=38.0, seed=321).recording
             late_file = write_recording(late, tmp_path / "late.csv")
             summary = ingest([str(late_file)], {PROFILE.id: PROFILE}, served.store, workers=1)
@@ -884,6 +895,8 @@ def test_in_a_browser_log_in_see_charts_acknowledge_and_a_viewer_refused(
             assert convo.inner_text("strong.health") in ("alarm", "acknowledged")
             assert convo.inner_text("strong.ne107") == "failure"
             convo.evaluate("window.notReloaded = true")
+            expect_connected(convo)
+            expect_connected(viewer)
             body = {"kind": "cleaning", "why": "rails cleaned"}
             done = served.client("maintainer").post(
                 f"/api/v1/conveyors/{PROFILE.id}/maintenance", json=body

@@ -96,12 +96,21 @@ window.chaintwin = (function () {
   }
 
   // Refresh on the server's events (GET /api/v1/events); poll every 30 s if they cannot come.
+  // The stream's first "ready" refreshes once: a change stored between the page's own
+  // reads and the stream's start is sent by no event (later "ready"s are reconnects
+  // with nothing changed; a change meanwhile comes as "update").
   function live(onUpdate) {
     let timer = null;
     const fallback = () => { if (timer === null) timer = setInterval(onUpdate, 30000); };
     if (!window.EventSource) { fallback(); return; }
     const source = new EventSource("/api/v1/events");
+    let first = true;
+    source.addEventListener("ready", () => {
+      window.chaintwin.connected = true;
+      if (first) { first = false; onUpdate(null); }
+    });
     source.addEventListener("update", (e) => {
+      window.chaintwin.connected = true;
       window.chaintwin.updates += 1;
       onUpdate(JSON.parse(e.data));
     });
@@ -335,10 +344,13 @@ window.chaintwin = (function () {
       });
     });
     const body = document.querySelector("table.alarms tbody");
-    // asked before the request and again when its answer is in: a reason typed (or a
-    // field entered) while the request was under way must not be replaced by it
+    // asked before the request and again when its answer is in: a reason typed, a field
+    // entered or a button pressed while the request was under way must not be replaced
+    let pressing = false;
+    body.addEventListener("pointerdown", () => { pressing = true; });
+    window.addEventListener("pointerup", () => { pressing = false; });
     const typing = () =>
-      body.contains(document.activeElement) ||
+      pressing || body.contains(document.activeElement) ||
       Array.from(body.querySelectorAll("input:not([type=hidden])")).some((i) => i.value);
     live(async () => {
       if (typing()) return;
@@ -351,7 +363,7 @@ window.chaintwin = (function () {
     });
   }
 
-  return { fleetPage, conveyorPage, alarmsPage, updates: 0 };
+  return { fleetPage, conveyorPage, alarmsPage, updates: 0, connected: false };
 })();
 
 // The page names what it runs on the script element (data-page): no inline script.

@@ -332,7 +332,7 @@ window.chaintwin = (function () {
   }
 
   // The alarm list: its rows again from the server (rendered and escaped there) on each
-  // update, unless a maintainer is typing a reason into one of them.
+  // update, but for the one a maintainer is working in.
   function alarmsPage() {
     // each conveyor form posts to its conveyor's address (no inline handler: the CSP
     // allows none)
@@ -344,22 +344,31 @@ window.chaintwin = (function () {
       });
     });
     const body = document.querySelector("table.alarms tbody");
-    // asked before the request and again when its answer is in: a reason typed, a field
-    // entered or a button pressed while the request was under way must not be replaced
-    let pressing = false;
-    body.addEventListener("pointerdown", () => { pressing = true; });
-    window.addEventListener("pointerup", () => { pressing = false; });
-    const typing = () =>
-      pressing || body.contains(document.activeElement) ||
-      Array.from(body.querySelectorAll("input:not([type=hidden])")).some((i) => i.value);
+    // The row a maintainer is working in (a field focused or filled in, a button pressed)
+    // stays as it is, the others are replaced: a reason being typed is never lost, and a
+    // list left open with a field focused still follows the plant.
+    let pressed = null;
+    body.addEventListener("pointerdown", (e) => { pressed = e.target.closest("tr"); });
+    ["pointerup", "pointercancel"].forEach((t) => window.addEventListener(t, () => { pressed = null; }));
+    const busy = () => Array.from(body.rows).find((tr) =>
+      tr === pressed || tr.contains(document.activeElement) ||
+      Array.from(tr.querySelectorAll("input:not([type=hidden])")).some((i) => i.value));
     live(async () => {
-      if (typing()) return;
       const r = await fetch("/alarms", { credentials: "same-origin" });
       if (r.status === 401 || r.redirected) { window.location = "/login"; return; }
       if (!r.ok) return;
       const page = new DOMParser().parseFromString(await r.text(), "text/html");
       const fresh = page.querySelector("table.alarms tbody");
-      if (fresh && !typing()) body.replaceChildren(...Array.from(fresh.childNodes).map((n) => document.adoptNode(n)));
+      if (!fresh) return;
+      const rows = Array.from(fresh.rows).map((n) => document.adoptNode(n));
+      const keep = busy();  // asked when the answer is in, not before the request
+      if (!keep) { body.replaceChildren(...rows); return; }
+      const at = rows.findIndex((tr) => tr.dataset.alarm === keep.dataset.alarm);
+      if (at < 0) return;  // its alarm left the list meanwhile: the rest waits until done
+      // the kept row is never taken out (that would blur a focused field)
+      Array.from(body.childNodes).forEach((n) => { if (n !== keep) n.remove(); });
+      rows.slice(0, at).forEach((tr) => body.insertBefore(tr, keep));
+      body.append(...rows.slice(at + 1));
     });
   }
 

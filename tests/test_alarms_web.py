@@ -8,7 +8,7 @@ from datetime import UTC, datetime, timedelta
 
 import httpx
 import pytest
-from test_web import PROFILE, Served, _error, expect_connected
+from test_web import PROFILE, Served, _error, expect_connected, log_in
 
 from chaintwin.simulate.faults import Fault
 from chaintwin.simulate.fleet import generate
@@ -162,10 +162,7 @@ def test_in_a_browser_acknowledge_shelve_comment_and_unshelve(served: Served) ->
         browser = p.chromium.launch(executable_path=str(CHROMIUM))
         page = browser.new_page()
         page.on("console", lambda m: broken.append(m.text) if m.type == "error" else None)
-        page.goto(served.base + "/login")
-        page.fill("#token", served.tokens["maintainer"])
-        page.click("form.login button")
-        page.wait_for_url(served.base + "/")
+        log_in(page, served, "maintainer")
         page.goto(served.base + "/alarms")
         row = page.locator("table.alarms tbody tr").first
         aid = row.get_attribute("data-alarm")
@@ -225,10 +222,7 @@ def test_in_a_browser_a_reason_typed_while_the_list_reloads_is_kept(served: Serv
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=str(CHROMIUM))
         page = browser.new_page()
-        page.goto(served.base + "/login")
-        page.fill("#token", served.tokens["maintainer"])
-        page.click("form.login button")
-        page.wait_for_url(served.base + "/")
+        log_in(page, served, "maintainer")
         page.goto(served.base + "/alarms")
         expect_connected(page)
         tr = f"tr[data-alarm='{alarm['id']}']"

@@ -11,7 +11,7 @@ from datetime import datetime, timedelta
 from pathlib import Path
 
 import pytest
-from test_web import CHROMIUM, PROFILE, Served, _error, fleet, served
+from test_web import CHROMIUM, PROFILE, Served, _error, fleet, log_in, served
 
 from chaintwin.calibrating.procedure import calibrate
 from chaintwin.diagnose import monitor_state
@@ -173,10 +173,7 @@ def test_in_a_browser_the_page_of_a_conveyor_in_alarm_draws_every_trend(
             page.on("request", lambda r: asked.append(r.url) if "/trends" in r.url else None)
             page.on("console", lambda m: broken.append(m.text) if m.type == "error" else None)
             page.on("pageerror", lambda e: broken.append(str(e)))
-            page.goto(served.base + "/login")
-            page.fill("#token", served.tokens["viewer"])
-            page.click("form.login button")
-            page.wait_for_url(served.base + "/")
+            log_in(page, served, "viewer")
             page.goto(f"{served.base}/conveyors/{PROFILE.id}")
             page.wait_for_function(
                 "(n) => Array.from(document.querySelectorAll('#trends .trend'))"

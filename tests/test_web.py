@@ -128,6 +128,14 @@ def served(
     s.close()
 
 
+def log_in(page: Any, served: Served, role: str) -> None:
+    """Log the browser page in through the login form with the role's token."""
+    page.goto(served.base + "/login")
+    page.fill("#token", served.tokens[role])
+    page.click("form.login button")
+    page.wait_for_url(served.base + "/")
+
+
 def expect_connected(page: Any, timeout_s: float = 30.0) -> None:
     """Wait until the page's event stream is open (``window.chaintwin.connected``)."""
     deadline = time.monotonic() + timeout_s
@@ -625,10 +633,7 @@ def test_in_a_browser_a_trend_shows_its_forecast_band(rising: Served) -> None:
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=str(CHROMIUM))
         page = browser.new_page()
-        page.goto(rising.base + "/login")
-        page.fill("#token", rising.tokens["viewer"])
-        page.click("form.login button")
-        page.wait_for_url(rising.base + "/")
+        log_in(page, rising, "viewer")
         page.goto(f"{rising.base}/conveyors/{PROFILE.id}")
         chart = "#trends .trend[data-feature=friction]"
         page.wait_for_selector(f"{chart} .main-svg", timeout=30000)
@@ -660,10 +665,7 @@ def test_in_a_browser_a_missing_tlf_or_payload_is_said_in_words(rising: Served) 
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=str(CHROMIUM))
         page = browser.new_page()
-        page.goto(rising.base + "/login")
-        page.fill("#token", rising.tokens["viewer"])
-        page.click("form.login button")
-        page.wait_for_url(rising.base + "/")
+        log_in(page, rising, "viewer")
         # as served: the TLF drawn
         page.wait_for_selector("#tlf-chart .main-svg")
         page.route("**/api/v1/conveyors", unweighed)
@@ -872,10 +874,7 @@ def test_in_a_browser_log_in_see_charts_acknowledge_and_a_viewer_refused(
             assert "acknowledged by maintainer-1" in page.content()
             # a viewer cannot open the upload page
             viewer = browser.new_page()
-            viewer.goto(served.base + "/login")
-            viewer.fill("#token", served.tokens["viewer"])
-            viewer.click("form.login button")
-            viewer.wait_for_url(served.base + "/")
+            log_in(viewer, served, "viewer")
             answer = viewer.goto(served.base + "/upload")
             assert answer is not None and answer.status == 403
             assert "needs the role maintainer" in viewer.content()
@@ -887,10 +886,7 @@ def test_in_a_browser_log_in_see_charts_acknowledge_and_a_viewer_refused(
             # next recording
             convo = browser.new_page()
             convo.on("console", lambda m: broken.append(m.text) if m.type == "error" else None)
-            convo.goto(served.base + "/login")
-            convo.fill("#token", served.tokens["viewer"])
-            convo.click("form.login button")
-            convo.wait_for_url(served.base + "/")
+            log_in(convo, served, "viewer")
             convo.goto(served.base + f"/conveyors/{quote(PROFILE.id)}")
             assert convo.inner_text("strong.health") in ("alarm", "acknowledged")
             assert convo.inner_text("strong.ne107") == "failure"

@@ -106,15 +106,6 @@ def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return starts, stops - starts
 
 
-def _longest_run(mask: np.ndarray) -> tuple[int, int]:
-    """Return (start, length) of the longest run of True values."""
-    if not mask.any():
-        return 0, 0
-    starts, lengths = _runs(mask)
-    k = int(np.argmax(lengths))
-    return int(starts[k]), int(lengths[k])
-
-
 def check_torque_saturation(
     recording: Recording, torque_limit_nm: float | None
 ) -> list[RecordingWarning]:
@@ -134,7 +125,8 @@ def check_torque_saturation(
     # a set point at the known limit is the controller's output clamped: one
     # sample says so (at 12 ms a hard ramp shows the limit in 1-3 samples);
     # the actual torque near it, or a flat top without a known limit, needs more
-    need = max(3, int(np.ceil(SATURATION_MIN_S / dt - 1e-9)))
+    span = int(np.ceil(SATURATION_MIN_S / dt - 1e-9))  # samples in SATURATION_MIN_S
+    need = max(3, span)
     tsp = recording.torque_setpoint
     with np.errstate(all="ignore"):
         if torque_limit_nm is not None:
@@ -163,10 +155,12 @@ def check_torque_saturation(
             at_limit = flat & lag
             what = "torque set point (held flat at its extreme while the speed lags)"
             level = extreme
-            need = max(2, int(np.ceil(SATURATION_MIN_S / dt - 1e-9)))
-    start, length = _longest_run(at_limit)
-    if length < need:
+            need = max(2, span)
+    starts, lengths = _runs(at_limit)
+    if not lengths.size or int(lengths.max()) < need:
         return []
+    k = int(np.argmax(lengths))
+    start, length = int(starts[k]), int(lengths[k])
     out = [
         RecordingWarning(
             "torque_saturated",
@@ -176,7 +170,6 @@ def check_torque_saturation(
     ]
     # a ramp up and a ramp down can both clamp: the windup follows whichever
     # (the longest run is reported, every long-enough run is looked after)
-    starts, lengths = _runs(at_limit)
     for s, n in zip(starts, lengths, strict=True):
         if n >= need:
             windup = _windup(recording, int(s + n))

@@ -823,3 +823,17 @@ def test_a_long_ingest_keeps_only_the_stored_history_in_memory(
     assert longest <= 4 + 3  # the kept history and at most one group not yet stored
     assert capped == whole
     assert capped_alarms == whole_alarms
+
+
+def test_a_failing_read_names_what_was_read_and_the_store(tmp_path: Path) -> None:
+    from sqlalchemy import text
+
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    with Store(url) as store:
+        with pytest.raises(StoreError) as caught, store.reading("the trends of 'belt-01'") as s:
+            s.execute(text("SELECT * FROM no_such_table"))
+        assert str(caught.value) == (
+            f"{url}: cannot read the trends of 'belt-01' (no such table: no_such_table)"
+        )
+        with store.reading("the conveyors") as s:  # the store reads on afterwards
+            assert s.execute(text("SELECT 1")).scalar() == 1

@@ -25,28 +25,25 @@ reached: ``as_of``).
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import logging
 import math
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
 
 import orjson
 from sqlalchemy import func, select
-from sqlalchemy.exc import OperationalError, SQLAlchemyError
-from sqlalchemy.orm import Session
+from sqlalchemy.exc import SQLAlchemyError
 
 from chaintwin.diagnose.monitor_state import MonitorState, derived_inputs
 from chaintwin.diagnose.records import Alarm
 from chaintwin.errors import StoreError
 from chaintwin.read.profile import ConveyorProfile
 from chaintwin.store.derived import Derived
-from chaintwin.store.engine import safe_url
 from chaintwin.store.queries import TREND_POINTS, read_version
 from chaintwin.store.schema import RecordingRow, ResultRow, TrendSeriesRow
 from chaintwin.store.store import Store
@@ -294,17 +291,6 @@ def series_of(data: ConveyorData, built: str, max_points: int = TREND_POINTS) ->
     return TrendSeries(built, header, b"".join(chunks), datetime.now(UTC).isoformat())
 
 
-@contextlib.contextmanager
-def _reading(store: Store, what: str) -> Iterator[Session]:
-    """The store's session for a read of ``what``; a database failure as
-    :class:`~chaintwin.errors.StoreError` naming it."""
-    try:
-        with store.session() as s:
-            yield s
-    except OperationalError as exc:
-        raise StoreError(f"{safe_url(store.url)}: cannot read {what} ({exc.orig})") from None
-
-
 def built_from(
     store: Store,
     conveyor: str,
@@ -325,7 +311,7 @@ def built_from(
     StoreError
         When the database fails.
     """
-    with _reading(store, f"the results of '{conveyor}'") as s:
+    with store.reading(f"the results of '{conveyor}'") as s:
         newest, count = s.execute(
             select(func.max(ResultRow.id), func.count()).where(ResultRow.conveyor_id == conveyor)
         ).one()
@@ -396,7 +382,7 @@ def read_series(store: Store, conveyor: str, built: str | None = None) -> TrendS
     StoreError
         When the database fails.
     """
-    with _reading(store, f"the trends of '{conveyor}'") as s:
+    with store.reading(f"the trends of '{conveyor}'") as s:
         q = select(TrendSeriesRow).where(TrendSeriesRow.conveyor_id == conveyor)
         if built is not None:
             q = q.where(TrendSeriesRow.built_from == built)
@@ -414,7 +400,7 @@ def stored_from(store: Store, conveyor: str) -> str | None:
     StoreError
         When the database fails.
     """
-    with _reading(store, f"the trends of '{conveyor}'") as s:
+    with store.reading(f"the trends of '{conveyor}'") as s:
         found = s.scalar(
             select(TrendSeriesRow.built_from).where(TrendSeriesRow.conveyor_id == conveyor)
         )

@@ -20,12 +20,8 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
 
-from sqlalchemy.exc import OperationalError
-
 from chaintwin.diagnose.monitor_state import MonitorState, derived_inputs, derived_of
-from chaintwin.errors import StoreError
 
-from .engine import safe_url
 from .schema import DerivedHealthRow
 from .store import Store
 from .upsert import upsert_conveyor_row
@@ -94,16 +90,11 @@ def read_derived(store: Store, conveyor: str) -> Derived | None:
     StoreError
         When the database fails.
     """
-    try:
-        with store.session() as s:
-            row = s.get(DerivedHealthRow, conveyor)
-            if row is None:
-                return None
-            return Derived(dict(row.content), row.inputs, row.latest, row.computed_at)
-    except OperationalError as exc:
-        raise StoreError(
-            f"{safe_url(store.url)}: cannot read the derived health of '{conveyor}' ({exc.orig})"
-        ) from None
+    with store.reading(f"the derived health of '{conveyor}'") as s:
+        row = s.get(DerivedHealthRow, conveyor)
+        if row is None:
+            return None
+        return Derived(dict(row.content), row.inputs, row.latest, row.computed_at)
 
 
 def refit(store: Store, conveyor: str, state: MonitorState | None = None) -> Derived | None:

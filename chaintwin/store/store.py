@@ -261,6 +261,22 @@ class Store:
             finally:
                 _READING.reset(token)
 
+    @contextlib.contextmanager
+    def reading(self, what: str) -> Iterator[Session]:
+        """:meth:`session` for a read of ``what`` ("the trends of 'belt-01'"), a failing
+        database told as :class:`~chaintwin.errors.StoreError` naming it.
+
+        Raises
+        ------
+        StoreError
+            When the database fails.
+        """
+        try:
+            with self.session() as s:
+                yield s
+        except OperationalError as exc:
+            raise StoreError(f"{safe_url(self.url)}: cannot read {what} ({exc.orig})") from None
+
     # ------------------------------------------------------------ conveyors
     def put_profile(self, profile: ConveyorProfile) -> None:
         """Add a conveyor, or update its profile.

@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator
 from datetime import UTC, datetime, timedelta
+from typing import Any
 
 import httpx
 import pytest
@@ -267,3 +268,35 @@ def test_in_a_browser_a_reason_typed_while_the_list_reloads_is_kept(served: Serv
         for c in a["comments"]
     ]
     assert texts[-2:] == ["from the API", "chain guide worn"]
+
+
+def test_an_alarm_without_a_known_change_is_served_with_null(served: Served) -> None:
+    """An impact count's baseline is zero, so its alarm has no relative change (None in
+    the health model): the demo's short-fast-03 made GET /api/v1/alarms answer 500."""
+    viewer = served.client("viewer")
+    (alarm, *_) = viewer.get("/api/v1/alarms").json()
+
+    def set_change(value: float | None) -> None:
+        def edit(states: dict[str, Any]) -> None:
+            (state,) = states["conveyors"].values()
+            (stored,) = [a for a in state["alarms"] if a["id"] == alarm["id"]]
+            stored["change"] = value
+
+        served.store.edit_state(alarm["conveyor"], edit)
+
+    set_change(None)
+    try:
+        listed = viewer.get("/api/v1/alarms")
+        assert listed.status_code == 200, listed.text
+        assert [a["change"] for a in listed.json() if a["id"] == alarm["id"]] == [None]
+        detail = viewer.get(f"/api/v1/conveyors/{alarm['conveyor']}")
+        assert detail.status_code == 200, detail.text
+        browser = served.client()
+        login = browser.post("/login", data={"token": served.tokens["viewer"]})
+        assert login.status_code == 303, login.text
+        for page in ("/alarms", f"/conveyors/{alarm['conveyor']}"):
+            shown = browser.get(page)
+            assert shown.status_code == 200, (page, shown.text)
+    finally:
+        set_change(alarm["change"])
+    assert viewer.get("/api/v1/alarms").json()[0]["change"] == alarm["change"]

@@ -166,7 +166,11 @@ class Alarm(Closed):
     conveyor: str
     feature: str
     cause: str
-    change: Number = Field(description="Relative change of the feature that opened it")
+    change: Number | None = Field(
+        description="Relative change of the feature that opened it against its baseline "
+        "(0.2 = 20 % above); null where none is known (a baseline of zero, as an impact "
+        "count's)"
+    )
     since: Time | None
     opened_at: Time | None
     last_seen: Time | None
